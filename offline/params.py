@@ -1,0 +1,454 @@
+"""Frozen parameter sets for soil, wheel, contact tuning and rover, with TOML I/O.
+
+All fields are SI (m, N, Pa, rad). TOML files carry the unit in every key name
+(``radius_m``, ``friction_angle_deg``, ``k_kN_per_m_n_plus_2``) and are converted once,
+here, where they enter. Presets are named after their source.
+
+Presets
+-------
+``SOIL_DISSERTATION_T53_GROUSERED`` / ``..._SMOOTH``
+    Soil Direct #90 sand, dissertation Table 5.3 (n2 differs per wheel).
+``SOIL_DISSERTATION_T42``
+    Table 4.2 (soil-flow chapter): angle of repose 29 deg, c = 0.
+``WHEEL_K10_MINI_T42``, ``WHEEL_GROUSERED_T52``, ``WHEEL_SMOOTH_T52``
+    Dissertation Tables 4.2 and 5.2.
+``WHEEL_GROUSERED_PUBLISHED_CODE``
+    The geometry of the published code used with the shared single-wheel data
+    (r = 0.058 m, b = 0.050 m, h_g = 0.005 m, mu = 0.1, zeta = 0.2).
+``TUNING_T54_GROUSERED`` / ``TUNING_T54_SMOOTH``
+    Per-slip-angle a0..b1 of Table 5.4 (a dict keyed by slip angle in degrees).
+``TUNING_T72_LINEAR``
+    The linear a(beta) fit of Table 7.2, eqs. (7.8)-(7.9).
+``ROVER_MINI_T72``
+    The mini rover of Table 7.2.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+__all__ = [
+    "ParameterError",
+    "Soil",
+    "Wheel",
+    "ContactTuning",
+    "Rover",
+    "ParameterSet",
+    "load_toml",
+    "save_toml",
+    "SOIL_DISSERTATION_T53_GROUSERED",
+    "SOIL_DISSERTATION_T53_SMOOTH",
+    "SOIL_DISSERTATION_T42",
+    "WHEEL_K10_MINI_T42",
+    "WHEEL_GROUSERED_T52",
+    "WHEEL_SMOOTH_T52",
+    "WHEEL_GROUSERED_PUBLISHED_CODE",
+    "TUNING_T54_GROUSERED",
+    "TUNING_T54_SMOOTH",
+    "TUNING_T72_LINEAR",
+    "ROVER_MINI_T72",
+]
+
+
+class ParameterError(ValueError):
+    """A parameter is missing, non-finite, out of its physical range or in the wrong unit."""
+
+
+def _check_finite(owner: str, name: str, value: float) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise ParameterError(f"{owner}.{name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ParameterError(f"{owner}.{name} must be finite, got {value!r}")
+
+
+def _check_positive(owner: str, name: str, value: float) -> None:
+    _check_finite(owner, name, value)
+    if value <= 0.0:
+        raise ParameterError(f"{owner}.{name} must be > 0, got {value!r}")
+
+
+def _check_range(owner: str, name: str, value: float, lo: float, hi: float, hint: str = "") -> None:
+    _check_finite(owner, name, value)
+    if not lo <= value <= hi:
+        raise ParameterError(f"{owner}.{name} = {value!r} outside [{lo}, {hi}]{hint}")
+
+
+_DEG_HINT = " (radians expected: did you pass degrees? use math.radians)"
+
+
+@dataclass(frozen=True)
+class Soil:
+    """Soil properties of the terramechanics (ch. 5) and soil-flow (ch. 4) models.
+
+    Parameters
+    ----------
+    k : float
+        Pressure-sinkage modulus of eq. (5.5), N/m^(n+2) (Table 5.3: 8000 kN/m^(n+2) = 8e6).
+    n0, n1, n2 : float
+        Sinkage exponent coefficients of eq. (5.6): n = n0 + n1 s (slip), n0 - n2 s (skid).
+    friction_angle : float
+        Internal friction angle phi, rad.
+    unit_weight : float
+        Soil specific weight rho of eqs. (5.22)-(5.24), N/m^3 (13.03 kN/m^3 = 13030).
+    cohesion : float
+        Cohesion c, Pa.
+    shear_modulus : float
+        Shear deformation modulus K of eq. (5.10), m.
+    repose_angle : float
+        Angle of repose used by the soil-flow model (ch. 4), rad.
+    name, source : str
+        Provenance.
+    """
+
+    k: float
+    n0: float
+    n1: float
+    n2: float
+    friction_angle: float
+    unit_weight: float
+    cohesion: float
+    shear_modulus: float
+    repose_angle: float
+    name: str = "soil"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        o = "Soil"
+        _check_positive(o, "k", self.k)
+        _check_positive(o, "n0", self.n0)
+        _check_range(o, "n1", self.n1, 0.0, 10.0)
+        _check_range(o, "n2", self.n2, 0.0, 10.0)
+        _check_range(o, "friction_angle", self.friction_angle, 1e-6, math.radians(60.0), _DEG_HINT)
+        _check_range(o, "repose_angle", self.repose_angle, 1e-6, math.radians(60.0), _DEG_HINT)
+        _check_positive(o, "unit_weight", self.unit_weight)
+        _check_range(o, "cohesion", self.cohesion, 0.0, 1e6)
+        _check_positive(o, "shear_modulus", self.shear_modulus)
+        if self.k < 1e3:
+            raise ParameterError(
+                f"Soil.k = {self.k!r} N/m^(n+2) is implausibly small: k is in SI; "
+                "8000 kN/m^(n+2) is 8.0e6 (did you pass kN?)"
+            )
+
+
+@dataclass(frozen=True)
+class Wheel:
+    """Rigid wheel geometry (Tables 4.2, 5.2).
+
+    Parameters
+    ----------
+    radius : float
+        Rim radius r, m.
+    width : float
+        Width b, m.
+    grouser_height : float
+        h_g, m; the shearing radius is r_s = r + h_g (section 5.2).
+    grouser_area_ratio : float
+        mu of eq. (5.9): fraction of the rim covered by grouser tips (1 for a smooth wheel).
+    grouser_volume_fraction : float
+        zeta of eq. (4.3): fraction of each grouser filled with transported soil.
+    """
+
+    radius: float
+    width: float
+    grouser_height: float
+    grouser_area_ratio: float
+    grouser_volume_fraction: float
+    name: str = "wheel"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        o = "Wheel"
+        _check_positive(o, "radius", self.radius)
+        _check_positive(o, "width", self.width)
+        _check_range(o, "grouser_height", self.grouser_height, 0.0, self.radius)
+        _check_range(o, "grouser_area_ratio", self.grouser_area_ratio, 0.0, 1.0)
+        _check_range(o, "grouser_volume_fraction", self.grouser_volume_fraction, 0.0, 1.0)
+        if self.radius > 5.0 or self.width > 5.0:
+            raise ParameterError(
+                f"Wheel radius {self.radius!r} m / width {self.width!r} m: lengths are in metres "
+                "(did you pass millimetres?)"
+            )
+
+    @property
+    def shearing_radius(self) -> float:
+        """r_s = r + h_g (section 5.2)."""
+        return self.radius + self.grouser_height
+
+
+@dataclass(frozen=True)
+class ContactTuning:
+    """Contact-angle tuning of eqs. (5.3)-(5.4), optionally linear in |beta| (7.8)-(7.9).
+
+    ``theta_m = theta_f (a0 + a1 s)``, ``theta_r = theta_f (b0 + b1 s)`` in slip, with
+
+    .. math:: a_0 = a_{0} + a_{0,\\beta} |\\beta|, \\quad a_1 = a_{1} + a_{1,\\beta} |\\beta|
+
+    and likewise for b0, b1 (slopes per radian). Using |beta| keeps the model mirror
+    symmetric in beta; the dissertation fits beta >= 0 only.
+    """
+
+    a0: float
+    a1: float
+    b0: float
+    b1: float
+    a0_per_rad: float = 0.0
+    a1_per_rad: float = 0.0
+    b0_per_rad: float = 0.0
+    b1_per_rad: float = 0.0
+    name: str = "tuning"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for f in ("a0", "a1", "b0", "b1", "a0_per_rad", "a1_per_rad", "b0_per_rad", "b1_per_rad"):
+            _check_finite("ContactTuning", f, getattr(self, f))
+        for f in ("a0", "a1", "b0", "b1"):
+            _check_range("ContactTuning", f, getattr(self, f), -1.5, 1.5)
+
+    def at(self, abs_beta: Any) -> tuple[Any, Any, Any, Any]:
+        """Return (a0, a1, b0, b1) at slip-angle magnitude ``abs_beta`` (rad)."""
+        return (
+            self.a0 + self.a0_per_rad * abs_beta,
+            self.a1 + self.a1_per_rad * abs_beta,
+            self.b0 + self.b0_per_rad * abs_beta,
+            self.b1 + self.b1_per_rad * abs_beta,
+        )
+
+
+@dataclass(frozen=True)
+class Rover:
+    """Four-wheel rocker rover of Table 7.2 (geometry used by chapter 7)."""
+
+    rocker_length: float
+    pivot_height: float
+    track_width: float
+    weight: float
+    travel_speed: float
+    name: str = "rover"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for f in ("rocker_length", "pivot_height", "track_width", "weight", "travel_speed"):
+            _check_positive("Rover", f, getattr(self, f))
+
+
+@dataclass(frozen=True)
+class ParameterSet:
+    """A complete set for one wheel on one soil: what calibration writes and the rest reads."""
+
+    soil: Soil
+    wheel: Wheel
+    tuning: ContactTuning
+    notes: str = ""
+
+
+# --- presets -----------------------------------------------------------------------------
+
+_T53 = "dissertation Table 5.3"
+SOIL_DISSERTATION_T53_GROUSERED = Soil(
+    k=8.0e6, n0=1.46, n1=0.01, n2=0.74, friction_angle=math.radians(29.0), unit_weight=13.03e3,
+    cohesion=1.0e3, shear_modulus=0.021, repose_angle=math.radians(29.0),
+    name="soil_direct_90_grousered", source=_T53 + " (grousered row); repose angle from Table 4.2",
+)
+SOIL_DISSERTATION_T53_SMOOTH = replace(
+    SOIL_DISSERTATION_T53_GROUSERED, n2=0.55, name="soil_direct_90_smooth", source=_T53 + " (smooth row)"
+)
+SOIL_DISSERTATION_T42 = replace(
+    SOIL_DISSERTATION_T53_GROUSERED, cohesion=0.0, name="soil_direct_90_t42",
+    source="dissertation Table 4.2 (phi = 29 deg, c = 0); other fields Table 5.3",
+)
+
+WHEEL_K10_MINI_T42 = Wheel(0.048, 0.050, 0.005, 1.0, 0.1, name="k10_mini", source="dissertation Table 4.2 (mu not listed: 1.0 assumed)")
+WHEEL_GROUSERED_T52 = Wheel(0.0575, 0.060, 0.005, 0.5, 0.2, name="grousered_t52", source="dissertation Table 5.2 (zeta from Table 5.4)")
+WHEEL_SMOOTH_T52 = Wheel(0.0625, 0.060, 0.0, 1.0, 0.1, name="smooth_t52", source="dissertation Table 5.2 (zeta from Table 5.4)")
+WHEEL_GROUSERED_PUBLISHED_CODE = Wheel(
+    0.058, 0.050, 0.005, 0.1, 0.2, name="grousered_published_code",
+    source="published code for the 3d-terramechanics data (data README)",
+)
+
+_T54 = "dissertation Table 5.4"
+TUNING_T54_GROUSERED: dict[float, ContactTuning] = {
+    b: ContactTuning(a0, a1, b0, b1, name=f"t54_grousered_{int(b)}", source=_T54)
+    for b, a0, a1, b0, b1 in [
+        (0.0, 0.27, 0.67, -0.66, -0.18),
+        (15.0, 0.29, 0.65, -0.50, -0.41),
+        (30.0, 0.47, 0.45, -0.44, -0.56),
+        (45.0, 0.62, 0.30, -0.51, -0.49),
+        (60.0, 0.71, 0.21, -0.53, -0.47),
+    ]
+}
+TUNING_T54_SMOOTH: dict[float, ContactTuning] = {
+    b: ContactTuning(a0, a1, b0, b1, name=f"t54_smooth_{int(b)}", source=_T54)
+    for b, a0, a1, b0, b1 in [
+        (0.0, 0.20, 0.70, -0.48, -0.00),
+        (15.0, 0.22, 0.70, -0.47, -0.01),
+        (30.0, 0.57, 0.20, -0.51, -0.01),
+        (45.0, 0.63, 0.17, -0.46, -0.15),
+        (60.0, 0.72, 0.13, -0.54, -0.13),
+    ]
+}
+# Table 7.2: a0 = 0.24 + beta / 129.1 deg, a1 = 0.69 - beta / 133.5 deg. Chapter 7 takes the
+# exit angle from the soil-flow model; b0, b1 here are the mean grousered Table 5.4 values,
+# used only when the classic exit angle is selected.
+TUNING_T72_LINEAR = ContactTuning(
+    a0=0.24, a1=0.69, b0=-0.53, b1=-0.42,
+    a0_per_rad=math.degrees(1.0) / 129.1, a1_per_rad=-math.degrees(1.0) / 133.5,
+    name="t72_linear", source="dissertation Table 7.2 eqs. (7.8)-(7.9); b0, b1 = mean of Table 5.4 grousered",
+)
+
+ROVER_MINI_T72 = Rover(
+    rocker_length=0.32, pivot_height=0.112, track_width=0.331, weight=34.3, travel_speed=0.03,
+    name="mini_rover", source="dissertation Table 7.2",
+)
+
+# --- TOML ----------------------------------------------------------------------------------
+
+# (field, toml key, factor from toml unit to SI)
+_SOIL_KEYS = [
+    ("k", "k_kN_per_m_n_plus_2", 1e3),
+    ("n0", "n0", 1.0),
+    ("n1", "n1", 1.0),
+    ("n2", "n2", 1.0),
+    ("friction_angle", "friction_angle_deg", math.pi / 180.0),
+    ("unit_weight", "unit_weight_kN_per_m3", 1e3),
+    ("cohesion", "cohesion_kPa", 1e3),
+    ("shear_modulus", "shear_modulus_m", 1.0),
+    ("repose_angle", "repose_angle_deg", math.pi / 180.0),
+]
+_WHEEL_KEYS = [
+    ("radius", "radius_m", 1.0),
+    ("width", "width_m", 1.0),
+    ("grouser_height", "grouser_height_m", 1.0),
+    ("grouser_area_ratio", "grouser_area_ratio", 1.0),
+    ("grouser_volume_fraction", "grouser_volume_fraction", 1.0),
+]
+_TUNING_KEYS = [
+    ("a0", "a0", 1.0),
+    ("a1", "a1", 1.0),
+    ("b0", "b0", 1.0),
+    ("b1", "b1", 1.0),
+    ("a0_per_rad", "a0_per_deg", 180.0 / math.pi),
+    ("a1_per_rad", "a1_per_deg", 180.0 / math.pi),
+    ("b0_per_rad", "b0_per_deg", 180.0 / math.pi),
+    ("b1_per_rad", "b1_per_deg", 180.0 / math.pi),
+]
+_ROVER_KEYS = [
+    ("rocker_length", "rocker_length_m", 1.0),
+    ("pivot_height", "pivot_height_m", 1.0),
+    ("track_width", "track_width_m", 1.0),
+    ("weight", "weight_N", 1.0),
+    ("travel_speed", "travel_speed_m_s", 1.0),
+]
+_SECTIONS: dict[str, tuple[type, list[tuple[str, str, float]]]] = {
+    "soil": (Soil, _SOIL_KEYS),
+    "wheel": (Wheel, _WHEEL_KEYS),
+    "tuning": (ContactTuning, _TUNING_KEYS),
+    "rover": (Rover, _ROVER_KEYS),
+}
+
+
+def _from_section(path: str, section: str, table: Mapping[str, Any]) -> Any:
+    cls, keys = _SECTIONS[section]
+    known = {k for _, k, _ in keys} | {"name", "source"}
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ParameterError(f"{path}: [{section}] unknown key(s) {unknown}; known keys: {sorted(known)}")
+    kwargs: dict[str, Any] = {}
+    for fname, key, factor in keys:
+        if key not in table:
+            default = next((f.default for f in fields(cls) if f.name == fname), None)
+            if isinstance(default, float):
+                continue
+            raise ParameterError(f"{path}: [{section}] missing key '{key}'")
+        value = table[key]
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise ParameterError(f"{path}: [{section}] {key} must be a number, got {value!r}")
+        if fname.endswith("_per_rad"):
+            kwargs[fname] = float(value) * factor
+        else:
+            kwargs[fname] = float(value) * factor
+    for meta in ("name", "source"):
+        if meta in table:
+            kwargs[meta] = str(table[meta])
+    try:
+        return cls(**kwargs)
+    except ParameterError as exc:
+        raise ParameterError(f"{path}: [{section}] {exc}") from None
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Load any of ``[soil]``, ``[wheel]``, ``[tuning]``, ``[rover]`` from a TOML file.
+
+    Returns
+    -------
+    dict
+        Section name to dataclass; a file holding soil, wheel and tuning also yields
+        ``"parameter_set"`` (a :class:`ParameterSet`). ``[meta]`` is returned as a dict.
+
+    Raises
+    ------
+    ParameterError
+        Unknown or missing key, wrong type, or a value outside its physical range; the
+        message names the file, section and key.
+    """
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ParameterError(f"{p}: no such parameter file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(f"{p}: not valid TOML ({exc})") from None
+    out: dict[str, Any] = {}
+    for section, table in data.items():
+        if section == "meta":
+            out["meta"] = dict(table)
+            continue
+        if section not in _SECTIONS:
+            raise ParameterError(f"{p}: unknown section [{section}]; expected one of {sorted(_SECTIONS)} or [meta]")
+        if not isinstance(table, dict):
+            raise ParameterError(f"{p}: [{section}] must be a table")
+        out[section] = _from_section(str(p), section, table)
+    if {"soil", "wheel", "tuning"} <= set(out):
+        out["parameter_set"] = ParameterSet(out["soil"], out["wheel"], out["tuning"], notes=str(out.get("meta", {}).get("notes", "")))
+    return out
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    return repr(float(v))
+
+
+def save_toml(path: str | Path, meta: Mapping[str, Any] | None = None, **sections: Any) -> Path:
+    """Write dataclasses as TOML sections with unit-named keys (inverse of :func:`load_toml`).
+
+    Examples
+    --------
+    >>> save_toml("p.toml", soil=SOIL_DISSERTATION_T53_GROUSERED)  # doctest: +SKIP
+    """
+    lines: list[str] = []
+    if meta:
+        lines.append("[meta]")
+        lines += [f"{k} = {_fmt(v)}" for k, v in meta.items()]
+        lines.append("")
+    for section, obj in sections.items():
+        if section not in _SECTIONS:
+            raise ParameterError(f"cannot save unknown section '{section}'")
+        _, keys = _SECTIONS[section]
+        d = asdict(obj)
+        lines.append(f"[{section}]")
+        for meta_key in ("name", "source"):
+            lines.append(f"{meta_key} = {_fmt(d[meta_key])}")
+        for fname, key, factor in keys:
+            lines.append(f"{key} = {_fmt(d[fname] / factor)}")
+        lines.append("")
+    p = Path(path)
+    p.write_text("\n".join(lines))
+    return p

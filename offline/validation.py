@@ -1,0 +1,296 @@
+"""Validate the terramechanics model on single-wheel trials (dissertation section 5.4).
+
+For every trial the measured load ``F_z`` is given; the sinkage that carries it is solved
+(eq. 5.34) and ``F_x``, ``F_y`` and the sinkage are predicted. Errors are reported per slip
+angle as in Table 5.5: forces in % of the applied load, sinkage in % of the wheel radius,
+signed ``prediction - measurement``; mean +/- standard deviation over the trials, plus the
+mean absolute error, which a signed mean can hide.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .dataset import TrialSet
+from .params import ContactTuning, Soil, Wheel
+from .terramechanics import ModelOptions, WheelModel
+
+__all__ = [
+    "Variant",
+    "Prediction",
+    "ErrorRow",
+    "TABLE_5_5_GROUSERED",
+    "predict",
+    "error_rows",
+    "format_table",
+    "write_csv",
+    "plot_fig_5_6",
+    "tuning_for_angle",
+]
+
+# Dissertation Table 5.5, grousered wheel: beta_deg -> (Fx mean, sd, Fy mean, sd, h mean, sd) in %.
+TABLE_5_5_GROUSERED: dict[str, dict[float, tuple[float, ...]]] = {
+    "without soil flow": {
+        0.0: (7.1, 21.2, -2.3, 2.6, 5.5, 6.8),
+        15.0: (9.7, 25.2, -9.1, 8.7, 3.3, 6.7),
+        30.0: (11.5, 24.9, -12.4, 17.2, 2.2, 6.8),
+        45.0: (12.1, 23.6, -15.5, 22.1, 3.5, 10.0),
+        60.0: (10.3, 25.9, -19.7, 33.4, 4.8, 14.2),
+    },
+    "with soil flow": {
+        0.0: (15.6, 32.3, -2.3, 2.6, 1.6, 6.4),
+        15.0: (23.8, 38.5, -8.3, 10.2, -2.6, 6.4),
+        30.0: (25.9, 41.0, -9.3, 17.0, -4.2, 4.3),
+        45.0: (26.9, 38.2, -6.0, 17.6, -2.5, 5.7),
+        60.0: (27.2, 38.4, 0.0, 22.0, -1.6, 12.6),
+    },
+}
+
+TuningSpec = ContactTuning | Mapping[float, ContactTuning]
+
+
+def tuning_for_angle(spec: TuningSpec, beta_cmd_deg: float) -> ContactTuning | None:
+    """The tuning for a commanded slip angle: the single continuous tuning, or the per-angle
+    entry within 0.5 deg (``None`` if the table has no entry for that angle)."""
+    if isinstance(spec, ContactTuning):
+        return spec
+    for b, t in spec.items():
+        if abs(float(b) - abs(beta_cmd_deg)) <= 0.5:
+            return t
+    return None
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One model configuration to validate.
+
+    Parameters
+    ----------
+    name : str
+        Short identifier (CSV, plots).
+    soil, wheel : Soil, Wheel
+    tuning : ContactTuning or mapping
+        Continuous tuning, or per-commanded-slip-angle (deg) tunings.
+    options : ModelOptions
+    """
+
+    name: str
+    soil: Soil
+    wheel: Wheel
+    tuning: TuningSpec
+    options: ModelOptions = field(default_factory=ModelOptions)
+
+    def model(self, beta_cmd_deg: float) -> WheelModel | None:
+        """The wheel model for one commanded slip angle (None if no tuning covers it)."""
+        t = tuning_for_angle(self.tuning, beta_cmd_deg)
+        return None if t is None else WheelModel(self.soil, self.wheel, t, self.options)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Model predictions for every trial (NaN where the model had no tuning or failed).
+
+    Attributes
+    ----------
+    Fx, Fy, sinkage : ndarray
+        Predicted values (N, N, m).
+    status : ndarray of str
+        ``"ok"``, ``"no_tuning"`` or the sinkage solver's failure status.
+    """
+
+    variant: str
+    Fx: NDArray[np.float64]
+    Fy: NDArray[np.float64]
+    Fz: NDArray[np.float64]
+    sinkage: NDArray[np.float64]
+    sinkage_zero_slip: NDArray[np.float64]
+    status: NDArray[np.str_]
+
+
+def trial_states(trials: TrialSet) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Wheel-frame velocities of each trial: ``v_x = V cos(beta)``, ``v_y = -V sin(beta)``
+    with the measured carriage speed V and slip angle (clipped to [-90, 90] deg), and
+    ``omega = V_rim / 0.058`` (the authors' conversion; data README)."""
+    v = trials.vx
+    # measured angles at the 90 deg setting reach 90.1 deg; past 90 the wheel would travel
+    # backwards against its rotation, so clip to the model's domain |beta| <= 90 deg
+    beta = np.clip(trials.beta, -math.pi / 2, math.pi / 2)
+    return v * np.cos(beta), -v * np.sin(beta), trials.omega()
+
+
+def predict(trials: TrialSet, variant: Variant) -> Prediction:
+    """Given each trial's measured load, solve the sinkage and predict the forces.
+
+    Returns
+    -------
+    Prediction
+    """
+    n = len(trials)
+    out = {k: np.full(n, np.nan) for k in ("Fx", "Fy", "Fz", "sinkage", "sinkage_zero_slip")}
+    status = np.full(n, "no_tuning", dtype=object)
+    vx, vy, w = trial_states(trials)
+    for b in np.unique(trials.beta_cmd):
+        idx = np.flatnonzero(trials.beta_cmd == b)
+        m = variant.model(math.degrees(b))
+        if m is None:
+            continue
+        sol = m.sinkage_from_load(trials.Fz[idx], vx[idx], vy[idx], w[idx])
+        status[idx] = sol.status
+        ok = idx[sol.converged]
+        if ok.size:
+            good = sol.converged
+            wr = m.wrench(vx[ok], vy[ok], w[ok], sol.h[good], sol.h_zero_slip[good])
+            out["Fx"][ok], out["Fy"][ok], out["Fz"][ok] = wr.Fx, wr.Fy, wr.Fz
+            out["sinkage"][ok] = sol.h[good]
+            out["sinkage_zero_slip"][ok] = sol.h_zero_slip[good]
+    return Prediction(variant.name, status=status.astype(str), **out)
+
+
+@dataclass(frozen=True)
+class ErrorRow:
+    """Table 5.5 row: errors at one commanded slip angle, in %."""
+
+    variant: str
+    beta_deg: float
+    n: int
+    n_failed: int
+    fx_mean: float
+    fx_sd: float
+    fx_mae: float
+    fy_mean: float
+    fy_sd: float
+    fy_mae: float
+    h_mean: float
+    h_sd: float
+    h_mae: float
+
+
+def errors_percent(trials: TrialSet, pred: Prediction, radius: float) -> dict[str, NDArray[np.float64]]:
+    """Per-trial errors: forces in % of the applied load, sinkage in % of the wheel radius."""
+    return {
+        "Fx": 100.0 * (pred.Fx - trials.Fx) / trials.Fz,
+        "Fy": 100.0 * (pred.Fy - trials.Fy) / trials.Fz,
+        "sinkage": 100.0 * (pred.sinkage - trials.sinkage) / radius,
+    }
+
+
+def error_rows(trials: TrialSet, pred: Prediction, radius: float) -> list[ErrorRow]:
+    """Summarise per commanded slip angle (trials with failed predictions are counted)."""
+    e = errors_percent(trials, pred, radius)
+    rows = []
+    for b in np.unique(trials.beta_cmd):
+        idx = trials.beta_cmd == b
+        ok = idx & (pred.status == "ok")
+        if not ok.any():
+            continue
+        stats = []
+        for ch in ("Fx", "Fy", "sinkage"):
+            x = e[ch][ok]
+            stats += [float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else math.nan, float(np.abs(x).mean())]
+        rows.append(ErrorRow(pred.variant, round(math.degrees(b), 3), int(idx.sum()), int((idx & ~ok).sum()), *stats))
+    return rows
+
+
+def beats_table_5_5(row: ErrorRow, reference: str = "without soil flow") -> dict[str, bool] | None:
+    """Whether a row is at least as good as Table 5.5 (|mean| and sd no larger), per channel."""
+    ref = TABLE_5_5_GROUSERED[reference].get(row.beta_deg)
+    if ref is None:
+        return None
+    return {
+        "Fx": abs(row.fx_mean) <= abs(ref[0]) and row.fx_sd <= ref[1],
+        "Fy": abs(row.fy_mean) <= abs(ref[2]) and row.fy_sd <= ref[3],
+        "sinkage": abs(row.h_mean) <= abs(ref[4]) and row.h_sd <= ref[5],
+    }
+
+
+def format_table(rows: Sequence[ErrorRow], reference: str | None = "without soil flow") -> str:
+    """Plain-text table laid out like Table 5.5, with the dissertation's row beside ours."""
+    lines = []
+    by_variant: dict[str, list[ErrorRow]] = {}
+    for r in rows:
+        by_variant.setdefault(r.variant, []).append(r)
+    hdr = f"{'beta':>6} {'n':>3}  {'Fx err (%)':>14} {'|Fx|':>6}  {'Fy err (%)':>14} {'|Fy|':>6}  {'h0 err (%)':>14} {'|h0|':>6}"
+    for variant, vrows in by_variant.items():
+        lines += [f"== {variant} ==", hdr]
+        for r in vrows:
+            fail = f"  ({r.n_failed} failed)" if r.n_failed else ""
+            lines.append(
+                f"{r.beta_deg:>5.0f}° {r.n:>3}  {r.fx_mean:>6.1f} ± {r.fx_sd:<5.1f} {r.fx_mae:>6.1f}  "
+                f"{r.fy_mean:>6.1f} ± {r.fy_sd:<5.1f} {r.fy_mae:>6.1f}  {r.h_mean:>6.1f} ± {r.h_sd:<5.1f} {r.h_mae:>6.1f}{fail}"
+            )
+            if reference is not None:
+                ref = TABLE_5_5_GROUSERED[reference].get(r.beta_deg)
+                if ref is not None:
+                    ok = beats_table_5_5(r, reference) or {}
+                    mark = " ".join(f"{k}:{'ok' if v else 'WORSE'}" for k, v in ok.items())
+                    lines.append(
+                        f"{'T5.5':>6} {'':>3}  {ref[0]:>6.1f} ± {ref[1]:<5.1f} {'':>6}  {ref[2]:>6.1f} ± {ref[3]:<5.1f} {'':>6}  "
+                        f"{ref[4]:>6.1f} ± {ref[5]:<5.1f}   [{mark}]"
+                    )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_csv(rows: Sequence[ErrorRow], path: str | Path) -> Path:
+    """Write the error rows (one per variant and slip angle) to CSV."""
+    p = Path(path)
+    names = list(ErrorRow.__dataclass_fields__)
+    with p.open("w", newline="") as fh:
+        wr = csv.writer(fh)
+        wr.writerow(names)
+        for r in rows:
+            wr.writerow([getattr(r, k) for k in names])
+    return p
+
+
+def plot_fig_5_6(
+    trials: TrialSet, variants: Sequence[Variant], path: str | Path, predictions: Sequence[Prediction] | None = None
+) -> Path:
+    """Fig. 5.6-style figure: one row per slip angle, columns F_x, F_y, sinkage vs slip ratio.
+
+    Measured trials are points; each variant is drawn as its per-trial predictions joined
+    in slip order (the load differs from trial to trial, so a smooth model line at one load
+    would not be what the table scores).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    preds = list(predictions) if predictions is not None else [predict(trials, v) for v in variants]
+    betas = np.unique(trials.beta_cmd)
+    fig, axes = plt.subplots(len(betas), 3, figsize=(11, 2.2 * len(betas)), sharex=True, squeeze=False)
+    styles = ["-", "--", ":", "-."]
+    colors = ["tab:green", "tab:red", "tab:blue", "tab:purple"]
+    for i, b in enumerate(betas):
+        idx = np.flatnonzero(trials.beta_cmd == b)
+        order = idx[np.argsort(trials.slip[idx], kind="stable")]
+        for j, (ch, scale, unit) in enumerate((("Fx", 1.0, "N"), ("Fy", 1.0, "N"), ("sinkage", 1e3, "mm"))):
+            ax = axes[i, j]
+            ax.plot(trials.slip[idx], getattr(trials, ch)[idx] * scale, "k.", ms=4, label="measured" if i == 0 else None)
+            for k, p in enumerate(preds):
+                y = getattr(p, ch)[order] * scale
+                s_ = trials.slip[order]
+                # mean over repeats at each slip for a readable line
+                us = np.unique(np.round(s_, 3))
+                ym = [np.nanmean(y[np.round(s_, 3) == u]) for u in us]
+                ax.plot(us, ym, styles[k % 4], color=colors[k % 4], lw=1.4, label=p.variant if i == 0 else None)
+            ax.set_ylabel(f"{ch} [{unit}]" if ch != "sinkage" else "sinkage [mm]")
+            if j == 0:
+                ax.text(0.02, 0.85, f"β = {math.degrees(b):.0f}°", transform=ax.transAxes, fontsize=9, weight="bold")
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("slip ratio s")
+    fig.legend(loc="upper center", ncol=len(preds) + 1, fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    p = Path(path)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p

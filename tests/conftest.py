@@ -1,0 +1,42 @@
+"""Shared fixtures and the project's test tolerances, named per quantity (STYLE.md point 9)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from offline.params import (
+    SOIL_DISSERTATION_T53_GROUSERED,
+    TUNING_T54_GROUSERED,
+    TUNING_T72_LINEAR,
+    WHEEL_GROUSERED_PUBLISHED_CODE,
+)
+from offline.terramechanics import WheelModel
+
+# --- tolerances (relative unless named _abs) -------------------------------------------
+RTOL_BACKENDS = 1e-10  # numpy vs casadi evaluation of the same graph
+RTOL_AD_FD = 1e-5  # exact derivative vs central finite difference
+RTOL_QUADRATURE = 2e-3  # default Gauss-Legendre nodes vs a 100-node reference
+RTOL_SINKAGE_LOAD = 1e-6  # |F_z(h) - W| / W after the sinkage solve
+RTOL_SWITCH = 1e-6  # value jump across the slip/skid switch, relative to |F| scale
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "single_wheel"
+
+
+@pytest.fixture(scope="session")
+def model() -> WheelModel:
+    """Published-code grousered wheel, Table 5.3 soil, continuous a(beta) of Table 7.2."""
+    return WheelModel(SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, TUNING_T72_LINEAR)
+
+
+@pytest.fixture(scope="session")
+def model_t54_45() -> WheelModel:
+    """Table 5.4 tuning at beta = 45 deg."""
+    return WheelModel(SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, TUNING_T54_GROUSERED[45.0])
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20261122)

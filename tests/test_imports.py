@@ -1,0 +1,45 @@
+"""Front doors and the rtctl import contract (ARCHITECTURE.md: rtctl stays light)."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+import offline
+
+
+def test_rtctl_imports_no_heavy_or_offline_modules():
+    code = (
+        "import sys, rtctl; "
+        "bad = [m for m in sys.modules if m == 'casadi' or m.startswith('casadi.') "
+        "or m == 'offline' or m.startswith('offline.') or m.startswith('scipy.optimize')]; "
+        "print(','.join(bad)); sys.exit(1 if bad else 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, f"rtctl pulled in: {out.stdout} {out.stderr}"
+
+
+def test_offline_numeric_path_does_not_import_casadi():
+    code = (
+        "import sys, numpy as np; from offline.terramechanics import WheelModel; "
+        "from offline.params import *; "
+        "m = WheelModel(SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, TUNING_T72_LINEAR); "
+        "m.wrench(0.01, 0.0, 0.1, 0.02); sys.exit(1 if 'casadi' in sys.modules else 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+
+
+@pytest.mark.parametrize("name", ["offline.backend", "offline.params", "offline.terramechanics"])
+def test_every_module_declares_all(name):
+    mod = importlib.import_module(name)
+    assert isinstance(mod.__all__, (list, tuple)) and mod.__all__
+    for item in mod.__all__:
+        assert hasattr(mod, item), f"{name}.__all__ lists missing name {item}"
+
+
+def test_offline_front_door():
+    assert set(offline.__all__) >= {"params"}

@@ -664,21 +664,24 @@ class WheelModel:
         the interpreted casadi function, with a warning, when no C compiler is found.
         """
         key = "cjac" if jacobian else "cval"
-        if key in self._cas:
-            return self._cas[key]
+        if key not in self._cas:
+            self._cas[key] = self._compile(self.casadi_function(jacobian), key, cache_dir)
+        return self._cas[key]
+
+    def _compile(self, f: Any, tag: str, cache_dir: str | Path | None = None) -> Any:
+        """Generate C for casadi function ``f``, compile it once (cached on disk, keyed by a
+        hash of parameters, options and ``tag``) and load it; the interpreted function,
+        with a warning, when no C compiler is found."""
         import casadi as ca
 
-        f = self.casadi_function(jacobian)
-        digest = hashlib.sha256(
-            repr((self.params, self.options, jacobian, ca.__version__)).encode()
-        ).hexdigest()[:16]
+        # the serialised graph covers parameters, options and the code that built it
+        digest = hashlib.sha256((f.serialize() + tag + ca.__version__).encode()).hexdigest()[:16]
         root = Path(cache_dir) if cache_dir else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "offnominal"
         so = root / f"{f.name()}_{digest}.so"
         cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
         if not so.exists():
             if cc is None:
-                warnings.warn("no C compiler found: using the interpreted casadi function (slower)", stacklevel=2)
-                self._cas[key] = f
+                warnings.warn("no C compiler found: using the interpreted casadi function (slower)", stacklevel=3)
                 return f
             root.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(dir=root) as tmp:
@@ -692,8 +695,7 @@ class WheelModel:
                 subprocess.run([cc, "-O2", "-fPIC", "-shared", str(Path(tmp) / f"{f.name()}.c"), "-o", str(tmp_so)],
                                check=True, capture_output=True)
                 os.replace(tmp_so, so)  # atomic: an interrupted build leaves no half file
-        self._cas[key] = ca.external(f.name(), str(so))
-        return self._cas[key]
+        return ca.external(f.name(), str(so))
 
     def wrench_and_jacobian(self, x: NDArray[np.float64], compiled: bool = True) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Wrench (6,) and its Jacobian (6, 5) at one state ``x = (vx, vy, omega, h, h_zero_slip)``.
@@ -778,6 +780,78 @@ class WheelModel:
         h0s = np.where(ok, h0s, np.nan)
         return SinkageResult(h.reshape(shape), h0s.reshape(shape), ok.reshape(shape), status.reshape(shape),
                              res.reshape(shape), it, self.h_max)
+
+    def _single_sinkage_function(self) -> Any:
+        """casadi function ``[W, vx, vy, w] -> [h, h_zero_slip, g, g0, dg, dg0]`` by unrolled,
+        bracketed Newton on ``g(u) = log F_z(e^u) - log W`` (nearly linear in u = log h),
+        first at zero slip then (for skid) with that h_zero_slip. C-compiled when possible."""
+        key = "sink1"
+        if key in self._cas:
+            return self._cas[key]
+        import casadi as ca
+
+        rs = self.wheel.shearing_radius
+        u = ca.SX.sym("u")
+        q = ca.SX.sym("q", 5)  # W, vx, vy, omega, h_zero_slip (<= 0: the state's own h)
+        h = ca.exp(u)
+        wr, _ = self.expressions(q[1], q[2], q[3], h, ca.if_else(q[4] > 0, q[4], h))
+        g = ca.log(ca.fmax(wr[2], 1e-300)) - ca.log(q[0])
+        fz = ca.Function("fz_log", [u, q], [g, ca.jacobian(g, u)])
+        P = ca.MX.sym("P", 4)
+        v = ca.sqrt(P[1] ** 2 + P[2] ** 2)
+        skid = rs * ca.fabs(P[3]) < v
+        w_first = ca.if_else(skid, ca.if_else(P[1] < 0, -1, 1) * v / rs, P[3])
+
+        def newton(qv: Any) -> tuple[Any, Any, Any]:
+            lo, hi = ca.MX(math.log(self.h_min)), ca.MX(math.log(self.h_max))
+            uu = ca.MX(math.log(0.25 * rs))
+            for _ in range(self.SINGLE_NEWTON_STEPS):
+                gv, dg = fz(uu, qv)
+                un = uu - gv / dg
+                lo = ca.if_else(gv < 0, uu, lo)
+                hi = ca.if_else(gv < 0, hi, uu)
+                # a converged step lands on the bracket end it just set: accept it (>=, <=)
+                inside = (un >= lo) * (un <= hi) * (dg > 0)
+                uu = ca.if_else(inside, un, 0.5 * (lo + hi))
+            gv, dg = fz(uu, qv)
+            return uu, gv, dg
+
+        u0, g0, d0 = newton(ca.vertcat(P[0], P[1], P[2], w_first, -1.0))
+        u1, g1, d1 = newton(ca.vertcat(P[0], P[1], P[2], P[3], ca.exp(u0)))
+        outs = [ca.if_else(skid, ca.exp(u1), ca.exp(u0)), ca.exp(u0), ca.if_else(skid, g1, g0), g0,
+                ca.if_else(skid, d1, d0), d0]
+        f = ca.Function("sinkage_single", [P], outs)
+        self._cas[key] = self._compile(f, "sink1")
+        return self._cas[key]
+
+    SINGLE_NEWTON_STEPS = 12
+    """Unrolled Newton steps per solve in :meth:`sinkage_from_load_single`."""
+
+    def sinkage_from_load_single(self, load: float, vx: float, vy: float, omega: float, rtol: float = 1e-9) -> SinkageResult:
+        """Sinkage carrying ``load`` for one wheel state, fast (compiled) path of
+        :meth:`sinkage_from_load`.
+
+        Safeguarded Newton in ``log h`` (bracket-keeping, bisection when a step leaves the
+        bracket or the slope is not positive), compiled to C. The answer is accepted only
+        if the load residual is below ``rtol`` and ``F_z`` rises with ``h`` there (the
+        physical, first root); otherwise the robust scan-and-bracket solve of
+        :meth:`sinkage_from_load` answers, so a hard case is slower but never wrong.
+        """
+        vals = [float(load), float(vx), float(vy), float(omega)]
+        if not all(math.isfinite(x) for x in vals):
+            raise ValueError(f"load and state must be finite, got {vals}")
+        if vals[0] <= 0:
+            raise ValueError(f"load must be > 0 N, got {vals[0]!r}")
+        if vals[1] * vals[3] < 0 and abs(vals[3]) * self.wheel.shearing_radius > 1e-9 * abs(vals[1]):
+            self._validate(vals[1], vals[2], vals[3], 0.5 * self.h_max, 0.5 * self.h_max)
+        h, h0, g, g0, d, d0 = (float(x) for x in self._single_sinkage_function()(vals))
+        tol = math.log1p(rtol)
+        if abs(g) <= tol and abs(g0) <= tol and d > 0 and d0 > 0 and self.h_min < h < self.h_max:
+            one = lambda x: np.array([x])  # noqa: E731
+            return SinkageResult(one(h), one(h0), one(True), np.array(["ok"]), one(g * vals[0]), self.SINGLE_NEWTON_STEPS,
+                                 self.h_max)
+        return self.sinkage_from_load(np.array([vals[0]]), np.array([vals[1]]), np.array([vals[2]]), np.array([vals[3]]),
+                                      rtol=rtol)
 
     def _fz(self, vx: Any, vy: Any, w: Any, h: Any, h0s: Any | None) -> NDArray[np.float64]:
         return self._wrench_unchecked(vx, vy, w, h, h if h0s is None else h0s, h.shape).Fz

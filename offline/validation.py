@@ -267,25 +267,32 @@ def beats_table_5_5(row: ErrorRow, reference: str = "without soil flow") -> dict
     }
 
 
-def format_table(rows: Sequence[ErrorRow], reference: str | None = "without soil flow") -> str:
-    """Plain-text table laid out like Table 5.5, with the dissertation's row beside ours."""
+def format_table(rows: Sequence[ErrorRow], reference: str | None = "auto") -> str:
+    """Plain-text table laid out like Table 5.5, with the dissertation's row beside ours.
+
+    ``reference="auto"`` compares variants whose name mentions soil flow with the table's
+    "with soil flow model" rows and the others with the "without" rows; ``None`` omits it.
+    """
     lines = []
     by_variant: dict[str, list[ErrorRow]] = {}
     for r in rows:
         by_variant.setdefault(r.variant, []).append(r)
     hdr = f"{'beta':>6} {'n':>3}  {'Fx err (%)':>14} {'|Fx|':>6}  {'Fy err (%)':>14} {'|Fy|':>6}  {'h0 err (%)':>14} {'|h0|':>6}"
     for variant, vrows in by_variant.items():
-        lines += [f"== {variant} ==", hdr]
+        ref_name = reference
+        if reference == "auto":
+            ref_name = "with soil flow" if "soil-flow" in variant or "soil flow" in variant else "without soil flow"
+        lines += [f"== {variant} ==" + (f"  (T5.5: Table 5.5 grousered, {ref_name} model)" if ref_name else ""), hdr]
         for r in vrows:
             fail = f"  ({r.n_failed} failed)" if r.n_failed else ""
             lines.append(
                 f"{r.beta_deg:>5.0f}° {r.n:>3}  {r.fx_mean:>6.1f} ± {r.fx_sd:<5.1f} {r.fx_mae:>6.1f}  "
                 f"{r.fy_mean:>6.1f} ± {r.fy_sd:<5.1f} {r.fy_mae:>6.1f}  {r.h_mean:>6.1f} ± {r.h_sd:<5.1f} {r.h_mae:>6.1f}{fail}"
             )
-            if reference is not None:
-                ref = TABLE_5_5_GROUSERED[reference].get(r.beta_deg)
+            if ref_name is not None:
+                ref = TABLE_5_5_GROUSERED[ref_name].get(r.beta_deg)
                 if ref is not None:
-                    ok = beats_table_5_5(r, reference) or {}
+                    ok = beats_table_5_5(r, ref_name) or {}
                     mark = " ".join(f"{k}:{'ok' if v else 'WORSE'}" for k, v in ok.items())
                     lines.append(
                         f"{'T5.5':>6} {'':>3}  {ref[0]:>6.1f} ± {ref[1]:<5.1f} {'':>6}  {ref[2]:>6.1f} ± {ref[3]:<5.1f} {'':>6}  "

@@ -332,6 +332,27 @@ def test_sinkage_reports_load_the_wheel_cannot_carry(model):
     assert "maximum sinkage" in sol.reasons()[0]
 
 
+def test_single_wheel_fast_sinkage_matches_robust_solve(model, rng):
+    for _ in range(8):
+        slip = rng.uniform(-1, 0.9)
+        vx, vy, w = state_from_slip(slip, rng.uniform(-1.4, 1.4), V, model.wheel)
+        load = rng.uniform(8.0, 25.0)
+        fast = model.sinkage_from_load_single(load, vx, vy, w)
+        robust = model.sinkage_from_load(load, vx, vy, w)
+        assert fast.ok == robust.ok
+        if robust.ok:
+            np.testing.assert_allclose(fast.h, robust.h, rtol=1e-6)
+            np.testing.assert_allclose(fast.h_zero_slip, robust.h_zero_slip, rtol=1e-6)
+
+
+def test_single_wheel_sinkage_falls_back_and_reports_capacity(model):
+    vx, vy, w = state_from_slip(0.0, 0.0, V, model.wheel)
+    sol = model.sinkage_from_load_single(1e5, vx, vy, w)
+    assert not sol.ok and sol.status[0] == "load_exceeds_capacity"
+    with pytest.raises(ValueError, match="load must be > 0"):
+        model.sinkage_from_load_single(-1.0, vx, vy, w)
+
+
 # ---------------------------------------------------------------- bad input
 @pytest.mark.parametrize(
     "kwargs, match",

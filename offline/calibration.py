@@ -363,6 +363,11 @@ def fit_joint(
     bnd = dict(DEFAULT_BOUNDS)
     bnd.update(bounds or {})
     names = tuple(names)
+    unknown = [n for n in names if n not in bnd or (n not in _TUNING_FIELDS and n not in _SOIL_FIELDS)]
+    if unknown:
+        raise ValueError(
+            f"parameter(s) {unknown} cannot be calibrated; choose from {sorted(set(bnd) & (set(_TUNING_FIELDS) | set(_SOIL_FIELDS)))}"
+        )
     base = PhysParams.from_sets(soil, wheel, start)
     jac = _Jacobians(base, names, options)
     meas = np.stack([trials.Fx, trials.Fy, trials.sinkage], axis=1)
@@ -420,7 +425,7 @@ def leave_one_angle_out(
         ``result.soil`` and ``result.tuning``.
     """
     out = {}
-    betas = np.degrees(np.unique(trials.beta_cmd))
+    betas = np.round(np.degrees(np.unique(trials.beta_cmd)), 6)
     for b in angles_deg if angles_deg is not None else betas:
         keep = np.abs(np.degrees(trials.beta_cmd) - b) > 0.5
         out[float(b)] = fit_joint(trials.subset(keep), soil, wheel, start, names, options, max_nfev=max_nfev)

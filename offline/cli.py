@@ -4,6 +4,7 @@ Commands
 --------
 validate    Table 5.5 / Fig. 5.6 validation on single-wheel trials (the default main job).
 calibrate   Fit the model to single-wheel trials and write a TOML parameter file.
+discrepancy Locate model-data mismatch, name the missing physics, show the fit improve.
 bekker      Fit Bekker's p = k z^n to static plate tests.
 soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
 """
@@ -194,6 +195,40 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_discrepancy(args: argparse.Namespace) -> int:
+    from . import params as P
+    from .dataset import DatasetError, load_trials
+    from .discrepancy import diagnose
+    from .terramechanics import ModelOptions
+
+    t0 = time.perf_counter()
+    try:
+        trials = load_trials(args.data)
+    except (DatasetError, FileNotFoundError) as exc:
+        return _fail(str(exc))
+    if args.max_beta_deg is not None:
+        trials = trials.subset(np.abs(trials.beta_cmd) <= math.radians(args.max_beta_deg + 0.5))
+        if len(trials) == 0:
+            return _fail(f"no trials with |beta| <= {args.max_beta_deg} deg")
+    params_path = Path(args.params) if args.params else _shipped(DEFAULT_PARAMS)
+    try:
+        loaded = P.load_toml(params_path)
+    except P.ParameterError as exc:
+        return _fail(str(exc))
+    if "parameter_set" not in loaded:
+        return _fail(f"{params_path}: needs [soil], [wheel] and [tuning] sections")
+    try:
+        opts = ModelOptions(exit_angle=args.exit_angle, bulldozing=args.bulldozing)
+    except ValueError as exc:
+        return _fail(str(exc))
+    verdict = diagnose(trials, loaded["parameter_set"], opts, seed=args.seed,
+                       progress=None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True)))
+    out = verdict.write(args.out)
+    print(verdict.summary())
+    print(f"wrote {out / 'report.md'}, {out / 'verdict.json'} and plots  ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
 def cmd_bekker(args: argparse.Namespace) -> int:
     from .bekker import main as bekker_main
 
@@ -247,6 +282,21 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--cv", action="store_true", help="also report out-of-sample errors (leave one angle / repeat out)")
     c.add_argument("--quiet", action="store_true", help="no progress bars")
     c.set_defaults(func=cmd_calibrate)
+
+    d = sub.add_parser("discrepancy", help="locate model-data mismatch, name the missing physics, show the fit improve",
+                       description="Run the model on every recorded condition, locate significant residual regions, fit a "
+                                   "library of candidate physics, rank them by held-out improvement and write a report folder "
+                                   "(report.md, PNGs, verdict.json).")
+    d.add_argument("--data", help="trials CSV in the single-wheel format (default: the shipped grousered trials)")
+    d.add_argument("--params", help=f"parameter TOML (default: shipped {DEFAULT_PARAMS})")
+    d.add_argument("--out", default="out/discrepancy", help="report folder (default: %(default)s)")
+    d.add_argument("--exit-angle", choices=["classic", "soil_flow"], default="classic", help="model variant")
+    d.add_argument("--bulldozing", choices=["pavlov", "hegedus", "ishigami", "none"], default="pavlov",
+                   help="sidewall model of the model under test ('none' to study a model without it)")
+    d.add_argument("--max-beta-deg", type=float, default=None, help="only conditions up to this slip angle")
+    d.add_argument("--seed", type=int, default=0, help="seed of the randomisation test")
+    d.add_argument("--quiet", action="store_true", help="no progress lines")
+    d.set_defaults(func=cmd_discrepancy)
 
     b = sub.add_parser("bekker", help="fit p = k z^n to static plate tests", add_help=False)
     b.add_argument("rest", nargs=argparse.REMAINDER)

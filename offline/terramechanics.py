@@ -96,11 +96,19 @@ class ModelOptions:
     bulldozing : {"pavlov", "hegedus", "ishigami"}
         ``pavlov``: R_b of eq. (5.24), integrated by (5.27) (the dissertation's model);
         ``hegedus``: the [66] form of R_b (times |sin beta|), integrated by (5.27);
-        ``ishigami``: the [58] form, integrated by (5.29) (Ishigami 2007 sidewall).
+        ``ishigami``: the [58] form, integrated by (5.29) (Ishigami 2007 sidewall);
+        ``none``: no sidewall force (to study what the term contributes).
+    bulldozing_scale : float
+        Multiplier on the sidewall bulldozing resistance (1 = the published form); used by
+        the discrepancy tool to fit how much sidewall force the data ask for.
+    sidewall_projection : {"printed", "single"}
+        The inclination factor of the sidewall force in (5.27): ``|sin b| sin b`` as printed
+        (R_b of (5.24) already holds |sin b|), or a single ``sin b`` (the face normal is the
+        wheel's y axis, so the second factor only carries the sign). Ignored for ishigami.
     nodes_per_segment : int
-        Gauss-Legendre nodes on each of the three segments [theta_r, min(theta_m, theta_0)],
-        [min, max], [max(theta_m, theta_0), theta_f] (breakpoints at the kinks of the
-        integrand).
+        Gauss-Legendre nodes on each of the six segments between theta_r, theta_f and the
+        sorted breakpoints theta_m, theta_0 and the zeros of the tangential shear velocity
+        (the kinks and jumps of the integrand).
     beta_smoothing : float
         rad; |beta| in the tuning (7.8)-(7.9) is sqrt(beta^2 + eps^2) so the linear a(beta)
         fit has no kink at beta = 0. Only matters when the tuning has beta slopes.
@@ -110,18 +118,24 @@ class ModelOptions:
     """
 
     exit_angle: Literal["classic", "soil_flow"] = "classic"
-    bulldozing: Literal["pavlov", "hegedus", "ishigami"] = "pavlov"
-    nodes_per_segment: int = 10
+    bulldozing: Literal["pavlov", "hegedus", "ishigami", "none"] = "pavlov"
+    bulldozing_scale: float = 1.0
+    sidewall_projection: Literal["printed", "single"] = "printed"
+    nodes_per_segment: int = 8
     beta_smoothing: float = 1e-3
     soil_flow_smoothing_deg: float = 1.0
 
     def __post_init__(self) -> None:
         if self.exit_angle not in ("classic", "soil_flow"):
             raise ValueError(f"ModelOptions.exit_angle must be 'classic' or 'soil_flow', got {self.exit_angle!r}")
-        if self.bulldozing not in ("pavlov", "hegedus", "ishigami"):
+        if self.bulldozing not in ("pavlov", "hegedus", "ishigami", "none"):
             raise ValueError(
-                f"ModelOptions.bulldozing must be 'pavlov', 'hegedus' or 'ishigami', got {self.bulldozing!r}"
+                f"ModelOptions.bulldozing must be 'pavlov', 'hegedus', 'ishigami' or 'none', got {self.bulldozing!r}"
             )
+        if self.sidewall_projection not in ("printed", "single"):
+            raise ValueError(f"ModelOptions.sidewall_projection must be 'printed' or 'single', got {self.sidewall_projection!r}")
+        if not (math.isfinite(self.bulldozing_scale) and 0.0 <= self.bulldozing_scale <= 100.0):
+            raise ValueError(f"ModelOptions.bulldozing_scale must be in [0, 100], got {self.bulldozing_scale!r}")
         if not (isinstance(self.nodes_per_segment, int) and 2 <= self.nodes_per_segment <= 200):
             raise ValueError(f"ModelOptions.nodes_per_segment must be an int in [2, 200], got {self.nodes_per_segment!r}")
         if not 0.0 <= self.beta_smoothing < 0.1:
@@ -332,15 +346,27 @@ def wrench_core(
     cos_f = ops.cos(theta_f)
     # S = (sin theta_f - sin theta_0) / (theta_f - theta_0) of (5.18); -> cos theta_f as d0 -> 0.
     big = d0 > 1e-7
-    S = ops.where(big, (sin_f - sin_0) / ops.where(big, d0, 1.0), cos_f - 0.5 * sin_f * d0)
+    S = ops.where(big, (sin_f - sin_0) / ops.where(big, d0, 1.0), cos_f + 0.5 * sin_f * d0)  # mean of cos: > cos_f
 
-    # Quadrature: three Gauss-Legendre segments split at theta_m and theta_0.
-    q1 = ops.fmin(theta_m, theta_0)
-    q2 = ops.fmax(theta_m, theta_0)
+    # Quadrature: Gauss-Legendre segments split at every kink and jump of the integrand:
+    # theta_m (5.8), theta_0 (5.15), and the zeros of v_jT, where tau_T ~ v_jT / |v_j|
+    # changes sign (a jump when v_y = 0): acos(S) in the skid front region and
+    # +/- acos(r_s w / v_x) in the rear region (absent in slip, where r_s w > v_x).
+    one = 1.0 - 1e-12
+    theta_1 = ops.where(skid, ops.arccos(ops.clip(S, -one, one)), theta_f)
+    ratio = rw / ops.fmax(vxp, SPEED_FLOOR)
+    theta_star = ops.arccos(ops.clip(ratio, -one, one))
+    breaks = [theta_m, theta_0, theta_1, theta_star, -theta_star]
+    breaks = [ops.fmin(ops.fmax(b_, theta_r), theta_f) for b_ in breaks]
+    for i in range(len(breaks)):  # sorting network (bubble) of fmin/fmax: continuous, differentiable a.e.
+        for j in range(len(breaks) - 1 - i):
+            lo_, hi_ = ops.fmin(breaks[j], breaks[j + 1]), ops.fmax(breaks[j], breaks[j + 1])
+            breaks[j], breaks[j + 1] = lo_, hi_
     x_gl, w_gl = gauss_legendre(options.nodes_per_segment)
     xn, wn = ops.nodes(x_gl), ops.nodes(w_gl)
     thetas, weights = [], []
-    for lo, hi in ((theta_r, q1), (q1, q2), (q2, theta_f)):
+    edges = [theta_r, *breaks, theta_f]
+    for lo, hi in zip(edges[:-1], edges[1:]):
         half = 0.5 * (hi - lo)
         thetas.append(0.5 * (hi + lo) + half * xn)
         weights.append(half * wn)
@@ -371,15 +397,20 @@ def wrench_core(
     cos_r = ops.cos(theta_r)
     h_b = (st - sin_r) / (sin_f - sin_r + 1e-15) * (cos_r - cos_f) * rs - (cos_r - ct) * rs
     h_b = ops.fmax(h_b, 0.0)
-    form = options.bulldozing
-    r_b = bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+    form = "pavlov" if options.bulldozing == "none" else options.bulldozing
+    scale = 0.0 if options.bulldozing == "none" else options.bulldozing_scale
     if form == "ishigami":
-        # eq. (5.29): (1 - h(theta) cos(theta) / r_s) R_b sin(beta), h(theta) the local sinkage.
-        depth = rs * (ct - cos_f)
-        dfy_bull = (1.0 - depth * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
+        # eq. (5.29) with Ishigami 2007's blade depth: the local sinkage below the entry
+        # height, h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
+        h_b = ops.fmax(rs * (ct - cos_f), 0.0)
+        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        dfy_bull = (1.0 - h_b * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
     else:
-        # eq. (5.27) with R_b of (5.24) including its |sin beta|.
-        dfy_bull = r_b * ops.fabs(sin_b) * sin_b * ct
+        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        # eq. (5.27) with R_b of (5.24) including its |sin beta| ("printed"), or the face
+        # normal's single sin(beta) ("single")
+        proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b
+        dfy_bull = r_b * proj * ct
     h_cop = _centre_of_pressure_depth(ops, h_b, p.rho, p.c, p.phi, form)
     arm_x = rs * ct - h_b + h_cop  # depth of the centre of pressure below the axle
 

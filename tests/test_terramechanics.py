@@ -171,6 +171,33 @@ def test_continuous_in_slip_over_a_fine_sweep(model):
     assert np.all(jumps < 0.01 * np.abs(wr).max(axis=0) + 1e-9), jumps
 
 
+@pytest.mark.parametrize("load", [12.0, 25.0])
+def test_straight_braking_is_smooth_in_slip(model, load):
+    """beta = 0 in skid: tau_T ~ v_jT / |v_j| jumps where v_jT changes sign; the quadrature
+    breakpoints at those zeros keep F_x and M_y smooth (review finding: 10 % jumps before)."""
+    s = np.linspace(-0.1, -0.01, 2000)
+    vx, vy, w = state_from_slip(s, 0.0, V, model.wheel)
+    h = np.full_like(s, 0.02 * load / 12.0)
+    wr = model.wrench(vx, vy, w, h, 0.75 * h)
+    for comp in (wr.Fx, wr.My, wr.Fz):
+        steps = np.abs(np.diff(comp))
+        neighbours = 0.5 * (steps[:-2] + steps[2:])
+        # no step is out of line with its neighbours (a jump would be, a steepening curve is not)
+        assert np.all(steps[1:-1] <= 3.0 * neighbours + 1e-9 * np.abs(comp).max())
+    fine = WheelModel(model.soil, model.wheel, model.tuning, ModelOptions(nodes_per_segment=40))
+    sub = slice(None, None, 50)
+    ref = fine.wrench(vx[sub], vy[sub], w[sub], h[sub], 0.75 * h[sub])
+    np.testing.assert_allclose(wr.Fx[sub], ref.Fx, atol=2e-3 * np.abs(ref.Fx).max())
+    np.testing.assert_allclose(wr.My[sub], ref.My, atol=1e-2 * np.abs(ref.My).max())  # measured 5.5e-3
+
+
+def test_locked_wheel_at_zero_slip_angle_matches_fine_quadrature(model):
+    fine = WheelModel(model.soil, model.wheel, model.tuning, ModelOptions(nodes_per_segment=60))
+    a = model.wrench(V, 0.0, 0.0, 0.05, 0.015).as_array()
+    b = fine.wrench(V, 0.0, 0.0, 0.05, 0.015).as_array()
+    np.testing.assert_allclose(a[[0, 2, 4]], b[[0, 2, 4]], rtol=2e-3)
+
+
 # ---------------------------------------------------------------- shear derivation (5.17)
 def test_tangential_deformation_derivation_pins_garbled_5_17():
     """(5.20) integrates the shear velocities: d(w j_T)/d theta = -v_jT, j_T(theta_f) = 0,

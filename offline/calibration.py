@@ -62,6 +62,7 @@ DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "a1_beta": (-0.6, 0.6),
     "b0_beta": (-0.6, 0.6),
     "b1_beta": (-0.6, 0.6),
+    "zeta": (0.0, 1.0),
 }
 
 JOINT_PARAMETERS: tuple[str, ...] = (
@@ -71,6 +72,7 @@ JOINT_PARAMETERS: tuple[str, ...] = (
 
 _TUNING_FIELDS = {"a0": "a0", "a1": "a1", "b0": "b0", "b1": "b1", "a0_beta": "a0_per_rad",
                   "a1_beta": "a1_per_rad", "b0_beta": "b0_per_rad", "b1_beta": "b1_per_rad"}
+_WHEEL_FIELDS = {"zeta": "grouser_volume_fraction"}
 _SOIL_FIELDS = {"k": "k", "n0": "n0", "n1": "n1", "n2": "n2", "c": "cohesion", "K": "shear_modulus",
                 "phi": "friction_angle", "rho": "unit_weight"}
 
@@ -88,6 +90,8 @@ class FitResult:
         variance (a local, Gaussian-noise estimate).
     soil, tuning : Soil, ContactTuning
         The calibrated sets.
+    wheel : Wheel or None
+        The wheel, with any calibrated field (zeta) replaced.
     cost, rms : float
         Final ``0.5 sum r^2`` and the rms of the normalised residuals.
     n_residuals, n_iterations : int
@@ -108,6 +112,7 @@ class FitResult:
     seconds: float
     success: bool
     message: str
+    wheel: Wheel | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def table(self) -> str:
@@ -115,16 +120,20 @@ class FitResult:
         return "\n".join(f"  {n:>8} = {v: .5g} ± {e:.2g}" for n, v, e in zip(self.names, self.values, self.std_errors))
 
 
-def _apply(soil: Soil, tuning: ContactTuning, names: Sequence[str], values: Sequence[float]) -> tuple[Soil, ContactTuning]:
-    s_kw, t_kw = {}, {}
+def _apply(
+    soil: Soil, tuning: ContactTuning, names: Sequence[str], values: Sequence[float], wheel: Wheel | None = None
+) -> tuple[Soil, ContactTuning, Wheel | None]:
+    s_kw, t_kw, w_kw = {}, {}, {}
     for n, v in zip(names, values):
         if n in _TUNING_FIELDS:
             t_kw[_TUNING_FIELDS[n]] = float(v)
         elif n in _SOIL_FIELDS:
             s_kw[_SOIL_FIELDS[n]] = float(v)
+        elif n in _WHEEL_FIELDS and wheel is not None:
+            w_kw[_WHEEL_FIELDS[n]] = float(v)
         else:
             raise ValueError(f"parameter {n!r} cannot be calibrated; choose from {sorted(DEFAULT_BOUNDS)}")
-    return replace(soil, **s_kw), replace(tuning, **t_kw)
+    return replace(soil, **s_kw), replace(tuning, **t_kw), (replace(wheel, **w_kw) if wheel is not None else None)
 
 
 class _Jacobians:
@@ -363,11 +372,10 @@ def fit_joint(
     bnd = dict(DEFAULT_BOUNDS)
     bnd.update(bounds or {})
     names = tuple(names)
-    unknown = [n for n in names if n not in bnd or (n not in _TUNING_FIELDS and n not in _SOIL_FIELDS)]
+    fittable = set(_TUNING_FIELDS) | set(_SOIL_FIELDS) | set(_WHEEL_FIELDS)
+    unknown = [n for n in names if n not in bnd or n not in fittable]
     if unknown:
-        raise ValueError(
-            f"parameter(s) {unknown} cannot be calibrated; choose from {sorted(set(bnd) & (set(_TUNING_FIELDS) | set(_SOIL_FIELDS)))}"
-        )
+        raise ValueError(f"parameter(s) {unknown} cannot be calibrated; choose from {sorted(set(bnd) & fittable)}")
     base = PhysParams.from_sets(soil, wheel, start)
     jac = _Jacobians(base, names, options)
     meas = np.stack([trials.Fx, trials.Fy, trials.sinkage], axis=1)
@@ -380,8 +388,8 @@ def fit_joint(
     count = [0]
 
     def fun(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        s_, t_ = _apply(soil, start, names, x)
-        model = WheelModel(s_, wheel, t_, options)
+        s_, t_, w_ = _apply(soil, start, names, x, wheel)
+        model = WheelModel(s_, w_ or wheel, t_, options)
         pred, dpred, ok = _predict_with_sensitivities(jac, model, trials, x)
         pred = np.where(ok[:, None], pred, np.array([np.nan, np.nan, rmax]))
         if (~ok).any():  # value at the maximum sinkage for trials the wheel cannot carry
@@ -399,11 +407,11 @@ def fit_joint(
     res = _least_squares(fun, x0, lb, ub, max_nfev)
     r, J = fun(res.x)
     se = _std_errors(J, r, len(names))
-    s_, t_ = _apply(soil, start, names, res.x)
+    s_, t_, w_ = _apply(soil, start, names, res.x, wheel)
     t_ = replace(t_, name="joint_linear_in_beta", source="offline.calibration.fit_joint (load given)")
     s_ = replace(s_, source=f"offline.calibration.fit_joint from {soil.name}", name=f"{soil.name}_calibrated")
     return FitResult(names, res.x.copy(), se, s_, t_, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
-                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message))
+                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message), wheel=w_)
 
 
 def leave_one_angle_out(

@@ -27,6 +27,8 @@ __all__ = ["main", "DEFAULT_PARAMS"]
 
 DEFAULT_PARAMS = "calibrated_grousered.toml"
 """Parameter file shipped in ``offline/data`` (written by ``offnominal calibrate``)."""
+DEFAULT_PARAMS_SF = "calibrated_grousered_soil_flow.toml"
+"""Soil-flow variant (``offnominal calibrate --exit-angle soil_flow``)."""
 
 WHEELS = {
     "published-code": "WHEEL_GROUSERED_PUBLISHED_CODE",
@@ -91,8 +93,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
         Variant("calibrated: classic exit angle", ps.soil, ps.wheel, ps.tuning),
         Variant("calibrated: Ishigami 2007 sidewall", ps.soil, ps.wheel, ps.tuning, ModelOptions(bulldozing="ishigami")),
     ]
-    if _soil_flow_available():
-        cal.insert(1, Variant("calibrated: soil-flow exit angle", ps.soil, ps.wheel, ps.tuning, opts_sf))
+    sf_path = Path(args.params_soil_flow) if args.params_soil_flow else (None if args.params else _shipped(DEFAULT_PARAMS_SF))
+    if sf_path is not None:
+        try:
+            ps_sf = P.load_toml(sf_path)["parameter_set"]
+        except (P.ParameterError, KeyError) as exc:
+            return _fail(f"{sf_path}: {exc}")
+        cal.insert(1, Variant("calibrated: soil-flow exit angle", ps_sf.soil, ps_sf.wheel, ps_sf.tuning, opts_sf))
     variants += [("calibrated", v) for v in cal]
 
     rows, preds = [], []
@@ -102,7 +109,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
         rows += error_rows(data, p, v.wheel.radius)
     print(f"Single-wheel validation, load given, sinkage predicted ({len(trials)} trials"
           f"{'' if args.per_trial else f', scored on {len(data)} condition means as Table 5.5'})")
-    print(f"data: {trials.source}\nparameters: {params_path}  (wheel: {ps.wheel.name}, tuning: {ps.tuning.name})\n")
+    print(f"data: {trials.source}\nparameters: {params_path}  (wheel: {ps.wheel.name}, tuning: {ps.tuning.name})"
+          + (f"; soil-flow variant: {sf_path}" if sf_path else "") + "\n")
     print("errors: prediction - measurement; forces in % of load, sinkage in % of wheel radius; mean ± sd, then mean |error|")
     print(format_table(rows))
     csv_path = write_csv(rows, out / "table_5_5.csv")
@@ -134,7 +142,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     fit_set = trials.subset(np.abs(trials.beta_cmd) <= max_beta)
     if len(fit_set) == 0:
         return _fail(f"no trials with |beta| <= {args.max_beta_deg} deg")
+    from .terramechanics import ModelOptions
+
+    opts = ModelOptions(exit_angle=args.exit_angle)
     names = list(JOINT_PARAMETERS)
+    if args.exit_angle == "soil_flow":  # b0, b1 are unused; the soil-flow model's own parameter is zeta
+        names = [n for n in names if not n.startswith("b")] + ["zeta"]
     if args.free_k:
         names.append("k")
     wheels = list(WHEELS) if args.wheel == "both" else [args.wheel]
@@ -142,11 +155,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for wname in wheels:
         wheel = getattr(P, WHEELS[wname])
         bar = tqdm(total=args.max_evals, desc=f"joint fit, {wname} wheel", unit="eval", leave=False, disable=args.quiet)
-        res = fit_joint(fit_set, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names,
+        res = fit_joint(fit_set, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names, opts,
                         max_nfev=args.max_evals, progress=lambda i, c: (bar.update(1), bar.set_postfix(cost=f"{c:.0f}")))
         bar.close()
+        wheel = res.wheel or wheel
         avg = average_conditions(trials)
-        rows = error_rows(avg, predict(avg, Variant(f"calibrated, {wname} wheel", res.soil, wheel, res.tuning)), wheel.radius)
+        label = f"calibrated, {wname} wheel" + (", soil-flow exit angle" if args.exit_angle == "soil_flow" else "")
+        rows = error_rows(avg, predict(avg, Variant(label, res.soil, wheel, res.tuning, opts)), wheel.radius)
         results[wname] = (res, wheel, rows)
         print(f"\n{wname} wheel: rms normalised residual {res.rms:.3f} over {res.n_residuals} residuals, "
               f"{res.n_iterations} evaluations, {res.seconds:.1f} s ({res.message})")
@@ -157,7 +172,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if len(results) > 1:
         print("wheel geometry supported by the data (lower rms after the same joint fit): "
               + ", ".join(f"{k}: {v[0].rms:.3f}" for k, v in results.items()) + f" -> {best}")
-    beats = {r.beta_deg: beats_table_5_5(r) for r in rows}
+    ref = "with soil flow" if args.exit_angle == "soil_flow" else "without soil flow"
+    beats = {r.beta_deg: beats_table_5_5(r, ref) for r in rows}
     meta = {
         "written_by": "offnominal calibrate",
         "data": str(trials.source),
@@ -168,6 +184,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "rms_normalised_residual": res.rms,
         "noise_normalisation": json.dumps({k: round(v, 6) for k, v in trials.noise().items()}),
         "beats_table_5_5": json.dumps({f"{b:g}": v for b, v in beats.items() if v is not None}),
+        "exit_angle": args.exit_angle,
         "notes": "Joint fit given the load (sinkage predicted); a0..b1 lines in |beta| per radian.",
     }
     out = Path(args.out)
@@ -179,18 +196,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print("\nOut of sample: leave one slip angle out (fit on the others, score the held-out angle)")
         held = []
         for b in tqdm(sorted(set(np.round(np.degrees(fit_set.beta_cmd), 3))), desc="leave-one-angle-out", disable=args.quiet):
-            cv = leave_one_angle_out(fit_set, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names,
+            cv = leave_one_angle_out(fit_set, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names, opts,
                                      angles_deg=[b], max_nfev=args.max_evals)[float(b)]
             sub = average_conditions(trials.subset(np.abs(np.degrees(trials.beta_cmd) - b) < 0.5))
-            held += error_rows(sub, predict(sub, Variant("held-out angle", cv.soil, wheel, cv.tuning)), wheel.radius)
+            held += error_rows(sub, predict(sub, Variant("held-out angle", cv.soil, cv.wheel or wheel, cv.tuning, opts)),
+                               wheel.radius)
         print(format_table(held))
         print("Out of sample: leave one repeat out (fit on two repeats of every condition, score the third)")
         held = []
         for rep in tqdm(sorted(set(fit_set.repeat.tolist())), desc="leave-one-repeat-out", disable=args.quiet):
             tr_ = fit_set.subset(fit_set.repeat != rep)
             te_ = trials.subset(trials.repeat == rep)
-            cv = fit_joint(tr_, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names, max_nfev=args.max_evals)
-            held += error_rows(te_, predict(te_, Variant(f"held-out repeat {rep}", cv.soil, wheel, cv.tuning)), wheel.radius)
+            cv = fit_joint(tr_, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names, opts,
+                           max_nfev=args.max_evals)
+            held += error_rows(te_, predict(te_, Variant(f"held-out repeat {rep}", cv.soil, cv.wheel or wheel, cv.tuning, opts)),
+                               wheel.radius)
         print(format_table(held))
     return 0
 
@@ -262,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and report errors per slip angle beside the dissertation's Table 5.5.")
     v.add_argument("--data", help="trials CSV in the single-wheel format (default: the shipped grousered trials)")
     v.add_argument("--params", help=f"parameter TOML (default: shipped {DEFAULT_PARAMS})")
+    v.add_argument("--params-soil-flow", help=f"parameter TOML for the soil-flow variant (default: shipped {DEFAULT_PARAMS_SF})")
     v.add_argument("--tuned", help="per-angle a0..b1 CSV for the dissertation rows (default: shipped authors' values)")
     v.add_argument("--out", default="out/validation", help="output folder for CSV and PNG (default: %(default)s)")
     v.add_argument("--per-trial", action="store_true", help="score every trial instead of condition means")
@@ -278,6 +299,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--max-beta-deg", type=float, default=60.0,
                    help="fit only slip angles up to this (the authors exclude 75 and 90: no steady state)")
     c.add_argument("--free-k", action="store_true", help="also fit the pressure-sinkage modulus k")
+    c.add_argument("--exit-angle", choices=["classic", "soil_flow"], default="classic",
+                   help="model variant to calibrate (soil_flow fits zeta instead of b0, b1)")
     c.add_argument("--max-evals", type=int, default=100, help="least-squares evaluations per fit")
     c.add_argument("--cv", action="store_true", help="also report out-of-sample errors (leave one angle / repeat out)")
     c.add_argument("--quiet", action="store_true", help="no progress bars")

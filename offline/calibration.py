@@ -165,13 +165,24 @@ class _Jacobians:
 
 
 def _noise_scales(trials: TrialSet, noise: Mapping[str, float] | None) -> dict[str, float]:
+    """Per-channel noise: given, else the pooled repeat spread (5 % of the load and 2 mm when
+    there are no repeats). A channel whose spread is zero (not measured, or quantised to one
+    value) cannot normalise residuals: that is an error naming the channel."""
     if noise is not None:
-        return dict(noise)
-    try:
-        return trials.noise()
-    except Exception:  # no repeats: fall back to 5 % of the load and 2 mm
-        return {"Fx": 0.05 * float(np.median(trials.Fz)), "Fy": 0.05 * float(np.median(trials.Fz)),
-                "Fz": 0.05 * float(np.median(trials.Fz)), "sinkage": 2e-3}
+        sc = dict(noise)
+    else:
+        try:
+            sc = trials.noise()
+        except Exception:  # no repeats: documented fallback
+            med = float(np.median(trials.Fz))
+            sc = {"Fx": 0.05 * med, "Fy": 0.05 * med, "Fz": 0.05 * med, "sinkage": 2e-3}
+    for ch in ("Fx", "Fy", "Fz", "sinkage"):
+        if ch in sc and not (np.isfinite(sc[ch]) and sc[ch] > 0):
+            raise ValueError(
+                f"channel {ch} has noise {sc[ch]!r} (zero repeat spread: not measured or constant); pass "
+                f"noise={{'{ch}': <sd>, ...}} explicitly, or remove the channel's trials"
+            )
+    return sc
 
 
 def _zero_slip_sinkage(trials: TrialSet) -> NDArray[np.float64]:
@@ -410,6 +421,9 @@ def fit_joint(
     s_, t_, w_ = _apply(soil, start, names, res.x, wheel)
     t_ = replace(t_, name="joint_linear_in_beta", source="offline.calibration.fit_joint (load given)")
     s_ = replace(s_, source=f"offline.calibration.fit_joint from {soil.name}", name=f"{soil.name}_calibrated")
+    if w_ is not None and any(n in _WHEEL_FIELDS for n in names):
+        fitted = ", ".join(n for n in names if n in _WHEEL_FIELDS)
+        w_ = replace(w_, name=f"{wheel.name}_calibrated", source=f"{wheel.source}; {fitted} from offline.calibration.fit_joint")
     return FitResult(names, res.x.copy(), se, s_, t_, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
                      int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message), wheel=w_)
 

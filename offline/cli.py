@@ -96,9 +96,12 @@ def cmd_validate(args: argparse.Namespace) -> int:
     sf_path = Path(args.params_soil_flow) if args.params_soil_flow else (None if args.params else _shipped(DEFAULT_PARAMS_SF))
     if sf_path is not None:
         try:
-            ps_sf = P.load_toml(sf_path)["parameter_set"]
-        except (P.ParameterError, KeyError) as exc:
-            return _fail(f"{sf_path}: {exc}")
+            loaded_sf = P.load_toml(sf_path)
+        except P.ParameterError as exc:
+            return _fail(str(exc))
+        if "parameter_set" not in loaded_sf:
+            return _fail(f"{sf_path}: needs [soil], [wheel] and [tuning] sections")
+        ps_sf = loaded_sf["parameter_set"]
         cal.insert(1, Variant("calibrated: soil-flow exit angle", ps_sf.soil, ps_sf.wheel, ps_sf.tuning, opts_sf))
     variants += [("calibrated", v) for v in cal]
 

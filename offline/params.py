@@ -25,9 +25,10 @@ Presets
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -127,11 +128,13 @@ class Soil:
         _check_positive(o, "unit_weight", self.unit_weight)
         _check_range(o, "cohesion", self.cohesion, 0.0, 1e6)
         _check_positive(o, "shear_modulus", self.shear_modulus)
-        if self.k < 1e3:
+        if self.k < 1e4:
             raise ParameterError(
                 f"Soil.k = {self.k!r} N/m^(n+2) is implausibly small: k is in SI; "
                 "8000 kN/m^(n+2) is 8.0e6 (did you pass kN?)"
             )
+        if self.k > 1e10:
+            raise ParameterError(f"Soil.k = {self.k!r} N/m^(n+2) is implausibly large (did you convert kN twice?)")
 
 
 @dataclass(frozen=True)
@@ -372,10 +375,19 @@ def _from_section(path: str, section: str, table: Mapping[str, Any]) -> Any:
             kwargs[fname] = float(value) * factor
     for meta in ("name", "source"):
         if meta in table:
-            kwargs[meta] = str(table[meta])
+            if not isinstance(table[meta], str):
+                raise ParameterError(f"{path}: [{section}] {meta} must be a string, got {table[meta]!r}")
+            kwargs[meta] = table[meta]
     try:
         return cls(**kwargs)
     except ParameterError as exc:
+        # name the key and value the user wrote (TOML units), not the SI field
+        for fname, key, factor in keys:
+            if f".{fname} " in str(exc) or f".{fname} =" in str(exc):
+                raise ParameterError(
+                    f"{path}: [{section}] {key} = {table.get(key)!r} is out of its physical range "
+                    f"({str(exc).split(' (radians expected')[0]})"
+                ) from None
         raise ParameterError(f"{path}: [{section}] {exc}") from None
 
 
@@ -404,6 +416,8 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for section, table in data.items():
         if section == "meta":
+            if not isinstance(table, dict):
+                raise ParameterError(f"{p}: [meta] must be a table, got {table!r}")
             out["meta"] = dict(table)
             continue
         if section not in _SECTIONS:
@@ -418,11 +432,14 @@ def load_toml(path: str | Path) -> dict[str, Any]:
 
 def _fmt(v: Any) -> str:
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+        # JSON string escapes (\\uXXXX, \\r, \\t, ...) are valid TOML basic-string escapes
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
         return str(v)
+    if v is None:
+        raise ParameterError("TOML has no null: leave the key out instead of None")
     return repr(float(v))
 
 
@@ -436,12 +453,14 @@ def save_toml(path: str | Path, meta: Mapping[str, Any] | None = None, **section
     lines: list[str] = []
     if meta:
         lines.append("[meta]")
-        lines += [f"{k} = {_fmt(v)}" for k, v in meta.items()]
+        lines += [f"{json.dumps(str(k))} = {_fmt(v)}" for k, v in meta.items()]
         lines.append("")
     for section, obj in sections.items():
         if section not in _SECTIONS:
             raise ParameterError(f"cannot save unknown section '{section}'")
-        _, keys = _SECTIONS[section]
+        cls, keys = _SECTIONS[section]
+        if not isinstance(obj, cls):
+            raise ParameterError(f"section [{section}] needs a {cls.__name__}, got {type(obj).__name__}")
         d = asdict(obj)
         lines.append(f"[{section}]")
         for meta_key in ("name", "source"):

@@ -128,6 +128,7 @@ __all__ = [
     "omega_from_slip",
     "wheel_state_from_slip",
     "tan_rule_angle",
+    "trench_quantities",
 ]
 
 LOW_ANGLE: float = math.radians(10.0)
@@ -141,6 +142,10 @@ _SQ_FLOOR = 1e-24  # m^2: floor of every sqrt argument (finite derivatives, no N
 _LEN_TINY = 1e-12  # m: guard of divisions by a length
 _ACOS_EPS = 1e-12  # guard of arccos arguments away from +-1
 _BAND_FLOOR = 1e-3  # footprint half-width floor, fraction of b / 2
+_BETA_EPS = 0.01  # rad: |beta| is evaluated as sqrt(beta^2 + eps^2) in exit_angle and
+# trench_quantities, so the profile is smooth (not kinked) through beta = 0, where an optimizer
+# balances symmetric wheels (IPOPT cycled on the kink). It departs from |beta| by at most eps
+# (0.57 deg, at beta = 0) and by eps^2 / (2 |beta|) beyond: < 0.05 deg above 6 deg.
 
 _Rot = Literal["low", "step", "left"]
 
@@ -843,7 +848,7 @@ def exit_angle(
         raise ValueError(f"smoothing_deg must be a finite number >= 0 (degrees), got {smoothing_deg!r}")
     win = math.radians(float(smoothing_deg))
     rs = wheel.shearing_radius
-    a = ops.fabs(beta)
+    a = ops.sqrt(beta * beta + _BETA_EPS**2)  # smooth |beta| (see _BETA_EPS)
     half = _band_half(ops, a, wheel)
 
     def theta(sym: bool, rot: _Rot) -> Any:
@@ -858,6 +863,51 @@ def exit_angle(
     mid_sym = (1.0 - w_t) * theta(True, "step") + w_t * theta(True, "left")
     upper = (1.0 - w_80) * mid_asym + w_80 * mid_sym
     return (1.0 - w_10) * theta(True, "low") + w_10 * upper
+
+
+def trench_quantities(
+    ops: Backend,
+    h0: Any,
+    beta: Any,
+    omega: Any,
+    vx: Any,
+    wheel: Wheel,
+    soil: Soil,
+    smoothing_deg: float = 1.0,
+) -> dict[str, Any]:
+    """Trench dimensions for optimisation constraints (7.28)-(7.29), any backend, continuous.
+
+    Returns the regime-blended (as in :func:`exit_angle`) trench depth ``d`` (m, > 0 below
+    the surface), flat-bottom width ``p`` (m), and the rim-side pile ``A_R2`` (m^2) and its
+    height ``h_R2`` (4.4). The rim side is the side the wheel is turned toward (the pile fed
+    by the rim area and robbed by the grousers, eq. 4.2-4.3); it is the only side that can be
+    left clean, so the clean-sided trench (7.28) is ``A_R2 = 0``, which is smooth where
+    ``h_R2 = sqrt(2 A_R2 tan phi)`` is not.
+
+    Parameters are those of :func:`exit_angle` (the result is even in ``beta``).
+    """
+    if not (isinstance(smoothing_deg, (int, float)) and math.isfinite(smoothing_deg) and smoothing_deg >= 0.0):
+        raise ValueError(f"smoothing_deg must be a finite number >= 0 (degrees), got {smoothing_deg!r}")
+    win = math.radians(float(smoothing_deg))
+    a = ops.sqrt(beta * beta + _BETA_EPS**2)  # smooth |beta| (see _BETA_EPS)
+    keys = ("d", "p", "A_R2", "h_R2")
+
+    def q(sym: bool, rot: _Rot) -> dict[str, Any]:
+        r = _regime_profile(ops, h0, a, omega, vx, wheel, soil, sym, rot)
+        return {k: r[k] for k in keys}
+
+    a_t = tan_rule_angle(h0, wheel, ops)
+    w_t = _blend_weight(ops, a, a_t, win)
+    w_10 = _blend_weight(ops, a, LOW_ANGLE, win)
+    w_80 = _blend_weight(ops, a, HIGH_ANGLE, win)
+    low, sa, la, ss, ls = q(True, "low"), q(False, "step"), q(False, "left"), q(True, "step"), q(True, "left")
+    out = {}
+    for k in keys:
+        mid_asym = (1.0 - w_t) * sa[k] + w_t * la[k]
+        mid_sym = (1.0 - w_t) * ss[k] + w_t * ls[k]
+        upper = (1.0 - w_80) * mid_asym + w_80 * mid_sym
+        out[k] = (1.0 - w_10) * low[k] + w_10 * upper
+    return out
 
 
 # --------------------------------------------------------------------------------------------

@@ -115,6 +115,12 @@ class ModelOptions:
     soil_flow_smoothing_deg : float
         Width of the blend across soil-flow regime switches (passed to
         :func:`offline.soil_flow.exit_angle`).
+    shear_direction_smoothing : float
+        Relative floor ``eps`` of the shear-velocity magnitude in the direction ratio of
+        eq. (5.11), ``v_ji / sqrt(v_jT^2 + v_jL^2 + (eps (v + |r_s w|))^2)``. The ratio makes the
+        shear direction switch abruptly where a shear velocity crosses zero (near free rolling
+        a tiny slip angle turns most of the shear sideways), which is a near-discontinuity for
+        an optimizer; a larger ``eps`` rounds it over that velocity width.
     """
 
     exit_angle: Literal["classic", "soil_flow"] = "classic"
@@ -124,6 +130,7 @@ class ModelOptions:
     nodes_per_segment: int = 8
     beta_smoothing: float = 1e-3
     soil_flow_smoothing_deg: float = 1.0
+    shear_direction_smoothing: float = SHEAR_VELOCITY_REL_EPS
 
     def __post_init__(self) -> None:
         if self.exit_angle not in ("classic", "soil_flow"):
@@ -138,6 +145,8 @@ class ModelOptions:
             raise ValueError(f"ModelOptions.bulldozing_scale must be in [0, 100], got {self.bulldozing_scale!r}")
         if not (isinstance(self.nodes_per_segment, int) and 2 <= self.nodes_per_segment <= 200):
             raise ValueError(f"ModelOptions.nodes_per_segment must be an int in [2, 200], got {self.nodes_per_segment!r}")
+        if not 0.0 < self.shear_direction_smoothing < 0.5:
+            raise ValueError(f"ModelOptions.shear_direction_smoothing must be in (0, 0.5), got {self.shear_direction_smoothing!r}")
         if not 0.0 <= self.beta_smoothing < 0.1:
             raise ValueError(f"ModelOptions.beta_smoothing must be in [0, 0.1) rad, got {self.beta_smoothing!r}")
 
@@ -386,7 +395,7 @@ def wrench_core(
     j_w = ops.sqrt(jt_w * jt_w + jl_w * jl_w + 1e-300)
     w_abs = ops.sqrt(wp * wp + OMEGA_FLOOR**2)
     shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
-    eps_v = SHEAR_VELOCITY_REL_EPS * (v + ops.fabs(rw))
+    eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
     vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
     tau_max = (p.c + sigma * ops.tan(p.phi)) * shear_fraction / vj
     tauT = vjT * tau_max

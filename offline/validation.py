@@ -242,6 +242,11 @@ def error_rows(trials: TrialSet, pred: Prediction, radius: float) -> list[ErrorR
         idx = trials.beta_cmd == b
         ok = idx & (pred.status == "ok")
         if not ok.any():
+            if np.all(pred.status[idx] == "no_tuning"):
+                continue  # the variant does not cover this angle
+            nan = math.nan
+            rows.append(ErrorRow(pred.variant, round(math.degrees(b), 3), int(idx.sum()), int(idx.sum()),
+                                 nan, nan, nan, nan, nan, nan, nan, nan, nan))
             continue
         stats = []
         for ch in ("Fx", "Fy", "sinkage"):

@@ -384,8 +384,12 @@ def test_exit_angle_matches_profile_away_from_blends():
         tp = trench_profile(*x, W, S)
         ref = exit_angle_from_profile(tp, W)
         got = float(exit_angle(NUMPY, np.array([[x[0]]]), np.array([[x[1]]]), np.array([[x[2]]]), np.array([[x[3]]]), W, S)[0, 0])
-        # the arccos guard floors |theta_r| at sqrt(2e-12) rad when no soil is left behind the rim
-        assert got == pytest.approx(ref, abs=2e-6)
+        # the arccos guard floors |theta_r| at sqrt(2e-12) rad when no soil is left behind the rim;
+        # near beta = 0 |beta| is smoothed (soil_flow._BETA_EPS = 0.01 rad), which moves the angle
+        # by at most a few mrad there and by < 2e-4 rad (0.01 deg)
+        # beyond 17 deg
+        tol = 2e-4 if abs(x[1]) > 0.3 else 5e-3
+        assert got == pytest.approx(ref, abs=tol)
         n += 1
     assert n > 100
 

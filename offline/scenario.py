@@ -1,0 +1,318 @@
+"""Driving scenarios as data: failure modes, trenching goals and operating point (TOML).
+
+A scenario names the model (a parameter file or preset), the rover, the travel speed, the
+slope, the steering offsets (7.26)-(7.27), failures on any wheels and an optional trenching
+goal. Every failure is a set of constraints on one wheel, so adding a failure mode is
+writing a file (ARCHITECTURE.md, design point 2).
+
+File format
+-----------
+.. code-block:: toml
+
+    [scenario]
+    name = "rr_speed_cap"
+    params = "dissertation-ch7"      # preset, or a parameter TOML path (relative to this file)
+    rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section
+    exit_angle = "soil_flow"         # or "classic"
+    speed_m_s = 0.03
+    slope_deg = 0.0
+    yaw_moment_offset_Nm = 0.0       # (7.26)
+    lateral_force_offset_N = 0.0     # (7.27)
+    grouser_volume_fraction = 1.0    # optional override of zeta (the dissertation trenches with 1)
+
+    [wheels.RR]                      # any of FR, FL, RR, RL; any combination of keys
+    rim_speed_max_m_s = 0.015        # (7.30)
+    steer_stuck_deg = -50.0          # (7.31)
+    locked = true                    # omega = 0
+    unpowered = true                 # free rolling: wheel torque M_y = 0
+    raised = true                    # no ground contact: W = 0 (stuck suspension)
+    torque_limit_Nm = 0.2            # |M_y| <= limit
+    steer_min_deg = -90.0            # steering range of this wheel (default +-90)
+    steer_max_deg = 0.0
+
+    [trench]
+    wheel = "RR"
+    clean_side = true                # (7.28): no pile on the side the wheel is turned toward
+    min_depth_m = 0.025              # (7.29); or min_depth = "half_width" for b / 2
+    min_flat_width_m = 0.0
+    target_depth_m = 0.03            # optional equality instead of a minimum
+
+Recipe: add a failure mode
+--------------------------
+1. Add the key to ``_WHEEL_KEYS`` with its type and physical range.
+2. Express it as bounds on the wheel's decision variables (omega, beta, W, h) or on the
+   wheel-torque constraint in :meth:`offline.primitives.SteadyStateProblem.bounds`.
+3. Give it a continuation path from the nominal primitive in
+   :func:`offline.primitives._interpolate` if the solver should approach it gradually.
+4. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from .params import (
+    ROVER_MINI_T72,
+    SOIL_DISSERTATION_T53_GROUSERED,
+    TUNING_T72_LINEAR,
+    WHEEL_GROUSERED_PUBLISHED_CODE,
+    ParameterError,
+    ParameterSet,
+    Rover,
+    load_toml,
+)
+from .rover import WHEELS
+
+__all__ = ["ScenarioError", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
+           "ROVER_PRESETS", "example_scenarios"]
+
+
+class ScenarioError(ValueError):
+    """A scenario file is malformed or physically impossible; the message names file and key."""
+
+
+PARAM_PRESETS: dict[str, ParameterSet] = {
+    "dissertation-ch7": ParameterSet(
+        SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, TUNING_T72_LINEAR,
+        notes="chapter 7: Table 5.3 soil, Table 7.2 wheel and linear a(beta)",
+    ),
+}
+ROVER_PRESETS: dict[str, Rover] = {"mini-rover-t72": ROVER_MINI_T72}
+
+
+@dataclass(frozen=True)
+class WheelFailure:
+    """Constraints on one wheel (all optional; defaults mean nominal)."""
+
+    rim_speed_max: float = math.inf
+    steer_stuck: float | None = None
+    locked: bool = False
+    unpowered: bool = False
+    raised: bool = False
+    torque_limit: float = math.inf
+    steer_min: float = -math.pi / 2
+    steer_max: float = math.pi / 2
+
+    @property
+    def nominal(self) -> bool:
+        return self == WheelFailure()
+
+
+@dataclass(frozen=True)
+class TrenchGoal:
+    """Trenching objective for one wheel, eqs. (7.28)-(7.29)."""
+
+    wheel: str
+    clean_side: bool = False
+    min_depth: float = 0.0
+    min_flat_width: float = 0.0
+    target_depth: float | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A steady straight-driving problem, SI units."""
+
+    name: str
+    params: ParameterSet
+    rover: Rover
+    exit_angle: str = "soil_flow"
+    speed: float = 0.03
+    slope: float = 0.0
+    mz_offset: float = 0.0
+    fy_offset: float = 0.0
+    failures: Mapping[str, WheelFailure] = field(default_factory=dict)
+    trench: TrenchGoal | None = None
+    description: str = ""
+    source: str = ""
+
+    def failure(self, wheel: str) -> WheelFailure:
+        return self.failures.get(wheel, WheelFailure())
+
+    def with_(self, **kw: Any) -> "Scenario":
+        """A copy with fields replaced (e.g. ``slope=...``)."""
+        return replace(self, **kw)
+
+
+_SCENARIO_KEYS = {"name": str, "description": str, "params": str, "rover": str, "exit_angle": str, "speed_m_s": float,
+                  "slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
+                  "grouser_volume_fraction": float}
+_WHEEL_KEYS: dict[str, tuple[type, float, float]] = {
+    "rim_speed_max_m_s": (float, 0.0, 10.0),
+    "steer_stuck_deg": (float, -90.0, 90.0),
+    "locked": (bool, 0, 1),
+    "unpowered": (bool, 0, 1),
+    "raised": (bool, 0, 1),
+    "torque_limit_Nm": (float, 0.0, 1e4),
+    "steer_min_deg": (float, -90.0, 90.0),
+    "steer_max_deg": (float, -90.0, 90.0),
+}
+_TRENCH_KEYS = {"wheel": str, "clean_side": bool, "min_depth_m": float, "min_depth": str, "min_flat_width_m": float,
+                "target_depth_m": float}
+
+
+def _get(path: str, table: Mapping[str, Any], key: str, typ: type, where: str) -> Any:
+    v = table[key]
+    if typ is float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ScenarioError(f"{path}: [{where}] {key} must be a number, got {v!r}")
+        if not math.isfinite(float(v)):
+            raise ScenarioError(f"{path}: [{where}] {key} must be finite, got {v!r}")
+        return float(v)
+    if not isinstance(v, typ):
+        raise ScenarioError(f"{path}: [{where}] {key} must be a {typ.__name__}, got {v!r}")
+    return v
+
+
+def _resolve_params(path: Path, ref: str, zeta: float | None) -> ParameterSet:
+    if ref in PARAM_PRESETS:
+        ps = PARAM_PRESETS[ref]
+    else:
+        p = (path.parent / ref) if not Path(ref).is_absolute() else Path(ref)
+        try:
+            loaded = load_toml(p)
+        except ParameterError as exc:
+            raise ScenarioError(f"{path}: [scenario] params = {ref!r}: {exc}") from None
+        if "parameter_set" not in loaded:
+            raise ScenarioError(f"{path}: [scenario] params = {ref!r} has no [soil], [wheel] and [tuning]")
+        ps = loaded["parameter_set"]
+    if zeta is not None:
+        if not 0.0 <= zeta <= 1.0:
+            raise ScenarioError(f"{path}: [scenario] grouser_volume_fraction = {zeta} outside [0, 1]")
+        ps = replace(ps, wheel=replace(ps.wheel, grouser_volume_fraction=zeta))
+    return ps
+
+
+def _resolve_rover(path: Path, ref: str) -> Rover:
+    if ref in ROVER_PRESETS:
+        return ROVER_PRESETS[ref]
+    p = (path.parent / ref) if not Path(ref).is_absolute() else Path(ref)
+    try:
+        loaded = load_toml(p)
+    except ParameterError as exc:
+        raise ScenarioError(f"{path}: [scenario] rover = {ref!r}: {exc}") from None
+    if "rover" not in loaded:
+        raise ScenarioError(f"{path}: [scenario] rover = {ref!r} has no [rover] section")
+    return loaded["rover"]
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Raises
+    ------
+    ScenarioError
+        With the file, section, wheel and key in the message, e.g.
+        ``stuck.toml: [wheels.RR] steer_stuck_deg = 400 outside [-90, 90]``.
+    """
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"{p}: no such scenario file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{p}: not valid TOML ({exc})") from None
+    unknown = sorted(set(data) - {"scenario", "wheels", "trench"})
+    if unknown:
+        raise ScenarioError(f"{p}: unknown section(s) {unknown}; expected [scenario], [wheels.<FR|FL|RR|RL>], [trench]")
+    sc = data.get("scenario")
+    if not isinstance(sc, dict):
+        raise ScenarioError(f"{p}: missing [scenario] section")
+    bad = sorted(set(sc) - set(_SCENARIO_KEYS))
+    if bad:
+        raise ScenarioError(f"{p}: [scenario] unknown key(s) {bad}; known: {sorted(_SCENARIO_KEYS)}")
+    vals = {k: _get(str(p), sc, k, t, "scenario") for k, t in _SCENARIO_KEYS.items() if k in sc}
+    name = vals.get("name", p.stem)
+    exit_angle = vals.get("exit_angle", "soil_flow")
+    if exit_angle not in ("classic", "soil_flow"):
+        raise ScenarioError(f"{p}: [scenario] exit_angle = {exit_angle!r}; use 'classic' or 'soil_flow'")
+    speed = vals.get("speed_m_s", 0.03)
+    if not 0.0 < speed <= 5.0:
+        raise ScenarioError(f"{p}: [scenario] speed_m_s = {speed} must be in (0, 5] m/s (is it in cm/s?)")
+    slope_deg = vals.get("slope_deg", 0.0)
+    if not -45.0 < slope_deg < 45.0:
+        raise ScenarioError(f"{p}: [scenario] slope_deg = {slope_deg} outside (-45, 45) deg")
+    params = _resolve_params(p, vals.get("params", "dissertation-ch7"), vals.get("grouser_volume_fraction"))
+    rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
+    failures: dict[str, WheelFailure] = {}
+    wheels = data.get("wheels", {})
+    if not isinstance(wheels, dict):
+        raise ScenarioError(f"{p}: [wheels] must hold tables [wheels.FR] ...")
+    for wname, tab in wheels.items():
+        if wname not in WHEELS:
+            raise ScenarioError(f"{p}: [wheels.{wname}] unknown wheel; use one of {list(WHEELS)}")
+        if not isinstance(tab, dict):
+            raise ScenarioError(f"{p}: [wheels.{wname}] must be a table")
+        bad = sorted(set(tab) - set(_WHEEL_KEYS))
+        if bad:
+            raise ScenarioError(f"{p}: [wheels.{wname}] unknown key(s) {bad}; known: {sorted(_WHEEL_KEYS)}")
+        kw: dict[str, Any] = {}
+        for key, (typ, lo, hi) in _WHEEL_KEYS.items():
+            if key not in tab:
+                continue
+            v = _get(str(p), tab, key, typ, f"wheels.{wname}")
+            if typ is float and not lo <= v <= hi:
+                hint = " (degrees expected)" if key.endswith("_deg") else ""
+                raise ScenarioError(f"{p}: [wheels.{wname}] {key} = {v} outside [{lo}, {hi}]{hint}")
+            kw[key] = v
+        f = WheelFailure(
+            rim_speed_max=kw.get("rim_speed_max_m_s", math.inf),
+            steer_stuck=math.radians(kw["steer_stuck_deg"]) if "steer_stuck_deg" in kw else None,
+            locked=kw.get("locked", False), unpowered=kw.get("unpowered", False), raised=kw.get("raised", False),
+            torque_limit=kw.get("torque_limit_Nm", math.inf),
+            steer_min=math.radians(kw.get("steer_min_deg", -90.0)), steer_max=math.radians(kw.get("steer_max_deg", 90.0)),
+        )
+        if f.steer_min > f.steer_max:
+            raise ScenarioError(f"{p}: [wheels.{wname}] steer_min_deg > steer_max_deg")
+        if f.steer_stuck is not None and not f.steer_min - 1e-12 <= f.steer_stuck <= f.steer_max + 1e-12:
+            raise ScenarioError(f"{p}: [wheels.{wname}] steer_stuck_deg outside the wheel's steer range")
+        if f.locked and f.unpowered:
+            raise ScenarioError(f"{p}: [wheels.{wname}] locked and unpowered contradict each other: a locked wheel "
+                                "carries a braking torque, an unpowered one carries none")
+        if f.locked and f.rim_speed_max == 0.0:
+            pass
+        if f.raised and (f.locked or f.unpowered or f.steer_stuck is not None or math.isfinite(f.torque_limit)):
+            raise ScenarioError(f"{p}: [wheels.{wname}] a raised wheel has no ground contact: its other failure "
+                                "keys have no effect; remove them")
+        failures[wname] = f
+    if sum(f.raised for f in failures.values()) > 1:
+        raise ScenarioError(f"{p}: more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
+    trench = None
+    if "trench" in data:
+        t = data["trench"]
+        bad = sorted(set(t) - set(_TRENCH_KEYS))
+        if bad:
+            raise ScenarioError(f"{p}: [trench] unknown key(s) {bad}; known: {sorted(_TRENCH_KEYS)}")
+        if "wheel" not in t:
+            raise ScenarioError(f"{p}: [trench] missing key 'wheel'")
+        tv = {k: _get(str(p), t, k, typ, "trench") for k, typ in _TRENCH_KEYS.items() if k in t}
+        if tv["wheel"] not in WHEELS:
+            raise ScenarioError(f"{p}: [trench] wheel = {tv['wheel']!r}; use one of {list(WHEELS)}")
+        if failures.get(tv["wheel"], WheelFailure()).raised:
+            raise ScenarioError(f"{p}: [trench] wheel {tv['wheel']} is raised and cannot dig")
+        min_depth = tv.get("min_depth_m", 0.0)
+        if "min_depth" in tv:
+            if tv["min_depth"] != "half_width":
+                raise ScenarioError(f"{p}: [trench] min_depth = {tv['min_depth']!r}; use 'half_width' or min_depth_m")
+            min_depth = params.wheel.width / 2
+        for key in ("min_depth_m", "min_flat_width_m", "target_depth_m"):
+            if key in tv and not 0.0 <= tv[key] <= 2 * params.wheel.radius:
+                raise ScenarioError(f"{p}: [trench] {key} = {tv[key]} m outside [0, 2 r] (metres expected)")
+        trench = TrenchGoal(tv["wheel"], tv.get("clean_side", False), min_depth, tv.get("min_flat_width_m", 0.0),
+                            tv.get("target_depth_m"))
+    return Scenario(
+        name=name, params=params, rover=rover, exit_angle=exit_angle, speed=speed, slope=math.radians(slope_deg),
+        mz_offset=vals.get("yaw_moment_offset_Nm", 0.0), fy_offset=vals.get("lateral_force_offset_N", 0.0),
+        failures=failures, trench=trench, description=vals.get("description", ""), source=str(p),
+    )
+
+
+def example_scenarios() -> list[Path]:
+    """The scenario files shipped in ``offline/scenarios``."""
+    folder = Path(str(resources.files("offline").joinpath("scenarios")))
+    return sorted(folder.glob("*.toml"))

@@ -5,6 +5,9 @@ Commands
 validate    Table 5.5 / Fig. 5.6 validation on single-wheel trials (the default main job).
 calibrate   Fit the model to single-wheel trials and write a TOML parameter file.
 discrepancy Locate model-data mismatch, name the missing physics, show the fit improve.
+primitive   Solve a driving scenario (failures, trenching, slope) for a steady primitive.
+slope-sweep Fig. 7.12: slip and power against slope.
+envelope    Steepest feasible slope and the slope where slip crosses a limit.
 bekker      Fit Bekker's p = k z^n to static plate tests.
 soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
 """
@@ -19,7 +22,7 @@ import time
 from dataclasses import asdict, replace
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -252,6 +255,127 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_scenario_or_fail(path: str) -> Any:
+    from .scenario import ScenarioError, example_scenarios, load_scenario
+
+    p = Path(path)
+    if not p.exists():
+        shipped = {q.stem: q for q in example_scenarios()}
+        if path in shipped:
+            p = shipped[path]
+    try:
+        return load_scenario(p)
+    except ScenarioError as exc:
+        print(f"offnominal: error: {exc}", file=sys.stderr)
+        return None
+
+
+def cmd_primitive(args: argparse.Namespace) -> int:
+    from .primitives import DISSERTATION_CH7, lowest_speed_cap, solve_primitive, steering_controllers
+
+    sc = _load_scenario_or_fail(args.scenario)
+    if sc is None:
+        return 2
+    r = solve_primitive(sc)
+    print(f"scenario {sc.name}: {sc.description}")
+    print(f"status: {r.status}  ({r.stats['seconds']:.2f} s, {r.stats['iterations']} IPOPT iterations)")
+    print("  " + "\n  ".join(r.stats["attempts"]))
+    print(r.table())
+    print(f"independent numeric check: {'passed' if r.check_passed else 'FAILED'}; largest residuals: "
+          + ", ".join(f"{k} {v:.2e}" for k, v in sorted(r.residuals.items(), key=lambda kv: -abs(kv[1]))[:3]))
+    if r.trench is not None:
+        t = r.trench
+        print(f"trench: {t.shape}, depth {t.d * 1e3:.1f} mm, flat width {t.p * 1e3:.1f} mm, rim-side pile {t.h_R2 * 1e3:.1f} mm")
+    if r.evidence:
+        print("evidence: " + "; ".join(f"{k}: {v}" for k, v in r.evidence.items()))
+    if sc.name in DISSERTATION_CH7:
+        print(f"dissertation: {DISSERTATION_CH7[sc.name]}")
+    for k, f in sc.failures.items():
+        if args.lowest_cap and (f.rim_speed_max < math.inf):
+            cap, _ = lowest_speed_cap(sc, k)
+            print(f"lowest reachable rim-speed cap on {k}: {cap * 100:.2f} cm/s (dissertation: 1.5 cm/s for RR)")
+    if args.controllers and r.ok:
+        ctl = steering_controllers(sc, r)
+        for name, gains in ctl.items():
+            unit = "N m" if name.startswith("Mz") else "N"
+            print(f"steering controller {name} (per {unit}): " + ", ".join(
+                f"{k} d(rim) {g[0] * 100:+.3f} cm/s, d(steer) {math.degrees(g[1]):+.2f} deg" for k, g in gains.items()))
+    return 0 if r.ok else 1
+
+
+def cmd_slope_sweep(args: argparse.Namespace) -> int:
+    import csv
+
+    from .primitives import slope_sweep
+    from .scenario import example_scenarios, load_scenario
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    shipped = {q.stem: q for q in example_scenarios()}
+    names = args.scenarios or ["nominal", "rr_speed_cap_half", "rr_steer_stuck_50"]
+    slopes = list(np.arange(0.0, args.max_deg + 1e-9, args.step_deg))
+    rows, results = [], {}
+    for n in names:
+        sc = _load_scenario_or_fail(n)
+        if sc is None:
+            return 2
+        t0 = time.perf_counter()
+        res = slope_sweep(sc, slopes, progress=None if args.quiet else (
+            lambda a, r, n=n: print(f"  {n}: slope {a:5.1f} deg -> {r.status}", flush=True)))
+        results[n] = res
+        for r in res:
+            rows.append([n, math.degrees(r.scenario.slope), r.status, r.mean_slip() if r.ok else math.nan,
+                         r.max_slip() if r.ok else math.nan, r.power if r.ok else math.nan, r.stats["seconds"]])
+        feas = [r for r in res if r.ok]
+        steep = math.degrees(feas[-1].scenario.slope) if feas else math.nan
+        cross = next((math.degrees(r.scenario.slope) for r in feas if r.mean_slip() >= 0.5), math.nan)
+        print(f"{n}: flat-ground mean slip {feas[0].mean_slip() if feas else math.nan:.3f}, max slip "
+              f"{feas[0].max_slip() if feas else math.nan:.3f}; steepest solved slope {steep:.1f} deg; "
+              f"mean slip >= 0.5 from {cross:.1f} deg  ({time.perf_counter() - t0:.1f} s)")
+    with (out / "slope_sweep.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["scenario", "slope_deg", "status", "mean_slip_unaffected", "max_slip", "power_W", "seconds"])
+        w.writerows(rows)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    for n, res in results.items():
+        feas = [r for r in res if r.ok]
+        a = [math.degrees(r.scenario.slope) for r in feas]
+        line, = ax[0].plot(a, [r.mean_slip() for r in feas], "-o", ms=3, label=f"{n} (mean, unaffected)")
+        ax[0].plot(a, [r.max_slip() for r in feas], "--", color=line.get_color(), label=f"{n} (max)")
+        ax[1].plot(a, [r.power * 1e3 for r in feas], "-o", ms=3, color=line.get_color(), label=n)
+    ax[0].axhline(0.5, color="k", lw=0.8, ls=":")
+    ax[0].set(xlabel="slope [deg]", ylabel="slip ratio", title="slip vs slope (cf. Fig. 7.12)")
+    ax[1].set(xlabel="slope [deg]", ylabel="mechanical power sum(T w) [mW]", title="power vs slope")
+    for a_ in ax:
+        a_.grid(alpha=0.3)
+        a_.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "slope_sweep.png", dpi=110)
+    plt.close(fig)
+    print("dissertation (Fig. 7.12): nominal 15 % slip flat, feasible to 24 deg, 50 % slip at 12.5 deg; stuck steer "
+          "40 % mean flat, 50 % at 2.5 deg; speed-limited 69 % mean / 76 % max flat")
+    print(f"wrote {out / 'slope_sweep.csv'} and {out / 'slope_sweep.png'}")
+    return 0
+
+
+def cmd_envelope(args: argparse.Namespace) -> int:
+    from .primitives import envelope
+
+    sc = _load_scenario_or_fail(args.scenario)
+    if sc is None:
+        return 2
+    e = envelope(sc, args.slip_limit, step_deg=args.step_deg, max_deg=args.max_deg)
+    print(f"{sc.name}: steepest feasible slope {e['steepest_slope_deg']:.2f} deg "
+          f"(bracket {e.get('steepest_slope_bracket_deg')}); mean slip of unaffected wheels reaches "
+          f"{args.slip_limit:.2f} at {e['slip_limit_slope_deg']:.2f} deg")
+    return 0
+
+
 def cmd_bekker(args: argparse.Namespace) -> int:
     from .bekker import main as bekker_main
 
@@ -323,6 +447,31 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0, help="seed of the randomisation test")
     d.add_argument("--quiet", action="store_true", help="no progress lines")
     d.set_defaults(func=cmd_discrepancy)
+
+    pr = sub.add_parser("primitive", help="solve a driving scenario (failures, trenching, slope) for a steady primitive",
+                        description="Solve the steady-state NLP (7.25) for a scenario TOML (or the name of a shipped "
+                                    "example) from the automatic start; print wheel speeds, angles, loads, sinkages, "
+                                    "slips, torques, power, the independent check and, if infeasible, the evidence.")
+    pr.add_argument("scenario", help="scenario TOML path, or a shipped example name (e.g. rr_steer_stuck_50)")
+    pr.add_argument("--controllers", action="store_true", help="also the steering controllers of section 7.2.4")
+    pr.add_argument("--lowest-cap", action="store_true", help="bisect the lowest reachable rim-speed cap")
+    pr.set_defaults(func=cmd_primitive)
+
+    ss = sub.add_parser("slope-sweep", help="Fig. 7.12: slip and power against slope for several scenarios (CSV, PNG)")
+    ss.add_argument("scenarios", nargs="*", help="scenario files or shipped names (default: nominal, "
+                                                 "rr_speed_cap_half, rr_steer_stuck_50)")
+    ss.add_argument("--max-deg", type=float, default=25.0, help="largest slope (default: %(default)s)")
+    ss.add_argument("--step-deg", type=float, default=2.5, help="slope step (default: %(default)s)")
+    ss.add_argument("--out", default="out/slope_sweep", help="output folder (default: %(default)s)")
+    ss.add_argument("--quiet", action="store_true", help="no progress lines")
+    ss.set_defaults(func=cmd_slope_sweep)
+
+    en = sub.add_parser("envelope", help="steepest feasible slope and the slope where slip crosses a limit")
+    en.add_argument("scenario", help="scenario TOML path or shipped name")
+    en.add_argument("--slip-limit", type=float, default=0.5, help="slip limit (default: %(default)s)")
+    en.add_argument("--step-deg", type=float, default=2.5, help="sweep step (default: %(default)s)")
+    en.add_argument("--max-deg", type=float, default=40.0, help="largest slope tried (default: %(default)s)")
+    en.set_defaults(func=cmd_envelope)
 
     b = sub.add_parser("bekker", help="fit p = k z^n to static plate tests", add_help=False)
     b.add_argument("rest", nargs=argparse.REMAINDER)

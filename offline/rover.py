@@ -122,3 +122,11 @@ class FourWheelRocker:
             res["My_right"] = res["My_right"] + my["FR"] + my["RR"]
             res["My_left"] = res["My_left"] + my["FL"] + my["RL"]
         return res
+
+    @staticmethod
+    def pivot_balance(res: dict[str, Any], pivot_locked: Any) -> tuple[Any, Any]:
+        """The two pitch equations with the rocker pivot free (``pivot_locked = 0``): both
+        rocker balances (7.16), (7.17); or locked (``1``, a stuck suspension): only the whole
+        rover's pitch balance, the pivot carrying the difference. Returned as
+        ``(My_right + My_left, (1 - locked) My_right)``, zero in both cases."""
+        return res["My_right"] + res["My_left"], (1.0 - pivot_locked) * res["My_right"]

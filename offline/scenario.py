@@ -13,7 +13,7 @@ File format
     name = "rr_speed_cap"
     params = "dissertation-ch7"      # preset, or a parameter TOML path (relative to this file)
     rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section
-    exit_angle = "soil_flow"         # or "classic"
+    exit_angle = "classic"           # default; "soil_flow" takes theta_r from the trench model
     speed_m_s = 0.03
     slope_deg = 0.0
     yaw_moment_offset_Nm = 0.0       # (7.26)
@@ -25,7 +25,8 @@ File format
     steer_stuck_deg = -50.0          # (7.31)
     locked = true                    # omega = 0
     unpowered = true                 # free rolling: wheel torque M_y = 0
-    raised = true                    # no ground contact: W = 0 (stuck suspension)
+    raised = true                    # no ground contact: W = 0 (stuck suspension: the rocker
+                                     # pivot is locked, so only the whole-rover pitch balances)
     torque_limit_Nm = 0.2            # |M_y| <= limit
     steer_min_deg = -90.0            # steering range of this wheel (default +-90)
     steer_max_deg = 0.0
@@ -121,7 +122,7 @@ class Scenario:
     name: str
     params: ParameterSet
     rover: Rover
-    exit_angle: str = "soil_flow"
+    exit_angle: str = "classic"
     speed: float = 0.03
     slope: float = 0.0
     mz_offset: float = 0.0
@@ -228,7 +229,7 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: [scenario] unknown key(s) {bad}; known: {sorted(_SCENARIO_KEYS)}")
     vals = {k: _get(str(p), sc, k, t, "scenario") for k, t in _SCENARIO_KEYS.items() if k in sc}
     name = vals.get("name", p.stem)
-    exit_angle = vals.get("exit_angle", "soil_flow")
+    exit_angle = vals.get("exit_angle", "classic")
     if exit_angle not in ("classic", "soil_flow"):
         raise ScenarioError(f"{p}: [scenario] exit_angle = {exit_angle!r}; use 'classic' or 'soil_flow'")
     speed = vals.get("speed_m_s", 0.03)

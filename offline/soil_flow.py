@@ -386,16 +386,19 @@ def _regime_profile(
         a_l2 = 0.5 * (a_tot - a_rot)
         a_r2 = a_l2
         a_aside = a_rot
+        a_r2_margin = 0.5 * (a_tot - a_rot_raw)
     elif rot == "step":
         a_rot = ops.fmin(a_rot_raw, a_r1)
         a_l2 = a_l1
         a_r2 = a_r1 - a_rot
         a_aside = a_rot
+        a_r2_margin = a_r1 - a_rot_raw
     else:
         a_rot = ops.fmin(a_rot_raw, a_r1)
         a_l2 = a_l1 + a_rot
         a_r2 = a_r1 - a_rot
         a_aside = 0.0 * a_rot
+        a_r2_margin = a_r1 - a_rot_raw
     a_r2 = ops.fmax(a_r2, 0.0)
     a_l2 = ops.fmax(a_l2, 0.0)
 
@@ -496,6 +499,7 @@ def _regime_profile(
         "A_rot": a_rot,
         "A_L2": a_l2,
         "A_R2": a_r2,
+        "A_R2_margin": a_r2_margin,
         "A_aside": a_aside,
         "w": w,
         "d_pre": d,
@@ -890,7 +894,7 @@ def trench_quantities(
         raise ValueError(f"smoothing_deg must be a finite number >= 0 (degrees), got {smoothing_deg!r}")
     win = math.radians(float(smoothing_deg))
     a = ops.sqrt(beta * beta + _BETA_EPS**2)  # smooth |beta| (see _BETA_EPS)
-    keys = ("d", "p", "A_R2", "h_R2")
+    keys = ("d", "p", "A_R2", "h_R2", "A_R2_margin")
 
     def q(sym: bool, rot: _Rot) -> dict[str, Any]:
         r = _regime_profile(ops, h0, a, omega, vx, wheel, soil, sym, rot)

@@ -36,6 +36,7 @@ Departures from the printed text (each also noted where it happens)
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -232,6 +233,11 @@ def _centre_of_pressure_depth(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any
     return (a * h_b**2 / 3.0 + cc * h_b / 2.0) / (a * h_b / 2.0 + cc + 1e-30)
 
 
+@functools.lru_cache(maxsize=8)
+def _gauss_legendre_cached(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    return gauss_legendre(n)
+
+
 def shear_kinematics(
     ops: Backend, th: Any, ct: Any, st: Any, theta_f: Any, theta_0: Any, sin_f: Any, sin_0: Any, S: Any,
     skid: Any, vx: Any, rw: Any, vy: Any,
@@ -263,10 +269,13 @@ def shear_kinematics(
     vjT, vjL, jt_w, jl_w
     """
     front = skid * (th > theta_0)  # logical and, valid for numpy bools and casadi 0/1
-    vjT = ops.where(front, vx * (S - ct), rw - vx * ct)
-    vjL = -vy + 0.0 * th
-    jt_w = ops.where(front, vx * (S * (theta_f - th) - (sin_f - st)), rw * (theta_0 - th) - vx * (sin_0 - st))
-    jl_w = (theta_f - th) * vy
+    vct = vx * ct  # shared node arrays (fewer temporaries on the numpy path)
+    vst = vx * st
+    dth = theta_f - th
+    vjT = ops.where(front, vx * S - vct, rw - vct)
+    vjL = -vy  # per state; broadcasts against the nodes
+    jt_w = ops.where(front, (vx * S) * dth - vx * sin_f + vst, rw * (theta_0 - th) - vx * sin_0 + vst)
+    jl_w = dth * vy
     return vjT, vjL, jt_w, jl_w
 
 
@@ -371,7 +380,7 @@ def wrench_core(
         for j in range(len(breaks) - 1 - i):
             lo_, hi_ = ops.fmin(breaks[j], breaks[j + 1]), ops.fmax(breaks[j], breaks[j + 1])
             breaks[j], breaks[j + 1] = lo_, hi_
-    x_gl, w_gl = gauss_legendre(options.nodes_per_segment)
+    x_gl, w_gl = _gauss_legendre_cached(options.nodes_per_segment)
     xn, wn = ops.nodes(x_gl), ops.nodes(w_gl)
     thetas, weights = [], []
     edges = [theta_r, *breaks, theta_f]
@@ -631,7 +640,7 @@ class WheelModel:
         h: Any,
         h_zero_slip: Any | None = None,
         *,
-        chunk: int = 4096,
+        chunk: int = 1024,
     ) -> Wrench:
         """Evaluate the wrench for a batch of wheel states (numpy backend).
 
@@ -658,7 +667,7 @@ class WheelModel:
         vxa, vya, wa, ha, h0a, shape = self._validate(vx, vy, omega, h, h if h_zero_slip is None else h_zero_slip)
         return self._wrench_unchecked(vxa, vya, wa, ha, h0a, shape, chunk)
 
-    def _wrench_unchecked(self, vxa: Any, vya: Any, wa: Any, ha: Any, h0a: Any, shape: Any, chunk: int = 4096) -> Wrench:
+    def _wrench_unchecked(self, vxa: Any, vya: Any, wa: Any, ha: Any, h0a: Any, shape: Any, chunk: int = 1024) -> Wrench:
         nb = vxa.size
         cols = {k: np.empty(nb) for k in WRENCH_NAMES + DIAG_NAMES}
         with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):

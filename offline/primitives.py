@@ -58,6 +58,7 @@ __all__ = [
     "slope_sweep",
     "envelope",
     "lowest_speed_cap",
+    "mirror_scenario",
     "DISSERTATION_CH7",
 ]
 
@@ -403,6 +404,21 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
                 res[f"steer {k}"] = b - f.steer_stuck
                 tol[f"steer {k}"] = 1.0
         beta[k], h[k], load[k] = b, hi, Wi
+    if sc.trench is not None:
+        from .soil_flow import trench_profile
+
+        i = WHEELS.index(sc.trench.wheel)
+        om, b, _, hi, _ = (float(v) for v in xs[5 * i:5 * i + 5])
+        tp = trench_profile(hi, b, om, sc.speed * math.cos(b), pb.params.wheel, pb.params.soil)
+        dim_tol = 5e-4 / pb.options.check_rtol  # trench dimensions to 0.5 mm (section 7.2.7 used 1 mm)
+        if sc.trench.clean_side:
+            res["trench rim-side pile height"] = tp.h_R2
+            tol["trench rim-side pile height"] = dim_tol
+        if sc.trench.target_depth is not None:
+            res["trench depth"] = tp.d - sc.trench.target_depth
+        else:
+            res["trench depth"] = max(sc.trench.min_depth - tp.d, 0.0)
+        tol["trench depth"] = dim_tol
     bal = pb.statics.balance(NUMPY, wr, beta, h, load, sc.slope, sc.fy_offset, sc.mz_offset)
     locked = float(any(sc.failure(k).raised for k in WHEELS))
     bal["My_right"], bal["My_left"] = pb.statics.pivot_balance(bal, locked)
@@ -500,6 +516,14 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
             best, t_reached = r, 1.0
         else:
             last_fail = r
+            for label, start in _symmetric_guesses(pb, sc, b1):  # cheap single solves first
+                r = pb.solve(b1, start)
+                iterations += r["iterations"]
+                attempts.append(f"{label}: {r['status']}")
+                if r["success"]:
+                    best, t_reached = r, 1.0
+                    break
+        if best is None:
             for n in options.continuation:
                 if time.perf_counter() - t_start > options.time_budget:
                     attempts.append("time budget spent")
@@ -525,8 +549,20 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
                 if t >= 1.0 - 1e-12:
                     best = {"x": xs, "g": gs, "status": "Solve_Succeeded (continuation)", "success": True}
                     break
+    if best is None and x0 is None and _mirror_depth(sc) == 0 and time.perf_counter() - t_start < options.time_budget:
+        # the rover is left-right symmetric: the mirror-image scenario takes another numerical
+        # path; if it solves, its mirrored solution is a start for this one
+        left = options.time_budget - (time.perf_counter() - t_start)
+        mr = solve_primitive(mirror_scenario(sc), replace(options, time_budget=0.5 * left))
+        attempts.append(f"mirror-image scenario: {mr.status}")
+        if mr.ok:
+            r = pb.solve(b1, mirror_x(mr.x))
+            iterations += r["iterations"]
+            attempts.append(f"from the mirrored solution: {r['status']}")
+            if r["success"]:
+                best, t_reached = r, 1.0
     if best is None:
-        starts = _symmetric_guesses(pb, sc, b1)
+        starts = [] if xn is not None else _symmetric_guesses(pb, sc, b1)
         rng = np.random.default_rng(0)
         guess = pb.nominal_guess(sc)
         for k in range(options.restarts):
@@ -569,6 +605,36 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     stats = {"attempts": attempts, "iterations": iterations, "seconds": time.perf_counter() - t_start,
              "continuation_reached": t_reached, "build_seconds": pb.build_seconds}
     return PrimitiveResult(sc, status, wheels, power, float(f), residuals, passed, trench, evidence, stats, x)
+
+
+_MIRROR = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+
+
+def _mirror_depth(sc: Scenario) -> int:
+    return 1 if sc.name.endswith(" (mirror)") else 0
+
+
+def mirror_scenario(sc: Scenario) -> Scenario:
+    """The left-right mirror image: wheels swapped, steer angles, lateral force and yaw
+    moment offsets negated (a trench wheel moves to the other side)."""
+    fails = {}
+    for k, f in sc.failures.items():
+        fails[_MIRROR[k]] = replace(
+            f, steer_stuck=None if f.steer_stuck is None else -f.steer_stuck, steer_min=-f.steer_max, steer_max=-f.steer_min)
+    trench = replace(sc.trench, wheel=_MIRROR[sc.trench.wheel]) if sc.trench else None
+    return replace(sc, failures=fails, trench=trench, fy_offset=-sc.fy_offset, mz_offset=-sc.mz_offset,
+                   name=f"{sc.name} (mirror)")
+
+
+def mirror_x(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Mirror a solution vector: swap left and right wheels, negate steer angles."""
+    xs = x.reshape(len(WHEELS), 5).copy()
+    out = np.empty_like(xs)
+    for i, k in enumerate(WHEELS):
+        j = WHEELS.index(_MIRROR[k])
+        out[j] = xs[i]
+        out[j, 1] = -xs[i, 1]
+    return out.ravel()
 
 
 def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) -> list[tuple[str, NDArray[np.float64]]]:

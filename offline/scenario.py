@@ -19,6 +19,7 @@ File format
     yaw_moment_offset_Nm = 0.0       # (7.26)
     lateral_force_offset_N = 0.0     # (7.27)
     grouser_volume_fraction = 1.0    # optional override of zeta (the dissertation trenches with 1)
+    grouser_area_ratio = 0.5         # optional override of mu (Table 5.2: 0.5; published code: 0.1)
 
     [wheels.RR]                      # any of FR, FL, RR, RL; any combination of keys
     rim_speed_max_m_s = 0.015        # (7.30)
@@ -142,7 +143,7 @@ class Scenario:
 
 _SCENARIO_KEYS = {"name": str, "description": str, "params": str, "rover": str, "exit_angle": str, "speed_m_s": float,
                   "slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
-                  "grouser_volume_fraction": float}
+                  "grouser_volume_fraction": float, "grouser_area_ratio": float}
 _WHEEL_KEYS: dict[str, tuple[type, float, float]] = {
     "rim_speed_max_m_s": (float, 0.0, 10.0),
     "steer_stuck_deg": (float, -90.0, 90.0),
@@ -170,7 +171,7 @@ def _get(path: str, table: Mapping[str, Any], key: str, typ: type, where: str) -
     return v
 
 
-def _resolve_params(path: Path, ref: str, zeta: float | None) -> ParameterSet:
+def _resolve_params(path: Path, ref: str, zeta: float | None, mu: float | None = None) -> ParameterSet:
     if ref in PARAM_PRESETS:
         ps = PARAM_PRESETS[ref]
     else:
@@ -186,6 +187,10 @@ def _resolve_params(path: Path, ref: str, zeta: float | None) -> ParameterSet:
         if not 0.0 <= zeta <= 1.0:
             raise ScenarioError(f"{path}: [scenario] grouser_volume_fraction = {zeta} outside [0, 1]")
         ps = replace(ps, wheel=replace(ps.wheel, grouser_volume_fraction=zeta))
+    if mu is not None:
+        if not 0.0 <= mu <= 1.0:
+            raise ScenarioError(f"{path}: [scenario] grouser_area_ratio = {mu} outside [0, 1]")
+        ps = replace(ps, wheel=replace(ps.wheel, grouser_area_ratio=mu))
     return ps
 
 
@@ -238,7 +243,8 @@ def load_scenario(path: str | Path) -> Scenario:
     slope_deg = vals.get("slope_deg", 0.0)
     if not -45.0 < slope_deg < 45.0:
         raise ScenarioError(f"{p}: [scenario] slope_deg = {slope_deg} outside (-45, 45) deg")
-    params = _resolve_params(p, vals.get("params", "dissertation-ch7"), vals.get("grouser_volume_fraction"))
+    params = _resolve_params(p, vals.get("params", "dissertation-ch7"), vals.get("grouser_volume_fraction"),
+                             vals.get("grouser_area_ratio"))
     rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
     failures: dict[str, WheelFailure] = {}
     wheels = data.get("wheels", {})

@@ -69,6 +69,29 @@ def test_failure_scenarios_meet_their_constraints(name):
             assert w.load == 0.0 and w.torque == 0.0
 
 
+def test_clean_sided_trench_meets_depth_and_clean_side():
+    sc = load_scenario(SHIPPED["rr_trench_clean"])
+    r = solve_primitive(sc)
+    assert r.ok and r.check_passed, (r.status, r.evidence)
+    assert r.trench.d >= sc.trench.min_depth - 5e-4
+    assert r.trench.h_R2 < 5e-4  # no pile on the rim side (7.28), to 0.5 mm
+    assert r.wheels["RR"].steer <= 0.0  # turned outwards, as the scenario's steer range asks
+
+
+def test_mirror_image_scenarios_get_mirror_image_primitives():
+    from offline.primitives import mirror_scenario
+
+    sc = load_scenario(SHIPPED["opportunity_steer_stuck_7"])
+    a, b = solve_primitive(sc), solve_primitive(mirror_scenario(sc))
+    assert a.ok and b.ok
+    mirror = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+    for k, w in a.wheels.items():
+        m = b.wheels[mirror[k]]
+        assert m.rim_speed == pytest.approx(w.rim_speed, rel=1e-5, abs=1e-7)
+        assert m.steer == pytest.approx(-w.steer, abs=1e-5)
+        assert m.load == pytest.approx(w.load, rel=1e-5)
+
+
 def test_speed_cap_forces_the_other_wheels_to_slip_more(nominal):
     r = solve_primitive(load_scenario(SHIPPED["rr_speed_cap_half"]))
     assert r.wheels["RR"].slip < 0  # the capped wheel skids

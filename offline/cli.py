@@ -19,7 +19,6 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Sequence
@@ -48,6 +47,34 @@ def _fail(msg: str) -> int:
     return 2
 
 
+def _trials_or_fail(path: str | None) -> Any:
+    """Load trials, or print the loader's message and return None."""
+    from .dataset import DatasetError, load_trials
+
+
+    try:
+        return load_trials(path)
+    except (DatasetError, FileNotFoundError) as exc:
+        _fail(str(exc))
+        return None
+
+
+def _parameter_set_or_fail(path: str | None) -> tuple[Any, Path]:
+    """Load a parameter set (default: the shipped calibrated file), or print why not."""
+    from . import params as P
+
+    params_path = Path(path) if path else _shipped(DEFAULT_PARAMS)
+    try:
+        loaded = P.load_toml(params_path)
+    except P.ParameterError as exc:
+        _fail(str(exc))
+        return None, params_path
+    if "parameter_set" not in loaded:
+        _fail(f"{params_path}: needs [soil], [wheel] and [tuning] sections")
+        return None, params_path
+    return loaded["parameter_set"], params_path
+
+
 def _soil_flow_available() -> bool:
     try:
         from . import soil_flow  # noqa: F401
@@ -58,23 +85,17 @@ def _soil_flow_available() -> bool:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     from . import params as P
-    from .dataset import DatasetError, load_trials, load_tuned_params
+    from .dataset import load_tuned_params
     from .terramechanics import ModelOptions
     from .validation import Variant, average_conditions, error_rows, format_table, plot_fig_5_6, predict, write_csv
 
     t0 = time.perf_counter()
-    try:
-        trials = load_trials(args.data)
-    except (DatasetError, FileNotFoundError) as exc:
-        return _fail(str(exc))
-    params_path = Path(args.params) if args.params else _shipped(DEFAULT_PARAMS)
-    try:
-        loaded = P.load_toml(params_path)
-    except P.ParameterError as exc:
-        return _fail(str(exc))
-    if "parameter_set" not in loaded:
-        return _fail(f"{params_path}: needs [soil], [wheel] and [tuning] sections")
-    ps = loaded["parameter_set"]
+    trials = _trials_or_fail(args.data)
+    if trials is None:
+        return 2
+    ps, params_path = _parameter_set_or_fail(args.params)
+    if ps is None:
+        return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     data = trials if args.per_trial else average_conditions(trials)
@@ -136,14 +157,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     from . import params as P
     from .calibration import JOINT_PARAMETERS, fit_joint
-    from .dataset import DatasetError, load_trials
     from .validation import Variant, average_conditions, beats_table_5_5, error_rows, format_table, predict
 
     t0 = time.perf_counter()
-    try:
-        trials = load_trials(args.data)
-    except (DatasetError, FileNotFoundError) as exc:
-        return _fail(str(exc))
+    trials = _trials_or_fail(args.data)
+    if trials is None:
+        return 2
     max_beta = math.radians(args.max_beta_deg + 0.5)
     fit_set = trials.subset(np.abs(trials.beta_cmd) <= max_beta)
     if len(fit_set) == 0:
@@ -222,32 +241,25 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_discrepancy(args: argparse.Namespace) -> int:
-    from . import params as P
-    from .dataset import DatasetError, load_trials
     from .discrepancy import diagnose
     from .terramechanics import ModelOptions
 
     t0 = time.perf_counter()
-    try:
-        trials = load_trials(args.data)
-    except (DatasetError, FileNotFoundError) as exc:
-        return _fail(str(exc))
+    trials = _trials_or_fail(args.data)
+    if trials is None:
+        return 2
     if args.max_beta_deg is not None:
         trials = trials.subset(np.abs(trials.beta_cmd) <= math.radians(args.max_beta_deg + 0.5))
         if len(trials) == 0:
             return _fail(f"no trials with |beta| <= {args.max_beta_deg} deg")
-    params_path = Path(args.params) if args.params else _shipped(DEFAULT_PARAMS)
-    try:
-        loaded = P.load_toml(params_path)
-    except P.ParameterError as exc:
-        return _fail(str(exc))
-    if "parameter_set" not in loaded:
-        return _fail(f"{params_path}: needs [soil], [wheel] and [tuning] sections")
+    ps, _ = _parameter_set_or_fail(args.params)
+    if ps is None:
+        return 2
     try:
         opts = ModelOptions(exit_angle=args.exit_angle, bulldozing=args.bulldozing)
     except ValueError as exc:
         return _fail(str(exc))
-    verdict = diagnose(trials, loaded["parameter_set"], opts, seed=args.seed,
+    verdict = diagnose(trials, ps, opts, seed=args.seed,
                        progress=None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True)))
     out = verdict.write(args.out)
     print(verdict.summary())
@@ -307,11 +319,9 @@ def cmd_slope_sweep(args: argparse.Namespace) -> int:
     import csv
 
     from .primitives import slope_sweep
-    from .scenario import example_scenarios, load_scenario
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    shipped = {q.stem: q for q in example_scenarios()}
     names = args.scenarios or ["nominal", "rr_speed_cap_half", "rr_steer_stuck_50"]
     slopes = list(np.arange(0.0, args.max_deg + 1e-9, args.step_deg))
     rows, results = [], {}

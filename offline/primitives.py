@@ -45,7 +45,7 @@ from .backend import CASADI, NUMPY
 from .params import ParameterSet, Rover
 from .rover import BALANCE_NAMES, WHEELS, FourWheelRocker
 from .scenario import Scenario, WheelFailure
-from .terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
+from .terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
 
 __all__ = [
     "SolverOptions",
@@ -801,15 +801,3 @@ def lowest_speed_cap(sc: Scenario, wheel: str, options: SolverOptions | None = N
         else:
             lo = mid
     return hi, best
-
-
-class _WheelView:
-    def __init__(self, p: PhysParams) -> None:
-        self.radius, self.width, self.grouser_height = p.r, p.b, p.hg
-        self.grouser_area_ratio, self.grouser_volume_fraction = p.mu, p.zeta
-        self.shearing_radius = p.r + p.hg
-
-
-class _SoilView:
-    def __init__(self, p: PhysParams) -> None:
-        self.repose_angle, self.friction_angle, self.cohesion, self.unit_weight = p.repose, p.phi, p.c, p.rho

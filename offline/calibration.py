@@ -214,11 +214,17 @@ def _least_squares(fun: Callable, x0: NDArray[np.float64], lb: NDArray[np.float6
 
 
 def _std_errors(J: NDArray[np.float64], r: NDArray[np.float64], n_par: int) -> NDArray[np.float64]:
+    """Standard errors from ``s^2 (J^T J)^-1``, with the columns scaled to unit norm first so
+    parameters of very different magnitude (k ~ 1e7, a0 ~ 1) do not fall below the
+    pseudo-inverse's cut-off."""
     dof = max(r.size - n_par, 1)
     s2 = float(r @ r) / dof
+    norms = np.linalg.norm(J, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    Js = J / norms
     try:
-        cov = np.linalg.pinv(J.T @ J) * s2
-        return np.sqrt(np.clip(np.diag(cov), 0, None))
+        cov = np.linalg.pinv(Js.T @ Js) * s2
+        return np.sqrt(np.clip(np.diag(cov), 0, None)) / norms
     except np.linalg.LinAlgError:
         return np.full(n_par, np.nan)
 
@@ -362,6 +368,7 @@ def fit_joint(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     max_nfev: int = 100,
     progress: Callable[[int, float], None] | None = None,
+    priors: Mapping[str, tuple[float, float]] | None = None,
 ) -> FitResult:
     """Fit soil parameters and contact-angle lines in |beta| jointly, given each trial's load.
 
@@ -376,6 +383,9 @@ def fit_joint(
         Free parameters (PhysParams field names, see :data:`DEFAULT_BOUNDS`).
     progress : callable, optional
         Called as ``progress(evaluation, cost)``.
+    priors : mapping, optional
+        ``name -> (mean, sd)`` in SI: independent evidence on a parameter (e.g. k from the
+        static plate tests, :mod:`offline.bekker`), added as residuals ``(x - mean) / sd``.
     """
     options = options or ModelOptions()
     t0 = time.perf_counter()
@@ -397,6 +407,13 @@ def fit_joint(
     x0 = np.clip(np.array([getattr(base, n) for n in names], dtype=float), lb, ub)
     x0 = np.clip(x0, lb + 1e-9 * (ub - lb), ub - 1e-9 * (ub - lb))
     count = [0]
+    prior_idx = []
+    for pname, (m, sd) in (priors or {}).items():
+        if pname not in names:
+            raise ValueError(f"prior on {pname!r}, which is not a free parameter ({list(names)})")
+        if not (math.isfinite(m) and math.isfinite(sd) and sd > 0):
+            raise ValueError(f"prior on {pname!r} needs a finite mean and sd > 0, got ({m}, {sd})")
+        prior_idx.append((names.index(pname), (float(m), float(sd))))
 
     def fun(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         s_, t_, w_ = _apply(soil, start, names, x, wheel)
@@ -410,6 +427,12 @@ def fit_joint(
             pred[bad, 0], pred[bad, 1] = wr.Fx, wr.Fy
         r = ((pred - meas) / scale).ravel()
         J = (dpred / scale[None, :, None]).reshape(-1, len(names))
+        if prior_idx:
+            rp = np.array([(x[i] - m) / sd for i, (m, sd) in prior_idx])
+            Jp = np.zeros((len(prior_idx), len(names)))
+            for row, (i, (_, sd)) in enumerate(prior_idx):
+                Jp[row, i] = 1.0 / sd
+            r, J = np.concatenate([r, rp]), np.vstack([J, Jp])
         count[0] += 1
         if progress is not None:
             progress(count[0], 0.5 * float(r @ r))

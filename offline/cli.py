@@ -173,15 +173,28 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     names = list(JOINT_PARAMETERS)
     if args.exit_angle == "soil_flow":  # b0, b1 are unused; the soil-flow model's own parameter is zeta
         names = [n for n in names if not n.startswith("b")] + ["zeta"]
-    if args.free_k:
+    priors = None
+    if args.free_k or args.plates:
         names.append("k")
+    if args.plates:
+        from .bekker import fit_bekker
+
+        try:
+            bf = fit_bekker(args.plates, "large_box_plates")
+        except (OSError, ValueError) as exc:
+            return _fail(f"--plates {args.plates}: {exc}")
+        ks = np.array([t.k_nls for t in bf.tests])
+        priors = {"k": (float(np.mean(ks)), float(np.std(ks, ddof=1)))}
+        print(f"plate tests ({len(ks)} large-box plates): k = {priors['k'][0] / 1e3:.0f} ± {priors['k'][1] / 1e3:.0f} "
+              f"kN/m^(n+2) (per-test nonlinear fits, mean ± sd; dissertation 8000), used as a prior on k")
     wheels = list(WHEELS) if args.wheel == "both" else [args.wheel]
     results = {}
     for wname in wheels:
         wheel = getattr(P, WHEELS[wname])
         bar = tqdm(total=args.max_evals, desc=f"joint fit, {wname} wheel", unit="eval", leave=False, disable=args.quiet)
         res = fit_joint(fit_set, P.SOIL_DISSERTATION_T53_GROUSERED, wheel, P.TUNING_T72_LINEAR, names, opts,
-                        max_nfev=args.max_evals, progress=lambda i, c: (bar.update(1), bar.set_postfix(cost=f"{c:.0f}")))
+                        max_nfev=args.max_evals, progress=lambda i, c: (bar.update(1), bar.set_postfix(cost=f"{c:.0f}")),
+                        priors=priors)
         bar.close()
         wheel = res.wheel or wheel
         avg = average_conditions(trials)
@@ -436,6 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--max-beta-deg", type=float, default=60.0,
                    help="fit only slip angles up to this (the authors exclude 75 and 90: no steady state)")
     c.add_argument("--free-k", action="store_true", help="also fit the pressure-sinkage modulus k")
+    c.add_argument("--plates", help="single-wheel data folder with pressure_sinkage/: fit k as well, with the "
+                                    "large-box plate tests' k as a prior")
     c.add_argument("--exit-angle", choices=["classic", "soil_flow"], default="classic",
                    help="model variant to calibrate (soil_flow fits zeta instead of b0, b1)")
     c.add_argument("--max-evals", type=int, default=100, help="least-squares evaluations per fit")

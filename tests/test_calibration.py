@@ -137,6 +137,19 @@ def test_joint_fit_rejects_unknown_or_unbounded_parameters_by_name(trials_0_60, 
         fit_joint(trials_0_60, SOIL, WHEEL, TRUE_TUNING, (name,), noise=NOISE, max_nfev=2)
 
 
+def test_prior_pulls_a_parameter_the_data_do_not_pin(synthetic):
+    """k and n0 trade off in k h^n; a tight prior on k fixes it, and the fit recovers n0."""
+    sub = synthetic.subset(np.arange(0, len(synthetic), 3))
+    res = fit_joint(sub, replace(SOIL, n0=1.3), WHEEL, TRUE_TUNING, ("n0", "k"), noise=NOISE, max_nfev=40,
+                    priors={"k": (SOIL.k, 1e3)})
+    assert res.soil.k == pytest.approx(SOIL.k, rel=1e-3)
+    assert res.soil.n0 == pytest.approx(SOIL.n0, rel=1e-4)
+    with pytest.raises(ValueError, match="not a free parameter"):
+        fit_joint(sub, SOIL, WHEEL, TRUE_TUNING, ("n0",), noise=NOISE, priors={"k": (SOIL.k, 1e3)})
+    with pytest.raises(ValueError, match="sd > 0"):
+        fit_joint(sub, SOIL, WHEEL, TRUE_TUNING, ("k",), noise=NOISE, priors={"k": (SOIL.k, 0.0)})
+
+
 def test_joint_fit_recovers_friction_angle_given_its_bound(synthetic):
     start = replace(SOIL, friction_angle=math.radians(25.0))
     res = fit_joint(synthetic, start, WHEEL, TRUE_TUNING, ("phi",), noise=NOISE,

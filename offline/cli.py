@@ -8,6 +8,7 @@ discrepancy Locate model-data mismatch, name the missing physics, show the fit i
 primitive   Solve a driving scenario (failures, trenching, slope) for a steady primitive.
 slope-sweep Fig. 7.12: slip and power against slope.
 envelope    Steepest feasible slope and the slope where slip crosses a limit.
+chapter7    Reproduce chapter 7 beside the dissertation's numbers.
 bekker      Fit Bekker's p = k z^n to static plate tests.
 soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
 """
@@ -399,6 +400,53 @@ def cmd_envelope(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_chapter7(args: argparse.Namespace) -> int:
+    """Reproduce the chapter-7 results side by side with the dissertation's numbers."""
+    import csv
+
+    from .primitives import envelope, lowest_speed_cap, solve_primitive
+
+    t0 = time.perf_counter()
+    rows: list[tuple[str, str, str, str]] = []
+
+    def add(what: str, ours: str, theirs: str, note: str = "") -> None:
+        rows.append((what, ours, theirs, note))
+        print(f"{what:<46} ours: {ours:<28} dissertation: {theirs:<18} {note}", flush=True)
+
+    sc = {n: _load_scenario_or_fail(n) for n in ("nominal", "rr_speed_cap_half", "rr_steer_stuck_50",
+                                                 "rr_trench_clean", "rr_trench_clean_mu01")}
+    if any(v is None for v in sc.values()):
+        return 2
+    r = solve_primitive(sc["rr_trench_clean"])
+    t = r.trench
+    add("clean-sided trench, RR, depth >= b/2 (mu = 0.5)", f"{r.status}, depth {t.d * 100:.2f} cm" if r.ok else r.status,
+        "2.6 cm predicted", f"RR {r.wheels['RR'].rim_speed * 100:.1f} cm/s at {math.degrees(r.wheels['RR'].steer):.0f} deg"
+        if r.ok else "")
+    r = solve_primitive(sc["rr_trench_clean_mu01"])
+    add("clean-sided trench with mu = 0.1 (published code)", r.status, "(not studied)", r.evidence.get("most_violated_constraint", ""))
+    for name, key in (("nominal", "nominal"), ("speed cap v/2 on RR", "rr_speed_cap_half"), ("RR steer stuck at 50 deg", "rr_steer_stuck_50")):
+        e = envelope(sc[key], 0.5, step_deg=args.step_deg, max_deg=30.0)
+        flat = e["sweep"][0]
+        theirs = {"nominal": ("15 %", "-", "24 deg", "12.5 deg"), "rr_speed_cap_half": ("69 %", "76 %", "-", "none (> 50 % flat)"),
+                  "rr_steer_stuck_50": ("40 %", "-", "-", "2.5 deg")}[key]
+        if flat.ok:
+            add(f"{name}: mean slip of unaffected wheels, flat", f"{flat.mean_slip() * 100:.1f} %", theirs[0])
+            add(f"{name}: max slip, flat", f"{flat.max_slip() * 100:.1f} %", theirs[1])
+        add(f"{name}: steepest feasible slope", f"{e['steepest_slope_deg']:.1f} deg", theirs[2])
+        cross = e["slip_limit_slope_deg"]
+        add(f"{name}: slope where mean slip reaches 50 %", f"{cross:.1f} deg" if math.isfinite(cross) else "n/a", theirs[3])
+    cap, _ = lowest_speed_cap(sc["rr_speed_cap_half"], "RR")
+    add("lowest reachable rim-speed cap on RR", f"{cap * 100:.2f} cm/s", "1.5 cm/s", "(theirs: hand continuation)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "chapter7.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["quantity", "ours", "dissertation", "note"])
+        w.writerows(rows)
+    print(f"wrote {out / 'chapter7.csv'}  ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
 def cmd_bekker(args: argparse.Namespace) -> int:
     from .bekker import main as bekker_main
 
@@ -497,6 +545,13 @@ def build_parser() -> argparse.ArgumentParser:
     en.add_argument("--step-deg", type=float, default=2.5, help="sweep step (default: %(default)s)")
     en.add_argument("--max-deg", type=float, default=40.0, help="largest slope tried (default: %(default)s)")
     en.set_defaults(func=cmd_envelope)
+
+    c7 = sub.add_parser("chapter7", help="reproduce the chapter-7 results beside the dissertation's numbers",
+                        description="Trench, speed-limited wheel, stuck steering and the slope limits of Fig. 7.12, "
+                                    "printed beside the dissertation's numbers and written to CSV.")
+    c7.add_argument("--out", default="out/chapter7", help="output folder (default: %(default)s)")
+    c7.add_argument("--step-deg", type=float, default=2.5, help="slope step of the envelopes (default: %(default)s)")
+    c7.set_defaults(func=cmd_chapter7)
 
     b = sub.add_parser("bekker", help="fit p = k z^n to static plate tests", add_help=False)
     b.add_argument("rest", nargs=argparse.REMAINDER)

@@ -395,13 +395,16 @@ def wrench_core(
 
     # Normal stress, eqs. (5.7)-(5.9).
     theta_e = ops.where(th >= theta_m, th, theta_f - (th - theta_r) / (theta_m - theta_r) * (theta_f - theta_m))
-    base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-300)
+    # floors keep second derivatives finite at quadrature nodes that coincide with theta_f
+    # (zero-length segments): 1e-300 made log''/sqrt'' overflow to inf, and 0 * inf = NaN in
+    # IPOPT's Hessian. sigma ~ base^n, so the 1e-12 floor changes stresses by < 1e-15 Pa.
+    base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-12)
     radial = p.mu * ops.exp(n * ops.log(rs)) + (1.0 - p.mu) * ops.exp(n * ops.log(p.r))
     sigma = p.k * radial * ops.exp(n * ops.log(base))
 
     # Shear velocities (5.13)-(5.19) and deformations (5.20)-(5.21), both multiplied by w.
     vjT, vjL, jt_w, jl_w = shear_kinematics(ops, th, ct, st, theta_f, theta_0, sin_f, sin_0, S, skid, vxp, rw, vy)
-    j_w = ops.sqrt(jt_w * jt_w + jl_w * jl_w + 1e-300)
+    j_w = ops.sqrt(jt_w * jt_w + jl_w * jl_w + 1e-24)  # floor 1e-12 m/s (w j), see above
     w_abs = ops.sqrt(wp * wp + OMEGA_FLOOR**2)
     shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
     eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
@@ -844,7 +847,7 @@ class WheelModel:
         q = ca.SX.sym("q", 5)  # W, vx, vy, omega, h_zero_slip (<= 0: the state's own h)
         h = ca.exp(u)
         wr, _ = self.expressions(q[1], q[2], q[3], h, ca.if_else(q[4] > 0, q[4], h))
-        g = ca.log(ca.fmax(wr[2], 1e-300)) - ca.log(q[0])
+        g = ca.log(ca.fmax(wr[2], 1e-12)) - ca.log(q[0])
         fz = ca.Function("fz_log", [u, q], [g, ca.jacobian(g, u)])
         P = ca.MX.sym("P", 4)
         v = ca.sqrt(P[1] ** 2 + P[2] ** 2)

@@ -435,3 +435,23 @@ def test_bad_options():
 def test_default_model_uses_linear_tuning(model):
     assert model.tuning == TUNING_T72_LINEAR
     assert model.wheel == WHEEL_GROUSERED_PUBLISHED_CODE
+
+
+def test_second_derivatives_finite_at_the_zero_slip_switch():
+    """At s = -1e-16 (skid by rounding) the skid front segments have zero length and their
+    nodes sit on theta_f; the floors must keep IPOPT's Hessian finite there (a NaN Hessian
+    stalled the driving-primitive solver with calibrated parameters)."""
+    import casadi as ca
+
+    from offline.params import load_toml
+    from importlib import resources
+
+    ps = load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]
+    m = WheelModel.from_parameter_set(ps)
+    x = ca.SX.sym("x", 2)
+    sp = ca.SX.sym("sp")
+    wr, d = m.expressions(sp * ca.cos(x[0]), -sp * ca.sin(x[0]), sp / m.wheel.shearing_radius, x[1], x[1])
+    f = ca.Function("h", [x, sp], [ca.hessian(wr[2], x)[0], d["slip"]])
+    H, s = f([-0.0141577541, 0.00745151614], 0.03)
+    assert abs(float(s)) < 1e-12
+    assert np.isfinite(np.array(H)).all()

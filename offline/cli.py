@@ -16,6 +16,7 @@ soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import math
 import sys
@@ -302,6 +303,11 @@ def cmd_primitive(args: argparse.Namespace) -> int:
     sc = _load_scenario_or_fail(args.scenario)
     if sc is None:
         return 2
+    if args.params:
+        ps, _ = _parameter_set_or_fail(args.params)
+        if ps is None:
+            return 2
+        sc = replace(sc, params=ps)
     r = solve_primitive(sc)
     print(f"scenario {sc.name}: {sc.description}")
     print(f"status: {r.status}  ({r.stats['seconds']:.2f} s, {r.stats['iterations']} IPOPT iterations)")
@@ -526,6 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "example) from the automatic start; print wheel speeds, angles, loads, sinkages, "
                                     "slips, torques, power, the independent check and, if infeasible, the evidence.")
     pr.add_argument("scenario", help="scenario TOML path, or a shipped example name (e.g. rr_steer_stuck_50)")
+    pr.add_argument("--params", help="parameter TOML replacing the scenario's (e.g. offline/data/calibrated_grousered.toml)")
     pr.add_argument("--controllers", action="store_true", help="also the steering controllers of section 7.2.4")
     pr.add_argument("--lowest-cap", action="store_true", help="bisect the lowest reachable rim-speed cap")
     pr.set_defaults(func=cmd_primitive)

@@ -104,7 +104,7 @@ class SolverOptions:
 
     tol: float = 1e-9
     max_iter: int = 150
-    time_budget: float = 8.0
+    time_budget: float = 6.5
     max_rim_speed_factor: float = 12.0
     continuation: tuple[int, ...] = (4, 12)
     restarts: int = 3
@@ -549,6 +549,19 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
                 if t >= 1.0 - 1e-12:
                     best = {"x": xs, "g": gs, "status": "Solve_Succeeded (continuation)", "success": True}
                     break
+                # the continuation path may hit a fold or a model kink (a wheel crossing from slip
+                # to skid): jump to the target from where it stopped, and from perturbed points
+                for label, start in _jumps(pb, sc, xs, seed=n):
+                    if time.perf_counter() - t_start > options.time_budget:
+                        break
+                    r = pb.solve(b1, start)
+                    iterations += r["iterations"]
+                    attempts.append(f"{label} (after {n}-step continuation): {r['status']}")
+                    if r["success"]:
+                        best, t_reached = r, 1.0
+                        break
+                if best is not None:
+                    break
     if best is None and x0 is None and _mirror_depth(sc) == 0 and time.perf_counter() - t_start < options.time_budget:
         # the rover is left-right symmetric: the mirror-image scenario takes another numerical
         # path; if it solves, its mirrored solution is a start for this one
@@ -605,6 +618,18 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     stats = {"attempts": attempts, "iterations": iterations, "seconds": time.perf_counter() - t_start,
              "continuation_reached": t_reached, "build_seconds": pb.build_seconds}
     return PrimitiveResult(sc, status, wheels, power, float(f), residuals, passed, trench, evidence, stats, x)
+
+
+def _jumps(pb: SteadyStateProblem, sc: Scenario, x_partial: NDArray[np.float64], seed: int) -> list[tuple[str, NDArray[np.float64]]]:
+    """Starts for a direct solve of the target: the furthest continuation point, and two
+    perturbations of it (speeds and loads +-30 %, steering +-0.3 rad on unconstrained wheels)."""
+    rng = np.random.default_rng(seed)
+    out = [("jump from the continuation end", x_partial)]
+    for k in range(2):
+        pert = x_partial * (1 + 0.3 * rng.standard_normal(x_partial.size) * np.tile([1, 0, 0.5, 0.3, 0.3], len(WHEELS)))
+        pert = pert + np.tile([0, 1, 0, 0, 0], len(WHEELS)) * rng.uniform(-1.0, 1.0, x_partial.size)
+        out.append((f"perturbed jump {k + 1}", pert))
+    return out
 
 
 _MIRROR = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}

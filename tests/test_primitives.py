@@ -180,3 +180,23 @@ def test_every_shipped_scenario_loads():
     for p in SHIPPED.values():
         sc = load_scenario(p)
         assert sc.description
+
+
+def test_another_rover_of_this_layout_is_a_new_file(tmp_path):
+    """Rover geometry comes from TOML: a heavier, longer rover is a file, not code."""
+    from offline.params import save_toml
+
+    heavy = replace_rover(weight=50.0, rocker_length=0.40)
+    save_toml(tmp_path / "big_rover.toml", rover=heavy)
+    (tmp_path / "sc.toml").write_text('[scenario]\nname = "big"\nrover = "big_rover.toml"\nspeed_m_s = 0.03\n')
+    sc = load_scenario(tmp_path / "sc.toml")
+    assert sc.rover.weight == 50.0 and sc.rover.rocker_length == pytest.approx(0.40)
+    r = solve_primitive(sc)
+    assert r.ok and r.check_passed
+    assert sum(w.load for w in r.wheels.values()) == pytest.approx(50.0, rel=1e-9)
+
+
+def replace_rover(**kw):
+    from dataclasses import replace as _replace
+
+    return _replace(ROVER_MINI_T72, name="big_rover", source="test", **kw)

@@ -44,3 +44,19 @@ def test_every_module_declares_all(name):
 def test_offline_front_door_lists_real_modules():
     for m in offline.__all__:
         importlib.import_module(f"offline.{m}")
+
+
+@pytest.mark.parametrize("name", [f"offline.{m}" for m in offline.__all__])
+def test_every_public_name_is_documented(name):
+    """Every name a module exports has a docstring (STYLE.md point 7); the module too."""
+    import inspect
+
+    mod = importlib.import_module(name)
+    assert (mod.__doc__ or "").strip(), f"{name} has no module docstring"
+    missing = []
+    for item in mod.__all__:
+        obj = getattr(mod, item)
+        if inspect.isfunction(obj) or inspect.isclass(obj):
+            if not (inspect.getdoc(obj) or "").strip():
+                missing.append(item)
+    assert not missing, f"{name}: undocumented public names {missing}"

@@ -287,10 +287,8 @@ def test_ad_jacobian_matches_central_differences(model, rng):
             xp[j] += steps[j]
             xm[j] -= steps[j]
             Jfd[:, j] = (model.wrench(*xp).as_array() - model.wrench(*xm).as_array()) / (2 * steps[j])
-        # skid: h_zero_slip matters; slip: it does not (column is zero)
-        scale = np.abs(J).max(axis=1, keepdims=True) + 1e-12
-        assert np.abs(J - Jfd).max() / 1.0 < 1e-3 * np.abs(J).max()
-        np.testing.assert_array_less(np.abs(J - Jfd) / scale, RTOL_AD_FD * 100)
+        # relative to the largest Jacobian entry of the state (measured: at most 3e-9)
+        assert np.abs(J - Jfd).max() <= RTOL_AD_FD * np.abs(J).max(), np.abs(J - Jfd).max() / np.abs(J).max()
         checked += 1
 
 

@@ -783,20 +783,30 @@ class WheelModel:
             if cc is None:
                 warnings.warn("no C compiler found: using the interpreted casadi function (slower)", stacklevel=3)
                 return f
-            root.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=root) as tmp:
-                cwd = os.getcwd()
-                try:
-                    os.chdir(tmp)
-                    f.generate(f"{f.name()}.c")
-                finally:
-                    os.chdir(cwd)
-                tmp_so = Path(tmp) / so.name
-                subprocess.run([cc, "-O2", "-fPIC", "-shared", str(Path(tmp) / f"{f.name()}.c"), "-o", str(tmp_so)],
-                               check=True, capture_output=True)
-                os.replace(tmp_so, so)  # atomic: an interrupted build leaves no half file
+            try:
+                self._build_so(f, root, so, cc)
+            except (OSError, subprocess.CalledProcessError) as exc:
+                warnings.warn(f"could not compile {f.name()} into {root} ({exc}): using the interpreted casadi "
+                              "function (slower); set XDG_CACHE_HOME to a writable folder", stacklevel=3)
+                return f
         self._so_paths[f.name()] = so
         return ca.external(f.name(), str(so))
+
+    @staticmethod
+    def _build_so(f: Any, root: Path, so: Path, cc: str) -> None:
+        """Generate C for ``f`` and compile it to ``so`` (atomic rename)."""
+        root.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=root) as tmp:
+            cwd = os.getcwd()
+            try:
+                os.chdir(tmp)
+                f.generate(f"{f.name()}.c")
+            finally:
+                os.chdir(cwd)
+            tmp_so = Path(tmp) / so.name
+            subprocess.run([cc, "-O2", "-fPIC", "-shared", str(Path(tmp) / f"{f.name()}.c"), "-o", str(tmp_so)],
+                           check=True, capture_output=True)
+            os.replace(tmp_so, so)  # atomic: an interrupted build leaves no half file
 
     def wrench_and_jacobian(self, x: NDArray[np.float64], compiled: bool = True) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Wrench (6,) and its Jacobian (6, 5) at one state ``x = (vx, vy, omega, h, h_zero_slip)``.

@@ -499,6 +499,22 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     best: dict[str, Any] | None = None
     t_reached = 0.0
     last_fail: dict[str, Any] | None = None
+
+    def try_starts(starts: Sequence[tuple[str, NDArray[np.float64]]], suffix: str = "") -> dict[str, Any] | None:
+        """Direct solves of the target from each start in turn, within the time budget."""
+        nonlocal iterations, last_fail
+        for label, start in starts:
+            if time.perf_counter() - t_start > options.time_budget:
+                attempts.append("time budget spent")
+                return None
+            r = pb.solve(b1, start)
+            iterations += r["iterations"]
+            attempts.append(f"{label}{suffix}: {r['status']}")
+            if r["success"]:
+                return r
+            last_fail = r
+        return None
+
     if x0 is not None:
         r = pb.solve(b1, x0)
         attempts.append(f"given start: {r['status']}")
@@ -516,13 +532,8 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
             best, t_reached = r, 1.0
         else:
             last_fail = r
-            for label, start in _symmetric_guesses(pb, sc, b1):  # cheap single solves first
-                r = pb.solve(b1, start)
-                iterations += r["iterations"]
-                attempts.append(f"{label}: {r['status']}")
-                if r["success"]:
-                    best, t_reached = r, 1.0
-                    break
+            best = try_starts(_symmetric_guesses(pb, sc, b1))  # cheap single solves first
+            t_reached = 1.0 if best is not None else 0.0
         if best is None:
             for n in options.continuation:
                 if time.perf_counter() - t_start > options.time_budget:
@@ -551,16 +562,9 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
                     break
                 # the continuation path may hit a fold or a model kink (a wheel crossing from slip
                 # to skid): jump to the target from where it stopped, and from perturbed points
-                for label, start in _jumps(pb, sc, xs, seed=n):
-                    if time.perf_counter() - t_start > options.time_budget:
-                        break
-                    r = pb.solve(b1, start)
-                    iterations += r["iterations"]
-                    attempts.append(f"{label} (after {n}-step continuation): {r['status']}")
-                    if r["success"]:
-                        best, t_reached = r, 1.0
-                        break
+                best = try_starts(_jumps(pb, sc, xs, seed=n), f" (after {n}-step continuation)")
                 if best is not None:
+                    t_reached = 1.0
                     break
     if best is None and x0 is None and _mirror_depth(sc) == 0 and time.perf_counter() - t_start < options.time_budget:
         # the rover is left-right symmetric: the mirror-image scenario takes another numerical
@@ -582,17 +586,9 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
             pert = guess * (1 + 0.3 * rng.standard_normal(guess.size) * np.tile([1, 0, 0.2, 0.2, 0.2], len(WHEELS)))
             pert += np.tile([0, 1, 0, 0, 0], len(WHEELS)) * rng.uniform(-0.5, 0.5, guess.size)
             starts.append((f"restart {k + 1}", pert))
-        for label, start in starts:
-            if time.perf_counter() - t_start > options.time_budget:
-                attempts.append("time budget spent")
-                break
-            r = pb.solve(b1, start)
-            iterations += r["iterations"]
-            attempts.append(f"{label}: {r['status']}")
-            if r["success"]:
-                best, t_reached = r, 1.0
-                break
-            last_fail = r
+        best = try_starts(starts)
+        if best is not None:
+            t_reached = 1.0
     evidence: dict[str, Any] = {}
     if best is not None:
         x = best["x"]

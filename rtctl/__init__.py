@@ -1,8 +1,10 @@
 """On-rover controller package (EKF on slip and heading + QP allocation at 5 Hz).
 
-Not implemented yet: this package currently holds nothing but its import-cleanliness
-contract (it must never import casadi, scipy.optimize or :mod:`offline`), which
-``tests/test_imports.py`` enforces.
+Light by contract: numpy, osqp, filterpy (and qpsolvers for cross-checks) only; never casadi
+or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
+
+* :mod:`rtctl.layout`: the named layout of the steady-state NLP (7.25), shared with the table builder;
+* :mod:`rtctl.messages`: measurements in, commands out.
 """
 
-__all__: list[str] = []
+__all__ = ["layout", "messages"]

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.params import (
+from offline.physics.params import (
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T54_GROUSERED,
     TUNING_T72_LINEAR,
     WHEEL_GROUSERED_PUBLISHED_CODE,
 )
-from offline.terramechanics import WheelModel
+from offline.physics.terramechanics import WheelModel
 
 # --- tolerances (relative unless named _abs) -------------------------------------------
 RTOL_BACKENDS = 1e-10  # numpy vs casadi evaluation of the same graph

@@ -1,4 +1,4 @@
-"""Tests of offline.bekker: authors' pressure procedure, power-law fits, loaders, plot."""
+"""Tests of offline.fit.bekker: authors' pressure procedure, power-law fits, loaders, plot."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.bekker import (
+from offline.fit.bekker import (
     DISSERTATION_K,
     DISSERTATION_N0,
     PressureTestInfo,
@@ -22,7 +22,7 @@ from offline.bekker import (
     moving_mean,
     plot_bekker,
 )
-from offline.dataset import DatasetError
+from offline.fit.dataset import DatasetError
 
 SHARED = Path(os.environ.get("SINGLE_WHEEL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "single_wheel"))
 TEST_HEADER = ["time_s", "z_mm", "displacement_mm", "Fz_N", "in_authors_window"]

@@ -1,4 +1,4 @@
-"""Tests of offline.calibration: recovery of known parameters from synthetic trials, the
+"""Tests of offline.fit.calibration: recovery of known parameters from synthetic trials, the
 exact Jacobian through the implicit sinkage solve, constraints, and the beta lines."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import RTOL_AD_FD
-from offline.calibration import (
+from offline.fit.calibration import (
     DEFAULT_BOUNDS,
     JOINT_PARAMETERS,
     _apply,
@@ -21,16 +21,16 @@ from offline.calibration import (
     fit_per_angle,
     leave_one_angle_out,
 )
-from offline.dataset import load_trials, load_tuned_params
-from offline.params import (
+from offline.fit.dataset import load_trials, load_tuned_params
+from offline.physics.params import (
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T54_GROUSERED,
     TUNING_T72_LINEAR,
     WHEEL_GROUSERED_PUBLISHED_CODE,
     ContactTuning,
 )
-from offline.terramechanics import ModelOptions, PhysParams, WheelModel
-from offline.validation import average_conditions, trial_states
+from offline.physics.terramechanics import ModelOptions, PhysParams, WheelModel
+from offline.fit.validation import average_conditions, trial_states
 
 # Noise-free synthetic data: the least-squares optimum is the truth, found to the solver's
 # xtol/gtol of 1e-10 (measured: 1e-15 relative). 1e-6 leaves room for platform differences.

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from offline.calibration import JOINT_PARAMETERS
+from offline.fit.calibration import JOINT_PARAMETERS
 from offline.cli import main
-from offline.params import SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, load_toml
-from offline.validation import TABLE_5_5_GROUSERED, ErrorRow, beats_table_5_5
+from offline.physics.params import SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, load_toml
+from offline.fit.validation import TABLE_5_5_GROUSERED, ErrorRow, beats_table_5_5
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 DATA_DIR = Path(__file__).resolve().parents[1] / "offline" / "data"
@@ -80,9 +80,9 @@ def test_validate_csv_has_every_variant_and_angle(validated):
 
 def test_validate_csv_numbers_are_the_library_numbers(validated):
     """Cross-check: the CLI's CSV equals scoring through the API (and Table 5.5's F_y at 0 deg)."""
-    from offline.dataset import load_trials, load_tuned_params
-    from offline.params import ContactTuning
-    from offline.validation import Variant, average_conditions, error_rows, predict
+    from offline.fit.dataset import load_trials, load_tuned_params
+    from offline.physics.params import ContactTuning
+    from offline.fit.validation import Variant, average_conditions, error_rows, predict
 
     *_, out = validated
     csv_rows = {(r.variant, r.beta_deg): r for r in read_rows(out / "table_5_5.csv")}
@@ -173,7 +173,7 @@ def test_calibrate_writes_a_parameter_file_the_library_reads(tmp_path):
         assert getattr(ps.wheel, f) == getattr(WHEEL_GROUSERED_PUBLISHED_CODE, f)
     # k is not free unless --free-k: it stays the Table 5.3 value
     assert ps.soil.k == pytest.approx(SOIL_DISSERTATION_T53_GROUSERED.k, rel=1e-12)
-    assert ps.soil.source.startswith("offline.calibration.fit_joint")
+    assert ps.soil.source.startswith("offline.fit.calibration.fit_joint")
     assert meta["rms_normalised_residual"] > 0
     beats = json.loads(meta["beats_table_5_5"])
     assert sorted(beats, key=float) == ["0", "15", "30", "45", "60"]

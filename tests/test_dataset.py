@@ -1,4 +1,4 @@
-"""Tests of offline.dataset: validation paths, SI conversion, frame sanity, repeat noise."""
+"""Tests of offline.fit.dataset: validation paths, SI conversion, frame sanity, repeat noise."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.dataset import (
+from offline.fit.dataset import (
     AUTHORS_RIM_RADIUS,
     DatasetError,
     TrialSet,

@@ -13,8 +13,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from offline.dataset import load_trials
-from offline.discrepancy import (
+from offline.fit.dataset import load_trials
+from offline.fit.discrepancy import (
     CANDIDATES,
     Extension,
     SingleWheelRecording,
@@ -23,8 +23,8 @@ from offline.discrepancy import (
     diagnose,
     predict_recording,
 )
-from offline.params import load_toml
-from offline.terramechanics import ModelOptions
+from offline.physics.params import load_toml
+from offline.physics.terramechanics import ModelOptions
 
 pytestmark = pytest.mark.slow
 

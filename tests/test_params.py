@@ -1,4 +1,4 @@
-"""Tests of offline.params: presets and their provenance, SI validation in the constructors,
+"""Tests of offline.physics.params: presets and their provenance, SI validation in the constructors,
 TOML round trips (unit conversion in and out) and the error messages of load_toml."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-import offline.params as P
-from offline.params import (
+import offline.physics.params as P
+from offline.physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T54_GROUSERED,
@@ -35,7 +35,7 @@ SECTION_OF = {Soil: "soil", Wheel: "wheel", ContactTuning: "tuning", Rover: "rov
 
 
 def _presets() -> list[tuple[str, object]]:
-    """Every preset in ``offline.params.__all__``; per-angle tables expanded entry by entry."""
+    """Every preset in ``offline.physics.params.__all__``; per-angle tables expanded entry by entry."""
     out = []
     for name in P.__all__:
         obj = getattr(P, name)

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.backend import NUMPY
-from offline.params import ROVER_MINI_T72
-from offline.primitives import SolverOptions, check_solution, slope_sweep, solve_primitive, steering_controllers
-from offline.rover import WHEELS, FourWheelRocker
-from offline.scenario import ScenarioError, example_scenarios, load_scenario
+from offline.physics.backend import NUMPY
+from offline.physics.params import ROVER_MINI_T72
+from offline.rover.primitives import SolverOptions, check_solution, slope_sweep, solve_primitive, steering_controllers
+from offline.rover.statics import WHEELS, FourWheelRocker
+from offline.rover.scenario import ScenarioError, example_scenarios, load_scenario
 
 SHIPPED = {p.stem: p for p in example_scenarios()}
 
@@ -35,7 +35,7 @@ def test_nominal_primitive_is_symmetric_and_balanced(nominal):
 
 def test_independent_check_sees_a_perturbed_solution(nominal):
     sc = nominal.scenario
-    from offline.primitives import _problem
+    from offline.rover.primitives import _problem
 
     pb = _problem(sc.params, sc.rover, sc.exit_angle, None, SolverOptions())
     res, ok = check_solution(pb, sc, nominal.x)
@@ -78,7 +78,7 @@ def test_clean_sided_trench_meets_depth_and_clean_side():
 
 
 def test_mirror_image_scenarios_get_mirror_image_primitives():
-    from offline.primitives import mirror_scenario
+    from offline.rover.primitives import mirror_scenario
 
     sc = load_scenario(SHIPPED["opportunity_steer_stuck_7"])
     a, b = solve_primitive(sc), solve_primitive(mirror_scenario(sc))
@@ -184,7 +184,7 @@ def test_every_shipped_scenario_loads():
 
 def test_another_rover_of_this_layout_is_a_new_file(tmp_path):
     """Rover geometry comes from TOML: a heavier, longer rover is a file, not code."""
-    from offline.params import save_toml
+    from offline.physics.params import save_toml
 
     heavy = replace_rover(weight=50.0, rocker_length=0.40)
     save_toml(tmp_path / "big_rover.toml", rover=heavy)

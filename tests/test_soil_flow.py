@@ -9,14 +9,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from offline.backend import CASADI, NUMPY
-from offline.params import (
+from offline.physics.backend import CASADI, NUMPY
+from offline.physics.params import (
     SOIL_DISSERTATION_T42,
     WHEEL_GROUSERED_T52,
     WHEEL_K10_MINI_T42,
     WHEEL_SMOOTH_T52,
 )
-from offline.soil_flow import (
+from offline.physics.soil_flow import (
     HIGH_ANGLE,
     LOW_ANGLE,
     _regime_profile,
@@ -449,7 +449,7 @@ def test_exit_angle_rejects_bad_smoothing():
 
 
 def test_plots_write_pngs(tmp_path):
-    from offline.plots_soil_flow import plot_phase_map, plot_sweep
+    from offline.physics.plots_soil_flow import plot_phase_map, plot_sweep
 
     p = plot_phase_map(tmp_path / "phase.png", slip_ratios=[-1.0, 0.0, 0.9], slip_angles_deg=[0.0, 22.5, 45.0, 90.0])
     q = plot_sweep(tmp_path / "sweep.png", h0_values=(0.005, 0.012), beta_values_deg=(0.0, 45.0), s_values=(0.0,))

@@ -11,15 +11,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import RTOL_AD_FD, RTOL_BACKENDS, RTOL_QUADRATURE, RTOL_SINKAGE_LOAD, RTOL_SWITCH
-from offline.backend import NUMPY
-from offline.params import (
+from offline.physics.backend import NUMPY
+from offline.physics.params import (
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T72_LINEAR,
     WHEEL_GROUSERED_PUBLISHED_CODE,
     ParameterError,
     Wheel,
 )
-from offline.terramechanics import (
+from offline.physics.terramechanics import (
     ModelOptions,
     WheelModel,
     bulldozing_resistance,
@@ -441,7 +441,7 @@ def test_second_derivatives_finite_at_the_zero_slip_switch():
     stalled the driving-primitive solver with calibrated parameters)."""
     import casadi as ca
 
-    from offline.params import load_toml
+    from offline.physics.params import load_toml
     from importlib import resources
 
     ps = load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]

@@ -1,4 +1,4 @@
-"""Tests of offline.validation: reproduction of the dissertation's Table 5.5 (grousered wheel),
+"""Tests of offline.fit.validation: reproduction of the dissertation's Table 5.5 (grousered wheel),
 the shipped calibration against it, trial states, condition averaging and error bookkeeping."""
 
 from __future__ import annotations
@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 
 from conftest import RTOL_SINKAGE_LOAD
-from offline.dataset import AUTHORS_RIM_RADIUS, load_trials, load_tuned_params
-from offline.params import (
+from offline.fit.dataset import AUTHORS_RIM_RADIUS, load_trials, load_tuned_params
+from offline.physics.params import (
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T54_GROUSERED,
     WHEEL_GROUSERED_PUBLISHED_CODE,
     ContactTuning,
     load_toml,
 )
-from offline.terramechanics import ModelOptions
-from offline.validation import (
+from offline.physics.terramechanics import ModelOptions
+from offline.fit.validation import (
     TABLE_5_5_GROUSERED,
     ErrorRow,
     Variant,

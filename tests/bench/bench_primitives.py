@@ -22,9 +22,9 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-from offline.primitives import solve_primitive
-from offline.scenario import Scenario, WheelFailure, example_scenarios, load_scenario
-from offline.rover import WHEELS
+from offline.rover.primitives import solve_primitive
+from offline.rover.scenario import Scenario, WheelFailure, example_scenarios, load_scenario
+from offline.rover.statics import WHEELS
 
 HERE = Path(__file__).resolve().parent
 

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from offline.params import SOIL_DISSERTATION_T53_GROUSERED, TUNING_T72_LINEAR, WHEEL_GROUSERED_PUBLISHED_CODE
-from offline.terramechanics import ModelOptions, WheelModel, state_from_slip
+from offline.physics.params import SOIL_DISSERTATION_T53_GROUSERED, TUNING_T72_LINEAR, WHEEL_GROUSERED_PUBLISHED_CODE
+from offline.physics.terramechanics import ModelOptions, WheelModel, state_from_slip
 
 HERE = Path(__file__).resolve().parent
 

@@ -43,9 +43,9 @@ Recipe: add a failure mode
 --------------------------
 1. Add the key to ``_WHEEL_KEYS`` with its type and physical range.
 2. Express it as bounds on the wheel's decision variables (omega, beta, W, h) or on the
-   wheel-torque constraint in :meth:`offline.primitives.SteadyStateProblem.bounds`.
+   wheel-torque constraint in :meth:`offline.rover.primitives.SteadyStateProblem.bounds`.
 3. Give it a continuation path from the nominal primitive in
-   :func:`offline.primitives._interpolate` if the solver should approach it gradually.
+   :func:`offline.rover.primitives._interpolate` if the solver should approach it gradually.
 4. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark.
 """
 
@@ -58,7 +58,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
-from .params import (
+from ..physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
     TUNING_T72_LINEAR,
@@ -68,7 +68,7 @@ from .params import (
     Rover,
     load_toml,
 )
-from .rover import WHEELS
+from .statics import WHEELS
 
 __all__ = ["ScenarioError", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
            "ROVER_PRESETS", "example_scenarios"]

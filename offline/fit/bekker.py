@@ -34,7 +34,7 @@ dissertation's k = 8000 kN/m^(n+2), n0 = 1.46 (Table 5.3; ``set_soil_params.m``)
 and n are strongly correlated (k's unit depends on n), comparisons are also made on the
 pressure predicted at reference sinkages, see :meth:`BekkerFit.comparison`.
 
-Run ``python -m offline.bekker /path/to/single_wheel`` for the report.
+Run ``python -m offline.fit.bekker /path/to/single_wheel`` for the report.
 """
 
 from __future__ import annotations
@@ -622,7 +622,7 @@ def plot_bekker(fit: BekkerFit, path: str | Path) -> Path:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI: print the fit report for one or more selections; optionally write the plot."""
-    ap = argparse.ArgumentParser(prog="python -m offline.bekker", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m offline.fit.bekker", description=__doc__.splitlines()[0])
     ap.add_argument("folder", help="single_wheel data folder (holding pressure_sinkage/)")
     ap.add_argument("--which", nargs="+", default=["large_box_plates"], choices=sorted(SELECTIONS))
     ap.add_argument("--plot", help="PNG path for the first selection")

@@ -1,7 +1,7 @@
 """Calibrate the terramechanics model on single-wheel trials (dissertation section 5.3.2).
 
 Two procedures, both weighted least squares with exact derivatives from the casadi graph of
-the same physics (:func:`offline.terramechanics.wrench_core`):
+the same physics (:func:`offline.physics.terramechanics.wrench_core`):
 
 * :func:`fit_per_angle` -- the dissertation's procedure: a0, a1, b0, b1 for one slip angle
   with the *measured sinkage imposed*, residuals in F_x, F_y, F_z. The linear constraints
@@ -15,7 +15,7 @@ the same physics (:func:`offline.terramechanics.wrench_core`):
   model therefore predicts sinkage as well as forces.
 
 Residuals are normalised by the measurement noise: the pooled repeat spread of each
-channel (:meth:`offline.dataset.TrialSet.noise`). The dissertation normalised by the
+channel (:meth:`offline.fit.dataset.TrialSet.noise`). The dissertation normalised by the
 measured values, which is undefined where a force crosses zero (F_y at beta = 0, F_x at
 free rolling).
 """
@@ -30,10 +30,10 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .backend import CASADI
+from ..physics.backend import CASADI
 from .dataset import TrialSet
-from .params import ContactTuning, Soil, Wheel
-from .terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
+from ..physics.params import ContactTuning, Soil, Wheel
+from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
 from .validation import trial_states
 
 __all__ = [
@@ -293,7 +293,7 @@ def fit_per_angle(
     se = np.sqrt(np.clip(np.diag(dp @ np.diag(se_z**2) @ dp.T), 0, None))
     tuning = replace(base_t, a0=float(p[0]), a1=float(p[1]), b0=float(p[2]), b1=float(p[3]),
                      name=f"per_angle_{math.degrees(float(np.median(trials.beta_cmd))):.0f}",
-                     source="offline.calibration.fit_per_angle (measured sinkage imposed)")
+                     source="offline.fit.calibration.fit_per_angle (measured sinkage imposed)")
     return FitResult(names, p, se, soil, tuning, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
                      int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message))
 
@@ -314,7 +314,7 @@ def fit_linear_in_beta(per_angle: Mapping[float, ContactTuning], base: ContactTu
     b1 = float(np.mean([per_angle[b].b1 for b in per_angle]))
     return ContactTuning(
         a0=float(c0[0]), a1=float(c1[0]), b0=b0, b1=b1, a0_per_rad=float(c0[1]), a1_per_rad=float(c1[1]),
-        name="linear_in_beta", source="offline.calibration.fit_linear_in_beta over per-angle fits",
+        name="linear_in_beta", source="offline.fit.calibration.fit_linear_in_beta over per-angle fits",
     )
 
 
@@ -385,7 +385,7 @@ def fit_joint(
         Called as ``progress(evaluation, cost)``.
     priors : mapping, optional
         ``name -> (mean, sd)`` in SI: independent evidence on a parameter (e.g. k from the
-        static plate tests, :mod:`offline.bekker`), added as residuals ``(x - mean) / sd``.
+        static plate tests, :mod:`offline.fit.bekker`), added as residuals ``(x - mean) / sd``.
     """
     options = options or ModelOptions()
     t0 = time.perf_counter()
@@ -442,11 +442,11 @@ def fit_joint(
     r, J = fun(res.x)
     se = _std_errors(J, r, len(names))
     s_, t_, w_ = _apply(soil, start, names, res.x, wheel)
-    t_ = replace(t_, name="joint_linear_in_beta", source="offline.calibration.fit_joint (load given)")
-    s_ = replace(s_, source=f"offline.calibration.fit_joint from {soil.name}", name=f"{soil.name}_calibrated")
+    t_ = replace(t_, name="joint_linear_in_beta", source="offline.fit.calibration.fit_joint (load given)")
+    s_ = replace(s_, source=f"offline.fit.calibration.fit_joint from {soil.name}", name=f"{soil.name}_calibrated")
     if w_ is not None and any(n in _WHEEL_FIELDS for n in names):
         fitted = ", ".join(n for n in names if n in _WHEEL_FIELDS)
-        w_ = replace(w_, name=f"{wheel.name}_calibrated", source=f"{wheel.source}; {fitted} from offline.calibration.fit_joint")
+        w_ = replace(w_, name=f"{wheel.name}_calibrated", source=f"{wheel.source}; {fitted} from offline.fit.calibration.fit_joint")
     return FitResult(names, res.x.copy(), se, s_, t_, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
                      int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message), wheel=w_)
 

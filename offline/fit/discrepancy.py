@@ -44,9 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import TrialSet
-from .params import ParameterSet
-from .terramechanics import ModelOptions, WheelModel, bulldozing_resistance
-from .backend import NUMPY
+from ..physics.params import ParameterSet
+from ..physics.terramechanics import ModelOptions, WheelModel, bulldozing_resistance
+from ..physics.backend import NUMPY
 from .validation import average_conditions, trial_states
 
 __all__ = [
@@ -162,10 +162,10 @@ class Extension:
     Attributes
     ----------
     soil, wheel, tuning : dict
-        Field replacements (SI) of the base :class:`~offline.params.Soil`, ``Wheel``,
+        Field replacements (SI) of the base :class:`~offline.physics.params.Soil`, ``Wheel``,
         ``ContactTuning``.
     options : dict
-        Field replacements of :class:`~offline.terramechanics.ModelOptions`.
+        Field replacements of :class:`~offline.physics.terramechanics.ModelOptions`.
     beta_offset : float
         Steering offset added to every slip angle, rad.
     omega_max : float

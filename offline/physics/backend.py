@@ -1,6 +1,6 @@
 """Array backends that let one physics implementation serve two uses.
 
-The wheel-soil physics (:mod:`offline.soil_flow`, :mod:`offline.terramechanics`) is written
+The wheel-soil physics (:mod:`offline.physics.soil_flow`, :mod:`offline.physics.terramechanics`) is written
 once against the small namespace defined here. With :data:`NUMPY` it evaluates numerically,
 batched over arrays of wheel states; with :data:`CASADI` the very same code builds a casadi
 ``SX`` expression graph with exact derivatives (ARCHITECTURE.md, design point 1).

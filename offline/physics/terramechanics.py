@@ -1,7 +1,7 @@
 """3D rigid-wheel terramechanics for any slip ratio and slip angle (dissertation ch. 5).
 
 One implementation, two uses. :func:`wrench_core` is written against
-:class:`offline.backend.Backend`; with ``NUMPY`` it evaluates batched wheel states, with
+:class:`offline.physics.backend.Backend`; with ``NUMPY`` it evaluates batched wheel states, with
 ``CASADI`` it builds an ``SX`` graph with exact derivatives. :class:`WheelModel` wraps both:
 validated batched evaluation (:meth:`WheelModel.wrench`), casadi functions with Jacobians
 (:meth:`WheelModel.casadi_function`), and sinkage from load, eq. (5.34)
@@ -115,7 +115,7 @@ class ModelOptions:
         fit has no kink at beta = 0. Only matters when the tuning has beta slopes.
     soil_flow_smoothing_deg : float
         Width of the blend across soil-flow regime switches (passed to
-        :func:`offline.soil_flow.exit_angle`).
+        :func:`offline.physics.soil_flow.exit_angle`).
     shear_direction_smoothing : float
         Relative floor ``eps`` of the shear-velocity magnitude in the direction ratio of
         eq. (5.11), ``v_ji / sqrt(v_jT^2 + v_jL^2 + (eps (v + |r_s w|))^2)``. The ratio makes the
@@ -294,7 +294,7 @@ def wrench_core(
     Parameters
     ----------
     ops : Backend
-        :data:`offline.backend.NUMPY` (arguments of shape ``(B, 1)``) or ``CASADI``
+        :data:`offline.physics.backend.NUMPY` (arguments of shape ``(B, 1)``) or ``CASADI``
         (scalar ``SX``).
     vx, vy : array or SX
         Wheel-frame velocity of the wheel centre, m/s.
@@ -622,7 +622,7 @@ class WheelModel:
 
     Examples
     --------
-    >>> from offline.params import (SOIL_DISSERTATION_T53_GROUSERED as soil,
+    >>> from offline.physics.params import (SOIL_DISSERTATION_T53_GROUSERED as soil,
     ...     WHEEL_GROUSERED_PUBLISHED_CODE as wheel, TUNING_T72_LINEAR as tuning)
     >>> m = WheelModel(soil, wheel, tuning)
     >>> w = m.wrench(vx=0.01, vy=0.0, omega=0.01 / 0.063, h=0.015)
@@ -642,7 +642,7 @@ class WheelModel:
 
     @classmethod
     def from_parameter_set(cls, ps: ParameterSet, options: ModelOptions | None = None) -> "WheelModel":
-        """Build from a :class:`offline.params.ParameterSet` (e.g. a calibration TOML)."""
+        """Build from a :class:`offline.physics.params.ParameterSet` (e.g. a calibration TOML)."""
         return cls(ps.soil, ps.wheel, ps.tuning, options)
 
     # ---- limits -----------------------------------------------------------------------

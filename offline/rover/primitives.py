@@ -1,6 +1,6 @@
 """Steady-state driving primitives: the full nonlinear optimizer of chapter 7, eq. (7.25).
 
-For a rover, a soil and a :class:`~offline.scenario.Scenario`, find the wheel speeds and
+For a rover, a soil and a :class:`~offline.rover.scenario.Scenario`, find the wheel speeds and
 steering angles (with each wheel's load and sinkage) that hold the rover in steady straight
 driving with the least actuator effort, ``min sum M_y^2`` (7.24), subject to the balance
 equations (7.12)-(7.18)/(7.23) (with the slope (7.32)-(7.33) and steering offsets
@@ -11,7 +11,7 @@ equations (7.12)-(7.18)/(7.23) (with the slope (7.32)-(7.33) and steering offset
 Design (the dissertation's section 7.2.7 lists what made its solver fragile)
 --------------------------------------------------------------------------
 * Exact derivatives: the wheel physics is the casadi graph of
-  :func:`offline.terramechanics.wrench_core` (Gauss-Legendre quadrature, no finite
+  :func:`offline.physics.terramechanics.wrench_core` (Gauss-Legendre quadrature, no finite
   differences), solved by IPOPT with the exact Hessian.
 * No inner loops: per wheel the decision variables are ``omega, beta, W, h`` **and** the
   zero-slip sinkage ``h0`` that fixes theta_m0 in skid, with its own load constraint
@@ -41,11 +41,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .backend import CASADI, NUMPY
-from .params import ParameterSet, Rover
-from .rover import BALANCE_NAMES, WHEELS, FourWheelRocker
+from ..physics.backend import CASADI, NUMPY
+from ..physics.params import ParameterSet, Rover
+from .statics import BALANCE_NAMES, WHEELS, FourWheelRocker
 from .scenario import Scenario, WheelFailure
-from .terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
+from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
 
 __all__ = [
     "SolverOptions",
@@ -91,9 +91,9 @@ class SolverOptions:
     restarts : int
         Perturbed restarts after continuation fails.
     pitch_includes_wheel_torque : bool
-        See :class:`offline.rover.FourWheelRocker`.
+        See :class:`offline.rover.statics.FourWheelRocker`.
     shear_direction_smoothing : float
-        Passed to :class:`~offline.terramechanics.ModelOptions`.
+        Passed to :class:`~offline.physics.terramechanics.ModelOptions`.
     check_rtol : float
         Tolerance of the independent numeric check, relative to the rover weight (forces)
         and weight times rocker length (moments).
@@ -163,7 +163,7 @@ class SteadyStateProblem:
             g_torque.append(w6[4])
             my_all.append(w6[4])
             if k == trench_wheel:
-                from .soil_flow import trench_quantities
+                from ..physics.soil_flow import trench_quantities
 
                 tq = trench_quantities(CASADI, hi, b, om, vx, _WheelView(phys), _SoilView(phys))
                 trench_g = [tq["A_R2_margin"] * 1e4, tq["d"] * 1e2, tq["p"] * 1e2]
@@ -405,7 +405,7 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
                 tol[f"steer {k}"] = 1.0
         beta[k], h[k], load[k] = b, hi, Wi
     if sc.trench is not None:
-        from .soil_flow import trench_profile
+        from ..physics.soil_flow import trench_profile
 
         i = WHEELS.index(sc.trench.wheel)
         om, b, _, hi, _ = (float(v) for v in xs[5 * i:5 * i + 5])
@@ -605,7 +605,7 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
         evidence["check"] = "IPOPT converged but the independent numeric check failed"
     trench = None
     if sc.trench is not None:
-        from .soil_flow import trench_profile
+        from ..physics.soil_flow import trench_profile
 
         w = wheels[sc.trench.wheel]
         vx = sc.speed * math.cos(w.steer)

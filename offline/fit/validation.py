@@ -19,8 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import TrialSet
-from .params import ContactTuning, Soil, Wheel
-from .terramechanics import ModelOptions, WheelModel
+from ..physics.params import ContactTuning, Soil, Wheel
+from ..physics.terramechanics import ModelOptions, WheelModel
 
 __all__ = [
     "Variant",

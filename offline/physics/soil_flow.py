@@ -6,7 +6,7 @@ The model follows soil through four phases (Fig. 4.2): separation of the displac
 redeposition of the transported soil (4.11)-(4.18).
 
 One implementation, two uses (ARCHITECTURE.md, design point 1): the profile is computed by
-:func:`_regime_profile`, written against :class:`offline.backend.Backend`. :func:`trench_profile`
+:func:`_regime_profile`, written against :class:`offline.physics.backend.Backend`. :func:`trench_profile`
 evaluates it with numpy for one state and returns a :class:`TrenchProfile` with a polyline;
 :func:`exit_angle` evaluates it on any backend (numpy batches of shape ``(B, 1)`` or casadi ``SX``)
 and blends the regimes so that the value is continuous everywhere.
@@ -703,7 +703,7 @@ def trench_profile(h0: float, beta: float, omega: float, vx: float, wheel: Wheel
 
     Examples
     --------
-    >>> from offline.params import WHEEL_K10_MINI_T42, SOIL_DISSERTATION_T42
+    >>> from offline.physics.params import WHEEL_K10_MINI_T42, SOIL_DISSERTATION_T42
     >>> tp = trench_profile(0.012, 0.7854, 0.5, 0.03, WHEEL_K10_MINI_T42, SOIL_DISSERTATION_T42)
     >>> tp.shape in SHAPES and abs(tp.net_area) < 1e-12
     True
@@ -837,8 +837,8 @@ def exit_angle(
     Parameters
     ----------
     ops : Backend
-        :data:`offline.backend.NUMPY` (inputs of shape ``(B, 1)``, or broadcastable) or
-        :data:`offline.backend.CASADI` (scalar ``SX``/floats).
+        :data:`offline.physics.backend.NUMPY` (inputs of shape ``(B, 1)``, or broadcastable) or
+        :data:`offline.physics.backend.CASADI` (scalar ``SX``/floats).
     h0 : array or SX
         Sinkage at the shearing radius, m (> 0).
     beta : array or SX

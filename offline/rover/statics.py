@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Protocol, Sequence
 
-from .backend import Backend
-from .params import Rover
+from ..physics.backend import Backend
+from ..physics.params import Rover
 
 __all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES"]
 

@@ -1,0 +1,65 @@
+"""Command line: ``offnominal <command>``.
+
+One module per subject registers its commands (:mod:`.fit`, :mod:`.discrepancy`, :mod:`.rover`,
+:mod:`.physics`);
+this module only builds the parser and dispatches.
+
+Commands
+--------
+validate    Table 5.5 / Fig. 5.6 validation on single-wheel trials (the default main job).
+calibrate   Fit the model to single-wheel trials and write a TOML parameter file.
+discrepancy Locate model-data mismatch, name the missing physics, show the fit improve.
+primitive   Solve a driving scenario (failures, trenching, slope) for a steady primitive.
+slope-sweep Fig. 7.12: slip and power against slope.
+envelope    Steepest feasible slope and the slope where slip crosses a limit.
+chapter7    Reproduce chapter 7 beside the dissertation's numbers.
+bekker      Fit Bekker's p = k z^n to static plate tests.
+soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Sequence
+
+from . import discrepancy, fit, physics, rover
+from .common import DEFAULT_PARAMS
+
+__all__ = ["main", "build_parser", "DEFAULT_PARAMS"]
+
+COMMAND_MODULES = (fit, discrepancy, rover, physics)
+"""Modules whose ``register(sub)`` adds commands, in help order."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``offnominal`` argument parser with every command module registered."""
+    ap = argparse.ArgumentParser(
+        prog="offnominal",
+        description="Off-nominal rover driving: wheel-soil physics, calibration and validation.",
+        epilog="Run 'offnominal <command> -h' for a command's options.",
+    )
+    sub = ap.add_subparsers(dest="command", metavar="command")
+
+    for module in COMMAND_MODULES:
+        module.register(sub)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``offnominal`` command."""
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if not getattr(args, "command", None):
+        ap.print_help()
+        return 0
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        print("\ninterrupted: files already written are complete (each is written whole)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

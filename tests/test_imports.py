@@ -40,8 +40,8 @@ def _modules() -> list[str]:
     for pkg in offline.__all__:
         sub = importlib.import_module(f"offline.{pkg}")
         names.append(f"offline.{pkg}")
-        if hasattr(sub, "__path__"):  # a subpackage: its __all__ lists its modules
-            names += [f"offline.{pkg}.{m}" for m in sub.__all__]
+        if hasattr(sub, "__path__"):  # a subpackage: the modules its __all__ lists
+            names += [f"offline.{pkg}.{m}" for m in sub.__all__ if importlib.util.find_spec(f"offline.{pkg}.{m}")]
     return names
 
 

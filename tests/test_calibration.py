@@ -245,7 +245,7 @@ def _synthetic_at_measured_sinkage(trials, beta_deg, tuning):
 ])
 def test_per_angle_fit_recovers_a0_to_b1_with_sinkage_imposed(trials_0_60, beta_deg, true):
     data = _synthetic_at_measured_sinkage(trials_0_60, beta_deg, true)
-    start = ContactTuning(0.5, 0.3, -0.2, -0.6, a0_per_rad=0.3, b1_per_rad=-0.2)  # slopes must be ignored
+    start = ContactTuning(0.5, 0.3, -0.2, -0.6, a0_per_rad=0.2, b1_per_rad=-0.2)  # slopes must be ignored
     res = fit_per_angle(data, SOIL, WHEEL, start, noise=NOISE)
     assert res.success, res.message
     assert res.names == ("a0", "a1", "b0", "b1")

@@ -31,12 +31,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..physics.backend import CASADI
-from .dataset import TrialSet
-from ..physics.params import ContactTuning, Soil, Wheel
+from .dataset import DatasetError, TrialSet, check_force_units
+from ..physics.params import ContactTuning, ParameterError, Soil, Wheel
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
 from .validation import trial_states
 
 __all__ = [
+    "CalibrationError",
+    "check_fit_data",
+    "MOST_FAILED_FRACTION",
     "FitResult",
     "fit_per_angle",
     "fit_linear_in_beta",
@@ -45,6 +48,21 @@ __all__ = [
     "DEFAULT_BOUNDS",
     "leave_one_angle_out",
 ]
+
+class CalibrationError(ValueError):
+    """The data cannot give a calibration (too few trials, loads the model cannot carry,
+    a fitted tuning outside the contact patch); the message says why and what to do."""
+
+
+MOST_FAILED_FRACTION = 0.5
+"""A fit whose final model carries the measured load on fewer than this fraction of the
+trials is an error, never a calibration."""
+
+UNDETERMINED_REL_SINGULAR_VALUE = 1e-8
+"""A direction of the (column-normalised) Jacobian whose singular value is below this
+fraction of the largest is not determined by the data; parameters with a component above
+0.1 in such a direction are reported as not determined (NaN standard error)."""
+
 
 # PhysParams field -> (lower, upper) bounds used by the fits
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
@@ -114,10 +132,22 @@ class FitResult:
     message: str
     wheel: Wheel | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    determined: tuple[bool, ...] = ()
+
+    @property
+    def not_determined(self) -> tuple[str, ...]:
+        """Free parameters the data cannot determine (no effect on the residuals, or only in
+        a combination with others): their value is the start value, not an estimate."""
+        if not self.determined:
+            return ()
+        return tuple(n for n, d in zip(self.names, self.determined) if not d)
 
     def table(self) -> str:
-        """Parameter table as text."""
-        return "\n".join(f"  {n:>8} = {v: .5g} ± {e:.2g}" for n, v, e in zip(self.names, self.values, self.std_errors))
+        """Parameter table as text (parameters the data cannot determine say so)."""
+        und = set(self.not_determined)
+        return "\n".join(
+            f"  {n:>8} = {v: .5g}  not determined by the data (left at its start value)" if n in und
+            else f"  {n:>8} = {v: .5g} ± {e:.2g}" for n, v, e in zip(self.names, self.values, self.std_errors))
 
 
 def _apply(
@@ -173,7 +203,7 @@ def _noise_scales(trials: TrialSet, noise: Mapping[str, float] | None) -> dict[s
     else:
         try:
             sc = trials.noise()
-        except Exception:  # no repeats: documented fallback
+        except DatasetError:  # no repeats: documented fallback
             med = float(np.median(trials.Fz))
             sc = {"Fx": 0.05 * med, "Fy": 0.05 * med, "Fz": 0.05 * med, "sinkage": 2e-3}
     for ch in ("Fx", "Fy", "Fz", "sinkage"):
@@ -213,20 +243,83 @@ def _least_squares(fun: Callable, x0: NDArray[np.float64], lb: NDArray[np.float6
                          method="trf", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10)
 
 
+def _determined(J: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which parameters the data determine: a column with no effect on the residuals, or a
+    component above 0.1 in a direction of the column-normalised Jacobian whose singular
+    value is below :data:`UNDETERMINED_REL_SINGULAR_VALUE` of the largest, is not."""
+    norms = np.linalg.norm(J, axis=0)
+    big = float(norms.max()) if norms.size else 0.0
+    det = norms > UNDETERMINED_REL_SINGULAR_VALUE * max(big, 1e-300)
+    if det.sum() >= 2:
+        Js = J[:, det] / norms[det]
+        try:
+            _, sv, vt = np.linalg.svd(Js, full_matrices=False)
+        except np.linalg.LinAlgError:
+            return det
+        weak = sv < UNDETERMINED_REL_SINGULAR_VALUE * sv[0]
+        if weak.any():
+            involved = np.any(np.abs(vt[weak]) > 0.1, axis=0)
+            idx = np.flatnonzero(det)
+            det[idx[involved]] = False
+    return det
+
+
 def _std_errors(J: NDArray[np.float64], r: NDArray[np.float64], n_par: int) -> NDArray[np.float64]:
     """Standard errors from ``s^2 (J^T J)^-1``, with the columns scaled to unit norm first so
     parameters of very different magnitude (k ~ 1e7, a0 ~ 1) do not fall below the
-    pseudo-inverse's cut-off."""
+    pseudo-inverse's cut-off. Parameters the data do not determine (:func:`_determined`)
+    get NaN, never a zero error; the others' errors are conditional on those held fixed."""
     dof = max(r.size - n_par, 1)
     s2 = float(r @ r) / dof
-    norms = np.linalg.norm(J, axis=0)
-    norms = np.where(norms > 0, norms, 1.0)
-    Js = J / norms
+    det = _determined(J)
+    out = np.full(n_par, np.nan)
+    if not det.any():
+        return out
+    Jd = J[:, det]
+    norms = np.linalg.norm(Jd, axis=0)
+    Js = Jd / norms
     try:
         cov = np.linalg.pinv(Js.T @ Js) * s2
-        return np.sqrt(np.clip(np.diag(cov), 0, None)) / norms
     except np.linalg.LinAlgError:
-        return np.full(n_par, np.nan)
+        return out
+    out[det] = np.sqrt(np.clip(np.diag(cov), 0, None)) / norms
+    return out
+
+
+def check_fit_data(trials: TrialSet, names: Sequence[str], wheel: Wheel | None = None) -> None:
+    """Refuse, before any fitting, data that cannot give a calibration.
+
+    Parameters
+    ----------
+    trials : TrialSet
+    names : sequence of str
+        The free parameters.
+    wheel : Wheel, optional
+        When given, the loads are checked against it (:func:`offline.fit.dataset.check_force_units`).
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than two trials, or fewer residuals (three per trial) than free parameters + 1.
+    DatasetError
+        Force columns in the wrong unit.
+    """
+    src = trials.source or "trials"
+    n = len(trials)
+    if n < 2:
+        raise CalibrationError(
+            f"{src}: {n} trial(s): a calibration needs several trials (repeats of several slip ratios and slip angles); "
+            "a single trial cannot determine soil and contact parameters. Add trials, or use 'offnominal validate' "
+            "to score a parameter file on it"
+        )
+    m = len(tuple(names))
+    if 3 * n <= m:
+        raise CalibrationError(
+            f"{src}: {n} trials give {3 * n} residuals (F_x, F_y, sinkage per trial) for {m} free parameters; "
+            f"need at least {m // 3 + 1} trials, or free fewer parameters"
+        )
+    if wheel is not None:
+        check_force_units(trials, wheel)
 
 
 def fit_per_angle(
@@ -290,12 +383,13 @@ def fit_per_angle(
     p, dp = unpack(res.x)
     r, J = fun(res.x)
     se_z = _std_errors(J, r, 4)
-    se = np.sqrt(np.clip(np.diag(dp @ np.diag(se_z**2) @ dp.T), 0, None))
+    se = np.sqrt(np.diag(dp @ np.diag(se_z**2) @ dp.T))  # NaN propagates from an undetermined z
     tuning = replace(base_t, a0=float(p[0]), a1=float(p[1]), b0=float(p[2]), b1=float(p[3]),
                      name=f"per_angle_{math.degrees(float(np.median(trials.beta_cmd))):.0f}",
                      source="offline.fit.calibration.fit_per_angle (measured sinkage imposed)")
     return FitResult(names, p, se, soil, tuning, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
-                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message))
+                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message),
+                     determined=tuple(bool(x) for x in np.isfinite(se)))
 
 
 def fit_linear_in_beta(per_angle: Mapping[float, ContactTuning], base: ContactTuning | None = None) -> ContactTuning:
@@ -386,9 +480,24 @@ def fit_joint(
     priors : mapping, optional
         ``name -> (mean, sd)`` in SI: independent evidence on a parameter (e.g. k from the
         static plate tests, :mod:`offline.fit.bekker`), added as residuals ``(x - mean) / sd``.
+
+    Returns
+    -------
+    FitResult
+        Parameters the data cannot determine (e.g. zeta with the soil-flow exit angle on a
+        wheel without grousers) are listed in ``not_determined`` with a NaN standard error.
+
+    Raises
+    ------
+    CalibrationError
+        Too few trials (:func:`check_fit_data`), the fitted model carries fewer than half of
+        the measured loads, or the fitted tuning leaves the contact patch.
+    DatasetError
+        Force columns in the wrong unit for this wheel.
     """
     options = options or ModelOptions()
     t0 = time.perf_counter()
+    check_fit_data(trials, names, wheel)
     sc = _noise_scales(trials, noise)
     bnd = dict(DEFAULT_BOUNDS)
     bnd.update(bounds or {})
@@ -415,10 +524,16 @@ def fit_joint(
             raise ValueError(f"prior on {pname!r} needs a finite mean and sd > 0, got ({m}, {sd})")
         prior_idx.append((names.index(pname), (float(m), float(sd))))
 
+    last_ok = [np.ones(len(trials), dtype=bool)]
+
     def fun(x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        s_, t_, w_ = _apply(soil, start, names, x, wheel)
-        model = WheelModel(s_, w_ or wheel, t_, options)
+        # the physics reads PhysParams only: set the free entries directly, so an iterate
+        # whose tuning lines leave the contact patch at some untested slip angle does not
+        # stop the fit (the final tuning is checked below)
+        model = WheelModel(soil, wheel, start, options)
+        model.params = base._replace(**{n: float(v) for n, v in zip(names, x)})
         pred, dpred, ok = _predict_with_sensitivities(jac, model, trials, x)
+        last_ok[0] = ok
         pred = np.where(ok[:, None], pred, np.array([np.nan, np.nan, rmax]))
         if (~ok).any():  # value at the maximum sinkage for trials the wheel cannot carry
             bad = np.flatnonzero(~ok)
@@ -440,15 +555,30 @@ def fit_joint(
 
     res = _least_squares(fun, x0, lb, ub, max_nfev)
     r, J = fun(res.x)
+    n_ok = int(last_ok[0].sum())
+    if n_ok < MOST_FAILED_FRACTION * len(trials):
+        raise CalibrationError(
+            f"{trials.source or 'trials'}: at the fitted parameters the model carries the measured load on only {n_ok} "
+            f"of {len(trials)} trials (the others exceed what the {wheel.name!r} wheel carries within its sinkage "
+            "range, or fall below its resolution): no calibration. Check the force units, the wheel file "
+            "(radius, width) and the starting soil"
+        )
     se = _std_errors(J, r, len(names))
-    s_, t_, w_ = _apply(soil, start, names, res.x, wheel)
+    try:
+        s_, t_, w_ = _apply(soil, start, names, res.x, wheel)
+    except ParameterError as exc:
+        raise CalibrationError(
+            f"the fitted parameters are outside their physical range: {exc}. Fit fewer slip angles' worth of slope "
+            "(--max-beta-deg), or tighten the bounds of the per-degree slopes"
+        ) from None
     t_ = replace(t_, name="joint_linear_in_beta", source="offline.fit.calibration.fit_joint (load given)")
     s_ = replace(s_, source=f"offline.fit.calibration.fit_joint from {soil.name}", name=f"{soil.name}_calibrated")
     if w_ is not None and any(n in _WHEEL_FIELDS for n in names):
         fitted = ", ".join(n for n in names if n in _WHEEL_FIELDS)
         w_ = replace(w_, name=f"{wheel.name}_calibrated", source=f"{wheel.source}; {fitted} from offline.fit.calibration.fit_joint")
     return FitResult(names, res.x.copy(), se, s_, t_, float(res.cost), float(np.sqrt(np.mean(r**2))), r.size,
-                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message), wheel=w_)
+                     int(res.nfev), time.perf_counter() - t0, bool(res.success), str(res.message), wheel=w_,
+                     extra={"n_carried": n_ok}, determined=tuple(bool(x) for x in np.isfinite(se)))
 
 
 def leave_one_angle_out(

@@ -54,6 +54,7 @@ __all__ = [
     "load_tuned_params",
     "load_sinkage_timeseries",
     "omega_from_rim_speed",
+    "check_force_units",
 ]
 
 #: Rim radius (m) the authors' model uses to turn rim speed into wheel rate, omega = V_rim / r.
@@ -94,6 +95,20 @@ _OPTIONAL_NUMERIC: tuple[tuple[str, str, float], ...] = (
 )
 
 _CHANNELS: tuple[str, ...] = ("Fx", "Fy", "Fz", "sinkage")
+
+# Force-unit heuristics (see _check_force_columns and check_force_units).
+_FORCE_RATIO_MAX = 10.0
+"""Largest |F_x| / F_z or |F_y| / F_z accepted: the soil's shear and sidewall resistance on a
+wheel is of the order of its load (shipped trials: max 4.0, F_y at 90 deg); a column in mN (or a load in kN)
+puts the ratio near 1000."""
+_FORCE_RATIO_MIN = 2e-3
+"""Below this for *every* row (with >= 5 rows), a horizontal force column looks like kN."""
+_LOAD_MIN_N = 0.5
+"""Smallest plausible largest load of a testbed wheel, N (a load in kN of a 20 N wheel is 0.02)."""
+_PRESSURE_RANGE_PA = (10.0, 1.0e6)
+"""Plausible mean ground pressure F_z / (2 r b) (a lower bound of the true contact pressure:
+the contact patch is shorter than the wheel's diameter), Pa. Soft soils do not bear 1 MPa;
+a load of 10 Pa cannot sink a wheel measurably."""
 
 
 class DatasetError(ValueError):
@@ -502,6 +517,78 @@ def _check_angle_units(path: Path, col: str, deg: np.ndarray, ids: Sequence[str]
         )
 
 
+def _check_force_columns(path: Path | str, Fx: np.ndarray, Fy: np.ndarray, Fz: np.ndarray, ids: Sequence[str]) -> None:
+    """Force columns against the load and the physics (every column is in N by its name).
+
+    * the largest load below 0.5 N: ``Fz_N`` looks like kN;
+    * |F_x| or |F_y| above 10 times the load on some row: that column looks like mN (or the
+      load like kN); soil cannot push on a wheel with many times its load;
+    * |F_x| or |F_y| below 0.002 times the load on every row (5 rows or more): that column
+      looks like kN.
+    """
+    mx_load = float(np.max(Fz))
+    if mx_load < _LOAD_MIN_N:
+        raise DatasetError(
+            f"{path}: column 'Fz_N': the largest load is {mx_load:.4g} N, below {_LOAD_MIN_N} N for every trial; the "
+            "column looks like kN (a 20 N load is 0.02 kN): multiply the force columns by 1000, or pass "
+            "check_units=False if the loads really are that small"
+        )
+    for col, F in (("Fx_N", Fx), ("Fy_N", Fy)):
+        ratio = np.abs(F) / Fz
+        i = int(np.argmax(ratio))
+        if ratio[i] > _FORCE_RATIO_MAX:
+            raise DatasetError(
+                f"{path}: {_row_label(i, ids)}, column '{col}': |{col[:2]}| = {abs(float(F[i])):.4g} is "
+                f"{float(ratio[i]):.0f} times the load Fz_N = {float(Fz[i]):.4g}; soil cannot push a wheel with more "
+                f"than about its load. '{col}' looks like mN (divide it by 1000), or 'Fz_N' like kN; every force "
+                "column must be in newtons"
+            )
+        if F.size >= 5 and float(np.max(ratio)) < _FORCE_RATIO_MIN and np.any(F != 0.0):
+            raise DatasetError(
+                f"{path}: column '{col}': |{col[:2]}| stays below {_FORCE_RATIO_MIN} times the load on every row "
+                f"(max {float(np.max(ratio)):.2g}); '{col}' looks like kN (multiply it by 1000), or 'Fz_N' like mN. "
+                "Every force column must be in newtons; pass check_units=False if the forces really are that small"
+            )
+
+
+def check_force_units(trials: "TrialSet", wheel: Any) -> None:
+    """Check the trials' loads against a wheel: mean ground pressure ``F_z / (2 r b)`` in
+    [10 Pa, 1 MPa] (a lower bound of the true contact pressure, see ``_PRESSURE_RANGE_PA``).
+
+    Catches every force column in mN (or kN) together, which the ratios between columns
+    checked by :func:`load_trials` cannot see.
+
+    Parameters
+    ----------
+    trials : TrialSet
+    wheel : offline.physics.params.Wheel
+        The wheel the trials were run with (radius and width used).
+
+    Raises
+    ------
+    DatasetError
+        Naming the likely unit and the fix.
+    """
+    area = 2.0 * wheel.radius * wheel.width
+    p = trials.Fz / area
+    lo, hi = _PRESSURE_RANGE_PA
+    i = int(np.argmax(p))
+    if p[i] > hi:
+        raise DatasetError(
+            f"{trials.source or 'trials'}: {_row_label(i, list(trials.trial_id))}, column 'Fz_N': load "
+            f"{float(trials.Fz[i]):.4g} N on the {wheel.name!r} wheel (r = {wheel.radius} m, b = {wheel.width} m) is a "
+            f"ground pressure of at least {float(p[i]):.3g} Pa, above the {hi:.0e} Pa soft soil can bear; the force "
+            "columns look like mN: divide Fx_N, Fy_N and Fz_N by 1000 (or check the wheel file)"
+        )
+    i = int(np.argmin(p))
+    if float(np.max(p)) < lo:
+        raise DatasetError(
+            f"{trials.source or 'trials'}: column 'Fz_N': every load is a ground pressure below {lo:g} Pa on the "
+            f"{wheel.name!r} wheel (largest load {float(np.max(trials.Fz)):.4g} N); the force columns look like kN: "
+            "multiply Fx_N, Fy_N and Fz_N by 1000 (or check the wheel file)"
+        )
+
+
 def load_trials(path: str | Path | None = None, *, check_units: bool = True) -> TrialSet:
     """Load and validate a single-wheel trials table, converting to SI once.
 
@@ -525,8 +612,11 @@ def load_trials(path: str | Path | None = None, *, check_units: bool = True) -> 
     DatasetError
         Missing file, empty file, missing required column, ragged row, non-numeric value,
         NaN/inf in a required column, slip outside [-1, 1), |slip angle| > 90.5 deg,
-        angles or sinkage in the wrong unit, Fz <= 0, negative std, ``authors_excluded``
-        not 0/1, duplicated ``trial_id``. The message names file, row and column.
+        angles, sinkage or forces in the wrong unit (forces: loads below 0.5 N, or a
+        horizontal force above 10 times or, on every row, below 0.002 times the load),
+        Fz <= 0, negative std, ``authors_excluded`` not 0/1, duplicated ``trial_id``, a
+        row repeated verbatim in a file without ``trial_id``. The message names file,
+        row and column.
     """
     p = _shipped("grouser_trials.csv") if path is None else Path(path)
     header, rows = _read_table(p, "trials")
@@ -559,6 +649,18 @@ def load_trials(path: str | Path | None = None, *, check_units: bool = True) -> 
     else:
         ids = [f"row{i + 1}" for i in range(n)]
         inferred.append("trial_id")
+        # without trial ids, a duplicated row would silently count as one more repeat
+        # (the noise estimate shrinks and every z-score grows)
+        first: dict[tuple[str, ...], int] = {}
+        for i, r in enumerate(rows):
+            key = tuple(r)
+            if key in first:
+                raise DatasetError(
+                    f"{p}: data row {i + 1} is identical to data row {first[key] + 1} and the file has no "
+                    "'trial_id' column, so it would count as an extra repeat; remove the duplicated row, or add "
+                    "a trial_id column if these really are two trials"
+                )
+            first[key] = i
 
     def num(col: str, required: bool = True) -> np.ndarray:
         return _numeric_column(p, header, rows, col, ids, required)
@@ -597,6 +699,7 @@ def load_trials(path: str | Path | None = None, *, check_units: bool = True) -> 
             "trials where the wheel lost contact"
         )
     if check_units:
+        _check_force_columns(p, Fx, Fy, Fz, ids)
         mx = float(np.max(np.abs(sink)))
         if 0.0 < mx < _SINKAGE_METRES_MAX:
             raise DatasetError(

@@ -19,14 +19,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .dataset import TrialSet
-from ..physics.params import ContactTuning, Soil, Wheel
+from ..files import atomic_path, write_text
+from ..physics.params import ContactTuning, Soil, TuningTable, Wheel
 from ..physics.terramechanics import ModelOptions, WheelModel
+from .dataset import DatasetError
 
 __all__ = [
     "Variant",
     "Prediction",
     "ErrorRow",
     "TABLE_5_5_GROUSERED",
+    "TABLE_5_5_SMOOTH",
+    "REFERENCE_SETS",
+    "ReferenceSet",
+    "MatchedReference",
+    "ValidationError",
+    "load_reference",
+    "wheel_kind",
+    "model_kind",
+    "compare_with_reference",
+    "failed_conditions",
     "predict",
     "error_rows",
     "errors_percent",
@@ -57,14 +69,136 @@ TABLE_5_5_GROUSERED: dict[str, dict[float, tuple[float, ...]]] = {
     },
 }
 
-TuningSpec = ContactTuning | Mapping[float, ContactTuning]
+# Dissertation Table 5.5, smooth wheel (same layout as TABLE_5_5_GROUSERED).
+TABLE_5_5_SMOOTH: dict[str, dict[float, tuple[float, ...]]] = {
+    "without soil flow": {
+        0.0: (8.3, 25.7, -2.9, 2.3, 2.2, 11.9),
+        15.0: (14.7, 39.7, -9.0, 10.5, 0.0, 14.2),
+        30.0: (11.5, 26.8, -11.5, 20.0, -0.7, 4.5),
+        45.0: (16.1, 26.1, -19.2, 26.6, -1.7, 3.6),
+        60.0: (16.1, 19.2, -23.2, 26.9, -1.6, 5.8),
+    },
+    "with soil flow": {
+        0.0: (22.3, 32.8, -2.9, 2.3, -3.1, 13.4),
+        15.0: (31.2, 46.1, -8.1, 12.0, -5.9, 15.6),
+        30.0: (29.5, 36.5, -8.1, 20.8, -6.4, 7.6),
+        45.0: (33.6, 36.6, -11.1, 24.1, -7.9, 5.9),
+        60.0: (35.4, 26.3, -4.9, 21.4, -7.7, 5.0),
+    },
+}
+
+REFERENCE_SETS: dict[str, str] = {"table-5.5": "table_5_5.csv"}
+"""Named built-in reference sets -> file in ``offline/data`` (Table 5.5: grousered and smooth rows)."""
+
+_REF_COLUMNS = ("wheel_kind", "model", "beta_deg", "fx_mean", "fx_sd", "fy_mean", "fy_sd", "h_mean", "h_sd")
+_MODELS = ("without soil flow", "with soil flow")
+_WHEEL_KINDS = ("grousered", "smooth")
+
+
+class ValidationError(ValueError):
+    """A validation cannot give an answer (most conditions failed, bad reference file, ...)."""
+
+
+def wheel_kind(wheel: Wheel) -> str:
+    """``"grousered"`` when the wheel has grousers (h_g > 0), else ``"smooth"``: the wheel rows of a reference set."""
+    return "grousered" if wheel.grouser_height > 0.0 else "smooth"
+
+
+def model_kind(options: ModelOptions) -> str | None:
+    """The Table 5.5 model a variant corresponds to: ``"with soil flow"`` (soil-flow exit angle),
+    ``"without soil flow"`` (classic exit angle, the dissertation's sidewall force), or ``None``
+    (a model the table has no rows for, e.g. the Ishigami 2007 sidewall or no sidewall)."""
+    if options.bulldozing != "pavlov" or options.bulldozing_scale != 1.0:
+        return None
+    return "with soil flow" if options.exit_angle == "soil_flow" else "without soil flow"
+
+
+@dataclass(frozen=True)
+class MatchedReference:
+    """Reference rows that match one variant (wheel kind and model): beta_deg -> 6 numbers in %."""
+
+    label: str
+    rows: Mapping[float, tuple[float, ...]]
+
+
+@dataclass(frozen=True)
+class ReferenceSet:
+    """Published error rows to compare validations with, per wheel kind and model.
+
+    Attributes
+    ----------
+    name : str
+        Built-in name or file name.
+    source : str
+        Where the numbers come from (file name and sha256 of the file).
+    rows : mapping
+        ``(wheel_kind, model) -> {beta_deg: (fx_mean, fx_sd, fy_mean, fy_sd, h_mean, h_sd)}``, %.
+    """
+
+    name: str
+    source: str
+    rows: Mapping[tuple[str, str], Mapping[float, tuple[float, ...]]]
+
+    def match(self, wheel: Wheel, options: ModelOptions) -> MatchedReference | None:
+        """The rows for this wheel's kind and this model, or ``None`` when the set has none."""
+        model = model_kind(options)
+        key = (wheel_kind(wheel), model or "")
+        if model is None or key not in self.rows:
+            return None
+        return MatchedReference(f"{self.name}, {key[0]} wheel, {model} model", self.rows[key])
+
+
+def load_reference(spec: str | Path) -> ReferenceSet:
+    """Load a reference set: a built-in name (:data:`REFERENCE_SETS`) or a CSV file.
+
+    The CSV has the columns ``wheel_kind`` (grousered / smooth), ``model`` (without soil flow /
+    with soil flow), ``beta_deg`` and ``fx_mean, fx_sd, fy_mean, fy_sd, h_mean, h_sd`` in %
+    (forces in % of the load, sinkage in % of the wheel radius), as ``offline/data/table_5_5.csv``.
+
+    Raises
+    ------
+    DatasetError
+        Missing file or column, bad value (file, row and column named), duplicated row.
+    """
+    import hashlib
+
+    from .dataset import _numeric_column, _read_table, _shipped
+
+    name = str(spec)
+    path = _shipped(REFERENCE_SETS[name]) if name in REFERENCE_SETS else Path(spec)
+    header, body = _read_table(path, "reference")
+    missing = [c for c in _REF_COLUMNS if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: missing column(s) {missing}; expected {list(_REF_COLUMNS)}, found {header}")
+    rows: dict[tuple[str, str], dict[float, tuple[float, ...]]] = {}
+    nums = {c: _numeric_column(path, header, body, c, None, True) for c in _REF_COLUMNS[2:]}
+    for i, r in enumerate(body):
+        kind, model = r[header.index("wheel_kind")], r[header.index("model")]
+        if kind not in _WHEEL_KINDS:
+            raise DatasetError(f"{path}: data row {i + 1}, column 'wheel_kind': {kind!r}; expected one of {list(_WHEEL_KINDS)}")
+        if model not in _MODELS:
+            raise DatasetError(f"{path}: data row {i + 1}, column 'model': {model!r}; expected one of {list(_MODELS)}")
+        b = float(nums["beta_deg"][i])
+        block = rows.setdefault((kind, model), {})
+        if b in block:
+            raise DatasetError(f"{path}: data row {i + 1}: a second row for {kind}, {model}, beta_deg {b:g}")
+        block[b] = tuple(float(nums[c][i]) for c in _REF_COLUMNS[3:])
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return ReferenceSet(name if name in REFERENCE_SETS else path.name, f"{path.name} (sha256 {digest})", rows)
+
+
+TuningSpec = ContactTuning | TuningTable | Mapping[float, ContactTuning]
 
 
 def tuning_for_angle(spec: TuningSpec, beta_cmd_deg: float) -> ContactTuning | None:
-    """The tuning for a commanded slip angle: the single continuous tuning, or the per-angle
-    entry within 0.5 deg (``None`` if the table has no entry for that angle)."""
+    """The tuning for a commanded slip angle: the single continuous tuning, the per-angle table
+    interpolated in |beta| (``None`` outside its angles), or the per-angle mapping entry within
+    0.5 deg (``None`` if the mapping has no entry for that angle)."""
     if isinstance(spec, ContactTuning):
         return spec
+    if isinstance(spec, TuningTable):
+        b = math.radians(abs(beta_cmd_deg))
+        return spec.tuning_at(b) if spec.covers(b) else None
     for b, t in spec.items():
         if abs(float(b) - abs(beta_cmd_deg)) <= 0.5:
             return t
@@ -256,27 +390,52 @@ def error_rows(trials: TrialSet, pred: Prediction, radius: float) -> list[ErrorR
     return rows
 
 
-def beats_table_5_5(row: ErrorRow, reference: str = "without soil flow") -> dict[str, bool] | None:
-    """Whether a row is at least as good as Table 5.5 (|mean| and sd no larger), per channel."""
-    ref = TABLE_5_5_GROUSERED[reference].get(row.beta_deg)
+def beats_table_5_5(row: ErrorRow, reference: str = "without soil flow", wheel: str = "grousered") -> dict[str, bool] | None:
+    """Whether a row is at least as good as Table 5.5 (|mean| and sd no larger), per channel.
+
+    ``wheel`` selects the table's grousered or smooth rows (see :func:`wheel_kind`)."""
+    table = TABLE_5_5_GROUSERED if wheel == "grousered" else TABLE_5_5_SMOOTH
+    return compare_with_reference(row, table[reference])
+
+
+def failed_conditions(rows: Sequence[ErrorRow]) -> dict[str, tuple[int, int]]:
+    """Per variant: (conditions whose prediction failed, conditions scored)."""
+    out: dict[str, tuple[int, int]] = {}
+    for r in rows:
+        f, n = out.get(r.variant, (0, 0))
+        out[r.variant] = (f + r.n_failed, n + r.n)
+    return out
+
+
+def compare_with_reference(row: ErrorRow, reference: Mapping[float, tuple[float, ...]]) -> dict[str, bool] | None:
+    """Whether a row is at least as good as the reference row at its slip angle (|mean| and
+    sd no larger, at the reference's printed precision), per channel; ``None`` if there is
+    no reference row for that angle. A row with failed predictions is never "as good"."""
+    ref = reference.get(row.beta_deg)
     if ref is None:
         return None
     # compared at the table's printed precision (one decimal)
     def le(a: float, b: float) -> bool:
         return round(a, 1) <= b + 1e-9
 
+    ok = row.n_failed == 0
     return {
-        "Fx": le(abs(row.fx_mean), abs(ref[0])) and le(row.fx_sd, ref[1]),
-        "Fy": le(abs(row.fy_mean), abs(ref[2])) and le(row.fy_sd, ref[3]),
-        "sinkage": le(abs(row.h_mean), abs(ref[4])) and le(row.h_sd, ref[5]),
+        "Fx": ok and le(abs(row.fx_mean), abs(ref[0])) and le(row.fx_sd, ref[1]),
+        "Fy": ok and le(abs(row.fy_mean), abs(ref[2])) and le(row.fy_sd, ref[3]),
+        "sinkage": ok and le(abs(row.h_mean), abs(ref[4])) and le(row.h_sd, ref[5]),
     }
 
 
-def format_table(rows: Sequence[ErrorRow], reference: str | None = "auto") -> str:
-    """Plain-text table laid out like Table 5.5, with the dissertation's row beside ours.
+def format_table(
+    rows: Sequence[ErrorRow], reference: str | None | Mapping[str, MatchedReference | None] = "auto"
+) -> str:
+    """Plain-text table laid out like Table 5.5, with the reference row beside ours.
 
-    ``reference="auto"`` compares variants whose name mentions soil flow with the table's
-    "with soil flow model" rows and the others with the "without" rows; ``None`` omits it.
+    ``reference`` is a mapping ``variant name -> MatchedReference`` (or ``None``: no
+    comparison for that variant), as the CLI builds from :meth:`ReferenceSet.match`, so
+    each variant is marked only against the rows of its own wheel kind and model.
+    ``"auto"`` (legacy) compares by name with the grousered rows of Table 5.5; ``None``
+    omits every comparison.
     """
     lines = []
     by_variant: dict[str, list[ErrorRow]] = {}
@@ -284,20 +443,26 @@ def format_table(rows: Sequence[ErrorRow], reference: str | None = "auto") -> st
         by_variant.setdefault(r.variant, []).append(r)
     hdr = f"{'beta':>6} {'n':>3}  {'Fx err (%)':>14} {'|Fx|':>6}  {'Fy err (%)':>14} {'|Fy|':>6}  {'h0 err (%)':>14} {'|h0|':>6}"
     for variant, vrows in by_variant.items():
-        ref_name = reference
+        matched: MatchedReference | None = None
         if reference == "auto":
             ref_name = "with soil flow" if "soil-flow" in variant or "soil flow" in variant else "without soil flow"
-        lines += [f"== {variant} ==" + (f"  (T5.5: Table 5.5 grousered, {ref_name} model)" if ref_name else ""), hdr]
+            matched = MatchedReference(f"Table 5.5 grousered, {ref_name} model", TABLE_5_5_GROUSERED[ref_name])
+        elif isinstance(reference, Mapping):
+            matched = reference.get(variant)
+        elif reference is not None:
+            raise ValueError(f"reference must be 'auto', None or a mapping of variant name to MatchedReference, got {reference!r}")
+        lines += [f"== {variant} ==" + (f"  (T5.5: {matched.label})" if matched else "  (no matching reference rows)"
+                                        if reference is not None else ""), hdr]
         for r in vrows:
             fail = f"  ({r.n_failed} failed)" if r.n_failed else ""
             lines.append(
                 f"{r.beta_deg:>5.0f}° {r.n:>3}  {r.fx_mean:>6.1f} ± {r.fx_sd:<5.1f} {r.fx_mae:>6.1f}  "
                 f"{r.fy_mean:>6.1f} ± {r.fy_sd:<5.1f} {r.fy_mae:>6.1f}  {r.h_mean:>6.1f} ± {r.h_sd:<5.1f} {r.h_mae:>6.1f}{fail}"
             )
-            if ref_name is not None:
-                ref = TABLE_5_5_GROUSERED[ref_name].get(r.beta_deg)
+            if matched is not None:
+                ref = matched.rows.get(r.beta_deg)
                 if ref is not None:
-                    ok = beats_table_5_5(r, ref_name) or {}
+                    ok = compare_with_reference(r, matched.rows) or {}
                     mark = " ".join(f"{k}:{'ok' if v else 'WORSE'}" for k, v in ok.items())
                     lines.append(
                         f"{'T5.5':>6} {'':>3}  {ref[0]:>6.1f} ± {ref[1]:<5.1f} {'':>6}  {ref[2]:>6.1f} ± {ref[3]:<5.1f} {'':>6}  "
@@ -309,14 +474,15 @@ def format_table(rows: Sequence[ErrorRow], reference: str | None = "auto") -> st
 
 def write_csv(rows: Sequence[ErrorRow], path: str | Path) -> Path:
     """Write the error rows (one per variant and slip angle) to CSV."""
-    p = Path(path)
+    import io
+
     names = list(ErrorRow.__dataclass_fields__)
-    with p.open("w", newline="") as fh:
-        wr = csv.writer(fh)
-        wr.writerow(names)
-        for r in rows:
-            wr.writerow([getattr(r, k) for k in names])
-    return p
+    buf = io.StringIO()
+    wr = csv.writer(buf, lineterminator="\n")
+    wr.writerow(names)
+    for r in rows:
+        wr.writerow([getattr(r, k) for k in names])
+    return write_text(Path(path), buf.getvalue())  # atomic
 
 
 def plot_fig_5_6(
@@ -377,6 +543,9 @@ def plot_fig_5_6(
         ax.set_xlabel("slip ratio s")
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.7 / fig.get_figheight()))
     p = Path(path)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(p) as tmp:  # written whole or not at all
+            fig.savefig(tmp, dpi=110, format=p.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
     return p

@@ -37,6 +37,8 @@ __all__ = [
     "Soil",
     "Wheel",
     "ContactTuning",
+    "TuningTable",
+    "CONTACT_RATIO_RANGE",
     "Rover",
     "ParameterSet",
     "load_toml",
@@ -50,6 +52,8 @@ __all__ = [
     "WHEEL_GROUSERED_PUBLISHED_CODE",
     "TUNING_T54_GROUSERED",
     "TUNING_T54_SMOOTH",
+    "TUNING_T54_GROUSERED_TABLE",
+    "TUNING_T54_SMOOTH_TABLE",
     "TUNING_T72_LINEAR",
     "ROVER_MINI_T72",
 ]
@@ -182,6 +186,38 @@ class Wheel:
         return self.radius + self.grouser_height
 
 
+CONTACT_RATIO_RANGE = (-1.25, 1.25)
+"""Allowed range of theta_m / theta_f and theta_r / theta_f from the tuning (eqs. 5.3-5.4),
+at every slip angle up to 90 deg (the per-degree slopes extrapolated) and slip ratio.
+
+The contact patch spans theta_r..theta_f with -theta_f <= theta_r <= 0, so both ratios
+belong in [-1, 1]. The model clips theta_m into the patch, and lines fitted on 0-60 deg
+overshoot a little when extrapolated to 90 deg (a fit to synthetic data: 1.06), so 25 %
+slack is left; beyond it the numbers are not a tuning but a mistake (e.g. slopes per
+radian written as per degree, 57 times too large)."""
+
+
+def _check_contact_ratios(owner: str, t: Any) -> None:
+    """Refuse a tuning (with its per-radian slopes) that puts theta_m or theta_r outside the
+    contact patch at any slip angle |beta| in [0, 90] deg and slip ratio s in [0, 1]
+    (linear in both, so the extremes are at the corners). Skid uses a0, b0 (s = 0)."""
+    lo, hi = CONTACT_RATIO_RANGE
+    for beta_deg in (0.0, 90.0):
+        a0, a1, b0, b1 = t.at(math.radians(beta_deg))
+        for what, c0, c1 in (("theta_m", a0, a1), ("theta_r", b0, b1)):
+            for s_ in (0.0, 1.0):
+                ratio = c0 + c1 * s_
+                if not lo <= ratio <= hi:
+                    p = "a" if what == "theta_m" else "b"
+                    raise ParameterError(
+                        f"{owner}: {what} / theta_f = {p}0 + {p}1 s = {ratio:.3g} at |beta| = {beta_deg:g} deg, "
+                        f"s = {s_:g} ({p}0 = {c0:.4g}, {p}1 = {c1:.4g} there, from {p}0, {p}1 and their per-degree "
+                        f"slopes {p}0_per_deg = {math.radians(getattr(t, p + '0_per_rad')):.4g}, "
+                        f"{p}1_per_deg = {math.radians(getattr(t, p + '1_per_rad')):.4g}); it must stay inside the "
+                        f"contact patch, [{lo}, {hi}]: check the per-degree slopes (per degree, not per radian?)"
+                    )
+
+
 @dataclass(frozen=True)
 class ContactTuning:
     """Contact-angle tuning of eqs. (5.3)-(5.4), optionally linear in |beta| (7.8)-(7.9).
@@ -210,6 +246,7 @@ class ContactTuning:
             _check_finite("ContactTuning", f, getattr(self, f))
         for f in ("a0", "a1", "b0", "b1"):
             _check_range("ContactTuning", f, getattr(self, f), -1.5, 1.5)
+        _check_contact_ratios("ContactTuning", self)
 
     def at(self, abs_beta: Any) -> tuple[Any, Any, Any, Any]:
         """Return (a0, a1, b0, b1) at slip-angle magnitude ``abs_beta`` (rad)."""
@@ -219,6 +256,101 @@ class ContactTuning:
             self.b0 + self.b0_per_rad * abs_beta,
             self.b1 + self.b1_per_rad * abs_beta,
         )
+
+
+@dataclass(frozen=True)
+class TuningTable:
+    """Per-slip-angle contact tuning (a published table such as Table 5.4), interpolated in |beta|.
+
+    Between two listed slip angles a0, a1, b0, b1 are linear in |beta| (so the Table 7.2
+    lines are the special case of two rows); outside ``[beta[0], beta[-1]]`` there is no
+    value (:meth:`at` raises) rather than an extrapolation. The physics model takes one
+    :class:`ContactTuning`: use :meth:`tuning_at` for the tuning at one slip angle.
+
+    Parameters
+    ----------
+    abs_beta : tuple of float
+        Slip-angle magnitudes of the rows, rad, strictly increasing, within [0, pi/2].
+    rows : tuple of ContactTuning
+        The tuning of each row (no per-radian slopes).
+    """
+
+    abs_beta: tuple[float, ...]
+    rows: tuple[ContactTuning, ...]
+    name: str = "tuning_table"
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        o = "TuningTable"
+        if len(self.abs_beta) != len(self.rows) or not self.rows:
+            raise ParameterError(f"{o}: needs one row per slip angle and at least one row, got {len(self.abs_beta)} "
+                                 f"angles and {len(self.rows)} rows")
+        for i, b in enumerate(self.abs_beta):
+            _check_range(o, f"abs_beta[{i}]", b, 0.0, math.pi / 2 + 1e-12, _DEG_HINT)
+        if any(b2 <= b1 for b1, b2 in zip(self.abs_beta, self.abs_beta[1:])):
+            raise ParameterError(f"{o}: slip angles must be strictly increasing, got "
+                                 f"{[round(math.degrees(b), 6) for b in self.abs_beta]} deg")
+        for i, r in enumerate(self.rows):
+            if not isinstance(r, ContactTuning):
+                raise ParameterError(f"{o}: row {i} must be a ContactTuning, got {type(r).__name__}")
+            if any((r.a0_per_rad, r.a1_per_rad, r.b0_per_rad, r.b1_per_rad)):
+                raise ParameterError(f"{o}: row {i} has per-degree slopes; a table row holds a0..b1 at its angle only")
+
+    @classmethod
+    def from_degrees(cls, table: Mapping[float, ContactTuning], name: str = "tuning_table", source: str = "") -> "TuningTable":
+        """Build from ``{slip angle in degrees: ContactTuning}`` (e.g. :data:`TUNING_T54_GROUSERED`)."""
+        keys = sorted(table, key=lambda b: abs(float(b)))
+        return cls(tuple(math.radians(abs(float(b))) for b in keys), tuple(table[b] for b in keys), name, source)
+
+    def at(self, abs_beta: float) -> tuple[float, float, float, float]:
+        """(a0, a1, b0, b1) at slip-angle magnitude ``abs_beta`` (rad), linear between rows.
+
+        Raises
+        ------
+        ParameterError
+            If ``abs_beta`` lies outside the table's slip angles (no extrapolation).
+        """
+        b = abs(float(abs_beta))
+        lo, hi = self.abs_beta[0], self.abs_beta[-1]
+        tol = math.radians(0.5)  # commanded angles are logged to within 0.5 deg
+        if not lo - tol <= b <= hi + tol:
+            raise ParameterError(
+                f"TuningTable {self.name!r}: |beta| = {math.degrees(b):.4g} deg is outside the table's slip angles "
+                f"[{math.degrees(lo):g}, {math.degrees(hi):g}] deg; the table is not extrapolated (add a row)"
+            )
+        b = min(max(b, lo), hi)
+        cols = [[getattr(r, f) for r in self.rows] for f in ("a0", "a1", "b0", "b1")]
+        if len(self.rows) == 1:
+            return tuple(c[0] for c in cols)  # type: ignore[return-value]
+        import numpy as np
+
+        return tuple(float(np.interp(b, self.abs_beta, c)) for c in cols)  # type: ignore[return-value]
+
+    def covers(self, abs_beta: float) -> bool:
+        """True when :meth:`at` has a value at ``abs_beta`` (rad)."""
+        try:
+            self.at(abs_beta)
+        except ParameterError:
+            return False
+        return True
+
+    def tuning_at(self, abs_beta: float) -> ContactTuning:
+        """The :class:`ContactTuning` at one slip angle (interpolated, no slopes), for the model."""
+        a0, a1, b0, b1 = self.at(abs_beta)
+        return ContactTuning(a0, a1, b0, b1, name=f"{self.name}@{math.degrees(abs(abs_beta)):.4g}deg",
+                             source=f"{self.source} (interpolated in |beta|)" if self.source else "interpolated in |beta|")
+
+    def _no_single_value(self) -> Any:
+        raise ParameterError(
+            f"TuningTable {self.name!r} holds one tuning per slip angle, not a single a0..b1: use "
+            "table.tuning_at(abs_beta) for the ContactTuning at one slip angle (e.g. to build a WheelModel), or "
+            "offline.fit.calibration.fit_linear_in_beta for lines in |beta|"
+        )
+
+    a0 = property(_no_single_value, doc="Not defined for a table (raises): see :meth:`tuning_at`.")
+    a1 = property(_no_single_value, doc="Not defined for a table (raises): see :meth:`tuning_at`.")
+    b0 = property(_no_single_value, doc="Not defined for a table (raises): see :meth:`tuning_at`.")
+    b1 = property(_no_single_value, doc="Not defined for a table (raises): see :meth:`tuning_at`.")
 
 
 @dataclass(frozen=True)
@@ -244,7 +376,7 @@ class ParameterSet:
 
     soil: Soil
     wheel: Wheel
-    tuning: ContactTuning
+    tuning: ContactTuning | TuningTable
     notes: str = ""
 
 
@@ -293,6 +425,8 @@ TUNING_T54_SMOOTH: dict[float, ContactTuning] = {
         (60.0, 0.72, 0.13, -0.54, -0.13),
     ]
 }
+TUNING_T54_GROUSERED_TABLE = TuningTable.from_degrees(TUNING_T54_GROUSERED, "t54_grousered", _T54 + " (grousered wheel)")
+TUNING_T54_SMOOTH_TABLE = TuningTable.from_degrees(TUNING_T54_SMOOTH, "t54_smooth", _T54 + " (smooth wheel)")
 # Table 7.2: a0 = 0.24 + beta / 129.1 deg, a1 = 0.69 - beta / 133.5 deg. Chapter 7 takes the
 # exit angle from the soil-flow model; b0, b1 here are the mean grousered Table 5.4 values,
 # used only when the classic exit angle is selected.
@@ -353,7 +487,52 @@ _SECTIONS: dict[str, tuple[type, list[tuple[str, str, float]]]] = {
 }
 
 
+def _table_from_section(path: str, table: Mapping[str, Any]) -> TuningTable:
+    """``[tuning]`` with ``beta_deg = [...]`` and a list per coefficient: a :class:`TuningTable`."""
+    cols = ("a0", "a1", "b0", "b1")
+    known = {"beta_deg", *cols, "name", "source"}
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ParameterError(f"{path}: [tuning] per-angle table: unknown key(s) {unknown} (per-degree slopes do not "
+                             f"apply to a table); known keys: {sorted(known)}")
+    arrays: dict[str, list[float]] = {}
+    for key in ("beta_deg", *cols):
+        if key not in table:
+            raise ParameterError(f"{path}: [tuning] per-angle table: missing key '{key}' (a list, one value per slip angle)")
+        v = table[key]
+        if not isinstance(v, list) or not v:
+            raise ParameterError(f"{path}: [tuning] {key} must be a non-empty list in a per-angle table, got {v!r}")
+        for i, x in enumerate(v):
+            if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
+                raise ParameterError(f"{path}: [tuning] {key}[{i}] must be a finite number, got {x!r}")
+        arrays[key] = [float(x) for x in v]
+    n = len(arrays["beta_deg"])
+    for key in cols:
+        if len(arrays[key]) != n:
+            raise ParameterError(f"{path}: [tuning] {key} has {len(arrays[key])} values but beta_deg has {n}; "
+                                 "give one value per slip angle")
+    for i, b in enumerate(arrays["beta_deg"]):
+        if not 0.0 <= b <= 90.0:
+            raise ParameterError(f"{path}: [tuning] beta_deg[{i}] = {b!r} outside [0, 90] (slip-angle magnitude, degrees)")
+    meta = {m: table[m] for m in ("name", "source") if m in table}
+    for m, v in meta.items():
+        if not isinstance(v, str):
+            raise ParameterError(f"{path}: [tuning] {m} must be a string, got {v!r}")
+    rows = []
+    for i, b in enumerate(arrays["beta_deg"]):
+        try:
+            rows.append(ContactTuning(*(arrays[c][i] for c in cols), name=f"row_{b:g}deg"))
+        except ParameterError as exc:
+            raise ParameterError(f"{path}: [tuning] row {i} (beta_deg = {b:g}): {exc}") from None
+    try:
+        return TuningTable(tuple(math.radians(b) for b in arrays["beta_deg"]), tuple(rows), **meta)
+    except ParameterError as exc:
+        raise ParameterError(f"{path}: [tuning] {exc}") from None
+
+
 def _from_section(path: str, section: str, table: Mapping[str, Any]) -> Any:
+    if section == "tuning" and ("beta_deg" in table or any(isinstance(table.get(c), list) for c in ("a0", "a1", "b0", "b1"))):
+        return _table_from_section(path, table)
     cls, keys = _SECTIONS[section]
     known = {k for _, k, _ in keys} | {"name", "source"}
     unknown = sorted(set(table) - known)
@@ -456,6 +635,13 @@ def save_toml(path: str | Path, meta: Mapping[str, Any] | None = None, **section
         lines += [f"{json.dumps(str(k))} = {_fmt(v)}" for k, v in meta.items()]
         lines.append("")
     for section, obj in sections.items():
+        if section == "tuning" and isinstance(obj, TuningTable):
+            lines += ["[tuning]", f"name = {_fmt(obj.name)}", f"source = {_fmt(obj.source)}",
+                      "beta_deg = [" + ", ".join(_fmt(round(math.degrees(b), 9)) for b in obj.abs_beta) + "]"]
+            for c in ("a0", "a1", "b0", "b1"):
+                lines.append(f"{c} = [" + ", ".join(_fmt(getattr(r, c)) for r in obj.rows) + "]")
+            lines.append("")
+            continue
         if section not in _SECTIONS:
             raise ParameterError(f"cannot save unknown section '{section}'")
         cls, keys = _SECTIONS[section]
@@ -468,6 +654,6 @@ def save_toml(path: str | Path, meta: Mapping[str, Any] | None = None, **section
         for fname, key, factor in keys:
             lines.append(f"{key} = {_fmt(d[fname] / factor)}")
         lines.append("")
-    p = Path(path)
-    p.write_text("\n".join(lines))
-    return p
+    from ..files import write_text  # atomic: a file is written whole or not at all
+
+    return write_text(Path(path), "\n".join(lines))

@@ -489,6 +489,10 @@ class Wrench:
         return np.stack([self.Fx, self.Fy, self.Fz, self.Mx, self.My, self.Mz], axis=-1)
 
 
+_STATUS_DTYPE = "<U32"
+"""dtype of :attr:`SinkageResult.status`: wide enough for every status string."""
+
+
 @dataclass(frozen=True)
 class SinkageResult:
     """Sinkage that carries a given load, eq. (5.34).
@@ -499,8 +503,11 @@ class SinkageResult:
         Sinkage (m) and the zero-slip sinkage under the same load (NaN where failed).
     converged : ndarray of bool
     status : ndarray of str
-        ``"ok"``, ``"load_exceeds_capacity"`` (the wheel cannot carry the load within the
-        physical sinkage range), ``"not_converged"``.
+        ``"ok"`` (load residual within tolerance), ``"load_exceeds_capacity"`` (the wheel
+        cannot carry the load within the physical sinkage range), ``"load_below_resolution"``
+        (carried at a sinkage below ``h_min``), ``"load_at_discontinuity"`` (``F_z(h)`` jumps
+        across the load: no sinkage carries it within tolerance), ``"not_converged"``.
+        Fixed-width strings wide enough for every status (never truncated).
     residual : ndarray
         ``F_z(h) - W``, N.
     iterations : int
@@ -813,6 +820,20 @@ class WheelModel:
 
         Exact derivatives from the casadi graph; ``compiled`` uses the C-compiled function
         (:meth:`compiled_function`). The state is checked (finite, sinkage range).
+
+        At ``v_x = v_y = 0`` (a wheel spinning in place, or at rest) the slip angle (5.1) is
+        undefined and the wrench is not differentiable in ``(v_x, v_y)``: its derivative
+        along v_y grows like 1 / |v| (about 1.5e8 N s/m at |v| = 1e-9 m/s). That state is
+        refused with a :class:`ValueError` (documented choice: a clear error rather than a
+        finite number that depends on an arbitrary direction); evaluate at a small travel
+        speed in the direction of interest instead. The wrench value itself is finite there
+        (:meth:`wrench`). Any other non-finite Jacobian is refused the same way.
+
+        Raises
+        ------
+        ValueError
+            Wrong shape, non-finite state, sinkage out of range, counter-rotation,
+            ``v_x = v_y = 0``, or a non-finite result.
         """
         xa = np.asarray(x, dtype=float).reshape(-1)
         if xa.size != 5:
@@ -821,6 +842,21 @@ class WheelModel:
             self._validate(*xa)  # raises with a message naming the bad entry
         if xa[0] * xa[2] < 0 and abs(xa[2]) * self.wheel.shearing_radius > 1e-9 * abs(xa[0]):
             self._validate(*xa)
+        if xa[0] == 0.0 and xa[1] == 0.0:
+            raise ValueError(
+                f"wrench Jacobian at v_x = v_y = 0 (omega = {xa[2]!r} rad/s: "
+                f"{'spinning in place' if xa[2] != 0 else 'at rest'}) is undefined: the slip angle of eq. (5.1) "
+                "has no value at zero travel speed, so d wrench / d(v_x, v_y) does not exist; evaluate at a small "
+                "travel speed (e.g. v_x = 1e-6 m/s) in the direction of interest"
+            )
+        w_out, J_out = self._wrench_and_jacobian_raw(xa, compiled)
+        if not (np.all(np.isfinite(w_out)) and np.all(np.isfinite(J_out))):
+            bad = [STATE_NAMES[j] for j in range(5) if not np.all(np.isfinite(J_out[:, j]))]
+            raise ValueError(f"wrench or Jacobian is not finite at state {dict(zip(STATE_NAMES, xa.tolist()))} "
+                             f"(non-finite columns: {bad}); the state is at a singularity of the model")
+        return w_out, J_out
+
+    def _wrench_and_jacobian_raw(self, xa: NDArray[np.float64], compiled: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if compiled:
             if self._direct is None:
                 f = self.compiled_function(True)
@@ -871,6 +907,10 @@ class WheelModel:
         arrays = np.broadcast_arrays(W, *(np.asarray(a, dtype=float) for a in (vx, vy, omega)))
         shape = arrays[0].shape
         Wf, vxa, vya, wa = (a.reshape(-1).astype(float) for a in arrays)
+        if Wf.size == 0:  # empty batch: empty answer, same shape
+            empty = np.empty(shape)
+            return SinkageResult(empty, empty.copy(), np.empty(shape, dtype=bool), np.empty(shape, dtype=_STATUS_DTYPE),
+                                 empty.copy(), 0, self.h_max)
         if not np.all(np.isfinite(Wf)):
             raise ValueError("load must be finite (N)")
         if np.any(Wf <= 0):
@@ -966,7 +1006,7 @@ class WheelModel:
         tol = math.log1p(rtol)
         if abs(g) <= tol and abs(g0) <= tol and d > 0 and d0 > 0 and self.h_min < h < self.h_max:
             one = lambda x: np.array([x])  # noqa: E731
-            return SinkageResult(one(h), one(h0), one(True), np.array(["ok"]), one(g * vals[0]), self.SINGLE_NEWTON_STEPS,
+            return SinkageResult(one(h), one(h0), one(True), np.array(["ok"], dtype=_STATUS_DTYPE), one(g * vals[0]), self.SINGLE_NEWTON_STEPS,
                                  self.h_max)
         return self.sinkage_from_load(np.array([vals[0]]), np.array([vals[1]]), np.array([vals[2]]), np.array([vals[3]]),
                                       rtol=rtol)
@@ -1023,6 +1063,10 @@ class WheelModel:
             side[hi_i] = 1
             active[idx[done]] = False
         status[active] = "not_converged"
-        ok = status == "ok"
         res = np.where(np.isnan(fh), np.where(cap, fg.max(axis=1), np.nan), fh)
-        return h, ok, status.astype(str), res, it
+        # "ok" only within tolerance: a bracket that collapsed onto a jump of F_z(h) (the
+        # soil-flow exit angle switches regime with sinkage) leaves a residual above tol_f
+        jump = (status == "ok") & ~(np.abs(res) <= tol_f)
+        status[jump] = "load_at_discontinuity"
+        ok = status == "ok"
+        return h, ok, status.astype(_STATUS_DTYPE), res, it

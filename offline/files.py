@@ -72,7 +72,7 @@ def check_output_path(path: str | Path, inputs: Iterable[str | Path | None] = ()
     ------
     OutputError
         If ``path`` is an input of the run, an existing folder, or its folder cannot be
-        created or written.
+        created or written. Nothing is created by the check.
     """
     path = Path(path)
     for inp in inputs:
@@ -106,9 +106,15 @@ def check_output_dir(folder: str | Path, inputs: Iterable[str | Path | None] = (
 
 
 def _check_writable_dir(folder: Path) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{folder}: cannot create the output folder ({exc.strerror}); choose another --out") from exc
-    if not os.access(folder, os.W_OK):
-        raise OutputError(f"{folder}: not writable; choose another --out")
+    """``folder`` exists and is writable, or can be created (its nearest existing ancestor is a
+    writable folder). Nothing is created: a run refused later leaves no trace."""
+    probe = folder.absolute()
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"{folder}: cannot create the output folder: {probe} is a file; choose another --out")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        what = "not writable" if probe == folder.absolute() else f"cannot be created ({probe} is not writable)"
+        raise OutputError(f"{folder}: {what}; choose another --out")

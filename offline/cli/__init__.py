@@ -56,7 +56,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except KeyboardInterrupt:
-        print("\ninterrupted: files already written are complete (each is written whole)", file=sys.stderr)
+        # only commands that write every output through offline.files (temporary file, then
+        # rename) set atomic_outputs; for the others a file being written may be cut short
+        if getattr(args, "atomic_outputs", False):
+            msg = ("interrupted: every output file is either complete or absent (each is written to a temporary "
+                   "name and renamed into place); files not yet written are missing")
+        else:
+            msg = ("interrupted: a file that was being written may be incomplete; run the command again before "
+                   "using its outputs")
+        print(f"\n{msg}", file=sys.stderr)
         return 130
 
 

@@ -7,7 +7,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_PARAMS", "DEFAULT_PARAMS_SF", "WHEELS", "shipped", "fail", "trials_or_fail", "parameter_set_or_fail", "soil_flow_available", "load_scenario_or_fail"]
+__all__ = ["DEFAULT_PARAMS", "DEFAULT_PARAMS_SF", "WHEELS", "TUNED_SETS", "shipped", "fail", "trials_or_fail",
+           "parameter_set_or_fail", "soil_flow_available", "load_scenario_or_fail", "provenance", "file_sha256"]
 
 DEFAULT_PARAMS = "calibrated_grousered.toml"
 """Parameter file shipped in ``offline/data`` (written by ``offnominal calibrate``)."""
@@ -20,11 +21,40 @@ WHEELS = {
 }
 
 
+TUNED_SETS = {
+    "authors-grousered": "grouser_tuned_params.csv",
+    "table-5.4-grousered": "dissertation_grousered_t54.toml",
+    "table-5.4-smooth": "dissertation_smooth_t54.toml",
+}
+"""Built-in per-angle tuned sets for ``validate --tuned``: the data authors' a0..b1 for the
+grousered wheel (published code's wheel, Table 5.3 soil), and Table 5.4's grousered and
+smooth rows with the Table 5.2 wheel and Table 5.3 soil of each."""
+
+
 def shipped(name: str) -> Path:
+    """Path of a file shipped in ``offline/data``."""
     return Path(str(resources.files("offline").joinpath("data", name)))
 
 
+def file_sha256(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def provenance(path: str | Path) -> dict[str, str]:
+    """A file's name and content hash (never a machine path), for shipped metadata."""
+    p = Path(path)
+    return {"name": p.name, "sha256": file_sha256(p)}
+
+
 def fail(msg: str) -> int:
+    """Print ``offnominal: error: msg`` to stderr and return exit status 2."""
     print(f"offnominal: error: {msg}", file=sys.stderr)
     return 2
 
@@ -32,7 +62,6 @@ def fail(msg: str) -> int:
 def trials_or_fail(path: str | None) -> Any:
     """Load trials, or print the loader's message and return None."""
     from ..fit.dataset import DatasetError, load_trials
-
 
     try:
         return load_trials(path)
@@ -58,6 +87,7 @@ def parameter_set_or_fail(path: str | None) -> tuple[Any, Path]:
 
 
 def soil_flow_available() -> bool:
+    """True when the soil-flow model (chapter 4) can be imported."""
     try:
         from ..physics import soil_flow  # noqa: F401
     except ImportError:
@@ -66,6 +96,7 @@ def soil_flow_available() -> bool:
 
 
 def load_scenario_or_fail(path: str) -> Any:
+    """Load a scenario file (or a shipped example by name), or print why not and return None."""
     from ..rover.scenario import ScenarioError, example_scenarios, load_scenario
 
     p = Path(path)

@@ -40,6 +40,7 @@ Run ``python -m offline.fit.bekker /path/to/single_wheel`` for the report.
 from __future__ import annotations
 
 import argparse
+import sys
 import csv
 import math
 from dataclasses import dataclass
@@ -614,9 +615,14 @@ def plot_bekker(fit: BekkerFit, path: str | Path) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, markerscale=4)
     fig.tight_layout()
+    from ..files import atomic_path
+
     out = Path(path)
-    fig.savefig(out)
-    plt.close(fig)
+    try:
+        with atomic_path(out) as tmp:  # written whole or not at all
+            fig.savefig(tmp, format=out.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
     return out
 
 
@@ -627,6 +633,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--which", nargs="+", default=["large_box_plates"], choices=sorted(SELECTIONS))
     ap.add_argument("--plot", help="PNG path for the first selection")
     a = ap.parse_args(argv)
+    if a.plot:
+        from ..files import OutputError, check_output_path
+
+        try:
+            check_output_path(a.plot, [a.folder])
+        except OutputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     for i, w in enumerate(a.which):
         fit = fit_bekker(a.folder, w)
         print(fit.report())

@@ -88,6 +88,7 @@ TABLE_5_5_SMOOTH: dict[str, dict[float, tuple[float, ...]]] = {
 }
 
 REFERENCE_SETS: dict[str, str] = {"table-5.5": "table_5_5.csv"}
+_REFERENCE_TITLES = {"table-5.5": "Table 5.5"}
 """Named built-in reference sets -> file in ``offline/data`` (Table 5.5: grousered and smooth rows)."""
 
 _REF_COLUMNS = ("wheel_kind", "model", "beta_deg", "fx_mean", "fx_sd", "fy_mean", "fy_sd", "h_mean", "h_sd")
@@ -129,6 +130,8 @@ class ReferenceSet:
     ----------
     name : str
         Built-in name or file name.
+    title : str
+        How printed tables name the set (``"Table 5.5"``).
     source : str
         Where the numbers come from (file name and sha256 of the file).
     rows : mapping
@@ -138,6 +141,7 @@ class ReferenceSet:
     name: str
     source: str
     rows: Mapping[tuple[str, str], Mapping[float, tuple[float, ...]]]
+    title: str = ""
 
     def match(self, wheel: Wheel, options: ModelOptions) -> MatchedReference | None:
         """The rows for this wheel's kind and this model, or ``None`` when the set has none."""
@@ -145,7 +149,7 @@ class ReferenceSet:
         key = (wheel_kind(wheel), model or "")
         if model is None or key not in self.rows:
             return None
-        return MatchedReference(f"{self.name}, {key[0]} wheel, {model} model", self.rows[key])
+        return MatchedReference(f"{self.title} {key[0]}, {model} model", self.rows[key])
 
 
 def load_reference(spec: str | Path) -> ReferenceSet:
@@ -184,7 +188,8 @@ def load_reference(spec: str | Path) -> ReferenceSet:
             raise DatasetError(f"{path}: data row {i + 1}: a second row for {kind}, {model}, beta_deg {b:g}")
         block[b] = tuple(float(nums[c][i]) for c in _REF_COLUMNS[3:])
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    return ReferenceSet(name if name in REFERENCE_SETS else path.name, f"{path.name} (sha256 {digest})", rows)
+    short = name if name in REFERENCE_SETS else path.name
+    return ReferenceSet(short, f"{path.name} (sha256 {digest[:12]})", rows, _REFERENCE_TITLES.get(short, path.name))
 
 
 TuningSpec = ContactTuning | TuningTable | Mapping[float, ContactTuning]

@@ -330,6 +330,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     meta.update({
         "free_parameters": ",".join(res.names),
         "not_determined": ",".join(res.not_determined),
+        "std_errors_si": json.dumps({n: (None if not math.isfinite(e) else float(f"{e:.4g}"))
+                                     for n, e in zip(res.names, res.std_errors)}),
         "rms_normalised_residual": res.rms,
         "noise_normalisation": json.dumps({k: round(v, 6) for k, v in fit_set.noise().items()})
         if _has_repeats(fit_set) else "no repeats: 5 % of the median load, 2 mm",

@@ -79,7 +79,7 @@ def check_output_path(path: str | Path, inputs: Iterable[str | Path | None] = ()
         if inp is not None and _same(path, Path(inp)):
             raise OutputError(f"{path}: this is an input of the run; refusing to overwrite it (choose another --out)")
     if path.is_dir():
-        raise OutputError(f"{path}: is a folder; give a file name")
+        raise OutputError(f"{path}: is a folder; give a file name (choose another --out)")
     _check_writable_dir(path.parent)
     return path
 

@@ -239,3 +239,34 @@ def test_soil_flow_phase_map_writes_only_the_phase_map(tmp_path):
     assert png.read_bytes()[:8] == PNG_MAGIC
     assert png.stat().st_size > 10_000
     assert not (tmp_path / "fig_4_6_sweep.png").exists()
+
+
+def test_calibrate_soil_flow_cv_tables_are_marked_against_the_soil_flow_rows(tmp_path):
+    """Issue 9: held-out tables used to be marked against the rows *without* soil flow."""
+    rc, stdout, stderr = run(["calibrate", "--wheel", "published-code", "--exit-angle", "soil_flow", "--max-evals", "2",
+                              "--max-beta-deg", "15", "--cv", "--quiet", "--out", str(tmp_path / "sf.toml")])
+    assert rc == 0, stderr
+    held = [line for line in stdout.splitlines() if line.startswith("== held-out")]
+    assert len(held) == 4  # one angle table, three repeat tables
+    assert all(line.endswith("(T5.5: Table 5.5 grousered, with soil flow model)") for line in held), held
+    assert "without soil flow" not in stdout
+
+
+def test_shipped_parameter_files_record_the_data_by_name_and_hash():
+    import hashlib
+
+    digest = hashlib.sha256(SHIPPED_TRIALS.read_bytes()).hexdigest()
+    for name in ("calibrated_grousered.toml", "calibrated_grousered_soil_flow.toml"):
+        text = (DATA_DIR / name).read_text()
+        meta = load_toml(DATA_DIR / name)["meta"]
+        assert meta["data"] == "grouser_trials.csv" and meta["data_sha256"] == digest
+        assert "/work" not in text and "/home" not in text
+
+
+def test_calibrate_records_no_machine_path(tmp_path):
+    path = tmp_path / "x.toml"
+    rc, _, stderr = run(["calibrate", "--wheel", "published-code", "--max-evals", "2", "--max-beta-deg", "0", "--quiet",
+                         "--out", str(path)])
+    assert rc == 0, stderr
+    assert str(tmp_path) not in path.read_text() and str(DATA_DIR) not in path.read_text()
+    assert load_toml(path)["meta"]["data"] == "grouser_trials.csv"

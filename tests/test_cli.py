@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 from pathlib import Path
 
 import pytest
 
 from offline.fit.calibration import JOINT_PARAMETERS
+from cli_run import run
 from offline.cli import main
 from offline.physics.params import SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, load_toml
 from offline.fit.validation import TABLE_5_5_GROUSERED, ErrorRow, beats_table_5_5
@@ -22,13 +21,6 @@ SHIPPED_TRIALS = DATA_DIR / "grouser_trials.csv"
 VARIANTS = [f"{group}: {kind}" for group in ("dissertation", "calibrated")
             for kind in ("classic exit angle", "soil-flow exit angle", "Ishigami 2007 sidewall")]
 TABLE_ANGLES = (0.0, 15.0, 30.0, 45.0, 60.0)
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

@@ -3,31 +3,21 @@ file, row or key (pytest.raises(..., match=...)), or a documented fallback."""
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from offline.cli import main
+from cli_run import run
 from offline.fit import calibration as C
 from offline.fit.dataset import DatasetError, check_force_units, load_trials
-from offline.fit.validation import ValidationError
 from offline.physics import params as P
 from offline.physics.terramechanics import ModelOptions, WheelModel, state_from_slip
 
 SHIPPED = Path(__file__).resolve().parents[1] / "offline" / "data" / "grouser_trials.csv"
 STATUSES = ("ok", "load_exceeds_capacity", "load_below_resolution", "load_at_discontinuity", "not_converged")
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
 
 
 def damaged(tmp_path: Path, name: str = "damaged.csv", scale: dict[str, float] | None = None,

@@ -3,8 +3,6 @@ the work starts, and a true message on interrupt (offline.files, offline.cli).""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import shutil
 from pathlib import Path
@@ -12,18 +10,12 @@ from pathlib import Path
 import pytest
 
 import offline.cli.fit as cli_fit
+from cli_run import run
 from offline.cli import main
 from offline.files import OutputError, atomic_path, check_output_dir, check_output_path, write_text
 from offline.fit import calibration as C
 
 DATA = Path(__file__).resolve().parents[1] / "offline" / "data"
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture

@@ -4,9 +4,7 @@ then ``offnominal validate`` marking pass/fail against Table 5.5's *smooth* rows
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 import math
 from dataclasses import replace
@@ -15,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.cli import main
+from cli_run import run
 from offline.fit.calibration import fit_joint
 from offline.fit.dataset import load_trials
 from offline.fit.synthetic import write_synthetic_trials
@@ -51,13 +49,6 @@ Z_MAX = 4.0
 # The soil parameters, relative to the truth (measured: n0 1.2 %, n2 1.8 %, c 1.7 %, K 0.06 %;
 # standard errors 1.4 %, 4.9 %, 15 %, 3.3 %).
 RTOL_SOIL = {"n0": 0.03, "n2": 0.1, "c": 0.3, "K": 0.05}
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main(argv)
-    return rc, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")

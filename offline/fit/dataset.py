@@ -582,7 +582,6 @@ def check_force_units(trials: "TrialSet", wheel: Any) -> None:
             f"ground pressure of at least {float(p[i]):.3g} Pa, above the {hi:.0e} Pa soft soil can bear; the force "
             "columns look like mN: divide Fx_N, Fy_N and Fz_N by 1000 (or check the wheel file)"
         )
-    i = int(np.argmin(p))
     if float(np.max(p)) < lo:
         raise DatasetError(
             f"{trials.source or 'trials'}: column 'Fz_N': every load is a ground pressure below {lo:g} Pa on the "

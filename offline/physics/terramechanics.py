@@ -857,6 +857,7 @@ class WheelModel:
         return w_out, J_out
 
     def _wrench_and_jacobian_raw(self, xa: NDArray[np.float64], compiled: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Wrench and Jacobian at a checked state, unchecked result (see :meth:`wrench_and_jacobian`)."""
         if compiled:
             if self._direct is None:
                 f = self.compiled_function(True)
@@ -896,7 +897,8 @@ class WheelModel:
         SinkageResult
             ``status`` is ``"load_exceeds_capacity"`` where ``F_z(h_max) < W``: the wheel
             cannot carry the load within the physical sinkage range. Never a silent wrong
-            answer: failed states have ``h = NaN`` and ``converged = False``.
+            answer: failed states have ``h = NaN`` and ``converged = False``; ``"ok"`` only
+            where ``|F_z(h) - W| <= rtol W``. An empty batch gives empty arrays.
 
         Raises
         ------

@@ -227,7 +227,8 @@ class Verdict:
         else:
             head = {"explained": "missing physics", "parameters_off": "the model's own parameters are off",
                     "partly_explained": "partly explained by", "unexplained": "UNEXPLAINED; the best candidate only absorbs part"}[self.status]
-            lines.append(f"{head}: {c.label}")
+            alt = f" (or, indistinguishable on these data: {', '.join(s.label for s in self.indistinguishable)})" if self.indistinguishable else ""
+            lines.append(f"{head}: {c.label}{alt}")
             lines += [f"  {p}" for p in c.physics]
             lines.append(f"  {c.parameters_text()}")
             lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {c.chi2_cv:.1f} "
@@ -369,7 +370,8 @@ def _plots(v: Verdict, out: Path) -> list[Path]:
 CRITERION = (
     "Each candidate (and the full recalibration of the model's parameters) is fitted by bounded least squares and "
     "scored by its held-out improvement D = chi2_cv(model) - chi2_cv(model + candidate), {k_folds}-fold over rows "
-    "(chi2 of residuals normalised by the noise and the per-channel dispersion s). The null distribution of D for every "
+    "(chi2 of residuals normalised by the noise and the per-channel dispersion s; fold parameters by one damped "
+    "Gauss-Newton step from the full fit, and by a full refit per fold for candidates with a threshold parameter). The null distribution of D for every "
     "candidate (data = noise around the model) comes from a parametric bootstrap of {n_boot} draws in the candidate's "
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
@@ -531,7 +533,7 @@ def diagnose(
     for c, f in zip(library, fits):
         pts = [f.jac]
         r = resid_fn([c])
-        if c.k > 4:  # a recalibration: linear enough, linearised at the fit and at the model's own values
+        if not (c.threshold or c.starts):  # smooth in its parameters: linearised at the fit and at the start
             xs = [np.array([q[4] for q in c.params])]
         else:  # thresholds and directions: the starts and points spread over the box
             xs = [np.array(q, dtype=float) for q in c.starts][: n_points - 1]

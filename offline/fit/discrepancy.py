@@ -416,6 +416,7 @@ def diagnose(
     n_points: int = 6,
     n_refit: int = 4,
     max_terms: int = 2,
+    max_separations: int = 3,
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
@@ -449,6 +450,8 @@ def diagnose(
         with a full refit per fold.
     max_terms : int
         At most this many candidates combined.
+    max_separations : int
+        Separating experiments are searched for the best this many look-alikes.
     max_nfev : int
         Least-squares iterations per start (budget in iterations).
     seed : int
@@ -536,7 +539,8 @@ def diagnose(
         if not (c.threshold or c.starts):  # smooth in its parameters: linearised at the fit and at the start
             xs = [np.array([q[4] for q in c.params])]
         else:  # thresholds and directions: the starts and points spread over the box
-            xs = [np.array(q, dtype=float) for q in c.starts][: n_points - 1]
+            pick = np.unique(np.linspace(0, len(c.starts) - 1, min(len(c.starts), n_points - 1)).round().astype(int)) if c.starts else []
+            xs = [np.array(c.starts[j], dtype=float) for j in pick]
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
         pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
         tangents.append(pts)
@@ -547,7 +551,7 @@ def diagnose(
     for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > 0 and library[i].threshold][:n_refit]:
         c = library[i]
         say(f"held-out refits of {c.key}")
-        starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])]
+        starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])] + [np.array(q, dtype=float) for q in c.starts]
         rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev)
         singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                            nfev=singles[i].nfev + nf, refit=True)
@@ -572,9 +576,6 @@ def diagnose(
         equivalent = [s for s in group if s is not primary]
         chosen = primary
         # separating experiments
-        probes = obs.probes() if hasattr(obs, "probes") else []
-        for s in equivalent:
-            separations.append(_separate(model, ps, by_key, primary, s, probes))
         # forward step: one more term on top, when the first leaves significant regions
         leftover = _regions_of(model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)
         if max_terms > 1 and leftover:
@@ -627,6 +628,13 @@ def diagnose(
         status = "parameters_off"
     else:
         status = "explained"
+    if equivalent and status != "unexplained":
+        say("separating experiments")
+        probes = obs.probes() if hasattr(obs, "probes") else []
+        first = next(s for s in scores if s.keys == chosen.keys[:1]) if chosen is not None and len(chosen.keys) > 1 else chosen
+        cache: dict[Any, Any] = {}
+        for s in equivalent[:max_separations]:
+            separations.append(_separate(model, ps, by_key, first, s, probes, cache))
     recal = None
     if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
@@ -653,14 +661,18 @@ def _with(s: CandidateScore, **kw: Any) -> CandidateScore:
     return replace(s, **kw)
 
 
-def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any]) -> Separation:
-    """The probe where the two fitted explanations' predictions differ most, in noise units."""
+def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any],
+              cache: dict[Any, Any]) -> Separation:
+    """The probe where the two fitted explanations' predictions differ most, in noise units
+    (``cache`` keeps the first explanation's probe predictions between calls)."""
     best = Separation(a.label, b.label, "", "", 0.0, "", 0.0)
     ea = _ext_of([by_key[k][0] for k in a.keys], np.array(a.values), ps)
     eb = _ext_of([by_key[k][0] for k in b.keys], np.array(b.values), ps)
-    for pr in probes:
+    for j, pr in enumerate(probes):
         o = pr.observations
-        pa, _ = model.predict(o, ea)
+        if (a.label, j) not in cache:
+            cache[(a.label, j)] = model.predict(o, ea)[0]
+        pa = cache[(a.label, j)]
         pb, _ = model.predict(o, eb)
         for ch in o.channels:
             d = np.abs(pa[ch] - pb[ch])

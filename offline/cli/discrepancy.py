@@ -22,7 +22,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..files import OutputError, check_output_dir
-    from ..fit.discrepancy import CANDIDATES, DiscrepancyError, diagnose
+    from ..fit.discrepancy import DiscrepancyError, diagnose
     from ..physics.terramechanics import ModelOptions
 
     t0 = time.perf_counter()
@@ -48,8 +48,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
         opts = ModelOptions(exit_angle=args.exit_angle, bulldozing=args.bulldozing)
     except ValueError as exc:
         return fail(str(exc))
-    steps = len(CANDIDATES) + 4
-    with tqdm(total=steps, desc="discrepancy", unit="step", leave=False, disable=args.quiet) as bar:
+    with tqdm(total=None, desc="discrepancy", unit="step", leave=False, disable=args.quiet) as bar:
         def progress(s: str) -> None:
             bar.set_postfix_str(s[:40])
             bar.update(1)

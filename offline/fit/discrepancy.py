@@ -173,7 +173,32 @@ class Separation:
 
 @dataclass
 class Verdict:
-    """Everything the tool found, and the files it can write."""
+    """Everything the tool found, and the files it can write.
+
+    Attributes
+    ----------
+    status : str
+        One of :data:`VERDICTS`.
+    scale : dict
+        Per-channel dispersion ``s`` (chi-square values are in units of noise x s).
+    regions, regions_after : list of Region
+        Significant regions of the model as given, and of the model with the explanation.
+    scores : list of CandidateScore
+        Every candidate and tried combination.
+    chosen : CandidateScore or None
+        The accepted explanation (for ``unexplained``: the best, which absorbs only part).
+    indistinguishable : list of CandidateScore
+        Significant explanations not separable from ``chosen`` on held-out rows.
+    separations : list of Separation
+        For each of the first look-alikes, the probe experiment that separates it.
+    chi2_cv_base : float
+        Held-out chi-square of the model as given.
+    explained_fraction : float
+        Fraction (at most 1) of the held-out excess chi-square over its noise expectation
+        (rows x channels) that the explanation removes.
+    recalibrated : ParameterSet or None
+        The recalibrated parameters when the explanation changes the model's own parameters.
+    """
 
     status: str
     observations: Any
@@ -608,7 +633,7 @@ def diagnose(
         ext = _ext_of(cands, np.array(chosen.values), ps)
         pred1, ok1 = model.predict(obs, ext)
         excess0 = chi2_base - len(obs) * nc
-        frac = 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0 if excess0 > 0 else 1.0
+        frac = min(1.0, 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0) if excess0 > 0 else 1.0
     else:
         ext, pred1, ok1, frac = Extension(), pred0, ok0, 0.0
     res1 = {ch: obs.measured[ch] - pred1[ch] for ch in chans}

@@ -569,7 +569,7 @@ def diagnose(
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
         pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
         tangents.append(pts)
-    null = tangent_null(tangents, folds, nc, n_boot, rng)
+    null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None))
     observed = np.array([s.delta_cv for s in singles])
     _, p_adj = adjusted_p(observed, null)
     # candidates that pass on the screening score are scored again with a full refit per fold

@@ -20,7 +20,8 @@ Pipeline (:func:`diagnose`)
    of 45 is accepted when those rows carry it. Among significant candidates:
 
    * the best is the one with the largest ``D``; those not separable from it on held-out
-     rows (Vuong's paired test, ``V < 2``) are reported with it as **indistinguishable**,
+     rows (Vuong's paired test ``V < 2`` and at least 75 % of its ``D``) are reported with it
+     as **indistinguishable**,
      each with the probe experiment (e.g. vary the load) where their predictions differ most;
    * when a change of the model's own parameters is the best or indistinguishable from it,
      the verdict is **parameters off** and the recalibrated parameter file is written;
@@ -261,7 +262,7 @@ class Verdict:
             if self.parameters_off and self.recalibrated is not None:
                 lines.append("recalibration explains the data as well as any new term: see recalibrated.toml")
             if self.indistinguishable:
-                lines.append("indistinguishable on these data (held-out Vuong V < 2): "
+                lines.append("indistinguishable on these data (held-out Vuong V < 2, similar improvement): "
                              + ", ".join(s.label for s in self.indistinguishable))
                 lines += [f"  to separate: {s.describe()}" for s in self.separations]
         if self.regions_after:
@@ -400,7 +401,7 @@ CRITERION = (
     "candidate (data = noise around the model) comes from a parametric bootstrap of {n_boot} draws in the candidate's "
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
-    "held-out rows (Vuong V < 2) are reported as indistinguishable; if one of them is a change of the model's own "
+    "held-out rows (Vuong V < 2 and at least {keep:.0f} % of its improvement) are reported as indistinguishable; if one of them is a change of the model's own "
     "parameters the verdict is 'parameters off'. A second term is added when its extra improvement exceeds the "
     "1 - {alpha}/tries quantile of its null. Remaining regions make the verdict 'partly explained'; less than half of "
     "the held-out excess chi2 explained makes it 'unexplained'. A run whose model fails on more than half of the rows "
@@ -442,6 +443,7 @@ def diagnose(
     n_refit: int = 4,
     max_terms: int = 2,
     max_separations: int = 3,
+    equal_fraction: float = 0.25,
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
@@ -477,6 +479,10 @@ def diagnose(
         At most this many candidates combined.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
+    equal_fraction : float
+        A look-alike must also reach ``1 - equal_fraction`` of the best held-out improvement
+        (Vuong's t-type test alone is weak when one explanation misses a few held-out rows
+        badly).
     max_nfev : int
         Least-squares iterations per start (budget in iterations).
     seed : int
@@ -592,7 +598,8 @@ def diagnose(
     separations: list[Separation] = []
     if sig:
         best = sig[0]
-        equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0]
+        equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0
+                      and best.delta_cv - s.delta_cv <= equal_fraction * best.delta_cv]
         group = [best] + equivalent
         params_kind = [s for s in group if "parameters" in s.kinds]
         # "parameters off" when a change of the model's own parameters is as good as any term;
@@ -663,7 +670,7 @@ def diagnose(
     recal = None
     if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
-    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha)
+    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, keep=100 * (1 - equal_fraction))
     return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
                    chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0)
 

@@ -41,7 +41,7 @@ def value(score, name):
 def named_set(v):
     if v.chosen is None:
         return "-"
-    names = " | ".join([v.chosen.label] + [s.label for s in v.indistinguishable])
+    names = " ≈ ".join([v.chosen.label] + [s.label for s in v.indistinguishable])
     return f"nothing named (best absorbs part: {v.chosen.label})" if v.status == "unexplained" else names
 
 

@@ -234,7 +234,7 @@ class PlantModel:
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
 
     MAX_NEWTON = 40
-    TOL = 1e-11
+    TOL = 1e-8
 
     def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], PlantSolution]:
         """Newton's method with backtracking on ``||res||`` from ``z0``.
@@ -269,7 +269,7 @@ class PlantModel:
             else:
                 break
             z, res, J, w, sl, be, norm = zt, rt, Jt, wt, slt, bet, nt
-        if not (norm <= 1e-8 and np.all(np.isfinite(z))):
+        if not (norm <= 1e-7 and np.all(np.isfinite(z))):
             raise SimulationError(
                 f"no equilibrium of the rover found (max scaled residual {norm:.3g} after {it} Newton iterations; "
                 f"body velocity u={z[0]:.4g} v={z[1]:.4g} r={z[2]:.4g}, sinkages {np.exp(z[7:11])}): the terrain or "

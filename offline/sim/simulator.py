@@ -109,7 +109,7 @@ class RoverSimulator:
     """
 
     def __init__(self, scenario: Scenario, truth: Truth | None = None, actuators: ActuatorConfig | None = None,
-                 sensors: SensorConfig | None = None, dt: float = 0.05, seed: int = 0, compiled: bool = True) -> None:
+                 sensors: SensorConfig | None = None, dt: float = 0.1, seed: int = 0, compiled: bool = True) -> None:
         if not (math.isfinite(dt) and 1e-4 <= dt <= 1.0):
             raise ValueError(f"dt must be in [1e-4, 1] s, got {dt!r}")
         self.scenario = scenario
@@ -170,7 +170,26 @@ class RoverSimulator:
         in section 7.3 where it drove 5 s before each run), at the origin, heading 0."""
         self.act.reset(commands.rim_speed, commands.steer_angle)
         self.z = self.plant.initial_guess(self.scenario.speed, self.q)
-        self._solve(0.0)  # quasi-static: the body at rest relative to its steady motion
+        # quasi-static steady state, reached by continuation from straight driving (Newton from a
+        # straight guess need not converge for a strongly steered primitive such as the trench)
+        om_t, st_t = self.act.omega_servo.copy(), self.act.steer.copy()
+        om_0 = np.full(4, self.scenario.speed / (self.scenario.params.wheel.shearing_radius * 0.92))
+        lam, step, solved = 0.0, 1.0, False
+        while True:
+            trial = min(1.0, lam + step)
+            self.act.omega_servo, self.act.steer = om_0 + trial * (om_t - om_0), trial * st_t
+            z_keep = self.z.copy()
+            try:
+                self._solve(0.0)
+                solved, lam = True, trial
+                step *= 2.0
+            except SimulationError:
+                self.z = z_keep
+                step *= 0.5
+                if step < 1.0 / 256:
+                    raise
+            if solved and lam >= 1.0:
+                break
         self.pose_source.take(self.t, self.x, self.y, self.heading, self.travelled)
 
     def apply(self, commands: Commands) -> None:

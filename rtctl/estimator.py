@@ -349,6 +349,11 @@ class SlipHeadingEKF:
         tol = np.array([4 * n.pose_xy + 0.02, 4 * n.pose_xy + 0.02, 4 * n.pose_heading + 0.02])
         return all(bool(np.all(np.abs(_residual(r.copy(), ref)) <= tol)) for r in last)
 
+    def initialise_pose(self, pose: Pose) -> None:
+        """Take a pose fix as the pose (the first fix of a drive), whatever the current estimate;
+        the pose covariance becomes the fix's, slip, crab and bias keep theirs."""
+        self._reinitialise_pose(np.array([pose.x, pose.y, float(wrap_angle(pose.heading))]))
+
     def _reinitialise_pose(self, z: NDArray[np.float64]) -> None:
         x, P = self.ekf.x, self.ekf.P
         x[_IX], x[_IY], x[_IPSI] = z

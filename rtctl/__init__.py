@@ -4,7 +4,8 @@ Light by contract: numpy, osqp, filterpy (and qpsolvers for cross-checks) only; 
 or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 
 * :mod:`rtctl.layout`: the named layout of the steady-state NLP (7.25), shared with the table builder;
-* :mod:`rtctl.messages`: measurements in, commands out.
+* :mod:`rtctl.messages`: measurements in, commands out;
+* :mod:`rtctl.table`: lookup tables (load, hash/schema check, interpolation at an operating point).
 """
 
-__all__ = ["layout", "messages"]
+__all__ = ["layout", "messages", "table"]

@@ -28,7 +28,9 @@ rather than ignored. (a) Operating-point shift: the table is read at the speed `
 (b) Force bias: a steady crab ``alpha_hat`` means the real rover balances with a lateral speed
 ``v tan(alpha_hat)`` the model does not have; the model's lateral force and yaw moment at that
 speed (from the wheels' wrench Jacobians, eqs. (7.6)-(7.7) and (7.13), (7.18)) are added to the
-offsets, so the QP cancels the disturbance that causes the crab.
+offsets, so the QP cancels the disturbance that causes the crab. The lateral speed the outer
+loop's own F_y offset asks for (offset / lateral resistance) is subtracted first: that part of
+the crab is wanted.
 
 Bad input never raises and never reaches the commands: a measurement without a valid time, a
 duplicate or one out of order is rejected (the previous commands are held); a NaN, infinite or
@@ -386,7 +388,11 @@ class Controller:
         if math.sqrt(P[4, 4]) < _CRAB_SIGMA_USE and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
             v_hat = (1.0 - min(max(float(x[3]), -0.5), 0.9)) * (v_odo if math.isfinite(v_odo) else cfg.drive.speed)
             vy = v_hat * math.tan(min(max(float(x[4]), -0.5), 0.5))
-            fy_bias, mz_bias = prep.crab_sensitivity[0] * vy, prep.crab_sensitivity[1] * vy
+            dfy, dmz = prep.crab_sensitivity
+            # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
+            # rover balances an F_y offset by crabbing until the lateral resistance matches it
+            vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
+            fy_bias, mz_bias = dfy * (vy - vy_wanted), dmz * (vy - vy_wanted)
         # ---- QP
         lay = prep.allocator.layout
         p = np.array(prep.point.p, dtype=float)

@@ -197,7 +197,7 @@ class QpAllocator:
         self._last_z: NDArray[np.float64] | None = None
         self._last_y: NDArray[np.float64] | None = None
         self._last_x: NDArray[np.float64] | None = None
-        self.last_problem: QpProblem | None = None
+        self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
 
     # ------------------------------------------------------------------ preparation phase
     def prepare(self, tp: TablePointLike) -> None:
@@ -328,6 +328,7 @@ class QpAllocator:
             self._solver.warm_start(x=zw, y=self._last_y)
         self._q, self._l, self._u = q, l, u
         res = self._solver.solve(raise_error=False)
+        self.last_solution = np.array(res.x, dtype=float) if res.x is not None else np.full(self.n, np.nan)
         status = str(res.info.status)
         it = int(res.info.iter)
         zf = res.x
@@ -349,7 +350,8 @@ class QpAllocator:
 
     # ------------------------------------------------------------------ checks
     def problem(self) -> QpProblem:
-        """The QP of the last :meth:`solve` (for recording and cross-checks)."""
+        """The QP of the last :meth:`solve` (for recording and cross-checks); OSQP's raw answer
+        to it is :attr:`last_solution` (scaled step, then the slacks)."""
         P = sp.csc_matrix((self._Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
         A = sp.csc_matrix((self._Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
         return QpProblem(P, self._q.copy(), A, self._l.copy(), self._u.copy())

@@ -192,6 +192,7 @@ class Controller:
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
         self._table_error = ""
+        self._last_qp: tuple[Any, NDArray[np.float64]] | None = None
         self._prev_cmd: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * len(WHEELS), (0.0,) * len(WHEELS))
         self.prepare()
         if self._prep is None:
@@ -406,6 +407,7 @@ class Controller:
         p = p0 + dp
         box, lbg, ubg = self._bounds(prep, dt)
         res = prep.allocator.solve(p, box, lbg, ubg, x_ref=self._x_of_commands(prep))
+        self._last_qp = (prep.allocator.problem(), prep.allocator.last_solution)
         if not res.ok:
             self._count("qp_fallbacks")
             return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[lay.index("mz_offset")]),
@@ -419,6 +421,11 @@ class Controller:
         self._prev_cmd = (rim, steer)
         return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[lay.index("mz_offset")]),
                                float(p[lay.index("fy_offset")]), verdict)
+
+    def last_qp(self) -> tuple[Any, NDArray[np.float64]] | None:
+        """The QP of the last feedback phase that reached the solver and OSQP's answer in the
+        QP's own variables (scaled step, slacks): ``(QpProblem, z)``; None before any."""
+        return self._last_qp
 
     # ------------------------------------------------------------------ pieces
     def _read_failures(self, failures: Any) -> None:

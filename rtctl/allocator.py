@@ -349,12 +349,18 @@ class QpAllocator:
         return Allocation(self._x0.copy(), np.zeros(self.nx), False, why, iterations, math.inf, math.nan)
 
     # ------------------------------------------------------------------ checks
-    def problem(self) -> QpProblem:
-        """The QP of the last :meth:`solve` (for recording and cross-checks); OSQP's raw answer
-        to it is :attr:`last_solution` (scaled step, then the slacks)."""
-        P = sp.csc_matrix((self._Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
-        A = sp.csc_matrix((self._Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
-        return QpProblem(P, self._q.copy(), A, self._l.copy(), self._u.copy())
+    def snapshot(self) -> tuple[Any, ...]:
+        """References to the data of the last :meth:`solve` and OSQP's raw answer (cheap: the
+        arrays are replaced, never changed in place, by later calls); see :meth:`problem`."""
+        return (self._Px, self._Ax, self._q, self._l, self._u, self.last_solution)
+
+    def problem(self, snapshot: tuple[Any, ...] | None = None) -> QpProblem:
+        """The QP of the last :meth:`solve` (or of a :meth:`snapshot`), for recording and
+        cross-checks; OSQP's raw answer to it is :attr:`last_solution` (scaled step, slacks)."""
+        Px, Ax, q, l, u = (snapshot or self.snapshot())[:5]
+        P = sp.csc_matrix((Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
+        A = sp.csc_matrix((Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
+        return QpProblem(P, q.copy(), A, l.copy(), u.copy())
 
 
 def solve_with_qpsolvers(problem: QpProblem, solver: str = "clarabel") -> NDArray[np.float64] | None:

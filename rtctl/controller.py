@@ -66,6 +66,8 @@ _SLIP_SIGMA_USE = 0.05  # use the slip / crab correction only when the EKF is th
 _CRAB_SIGMA_USE = math.radians(3.0)
 _REF_HEADING_ERROR = math.radians(5.0)
 _REF_CROSSTRACK_ERROR = 0.05
+_SIDE = np.array([-1.0, 1.0, -1.0, 1.0])  # y sign of FR, FL, RR, RL (right is negative; Fig. 7.2)
+_FRONT = np.array([1.0, 1.0, -1.0, -1.0])
 
 
 class ControllerError(ValueError):
@@ -123,6 +125,19 @@ def wheel_radius_of(table: Any) -> float:
     return math.nan
 
 
+class _Index:
+    """Positions in a table layout, looked up once (the 5 Hz path does no name lookups)."""
+
+    def __init__(self, lay: Any) -> None:
+        self.om = np.array([lay.var("omega", w) for w in lay.wheels])
+        self.be = np.array([lay.var("beta", w) for w in lay.wheels])
+        self.speed, self.slope, self.cross = lay.index("speed"), lay.index("slope"), lay.index("cross_slope")
+        self.fy, self.mz = lay.index("fy_offset"), lay.index("mz_offset")
+        self.varying = [self.speed, self.slope, self.cross, self.fy, self.mz]
+        rows = {b.name: b.start for b in lay.constraints}
+        self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
+
+
 @dataclass
 class _Prepared:
     """Everything the preparation phase leaves for the next feedback phase."""
@@ -130,6 +145,7 @@ class _Prepared:
     table: str
     point: Any
     allocator: QpAllocator
+    idx: _Index
     trust_dp: NDArray[np.float64]
     trust_box: NDArray[np.float64]
     crab_sensitivity: tuple[float, float]
@@ -159,6 +175,7 @@ class Controller:
         self.tables = dict(sorted(tables.items()))
         self.config = config
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
+        self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = nominal[0] if nominal else next(iter(self.tables))
         layouts = {t.layout.to_json() for t in self.tables.values()}
@@ -192,7 +209,7 @@ class Controller:
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
         self._table_error = ""
-        self._last_qp: tuple[Any, NDArray[np.float64]] | None = None
+        self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
         self._prev_cmd: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * len(WHEELS), (0.0,) * len(WHEELS))
         self.prepare()
         if self._prep is None:
@@ -252,13 +269,14 @@ class Controller:
         trust = np.asarray(tp.trust_radius, dtype=float) * cfg.qp.trust_scale
         if trust.shape != (lay.np_,):
             trust = np.full(lay.np_, np.inf)
-        varying = [lay.index(n) for n in ("speed", "slope", "cross_slope", "fy_offset", "mz_offset")]
+        ix = self._index[name]
+        varying = ix.varying
         dxdp = np.abs(np.asarray(tp.dx_dp, dtype=float))[:, varying]
         r = trust[varying]
-        box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * lay.variable_scale
+        box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * alloc.sx
         box = np.where(np.any((dxdp > 0) & ~np.isfinite(r)[None, :], axis=1), np.inf, box)
-        self._prep = _Prepared(name, tp, alloc, trust, box, self._crab_sensitivity(table, tp),
-                               self._primitive_slip(tp, lay), factor, tuple(sorted(tp.operating_point.items())),
+        self._prep = _Prepared(name, tp, alloc, ix, trust, box, self._crab_sensitivity(table, tp, ix),
+                               self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
                                self.signatures[name])
 
     def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64]) -> float:
@@ -278,33 +296,29 @@ class Controller:
             return cap / speed if math.isfinite(cap) else mid
         return mid
 
-    def _primitive_slip(self, tp: Any, lay: Any) -> float:
+    def _primitive_slip(self, tp: Any, ix: _Index) -> float:
         """Rover-level slip of the primitive, by the EKF's own odometry definition."""
-        om = [float(tp.x[lay.var("omega", w)]) for w in lay.wheels]
-        be = [float(tp.x[lay.var("beta", w)]) for w in lay.wheels]
-        ok = [(w, "locked") not in self._failures and (w, "unpowered") not in self._failures for w in lay.wheels]
+        x = tp.x
+        om, be = x[ix.om].tolist(), x[ix.be].tolist()
+        ok = [(w, "locked") not in self._failures and (w, "unpowered") not in self._failures for w in WHEELS]
         v_odo, _ = wheel_odometry(om, be, ok, self.wheel_radius, 1.0)
-        v = float(tp.p[lay.index("speed")])
+        v = float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
-    def _crab_sensitivity(self, table: Any, tp: Any) -> tuple[float, float]:
+    def _crab_sensitivity(self, table: Any, tp: Any, ix: _Index) -> tuple[float, float]:
         """d(sum F_y)/d v_y and d(M_z balance)/d v_y of the rover (eqs. (7.6)-(7.7), (7.13), (7.18))."""
-        lay = table.layout
         rover = table.meta.get("rover") or {}
         wr, lr = rover.get("track_width"), rover.get("rocker_length")
         J = np.asarray(tp.wrench_jac, dtype=float)
-        dfy = dmz = 0.0
-        side = {"FR": -1.0, "FL": 1.0, "RR": -1.0, "RL": 1.0}  # y of the wheel: right is negative
-        front = {"FR": 1.0, "FL": 1.0, "RR": -1.0, "RL": -1.0}
-        for i, w in enumerate(lay.wheels):
-            b = float(tp.x[lay.var("beta", w)])
-            d = J[i][:, 0] * math.sin(b) + J[i][:, 1] * math.cos(b)  # d wrench / d v_y,rover (wheel frame)
-            c, s = math.cos(b), math.sin(b)
-            fx, fy, mz = c * d[0] - s * d[1], s * d[0] + c * d[1], d[5]
-            dfy += fy
-            if isinstance(wr, (int, float)) and isinstance(lr, (int, float)) and w in side:
-                dmz += mz - side[w] * fx * wr / 2 + front[w] * fy * lr / 2
-        return float(dfy), float(dmz)
+        b = tp.x[ix.be]
+        c, s = np.cos(b), np.sin(b)
+        d = J[:, :, 0] * s[:, None] + J[:, :, 1] * c[:, None]  # d wrench / d v_y,rover (wheel frame), per wheel
+        fx, fy, mz = c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 5]
+        dfy = float(fy.sum())
+        dmz = 0.0
+        if isinstance(wr, (int, float)) and isinstance(lr, (int, float)) and len(b) == len(WHEELS):
+            dmz = float(np.sum(mz - _SIDE * fx * wr / 2 + _FRONT * fy * lr / 2))
+        return dfy, dmz
 
     # ------------------------------------------------------------------ feedback phase
     def step(self, m: Measurements) -> tuple[Commands, Diagnostics]:
@@ -395,23 +409,23 @@ class Controller:
             vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
             fy_bias, mz_bias = dfy * (vy - vy_wanted), dmz * (vy - vy_wanted)
         # ---- QP
-        lay = prep.allocator.layout
+        ix = prep.idx
         p = np.array(prep.point.p, dtype=float)
-        p[lay.index("speed")] = cfg.drive.speed * prep.speed_factor
-        p[lay.index("slope")] = self._slope
-        p[lay.index("cross_slope")] = self._cross
-        p[lay.index("fy_offset")] = fy + fy_bias
-        p[lay.index("mz_offset")] = mz + mz_bias
+        p[ix.speed] = cfg.drive.speed * prep.speed_factor
+        p[ix.slope] = self._slope
+        p[ix.cross] = self._cross
+        p[ix.fy] = fy + fy_bias
+        p[ix.mz] = mz + mz_bias
         p0 = prep.allocator.p0
         dp = np.clip(p - p0, -prep.trust_dp, prep.trust_dp)
         p = p0 + dp
         box, lbg, ubg = self._bounds(prep, dt)
         res = prep.allocator.solve(p, box, lbg, ubg, x_ref=self._x_of_commands(prep))
-        self._last_qp = (prep.allocator.problem(), prep.allocator.last_solution)
+        self._last_qp = (prep.allocator, prep.allocator.snapshot())
         if not res.ok:
             self._count("qp_fallbacks")
-            return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[lay.index("mz_offset")]),
-                                  float(p[lay.index("fy_offset")]), verdict, res)
+            return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
+                                  float(p[ix.fy]), verdict, res)
         rim, steer = self._commands_from_x(prep, res.x)
         rim, steer = self._limit(rim, steer, dt)
         cmd = Commands(t, seq, rim, steer)
@@ -419,13 +433,16 @@ class Controller:
             self._count("invalid_commands_caught")
             return self._hold(t, seq, "command failed the final check")
         self._prev_cmd = (rim, steer)
-        return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[lay.index("mz_offset")]),
-                               float(p[lay.index("fy_offset")]), verdict)
+        return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[ix.mz]),
+                               float(p[ix.fy]), verdict)
 
     def last_qp(self) -> tuple[Any, NDArray[np.float64]] | None:
         """The QP of the last feedback phase that reached the solver and OSQP's answer in the
         QP's own variables (scaled step, slacks): ``(QpProblem, z)``; None before any."""
-        return self._last_qp
+        if self._last_qp is None:
+            return None
+        alloc, snap = self._last_qp
+        return alloc.problem(snap), snap[-1]
 
     # ------------------------------------------------------------------ pieces
     def _read_failures(self, failures: Any) -> None:
@@ -485,13 +502,12 @@ class Controller:
 
     def _gains(self, prep: _Prepared) -> tuple[float, float]:
         ol = self.config.outer_loop
-        lay = prep.allocator.layout
         k_psi, k_y = ol.heading_gain, ol.crosstrack_gain
         if math.isnan(k_psi):
-            r = float(prep.trust_dp[lay.index("mz_offset")])
+            r = float(prep.trust_dp[prep.idx.mz])
             k_psi = (r if math.isfinite(r) else 0.2) / _REF_HEADING_ERROR
         if math.isnan(k_y):
-            r = float(prep.trust_dp[lay.index("fy_offset")])
+            r = float(prep.trust_dp[prep.idx.fy])
             k_y = (r if math.isfinite(r) else 1.0) / _REF_CROSSTRACK_ERROR
         return k_psi, k_y
 
@@ -521,19 +537,21 @@ class Controller:
         alo, ahi = np.full(nx, -np.inf), np.full(nx, np.inf)
         rlo, rhi = np.full(nx, -np.inf), np.full(nx, np.inf)
         prev_rim, prev_steer = self._prev_cmd
-        for i, w in enumerate(lay.wheels):
-            io, ib = lay.var("omega", w), lay.var("beta", w)
-            alo[io], ahi[io] = act.min_rim_speed / rs, act.max_rim_speed / rs
-            alo[ib], ahi[ib] = -act.max_steer, act.max_steer
-            rlo[io] = (prev_rim[i] - act.max_rim_accel * dt) / rs
-            rhi[io] = (prev_rim[i] + act.max_rim_accel * dt) / rs
-            rlo[ib], rhi[ib] = prev_steer[i] - act.max_steer_rate * dt, prev_steer[i] + act.max_steer_rate * dt
+        ix = prep.idx
+        pr, ps = np.array(prev_rim), np.array(prev_steer)
+        alo[ix.om], ahi[ix.om] = act.min_rim_speed / rs, act.max_rim_speed / rs
+        alo[ix.be], ahi[ix.be] = -act.max_steer, act.max_steer
+        rlo[ix.om], rhi[ix.om] = (pr - act.max_rim_accel * dt) / rs, (pr + act.max_rim_accel * dt) / rs
+        rlo[ix.be], rhi[ix.be] = ps - act.max_steer_rate * dt, ps + act.max_steer_rate * dt
         lo, hi = merge_bounds(alo, ahi, (tlo, thi))
-        lbg, ubg = np.array(prep.point.lbg, dtype=float), np.array(prep.point.ubg, dtype=float)
+        lbg, ubg = prep.point.lbg, prep.point.ubg
         fixed = np.zeros(nx, dtype=bool)
+        f = self._failures
+        copied = False
         for i, w in enumerate(lay.wheels):
-            io, ib = lay.var("omega", w), lay.var("beta", w)
-            f = self._failures
+            if not f:
+                break
+            io, ib = int(ix.om[i]), int(ix.be[i])
             if (w, "steer_stuck") in f:
                 v = self._steer_meas[i] if math.isfinite(self._steer_meas[i]) else f[(w, "steer_stuck")]
                 if not math.isfinite(v):
@@ -546,12 +564,13 @@ class Controller:
             if (w, "rim_speed_cap") in f:
                 hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / rs)
                 lo[io] = min(lo[io], hi[io])
-            torque_rows = [b.start for b in lay.constraints if b.name == f"wheel torque {w}"]
-            if torque_rows:
-                j = torque_rows[0]
+            j = ix.torque[i]
+            if j >= 0 and ((w, "unpowered") in f or (w, "torque_limit") in f):
+                if not copied:
+                    lbg, ubg, copied = np.array(lbg, dtype=float), np.array(ubg, dtype=float), True
                 if (w, "unpowered") in f:
                     lbg[j] = ubg[j] = 0.0
-                elif (w, "torque_limit") in f:
+                else:
                     lbg[j], ubg[j] = -f[(w, "torque_limit")], f[(w, "torque_limit")]
         rlo[fixed], rhi[fixed] = -np.inf, np.inf
         tb = prep.trust_box
@@ -560,18 +579,15 @@ class Controller:
         return (lo, hi), lbg, ubg
 
     def _x_of_commands(self, prep: _Prepared) -> NDArray[np.float64]:
-        lay = prep.allocator.layout
         x = prep.allocator.x0
         rim, steer = self._prev_cmd
-        for i, w in enumerate(lay.wheels):
-            x[lay.var("omega", w)] = rim[i] / self.wheel_radius
-            x[lay.var("beta", w)] = steer[i]
+        x[prep.idx.om] = np.array(rim) / self.wheel_radius
+        x[prep.idx.be] = steer
         return x
 
     def _commands_from_x(self, prep: _Prepared, x: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        lay = prep.allocator.layout
-        rim = tuple(float(x[lay.var("omega", w)]) * self.wheel_radius for w in lay.wheels)
-        steer = tuple(float(x[lay.var("beta", w)]) for w in lay.wheels)
+        rim = tuple((x[prep.idx.om] * self.wheel_radius).tolist())
+        steer = tuple(x[prep.idx.be].tolist())
         return rim, steer
 
     def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:

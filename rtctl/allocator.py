@@ -157,6 +157,8 @@ class QpAllocator:
         self.m = ng + nx + 2 * ng
         self.sx = layout.variable_scale
         self.sg = layout.constraint_scale
+        self._sxx = self.sx[:, None] * self.sx[None, :]
+        self._sx_over_sg = self.sx[None, :] / self.sg[:, None]
         # ---- fixed sparsity of P: dense upper triangle of the nx block, diagonal slack block
         cols_p, rows_p = [], []
         for j in range(nx):
@@ -190,6 +192,11 @@ class QpAllocator:
         for w_ in layout.wheels:
             self._w[layout.var("omega", w_)] = settings.command_weight
             self._w[layout.var("beta", w_)] = settings.command_weight
+        self._w_diag = np.diag(2.0 * self._w)
+        self._p_k = nx * (nx + 1) // 2
+        self._p_rows_h, self._p_cols_h = self._p_rows[:self._p_k], self._p_cols[:self._p_k]
+        self._p_slack = np.full(len(self._p_rows), 2.0 * settings.slack_l2)
+        self._l_tail, self._u_tail = np.zeros(2 * ng), np.full(2 * ng, _INF)
         self._solver: Any = None
         self._prepared = False
         self._x0 = np.zeros(nx)
@@ -206,37 +213,42 @@ class QpAllocator:
         nx, ng, npar = self.nx, self.ng, self.layout.np_
         shapes = {"x": (nx,), "p": (npar,), "g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, npar), "grad_f": (nx,),
                   "hess_lag": (nx, nx), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,)}
+        f: dict[str, NDArray[np.float64]] = {}
         for name, shape in shapes.items():
             a = np.asarray(getattr(tp, name), dtype=float)
             if a.shape != shape:
                 raise AllocatorError(f"table point field {name!r} has shape {a.shape}, expected {shape} for this layout")
-            if name not in ("lbx", "ubx", "lbg", "ubg") and not np.all(np.isfinite(a)):
+            # one reduction per field: a NaN or inf anywhere makes the sum non-finite
+            if name not in ("lbx", "ubx", "lbg", "ubg") and not math.isfinite(float(a.sum())):
                 raise AllocatorError(f"table point field {name!r} is not finite")
+            f[name] = a
         s = self.settings
-        sx = self.sx
-        H = sx[:, None] * np.asarray(tp.hess_lag, dtype=float) * sx[None, :]
+        sx, sg = self.sx, self.sg
+        H = self._sxx * f["hess_lag"]
         H = 0.5 * (H + H.T)
-        g = sx * np.asarray(tp.grad_f, dtype=float)
-        cf = max(float(np.max(np.abs(H))), float(np.max(np.abs(g))), 1e-12)
+        g = sx * f["grad_f"]
+        cf = max(float(np.abs(H).max()), float(np.abs(g).max()), 1e-12)
         H /= cf
         g /= cf
         w, V = np.linalg.eigh(H)
-        H = (V * np.maximum(w, s.regularization)) @ V.T + s.regularization * np.eye(nx)
+        H = (V * np.maximum(w, s.regularization)) @ V.T
+        H.flat[::nx + 1] += s.regularization
         self._H = 0.5 * (H + H.T)
         self._g = g
         self._cf = cf
-        self._J = np.asarray(tp.jac_g_x, dtype=float) * sx[None, :] / self.sg[:, None]
-        self._Jp = np.asarray(tp.jac_g_p, dtype=float) / self.sg[:, None]
-        self._g0 = np.asarray(tp.g, dtype=float) / self.sg
-        self._lbg = np.asarray(tp.lbg, dtype=float) / self.sg
-        self._ubg = np.asarray(tp.ubg, dtype=float) / self.sg
-        x0_new = np.asarray(tp.x, dtype=float).copy()
+        self._J = f["jac_g_x"] * self._sx_over_sg
+        self._Jp = f["jac_g_p"] / sg[:, None]
+        self._g0 = f["g"] / sg
+        self._lbg = f["lbg"] / sg
+        self._ubg = f["ubg"] / sg
+        x0_new = f["x"].copy()
         if self._last_x is not None:  # warm start carried over to the new linearisation point
             self._last_z = (self._last_x - x0_new) / sx
         self._x0 = x0_new
-        self._p0 = np.asarray(tp.p, dtype=float).copy()
-        self._lbx = np.asarray(tp.lbx, dtype=float)
-        self._ubx = np.asarray(tp.ubx, dtype=float)
+        self._p0 = f["p"].copy()
+        self._lbx = f["lbx"]
+        self._ubx = f["ubx"]
+        self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
         self._Px = self._p_values()
         Ax = self._a_data.copy()
         Ax[self._a_jac_pos_arr] = self._J.T.ravel()
@@ -248,12 +260,9 @@ class QpAllocator:
         self._prepared = True
 
     def _p_values(self) -> NDArray[np.float64]:
-        s = self.settings
-        Hd = self._H + np.diag(2.0 * self._w)
-        vals = np.empty(len(self._p_rows))
-        k = self.nx * (self.nx + 1) // 2
-        vals[:k] = Hd[self._p_rows[:k], self._p_cols[:k]]
-        vals[k:] = 2.0 * s.slack_l2
+        Hd = self._H + self._w_diag
+        vals = self._p_slack.copy()
+        vals[:self._p_k] = Hd[self._p_rows_h, self._p_cols_h]
         return vals
 
     def _setup(self) -> None:
@@ -312,16 +321,16 @@ class QpAllocator:
         ug = (self._ubg if ubg is None else np.asarray(ubg, dtype=float) / self.sg) - shift
         zlo = (np.asarray(box[0], dtype=float) - self._x0) / sx
         zhi = (np.asarray(box[1], dtype=float) - self._x0) / sx
-        if not (np.all(np.isfinite(dp)) and np.all(zlo <= zhi) and not np.any(np.isnan(lg)) and not np.any(np.isnan(ug))):
+        if not (math.isfinite(float(dp.sum())) and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
             return self._refused("bad QP data (non-finite parameters or empty box)")
-        q = np.concatenate([self._g, np.full(2 * self.ng, s.slack_l1)])
+        q = self._q_base.copy()
         if x_ref is not None:
             zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - self._x0) / sx)
             q[:self.nx] -= 2.0 * self._w * zr
-        l = np.concatenate([lg, zlo, np.zeros(2 * self.ng)])
-        u = np.concatenate([ug, zhi, np.full(2 * self.ng, _INF)])
-        l = np.clip(l, -_INF, _INF)
-        u = np.clip(u, -_INF, _INF)
+        l = np.concatenate([lg, zlo, self._l_tail])
+        u = np.concatenate([ug, zhi, self._u_tail])
+        np.clip(l, -_INF, _INF, out=l)
+        np.clip(u, -_INF, _INF, out=u)
         self._solver.update(q=q, l=l, u=u)
         if self._last_z is not None:
             zw = np.concatenate([np.clip(self._last_z, zlo, zhi), np.zeros(2 * self.ng)])

@@ -55,8 +55,17 @@ def load_tables() -> tuple[dict, str]:
     return synthetic_tables(folder), "SYNTHETIC linear-rover tables (tests/rtctl_synthetic.py): no tables/index.json yet"
 
 
+def _commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "rtctl"], cwd=ROOT, capture_output=True, text=True).stdout
+        return out.stdout.strip() + (" (rtctl modified)" if dirty.strip() else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def _header(title: str, note: str) -> str:
-    return (f"# {title}\n\n{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}, "
+    return (f"# {title}\n\n{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}, commit {_commit()}, "
             f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
             f"2 cores shared with other jobs (run under `nice`).\n\nTables: {note}.\n\n")
 

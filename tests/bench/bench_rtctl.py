@@ -64,8 +64,11 @@ def _commit() -> str:
         return "unknown"
 
 
+_COMMIT_AT_START = None
+
+
 def _header(title: str, note: str) -> str:
-    return (f"# {title}\n\n{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}, commit {_commit()}, "
+    return (f"# {title}\n\n{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}, commit {_COMMIT_AT_START}, "
             f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
             f"2 cores shared with other jobs (run under `nice`).\n\nTables: {note}.\n\n")
 
@@ -257,6 +260,8 @@ def main() -> None:
     ap.add_argument("part", choices=["timing", "import", "soak"])
     ap.add_argument("--steps", type=int, default=None)
     a = ap.parse_args()
+    global _COMMIT_AT_START
+    _COMMIT_AT_START = _commit()  # the code measured is the code at the start
     if a.part == "timing":
         text = timing(a.steps or 10_000)
     elif a.part == "import":

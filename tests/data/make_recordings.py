@@ -13,6 +13,12 @@ folder holds an index), or the dissertation's feed-forward + PID with its "optim
 controllers (``--controller ff+optfb``). The metadata records the controller, the seed and the
 sha256 of every table file, so a replay knows what it must be built from.
 
+``--import-tables FILE ...`` first copies built tables (``offnominal tables build``) into
+``tests/data/tables`` and writes their index. The builder at tables commit 22463f9 writes
++-inf for unbounded constraint rows, which its own reader refuses; those are written as
++-1e30 (the builder's ``BIG``, what later builder versions write) with a new content hash,
+as the controller helper did for ``tests/data/rtctl_nominal_small.npz``.
+
 Regenerate them when a change to the controller is *meant* to change its commands; the
 replay test fails on any change that is not.
 """
@@ -32,6 +38,30 @@ def _sha(p: Path) -> str:
     return hashlib.sha256(p.read_bytes()).hexdigest()
 
 
+def import_tables(paths: list[str], folder: Path) -> list[Path]:
+    """Copy built tables into ``folder`` (unbounded rows as +-BIG, see the module notes) and index them."""
+    import numpy as np
+
+    from offline.files import write_bytes
+    from offline.rover.table_builder import BIG, write_index
+    from rtctl import table as T
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for src in map(Path, paths):
+        header, arrays = T._read(src)
+        for key in ("lbg", "ubg", "lbx", "ubx"):
+            a = np.asarray(arrays[key], dtype=float)
+            arrays[key] = np.where(np.isposinf(a), BIG, np.where(np.isneginf(a), -BIG, a))
+        header = {k: v for k, v in header.items() if k != "content_hash"}
+        target = folder / src.name
+        write_bytes(target, T.table_bytes(header, arrays))
+        T.load_table(target)  # the reader accepts it
+        out.append(target)
+    write_index(folder, out)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     from offline.sim.experiments import build_controller, run_drive, scenario_by_name
     from offline.sim.rtctl_bridge import rtctl_factory
@@ -44,7 +74,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="rtctl (tables in tests/data/tables) or one of none, ff, fb, ff+fb, ff+optfb")
     ap.add_argument("--ticks", type=int, default=25, help="5 Hz ticks per recording (default: %(default)s)")
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--import-tables", nargs="+", metavar="TABLE", help="built table files to copy into tests/data/tables")
     args = ap.parse_args(argv)
+    if args.import_tables:
+        for t in import_tables(args.import_tables, tables):
+            print(f"imported {t.relative_to(HERE.parent.parent)}")
     factory = rtctl_factory(str(tables)) if args.controller == "rtctl" else None
     for name in SCENARIOS:
         sc = scenario_by_name(name)

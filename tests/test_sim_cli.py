@@ -1,0 +1,39 @@
+"""``offnominal drive``: outputs, recordings, and errors instead of tracebacks."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from offline.cli import main
+from rtctl.recording import read_recording
+
+DATA = Path(__file__).parent / "data"
+
+
+def test_drive_writes_metrics_plot_and_recordings(tmp_path, capsys):
+    out = tmp_path / "drive"
+    rc = main(["drive", "rr_steer_stuck_50", "--controllers", "none,rtctl", "--tables", str(DATA / "tables"),
+               "--distance", "0.06", "--out", str(out), "--quiet"])
+    assert rc == 0
+    rows = json.loads((out / "metrics.json").read_text())
+    assert [r["controller"] for r in rows] == ["none", "rtctl"]
+    assert all(r["metrics"]["distance_m"] >= 0.06 for r in rows)
+    assert (out / "rr_steer_stuck_50.png").stat().st_size > 1000
+    rec = read_recording(out / "rr_steer_stuck_50_rtctl.mcap")
+    assert rec.metadata["controller"] == "rtctl" and len(rec.commands) == len(rec.measurements) == len(rec.truth)
+    text = capsys.readouterr().out
+    assert "| rr_steer_stuck_50 | believed | rtctl |" in text and "13 cm right and 3 deg" in text
+
+
+def test_drive_errors(tmp_path, capsys):
+    assert main(["drive", "rr_steer_stuck_50", "--controllers", "pid9", "--out", str(tmp_path / "a"), "--quiet",
+                 "--no-record", "--distance", "0.01"]) == 2
+    assert "unknown controller 'pid9'" in capsys.readouterr().err
+    assert main(["drive", "rr_steer_stuck_50", "--controllers", "rtctl", "--tables", str(tmp_path / "none"),
+                 "--out", str(tmp_path / "b"), "--quiet"]) == 2
+    assert "no table index" in capsys.readouterr().err
+    assert main(["drive", "no_such_scenario", "--controllers", "ff", "--out", str(tmp_path / "c"), "--quiet"]) == 2
+    assert "no scenario 'no_such_scenario'" in capsys.readouterr().err
+    assert main(["drive", "--truth", "no_such_truth", "--controllers", "ff", "--out", str(tmp_path / "d"), "--quiet"]) == 2
+    assert "no such truth file" in capsys.readouterr().err

@@ -1,4 +1,5 @@
-"""Simulator commands: ``drive`` (a closed-loop drive, or the section 7.3 experiments)."""
+"""Simulator commands: ``drive`` (a closed-loop drive, or the section 7.3 experiments) and ``replay``
+(a recording through rtctl, bit for bit; optionally hardware-in-the-loop style)."""
 
 from __future__ import annotations
 
@@ -128,8 +129,62 @@ def _cmd_drive(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    import functools
+
+    from rtctl.hil import HilError, load_controller, run_hil
+    from rtctl.recording import RecordingError, export_csv, read_recording
+    from rtctl.replay import ReplayError, compare_commands, replay, step_time_stats
+
+    from ..sim.rtctl_bridge import shipped_tables
+
+    try:
+        rec = read_recording(args.recording)
+    except RecordingError as exc:
+        return fail(str(exc))
+    if args.csv:
+        files = export_csv(args.recording, args.csv)
+        print("wrote " + ", ".join(str(f) for f in files))
+    tables = Path(args.tables) if args.tables else shipped_tables()
+    index = tables / "index.json" if tables.is_dir() else tables
+    if not index.exists():
+        return fail(f"{index}: no table index; pass --tables (the tables the recording was made with)")
+    factory = functools.partial(load_controller, str(index), args.config)
+    try:
+        if args.hil:
+            n = len(rec.measurements) if args.ticks is None else min(args.ticks, len(rec.measurements))
+            print(f"HIL: rtctl in its own process, {n} ticks at 5 Hz ({0.2 * n:.0f} s) ...", flush=True)
+            rep = run_hil(factory, measurements=rec.measurements[:n])
+            div = [d for i, c in enumerate(rep.commands) if (d := compare_commands(i, rec.commands[i], c)) is not None]
+            st = step_time_stats(rep.step_times)
+            print(f"{rep.ticks} ticks, {rep.deadline_misses} deadline misses (200 ms), step median "
+                  f"{1e6 * st['median_s']:.0f} us, p99 {1e6 * st['p99_s']:.0f} us; "
+                  + ("commands identical bit for bit" if not div else f"{len(div)} differ; first: {div[0]}"))
+            return 0 if not div else 1
+        r = replay(rec, factory())
+    except (ReplayError, HilError) as exc:
+        return fail(str(exc))
+    except Exception as exc:  # the table reader's and controller's errors say what is wrong
+        return fail(f"{index}: {exc}")
+    print(r.summary())
+    return 0 if r.identical else 1
+
+
 def register(sub: Any) -> None:
-    """Add ``drive`` to the ``offnominal`` parser."""
+    """Add ``drive`` and ``replay`` to the ``offnominal`` parser."""
+    rp = sub.add_parser(
+        "replay", help="replay an MCAP recording through rtctl and compare its commands bit for bit",
+        description="Feed a recording's measurements to a fresh rtctl controller (same tables and config as the "
+                    "recording) and report the first command that differs (time, wheel, field) and the step times; "
+                    "--hil runs the controller in its own process at the real 5 Hz clock and counts deadline misses.")
+    rp.add_argument("recording", help="an .mcap file written by offnominal drive (or a rover)")
+    rp.add_argument("--tables", help="table index or folder (default: the shipped tables)")
+    rp.add_argument("--config", help="rtctl controller config TOML (default: rtctl's defaults)")
+    rp.add_argument("--hil", action="store_true", help="controller in its own process over a pipe, real 5 Hz clock")
+    rp.add_argument("--ticks", type=int, help="with --hil: only the first N ticks")
+    rp.add_argument("--csv", metavar="DIR", help="also export every channel as CSV into DIR")
+    rp.set_defaults(func=_cmd_replay)
+
     dr = sub.add_parser(
         "drive", help="closed-loop drive of the simulated mini rover (failures, controllers, truth); section 7.3",
         description="Drive the simulated mini rover (Table 7.2) with a failure from a scenario file and one or "

@@ -18,9 +18,13 @@ Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
 Outer loop (section 7.2.4): the heading error and the cross-track error to a straight reference
 line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27); the QP turns them
 into wheel changes through the table's parameter Jacobian, which to first order *is* the table's
-steering controller (the re-solve with an offset minus the primitive). By default the gains put
-the table's verified trust radius of each offset at 5 deg of heading error and 5 cm of
-cross-track error (Table 7.2's +/-0.2 N m and +/-1 N where the table verified no radius).
+steering controller (the re-solve with an offset minus the primitive). By default the gains
+reach the offsets at which the table's steering controllers were computed (the table's
+``controller_offsets``; Table 7.2's +/-0.2 N m and +/-1 N if it does not say) at 5 deg of
+heading error and 5 cm of cross-track error. The offsets are clamped to the configured maxima;
+the other parameters (speed, slope, cross slope) to the table's verified trust radius. The
+trust region of the step is ``|dx*/dp|`` times those ranges (plus 10 % of each variable's
+scale), i.e. as far as the verified linear model moves the primitive.
 
 Slip correction: where the EKF's slip departs from the primitive's, the model is corrected
 rather than ignored. (a) Operating-point shift: the table is read at the speed ``v (1 - s0) /
@@ -148,6 +152,7 @@ class _Prepared:
     idx: _Index
     trust_dp: NDArray[np.float64]
     trust_box: NDArray[np.float64]
+    gains: tuple[float, float]
     crab_sensitivity: tuple[float, float]
     primitive_slip: float
     speed_factor: float
@@ -270,12 +275,16 @@ class Controller:
         if trust.shape != (lay.np_,):
             trust = np.full(lay.np_, np.inf)
         ix = self._index[name]
+        ol = cfg.outer_loop
+        trust = trust.copy()
+        trust[ix.mz], trust[ix.fy] = ol.max_mz_offset, ol.max_fy_offset  # the outer loop's own clamp
         varying = ix.varying
         dxdp = np.abs(np.asarray(tp.dx_dp, dtype=float))[:, varying]
         r = trust[varying]
         box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * alloc.sx
         box = np.where(np.any((dxdp > 0) & ~np.isfinite(r)[None, :], axis=1), np.inf, box)
-        self._prep = _Prepared(name, tp, alloc, ix, trust, box, self._crab_sensitivity(table, tp, ix),
+        gains = self._gains(table)
+        self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
                                self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
                                self.signatures[name])
 
@@ -500,20 +509,24 @@ class Controller:
             else:
                 self._count(f"rejected_{attr}")
 
-    def _gains(self, prep: _Prepared) -> tuple[float, float]:
+    def _gains(self, table: Any) -> tuple[float, float]:
+        """Heading and cross-track gains: configured, or the table's steering-controller offsets
+        reached at 5 deg / 5 cm (module docstring)."""
         ol = self.config.outer_loop
         k_psi, k_y = ol.heading_gain, ol.crosstrack_gain
+        offs = table.meta.get("controller_offsets") or {}
+        mz, fy = offs.get("mz_offset_Nm"), offs.get("fy_offset_N")
+        mz = float(mz) if isinstance(mz, (int, float)) and math.isfinite(mz) and mz > 0 else 0.2
+        fy = float(fy) if isinstance(fy, (int, float)) and math.isfinite(fy) and fy > 0 else 1.0
         if math.isnan(k_psi):
-            r = float(prep.trust_dp[prep.idx.mz])
-            k_psi = (r if math.isfinite(r) else 0.2) / _REF_HEADING_ERROR
+            k_psi = mz / _REF_HEADING_ERROR
         if math.isnan(k_y):
-            r = float(prep.trust_dp[prep.idx.fy])
-            k_y = (r if math.isfinite(r) else 1.0) / _REF_CROSSTRACK_ERROR
+            k_y = fy / _REF_CROSSTRACK_ERROR
         return k_psi, k_y
 
     def _offsets(self, prep: _Prepared, e_psi: float, e_y: float, dt: float) -> tuple[float, float]:
         ol = self.config.outer_loop
-        k_psi, k_y = self._gains(prep)
+        k_psi, k_y = prep.gains
         mz_max, fy_max = ol.max_mz_offset, ol.max_fy_offset
         if ol.heading_integral > 0:
             self._int_psi = min(max(self._int_psi + dt * e_psi, -mz_max / ol.heading_integral), mz_max / ol.heading_integral)

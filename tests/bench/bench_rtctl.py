@@ -2,7 +2,7 @@
 
 Run on demand (one command each; results go to ``tests/bench/results_rtctl_<part>.md``)::
 
-    python tests/bench/bench_rtctl.py timing   [--steps 10000]     # step time, EKF/QP shares, phases
+    python tests/bench/bench_rtctl.py timing   [--steps 10000] [--table FILE]   # step time, shares, phases
     python tests/bench/bench_rtctl.py import                       # cold import time and RSS
     python tests/bench/bench_rtctl.py soak     [--steps 1000000]   # fuzzed input, zero invalid commands
 
@@ -42,8 +42,17 @@ from rtctl.runner import Runner  # noqa: E402
 INDEX = ROOT / "tables" / "index.json"
 
 
+TABLE_FILE: Path | None = None
+
+
 def load_tables() -> tuple[dict, str]:
-    """Shipped tables if any, else synthetic ones; and a note saying which."""
+    """``--table FILE`` if given, else the shipped tables if any, else synthetic ones; and a note
+    saying which."""
+    if TABLE_FILE is not None:
+        from rtctl.table import load_table
+
+        t = load_table(TABLE_FILE)
+        return {t.name: t}, f"{TABLE_FILE.name} (built by the NLP; {t!r})"
     if INDEX.is_file():
         from rtctl.table import load_index
 
@@ -73,8 +82,11 @@ def _header(title: str, note: str) -> str:
             f"2 cores shared with other jobs (run under `nice`).\n\nTables: {note}.\n\n")
 
 
+CLOCK = time.perf_counter
+
+
 class _Timer:
-    """Wraps a bound method and accumulates its wall time per tick."""
+    """Wraps a bound method and accumulates its time (on :data:`CLOCK`) per tick."""
 
     def __init__(self, obj: object, name: str) -> None:
         self.obj, self.name, self.fn = obj, name, getattr(obj, name)
@@ -82,11 +94,11 @@ class _Timer:
         setattr(obj, name, self)
 
     def __call__(self, *a, **k):
-        t = time.perf_counter()
+        t = CLOCK()
         try:
             return self.fn(*a, **k)
         finally:
-            self.acc += time.perf_counter() - t
+            self.acc += CLOCK() - t
 
     def take(self) -> float:
         v, self.acc = self.acc, 0.0
@@ -94,6 +106,24 @@ class _Timer:
 
 
 def timing(steps: int) -> str:
+    """Both clocks: wall time (what a deadline sees, including preemption by the other jobs on
+    this shared machine) and this thread's CPU time (the controller's own cost)."""
+    global CLOCK
+    parts = []
+    for name, clock in (("thread CPU time (`time.thread_time`): the controller's own cost", time.thread_time),
+                        ("wall time (`time.perf_counter`): includes preemption on the shared machine", time.perf_counter)):
+        CLOCK = clock
+        parts.append(f"## {name}\n\n" + _timing(steps))
+    tables, note = load_tables()
+    return (_header("rtctl step timing", note)
+            + f"Command: `nice python tests/bench/bench_rtctl.py timing --steps {steps}"
+            + (f" --table {TABLE_FILE.relative_to(ROOT) if TABLE_FILE.is_absolute() else TABLE_FILE}" if TABLE_FILE else "")
+            + f"`. {steps} closed-loop ticks per clock (kinematic truth, noisy sensors, a pose every 1 s arriving 0.4 s "
+            "late; with several tables the RR steering is declared stuck in alternate blocks of 2000 ticks, so the "
+            "table switches).\n\n" + "\n".join(parts))
+
+
+def _timing(steps: int) -> str:
     tables, note = load_tables()
     from test_rtctl_controller import ROCKER, RS, TRACK
 
@@ -101,7 +131,7 @@ def timing(steps: int) -> str:
     ctl = Controller(tables, cfg)
     rng = np.random.default_rng(1)
     ekf_p, ekf_u = _Timer(ctl.ekf, "predict"), _Timer(ctl.ekf, "update_pose")
-    runner = Runner(ctl, period=cfg.period)
+    runner = Runner(ctl, period=cfg.period, clock=CLOCK)
     x, y, psi, slip = 0.0, -0.05, math.radians(5.0), 0.2
     rim, steer = np.full(4, 0.03 / 0.9), np.zeros(4)
     pending = []
@@ -119,7 +149,7 @@ def timing(steps: int) -> str:
         if k % 5 == 0:
             pending.append((k + 2, Pose(t, x + rng.normal(0, 0.005), y + rng.normal(0, 0.005), psi + rng.normal(0, 0.005))))
         pose = next((p for due, p in pending if due == k), None)
-        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 else ()
+        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
         m = Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
                          r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
         for name, a in ctl._allocators.items():  # time every allocator's solve and prepare
@@ -139,11 +169,7 @@ def timing(steps: int) -> str:
         return f"| {name} | {np.median(v):.0f} | {np.percentile(v, 99):.0f} | {v.max():.0f} | {v.mean():.0f} |"
 
     s = runner.stats.summary()
-    out = _header("rtctl step timing", note)
-    out += (f"Command: `nice python tests/bench/bench_rtctl.py timing --steps {steps}`. {steps} closed-loop ticks "
-            f"(kinematic truth, noisy sensors, a pose every 1 s arriving 0.4 s late; RR steering declared stuck in "
-            f"alternate blocks of 2000 ticks, so the table switches).\n\n")
-    out += "| phase (us) | median | p99 | max | mean |\n|---|---|---|---|---|\n"
+    out = "| phase (us) | median | p99 | max | mean |\n|---|---|---|---|---|\n"
     out += "\n".join([line("whole step (feedback + preparation)", total), line("feedback: measurement -> command", a[:, 0]),
                       line("  of which EKF (predict + pose update)", a[:, 2]), line("  of which QP solve (OSQP, warm)", a[:, 3]),
                       line("preparation: table + QP matrices + refactorisation", a[:, 1]),
@@ -259,7 +285,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("part", choices=["timing", "import", "soak"])
     ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--table", type=Path, default=None, help="one table file to use instead of tables/index.json")
     a = ap.parse_args()
+    global TABLE_FILE
+    TABLE_FILE = a.table
     global _COMMIT_AT_START
     _COMMIT_AT_START = _commit()  # the code measured is the code at the start
     if a.part == "timing":
@@ -268,7 +297,7 @@ def main() -> None:
         text = import_cost()
     else:
         text = soak(a.steps or 1_000_000)
-    path = HERE / f"results_rtctl_{a.part}.md"
+    path = HERE / f"results_rtctl_{a.part}{'_' + a.table.stem if a.table else ''}.md"
     write_text(path, text)
     print(text)
     print(f"written {path.relative_to(ROOT)}")

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -60,7 +61,7 @@ from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
 from .messages import FAILURE_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements
 
-__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of"]
+__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
 
 _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft soil
 _MAX_TILT = math.radians(45.0)
@@ -142,6 +143,14 @@ class _Index:
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
 
 
+def load_tables(index_path: str | Path) -> dict[str, Any]:
+    """Every table of a table index (``tables/index.json``), each checked against the hash the
+    index lists (:func:`rtctl.table.load_index`); raises :class:`rtctl.table.TableError`."""
+    from .table import load_index
+
+    return {name: info.load() for name, info in load_index(index_path).items()}
+
+
 @dataclass
 class _Prepared:
     """Everything the preparation phase leaves for the next feedback phase."""
@@ -194,6 +203,13 @@ class Controller:
             rs = radii.pop()
         self.wheel_radius = float(rs)
         self.reset()
+
+    @classmethod
+    def from_config(cls, config: ControllerConfig) -> "Controller":
+        """A controller on the tables of ``config.tables_index`` (``[tables] index`` in the TOML)."""
+        if not config.tables_index:
+            raise ControllerError("[tables] index is empty: give the path of the table index (tables/index.json)")
+        return cls(load_tables(config.tables_index), config)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:

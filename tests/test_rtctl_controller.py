@@ -235,6 +235,10 @@ def test_pose_jump_is_gated_then_accepted(tables):
 def test_construction_errors(tables, tmp_path):
     with pytest.raises(ControllerError, match="non-empty mapping"):
         Controller({}, ControllerConfig())
+    with pytest.raises(ControllerError, match=r"\[tables\] index is empty"):
+        Controller.from_config(ControllerConfig())
+    with pytest.raises(ValueError, match="no such index file"):
+        Controller.from_config(replace(ControllerConfig(), tables_index=str(tmp_path / "index.json")))
 
 
 finite = st.floats(allow_nan=True, allow_infinity=True, width=64)

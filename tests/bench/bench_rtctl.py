@@ -185,15 +185,28 @@ def _timing(steps: int) -> str:
     return out
 
 
+# peak resident set of this process in kB (VmHWM: per address space, so a fresh exec starts
+# from zero, unlike ru_maxrss, which Linux carries over from the forking parent)
+_HWM = "[l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0]"
+
+
 def import_cost() -> str:
-    tables_code = (f"from rtctl.table import load_index; idx = load_index({str(INDEX)!r}); "
-                   "tabs = {k: v.load() for k, v in idx.items()}; "
-                   "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
-                   "c = Controller(tabs, ControllerConfig()); ") if INDEX.is_file() else ""
-    code = ("import time, resource; t0 = time.perf_counter(); import rtctl.controller, rtctl.table, rtctl.runner; "
+    if TABLE_FILE is not None:
+        tables_code = (f"from rtctl.table import load_table; t = load_table({str(TABLE_FILE.resolve())!r}); tabs = {{t.name: t}}; "
+                       "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
+                       "c = Controller(tabs, ControllerConfig()); ")
+        what = f"{TABLE_FILE.name}"
+    elif INDEX.is_file():
+        tables_code = (f"from rtctl.controller import load_tables; tabs = load_tables({str(INDEX)!r}); "
+                       "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
+                       "c = Controller(tabs, ControllerConfig()); ")
+        what = "the shipped tables"
+    else:
+        tables_code, what = "", "no tables (none shipped yet): import only"
+    code = ("import time; t0 = time.perf_counter(); import rtctl.controller, rtctl.table, rtctl.runner; "
             "t1 = time.perf_counter(); " + tables_code + "t2 = time.perf_counter(); "
-            "print(t1 - t0, t2 - t1, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
-    base = "import time, resource; print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+            "print(t1 - t0, t2 - t1, " + _HWM + ")")
+    base = "print(" + _HWM + ")"
     runs = []
     for _ in range(5):
         t = time.perf_counter()
@@ -203,9 +216,10 @@ def import_cost() -> str:
         runs.append((float(imp), float(load), int(rss), wall))
     rss0 = int(subprocess.run([sys.executable, "-c", base], capture_output=True, text=True, check=True).stdout)
     a = np.array(runs)
-    out = _header("rtctl cold import and memory", "shipped tables" if INDEX.is_file() else "none shipped yet: import only")
-    out += ("Command: `python tests/bench/bench_rtctl.py import`. Five fresh processes each import "
-            "`rtctl.controller`, `rtctl.table`, `rtctl.runner`" + (" and load every shipped table and build a Controller" if tables_code else "")
+    out = _header("rtctl cold import and memory", what)
+    cmd = "python tests/bench/bench_rtctl.py import" + (f" --table {TABLE_FILE}" if TABLE_FILE else "")
+    out += (f"Command: `{cmd}`. Five fresh processes each import "
+            "`rtctl.controller`, `rtctl.table`, `rtctl.runner`" + (f" and load {what} and build a Controller" if tables_code else "")
             + ".\n\n| quantity | median | max |\n|---|---|---|\n")
     out += f"| import time (s) | {np.median(a[:, 0]):.3f} | {a[:, 0].max():.3f} |\n"
     out += f"| table load + Controller (s) | {np.median(a[:, 1]):.3f} | {a[:, 1].max():.3f} |\n"

@@ -4,7 +4,7 @@ Run on demand (one command each; results go to ``tests/bench/results_rtctl_<part
 
     python tests/bench/bench_rtctl.py timing   [--steps 10000] [--table FILE]   # step time, shares, phases
     python tests/bench/bench_rtctl.py import                       # cold import time and RSS
-    python tests/bench/bench_rtctl.py soak     [--steps 1000000]   # fuzzed input, zero invalid commands
+    python tests/bench/bench_rtctl.py soak     [--steps 1000000] [--seed N]   # fuzzed input, zero invalid commands
 
 Tables: the shipped ones (``tables/index.json``) when present, otherwise the synthetic
 linear-rover tables of ``tests/rtctl_synthetic.py`` (the results say which).
@@ -286,7 +286,7 @@ def soak(steps: int, seed: int = 2026) -> str:
     wall = time.perf_counter() - t0
     counters = dict(d.counters)
     out = _header("rtctl soak: fuzzed measurements", note)
-    out += (f"Command: `nice python tests/bench/bench_rtctl.py soak --steps {steps}` (seed {seed}). "
+    out += (f"Command: `nice python tests/bench/bench_rtctl.py soak --steps {steps} --seed {seed}`. "
             f"{steps} ticks in {wall:.0f} s ({1e6 * wall / steps:.0f} us per tick).\n\n"
             f"**Invalid commands: {invalid}** (finite, within |rim speed| <= {a.max_rim_speed} m/s, >= {a.min_rim_speed}, "
             f"|steer| <= {math.degrees(a.max_steer):.0f} deg).\n\nModes: {json.dumps(modes)}.\n\n"
@@ -300,6 +300,7 @@ def main() -> None:
     ap.add_argument("part", choices=["timing", "import", "soak"])
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--table", type=Path, default=None, help="one table file to use instead of tables/index.json")
+    ap.add_argument("--seed", type=int, default=2026, help="soak: seed of the fuzzer")
     a = ap.parse_args()
     global TABLE_FILE
     TABLE_FILE = a.table
@@ -310,8 +311,9 @@ def main() -> None:
     elif a.part == "import":
         text = import_cost()
     else:
-        text = soak(a.steps or 1_000_000)
-    path = HERE / f"results_rtctl_{a.part}{'_' + a.table.stem if a.table else ''}.md"
+        text = soak(a.steps or 1_000_000, a.seed)
+    suffix = ('_' + a.table.stem if a.table else '') + (f"_seed{a.seed}" if a.part == "soak" else "")
+    path = HERE / f"results_rtctl_{a.part}{suffix}.md"
     write_text(path, text)
     print(text)
     print(f"written {path.relative_to(ROOT)}")

@@ -192,8 +192,6 @@ class Controller:
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = nominal[0] if nominal else next(iter(self.tables))
-        layouts = {t.layout.to_json() for t in self.tables.values()}
-        del layouts  # each table gets its own allocator (sparsity fixed per table)
         rs = config.drive.wheel_radius
         if not math.isfinite(rs):
             radii = {wheel_radius_of(t) for t in self.tables.values()}

@@ -248,7 +248,8 @@ class SlipHeadingEKF:
         self.ekf.P = 0.5 * (P + P.T)
 
     def predict(self, t: float, u: Odometry) -> None:
-        """Propagate to time ``t`` with the tick's odometry (``t`` after the filter's time)."""
+        """Propagate to time ``t`` with the tick's odometry (``t`` after the filter's time); a
+        step longer than ``config.max_gap`` is propagated as ``max_gap``."""
         dt = float(t) - self.t
         if not (math.isfinite(dt) and dt > 0):
             raise EstimatorError(f"predict to t = {t} from t = {self.t}: time must increase")
@@ -257,7 +258,9 @@ class SlipHeadingEKF:
         if not math.isfinite(u.yaw_rate):
             self.counters.gyro_missing += 1
         self._history[-1].u = u
-        self._transition(dt, u)
+        # a dropout longer than max_gap is propagated as max_gap: the inputs over it are unknown,
+        # and an unbounded dt would overflow the covariance (the controller counts the gap)
+        self._transition(min(dt, self.config.max_gap), u)
         if math.isfinite(u.v_odo):
             self._v_last = u.v_odo
         if math.isfinite(u.yaw_rate):

@@ -239,7 +239,7 @@ def soak(steps: int, seed: int = 2026) -> str:
 
     om = 0.03 / (RS * 0.9)
     bad_values = np.array([np.nan, np.inf, -np.inf, 1e9, -1e9, 1e300, 0.0, -5.0, 50.0])
-    kinds = ["ok"] * 12 + ["dup", "back", "nan_t", "gap", "big_gap", "missing_wheel"]
+    kinds = ["ok"] * 12 + ["dup", "back", "nan_t", "gap", "big_gap", "missing_wheel", "leap"]
     fkinds = ["steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit", "bogus"]
     invalid = 0
     modes = {"qp": 0, "fallback": 0, "hold": 0}
@@ -255,6 +255,8 @@ def soak(steps: int, seed: int = 2026) -> str:
             t, seq = t + 0.6, seq + 3
         elif kind == "big_gap":
             t, seq = t + 5.0, seq + 25
+        elif kind == "leap":  # the rover clock jumps by a day
+            t, seq = t + 86400.0, seq + 1
         tt = math.nan if kind == "nan_t" else t
         w = om + rng.normal(0, 0.05, 4)
         s = rng.normal(0, 0.1, 4)

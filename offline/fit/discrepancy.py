@@ -1,34 +1,42 @@
-"""Discrepancy tool: locate where model and recordings disagree, name the missing physics,
-model it, and show the fit improve on held-out data.
+"""Discrepancy engine: locate where model and recordings disagree, name what is missing (or say
+that the model's own parameters are off), model it, and show the fit improve on held-out data.
 
 Pipeline (:func:`diagnose`)
 ---------------------------
-1. **Residuals.** The model (a parameter set and model options) predicts every recorded
-   condition; residuals ``measured - predicted`` per channel are normalised by the
-   measurement noise (the pooled repeat spread divided by sqrt(repeats); a documented
-   fallback when there are no repeats).
-2. **Locate.** An exhaustive search over one- and two-feature boxes (intervals between
-   quantiles of slip ratio, |slip angle|, sinkage, load, rim speed) finds the region whose
-   summed normalised residual is largest, ``Z = sum(z) / sqrt(n)``. Its significance is a
-   Monte-Carlo test of the *maximum* Z over all boxes under the null of exchangeable
-   Gaussian residuals at a robust scale (MAD of z, at least 1), so the many boxes searched
-   are accounted for and the model's general misfit level is not mistaken for a region. Significant regions are reported with their magnitude in
-   physical units (mean residual +/- standard error); up to three per channel, each found
-   after the previous one is explained away (its mean removed).
-3. **Explain.** A library of candidate physics, each a real model extension with physical
-   parameters and bounds (:data:`CANDIDATES`), is fitted by least squares. Candidates are
-   screened in-sample, then the best are scored by grouped K-fold cross-validation; the
-   decision criterion is ``chi2_cv(base) - chi2_cv(candidate) > 2 k`` (held-out AIC-like
-   penalty, k parameters) together with a one-sided paired t-test over conditions at
-   ``p < 0.01``. Forward selection adds a second term if it passes the same criterion on
-   top of the first. When nothing passes but significant regions remain, a sparse
-   regression over physically motivated features (sequentially thresholded least squares,
-   SINDy-like) is fitted per channel and labelled *unexplained*.
-4. **Prove.** :meth:`Verdict.write` writes a report folder: ``report.md``, PNG residual maps
-   before and after, measured-vs-predicted plots, and ``verdict.json``.
+1. **Residuals.** The model predicts every row of the observations; residuals
+   ``measured - predicted`` are normalised by the measurement noise and by a per-channel
+   dispersion ``s >= 1`` (:func:`~offline.fit.significance.dispersion`). A run in which the
+   model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement.
+2. **Locate.** Significant regions of the operating space per channel
+   (:func:`~offline.fit.significance.locate`, max-box statistic with a Monte-Carlo null).
+3. **Explain.** Every candidate of the library (:data:`~offline.fit.candidates.CANDIDATES`:
+   new terms, measurement effects, groups of the model's own parameters) and the full
+   recalibration of the model's parameters is fitted; each is scored by its *held-out
+   improvement* ``D = chi2_cv(model) - chi2_cv(model + candidate)`` (K-fold over rows).
+4. **Decide.** ``D`` of every candidate is compared with its null distribution (data =
+   noise around the model) from a tangent-space parametric bootstrap, and p-values are
+   adjusted over the whole library by Westfall-Young min-P; a candidate is significant at
+   ``p_adj < alpha``. The improvement is a sum over rows, so an effect confined to 5 rows
+   of 45 is accepted when those rows carry it. Among significant candidates:
 
-The recording side is an adapter (:class:`SingleWheelRecording` for testbed trials); rover
-drive logs will plug in with their own adapter exposing the same fields.
+   * the best is the one with the largest ``D``; those not separable from it on held-out
+     rows (Vuong's paired test, ``V < 2``) are reported with it as **indistinguishable**,
+     each with the probe experiment (e.g. vary the load) where their predictions differ most;
+   * when a change of the model's own parameters is the best or indistinguishable from it,
+     the verdict is **parameters off** and the recalibrated parameter file is written;
+   * a second candidate is added on top if its extra held-out improvement passes its own
+     null at ``alpha`` (Bonferroni over the tries).
+5. **Check what is left.** The final model's residuals are located again; if significant
+   regions remain the verdict is **partly explained** (and the regions are shown); if the
+   best explanation removes less than half of the held-out excess chi-square, the verdict
+   is **unexplained** (the best candidate is shown as absorbing part, not as the answer).
+
+Verdicts: ``agree``, ``explained``, ``parameters_off``, ``partly_explained``, ``unexplained``.
+
+The engine is generic over observations (:class:`~offline.fit.observations.Observations`)
+and models (anything with ``predict(observations, extension)``); the single-wheel testbed
+adapter is :class:`~offline.fit.observations.SingleWheelRecording` with
+:class:`~offline.fit.candidates.SingleWheelModel`.
 """
 
 from __future__ import annotations
@@ -36,464 +44,86 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..files import atomic_path, write_text
+from ..physics.params import ParameterSet, save_toml
+from ..physics.terramechanics import ModelOptions
+from .candidates import CANDIDATES, RECALIBRATION_KEY, Candidate, Extension, SingleWheelModel, predict_recording
 from .dataset import TrialSet
-from ..physics.params import ParameterSet
-from ..physics.terramechanics import ModelOptions, WheelModel, bulldozing_resistance
-from ..physics.backend import NUMPY
-from .validation import average_conditions, trial_states
+from .observations import SingleWheelRecording
+from .significance import (
+    Region,
+    adjusted_p,
+    dispersion,
+    fit,
+    held_out,
+    locate,
+    normalised,
+    refit_held_out,
+    tangent_null,
+    vuong,
+)
 
 __all__ = [
+    "DiscrepancyError",
     "SingleWheelRecording",
+    "SingleWheelModel",
     "Extension",
     "Candidate",
     "CANDIDATES",
     "Region",
     "CandidateScore",
+    "Separation",
     "Verdict",
     "diagnose",
     "predict_recording",
+    "VERDICTS",
 ]
 
-CHANNELS = ("Fx", "Fy", "sinkage")
-UNITS = {"Fx": "N", "Fy": "N", "sinkage": "mm"}
-SCALE_OUT = {"Fx": 1.0, "Fy": 1.0, "sinkage": 1e3}
+VERDICTS = ("agree", "explained", "parameters_off", "partly_explained", "unexplained")
+"""The possible verdicts (module docstring)."""
 
 
-# ------------------------------------------------------------------------- recordings
-@dataclass(frozen=True)
-class SingleWheelRecording:
-    """Single-wheel testbed recordings, one row per condition (repeat means).
-
-    Attributes
-    ----------
-    vx, vy, omega, load : ndarray
-        Wheel-frame state and measured load of each row (SI).
-    measured : dict
-        ``{"Fx", "Fy", "sinkage"}`` arrays (N, N, m).
-    noise : dict
-        Per-row noise standard deviation of each channel (the pooled repeat spread over
-        sqrt(n_repeats)).
-    features : dict
-        Operating-point features for locating regions: ``slip``, ``abs_beta_deg``,
-        ``sinkage_mm`` (measured), ``load_N``, ``rim_speed_mm_s``.
-    beta_cmd : ndarray
-        Commanded slip angle (rad) for stratified folds.
-    travel : ndarray
-        Distance travelled when the window was recorded, m (for the transient candidate).
-    noise_source : str
-        How the noise was estimated.
-    """
-
-    vx: NDArray[np.float64]
-    vy: NDArray[np.float64]
-    omega: NDArray[np.float64]
-    load: NDArray[np.float64]
-    measured: dict[str, NDArray[np.float64]]
-    noise: dict[str, NDArray[np.float64]]
-    features: dict[str, NDArray[np.float64]]
-    beta_cmd: NDArray[np.float64]
-    travel: NDArray[np.float64]
-    noise_source: str
-    source: str = ""
-
-    def __len__(self) -> int:
-        return self.vx.size
-
-    @classmethod
-    def from_trials(cls, trials: TrialSet, window_time: float = 72.5) -> "SingleWheelRecording":
-        """Average repeats per condition and attach the noise level.
-
-        The noise of a condition mean is the pooled repeat spread divided by sqrt(n). With
-        no repeats anywhere, 5 % of the median load (forces) and 2 mm (sinkage) are used and
-        the report says so.
-        """
-        avg = average_conditions(trials)
-        nrep = np.maximum(avg.repeat.astype(float), 1.0)
-        try:
-            nz = trials.noise()
-            src = f"pooled repeat spread over {int(nz['dof'])} degrees of freedom"
-        except Exception:
-            med = float(np.median(trials.Fz))
-            nz = {"Fx": 0.05 * med, "Fy": 0.05 * med, "sinkage": 2e-3}
-            src = "no repeats: assumed 5 % of the median load for forces and 2 mm for sinkage"
-        vx, vy, w = trial_states(avg)
-        return cls(
-            vx=vx, vy=vy, omega=w, load=avg.Fz.copy(),
-            measured={"Fx": avg.Fx.copy(), "Fy": avg.Fy.copy(), "sinkage": avg.sinkage.copy()},
-            noise={ch: np.full(len(avg), nz[ch]) / np.sqrt(nrep) for ch in CHANNELS},
-            features={
-                "slip": avg.slip.copy(),
-                "abs_beta_deg": np.abs(np.degrees(avg.beta_cmd)),
-                "sinkage_mm": avg.sinkage * 1e3,
-                "load_N": avg.Fz.copy(),
-                "rim_speed_mm_s": avg.rim_speed * 1e3,
-            },
-            beta_cmd=avg.beta_cmd.copy(), travel=avg.vx * window_time, noise_source=src, source=str(trials.source),
-        )
-
-    def subset(self, idx: NDArray[np.int_]) -> "SingleWheelRecording":
-        """Rows ``idx`` only."""
-        return replace(
-            self, vx=self.vx[idx], vy=self.vy[idx], omega=self.omega[idx], load=self.load[idx],
-            measured={k: v[idx] for k, v in self.measured.items()}, noise={k: v[idx] for k, v in self.noise.items()},
-            features={k: v[idx] for k, v in self.features.items()}, beta_cmd=self.beta_cmd[idx], travel=self.travel[idx],
-        )
-
-    def with_measured(self, measured: Mapping[str, NDArray[np.float64]]) -> "SingleWheelRecording":
-        """Same conditions, other measurements (for synthetic studies)."""
-        m = {k: np.asarray(v, dtype=float).copy() for k, v in measured.items()}
-        feats = dict(self.features)
-        feats["sinkage_mm"] = m["sinkage"] * 1e3
-        return replace(self, measured=m, features=feats)
+class DiscrepancyError(ValueError):
+    """The run cannot give a verdict (the model fails on most rows, too few rows, ...)."""
 
 
-# ------------------------------------------------------------------------- extensions
-@dataclass(frozen=True)
-class Extension:
-    """A model extension: changes to parameters, inputs and outputs. Defaults change nothing.
-
-    Attributes
-    ----------
-    soil, wheel, tuning : dict
-        Field replacements (SI) of the base :class:`~offline.physics.params.Soil`, ``Wheel``,
-        ``ContactTuning``.
-    options : dict
-        Field replacements of :class:`~offline.physics.terramechanics.ModelOptions`.
-    beta_offset : float
-        Steering offset added to every slip angle, rad.
-    omega_max : float
-        Actuator speed saturation, rad/s (the wheel turns at most this fast).
-    hub_clearance, hub_width : float
-        A hub or body that ploughs the soil once the sinkage passes the clearance (m): a
-        passive-earth-pressure blade of that width (eq. 5.24 form) resisting the travel.
-    force_along : float
-        External force along the travel direction on the wheel (tether, cable), N.
-    tilt : float
-        Unmodelled slope or sensor tilt in the x-z plane, rad: the measured F_x picks up
-        ``F_z sin(tilt)``.
-    sinkage_relaxation : float
-        Sinkage relaxation length, m: the recorded sinkage is
-        ``h (1 - exp(-travel / length))`` (not yet at steady state).
-    """
-
-    soil: Mapping[str, float] = field(default_factory=dict)
-    wheel: Mapping[str, float] = field(default_factory=dict)
-    tuning: Mapping[str, float] = field(default_factory=dict)
-    options: Mapping[str, Any] = field(default_factory=dict)
-    beta_offset: float = 0.0
-    omega_max: float = math.inf
-    hub_clearance: float = math.inf
-    hub_width: float = 0.0
-    force_along: float = 0.0
-    tilt: float = 0.0
-    sinkage_relaxation: float = 0.0
-
-    def merge(self, other: "Extension") -> "Extension":
-        """Both extensions at once (the other's non-default fields win)."""
-        d = Extension()
-        kw: dict[str, Any] = {}
-        for f in ("soil", "wheel", "tuning", "options"):
-            kw[f] = {**getattr(self, f), **getattr(other, f)}
-        for f in ("beta_offset", "omega_max", "hub_clearance", "hub_width", "force_along", "tilt", "sinkage_relaxation"):
-            kw[f] = getattr(other, f) if getattr(other, f) != getattr(d, f) else getattr(self, f)
-        return Extension(**kw)
-
-
-def predict_recording(
-    params: ParameterSet, options: ModelOptions, rec: SingleWheelRecording, ext: Extension | None = None
-) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:
-    """Predict every row of ``rec`` with the (extended) model, the load given.
-
-    Returns
-    -------
-    predicted : dict
-        ``Fx``, ``Fy`` (N), ``sinkage`` (m); NaN where the model cannot carry the load.
-    ok : ndarray of bool
-    """
-    ext = ext or Extension()
-    soil = replace(params.soil, **ext.soil)
-    wheel = replace(params.wheel, **ext.wheel)
-    tuning = replace(params.tuning, **ext.tuning)
-    opts = replace(options, **ext.options)
-    model = WheelModel(soil, wheel, tuning, opts)
-    vx, vy, w = rec.vx, rec.vy, rec.omega
-    if ext.beta_offset:
-        c, s = math.cos(ext.beta_offset), math.sin(ext.beta_offset)
-        # travel fixed, wheel turned by the offset: rotate the velocity into the new heading
-        vx, vy = c * vx - s * vy, s * vx + c * vy
-        vx = np.maximum(vx, 0.0)
-    if math.isfinite(ext.omega_max):
-        w = np.sign(w) * np.minimum(np.abs(w), ext.omega_max)
-    sol = model.sinkage_from_load(rec.load, vx, vy, w)
-    ok = sol.converged
-    out = {ch: np.full(len(rec), np.nan) for ch in CHANNELS}
-    if ok.any():
-        wr = model.wrench(vx[ok], vy[ok], w[ok], sol.h[ok], sol.h_zero_slip[ok])
-        out["Fx"][ok], out["Fy"][ok], out["sinkage"][ok] = wr.Fx, wr.Fy, sol.h[ok]
-        fz = wr.Fz
-        v = np.hypot(vx[ok], vy[ok])
-        if ext.hub_width > 0 and math.isfinite(ext.hub_clearance):
-            depth = np.maximum(sol.h[ok] - ext.hub_clearance, 0.0)
-            drag = ext.hub_width * bulldozing_resistance(NUMPY, depth, soil.unit_weight, soil.cohesion, soil.friction_angle, "pavlov")
-            out["Fx"][ok] -= drag * vx[ok] / v
-            out["Fy"][ok] -= drag * vy[ok] / v
-        if ext.force_along:
-            out["Fx"][ok] += ext.force_along * vx[ok] / v
-            out["Fy"][ok] += ext.force_along * vy[ok] / v
-        if ext.tilt:
-            out["Fx"][ok] += fz * math.sin(ext.tilt)
-        if ext.sinkage_relaxation > 0:
-            out["sinkage"][ok] *= 1.0 - np.exp(-rec.travel[ok] / ext.sinkage_relaxation)
-    return out, ok
-
-
-# ------------------------------------------------------------------------- candidates
-@dataclass(frozen=True)
-class Candidate:
-    """One candidate piece of missing physics.
-
-    Attributes
-    ----------
-    key : str
-        Identifier.
-    physics : str
-        What physics the base model left out (report text).
-    params : tuple
-        ``(name, unit, lower, upper, start, to_si)``; ``to_si`` converts the reported unit
-        to SI.
-    build : callable
-        ``theta (SI) -> Extension``.
-    channels : tuple of str
-        Channels the term acts on (for the report).
-    """
-
-    key: str
-    physics: str
-    params: tuple[tuple[str, str, float, float, float, float], ...]
-    build: Callable[[NDArray[np.float64], ParameterSet], Extension]
-    channels: tuple[str, ...] = CHANNELS
-    family: str = ""
-    """Candidates of one family change the same model part and are never combined."""
-
-    @property
-    def k(self) -> int:
-        return len(self.params)
-
-
-def _deg(x: float) -> float:
-    return math.radians(x)
-
-
-CANDIDATES: tuple[Candidate, ...] = (
-    Candidate(
-        "sidewall_bulldozing",
-        "sidewall bulldozing: passive earth pressure on the wheel face, eqs. (5.22)-(5.27); "
-        "scale 1 is the published form, 0 is no sidewall force",
-        (("scale", "-", 0.0, 4.0, 1.0, 1.0),),
-        lambda t, p: Extension(options={"bulldozing": "pavlov", "bulldozing_scale": float(t[0])}),
-        ("Fy", "Fx"),
-        "bulldozing",
-    ),
-    Candidate(
-        "sidewall_bulldozing_ishigami",
-        "sidewall bulldozing in the Ishigami 2007 form, eq. (5.29)",
-        (("scale", "-", 0.0, 4.0, 1.0, 1.0),),
-        lambda t, p: Extension(options={"bulldozing": "ishigami", "bulldozing_scale": float(t[0])}),
-        ("Fy", "Fx"),
-        "bulldozing",
-    ),
-    Candidate(
-        "slip_skid_sinkage",
-        "slip- and skid-sinkage: the sinkage exponent grows with |slip|, eq. (5.6) (n1, n2)",
-        (("n1", "-", 0.0, 2.0, 0.1, 1.0), ("n2", "-", 0.0, 2.0, 0.5, 1.0)),
-        lambda t, p: Extension(soil={"n1": float(t[0]), "n2": float(t[1])}),
-        ("sinkage", "Fx"),
-    ),
-    Candidate(
-        "rear_contact",
-        "rear contact: the exit angle theta_r = theta_f (b0 + b1 s), eq. (5.4)",
-        (("b0", "-", -1.0, 0.0, -0.5, 1.0), ("b1", "-", -1.0, 0.0, -0.2, 1.0)),
-        lambda t, p: Extension(tuning={"b0": float(t[0]), "b1": float(t[1])}),
-    ),
-    Candidate(
-        "grouser_shearing_radius",
-        "grouser shearing radius: soil fails at r_s = r + h_g (section 5.2)",
-        (("h_g", "mm", 0.0, 20.0, 5.0, 1e-3),),
-        lambda t, p: Extension(wheel={"grouser_height": float(t[0])}),
-    ),
-    Candidate(
-        "cohesion",
-        "soil cohesion c in the shear strength (5.10) and passive pressure (5.22)",
-        (("c", "kPa", 0.0, 10.0, 1.0, 1e3),),
-        lambda t, p: Extension(soil={"cohesion": float(t[0])}),
-    ),
-    Candidate(
-        "hub_drag",
-        "a hub or body dragging in the soil once the sinkage passes a clearance "
-        "(passive-pressure blade, eq. 5.24 form, resisting the travel)",
-        (("clearance", "mm", 0.0, 120.0, 40.0, 1e-3), ("width", "mm", 0.0, 300.0, 30.0, 1e-3)),
-        lambda t, p: Extension(hub_clearance=float(t[0]), hub_width=float(t[1])),
-        ("Fx", "Fy"),
-    ),
-    Candidate(
-        "external_force",
-        "an external force along the travel direction: tether, cable or towing rig",
-        (("force", "N", -30.0, 30.0, 0.0, 1.0),),
-        lambda t, p: Extension(force_along=float(t[0])),
-        ("Fx", "Fy"),
-    ),
-    Candidate(
-        "slope_or_tilt",
-        "an unmodelled slope or sensor tilt: the measured F_x picks up F_z sin(angle)",
-        (("angle", "deg", -15.0, 15.0, 0.0, math.pi / 180),),
-        lambda t, p: Extension(tilt=float(t[0])),
-        ("Fx",),
-    ),
-    Candidate(
-        "wheel_radius",
-        "a changed effective wheel radius (wear, deflection, wrong geometry)",
-        (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
-        lambda t, p: Extension(wheel={"radius": p.wheel.radius * (1.0 + float(t[0]))}),
-    ),
-    Candidate(
-        "steering_offset",
-        "a steering offset: the wheel's true slip angle differs from the recorded one",
-        (("offset", "deg", -15.0, 15.0, 0.0, math.pi / 180),),
-        lambda t, p: Extension(beta_offset=float(t[0])),
-    ),
-    Candidate(
-        "speed_saturation",
-        "actuator speed saturation: the wheel cannot turn faster than a limit",
-        (("omega_max", "rad/s", 0.05, 5.0, 1.0, 1.0),),
-        lambda t, p: Extension(omega_max=float(t[0])),
-    ),
-    Candidate(
-        "sinkage_transient",
-        "sinkage not at steady state: recorded sinkage h (1 - exp(-travel / length))",
-        (("length", "m", 0.01, 5.0, 0.3, 1.0),),
-        lambda t, p: Extension(sinkage_relaxation=float(t[0])),
-        ("sinkage",),
-    ),
-)
-
-
-# ------------------------------------------------------------------------- locate
-@dataclass(frozen=True)
-class Region:
-    """A region of the operating space with a significant residual."""
-
-    channel: str
-    bounds: dict[str, tuple[float, float]]
-    n: int
-    mean: float
-    stderr: float
-    z: float
-    p_value: float
-
-    def describe(self) -> str:
-        verb = "under-predicted" if self.mean > 0 else "over-predicted"
-        parts = []
-        for f, (lo, hi) in self.bounds.items():
-            nice = {"slip": "slip", "abs_beta_deg": "|beta| (deg)", "sinkage_mm": "sinkage (mm)", "load_N": "load (N)",
-                    "rim_speed_mm_s": "rim speed (mm/s)"}[f]
-            parts.append(f"{lo:.3g} <= {nice} <= {hi:.3g}")
-        u = UNITS[self.channel]
-        return (f"{self.channel} {verb} by {abs(self.mean):.3g} ± {self.stderr:.2g} {u} for "
-                f"{' and '.join(parts)} ({self.n} conditions, Z = {self.z:.1f}, p = {self.p_value:.3g})")
-
-
-def _boxes(features: Mapping[str, NDArray[np.float64]], n_cuts: int = 6) -> tuple[NDArray[np.bool_], list[dict[str, tuple[float, float]]]]:
-    """All one- and two-feature interval boxes between quantile cut points."""
-    names = [k for k, v in features.items() if np.ptp(v) > 0]
-    intervals: dict[str, list[tuple[NDArray[np.bool_], tuple[float, float]]]] = {}
-    for f in names:
-        x = features[f]
-        cuts = np.unique(np.quantile(x, np.linspace(0, 1, n_cuts + 1)))
-        ivs = []
-        for i in range(len(cuts)):
-            for j in range(i + 1, len(cuts)):
-                lo, hi = cuts[i], cuts[j]
-                if i == 0 and j == len(cuts) - 1:
-                    continue  # everything
-                ivs.append(((x >= lo) & (x <= hi), (float(lo), float(hi))))
-        intervals[f] = ivs
-    masks, desc = [], []
-    for f in names:
-        for m, b in intervals[f]:
-            masks.append(m)
-            desc.append({f: b})
-    for a in range(len(names)):
-        for b_ in range(a + 1, len(names)):
-            for m1, d1 in intervals[names[a]]:
-                for m2, d2 in intervals[names[b_]]:
-                    m = m1 & m2
-                    if m.sum() >= 3:
-                        masks.append(m)
-                        desc.append({names[a]: d1, names[b_]: d2})
-    return np.array(masks), desc
-
-
-_PRIORITY = {"abs_beta_deg": 0, "slip": 1, "sinkage_mm": 2, "load_N": 3, "rim_speed_mm_s": 4}
-
-
-def locate(
-    z: NDArray[np.float64], raw: NDArray[np.float64], features: Mapping[str, NDArray[np.float64]], channel: str,
-    rng: np.random.Generator, alpha: float = 0.01, max_regions: int = 3, n_perm: int = 400, min_rows: int = 3,
-) -> list[Region]:
-    """Significant regions of one channel's residuals (see module docstring, step 2)."""
-    ok = np.isfinite(z)
-    z, raw = z[ok], raw[ok]
-    feats = {k: v[ok] for k, v in features.items()}
-    if z.size < 6:
-        return []
-    masks, desc = _boxes(feats)
-    counts = masks.sum(axis=1)
-    keep = counts >= min_rows
-    masks, counts = masks[keep].astype(float), counts[keep]
-    desc = [d for d, k in zip(desc, keep) if k]
-    regions: list[Region] = []
-    zc = z.copy()
-    rawc = raw.copy()
-    for _ in range(max_regions):
-        # Null: the normalised residuals are exchangeable Gaussian noise at a robust scale
-        # (MAD, never below 1: the model cannot beat the measurement noise). The maximum of
-        # Z over all boxes under that null is simulated, so the many boxes are accounted for,
-        # and a few conditions far outside the noise still count as evidence.
-        scale = max(1.0, 1.4826 * float(np.median(np.abs(zc - np.median(zc)))))
-        stat = masks @ zc / np.sqrt(counts)
-        # among boxes selecting the same conditions, describe with the fewest and most
-        # telling features (slip angle, slip, sinkage, load, rim speed)
-        top = np.flatnonzero(np.abs(stat) >= np.abs(stat).max() * (1 - 1e-9))
-        best = int(min(top, key=lambda i: (len(desc[i]), min(_PRIORITY.get(f, 9) for f in desc[i]))))
-        draws = rng.normal(0.0, scale, size=(n_perm, zc.size))
-        null = np.abs(draws @ masks.T / np.sqrt(counts)).max(axis=1)
-        p = (1 + np.sum(null >= abs(stat[best]))) / (n_perm + 1)
-        if p > alpha:
-            break
-        m = masks[best] > 0
-        vals = rawc[m]
-        regions.append(Region(channel, desc[best], int(m.sum()), float(vals.mean()),
-                              float(vals.std(ddof=1) / math.sqrt(m.sum())) if m.sum() > 1 else math.nan,
-                              float(stat[best]), float(p)))
-        zc[m] -= zc[m].mean()  # explained away
-        rawc[m] -= rawc[m].mean()
-    return regions
-
-
-# ------------------------------------------------------------------------- explain
 @dataclass(frozen=True)
 class CandidateScore:
-    """A fitted candidate (or combination) and its scores."""
+    """A fitted candidate (or combination) and its scores.
+
+    Attributes
+    ----------
+    keys, physics, kinds : tuple of str
+        The candidates combined.
+    names, units, values, std_errors : tuple
+        Fitted parameters in reported units (NaN error: not determined by the data).
+    k : int
+        Number of fitted parameters.
+    chi2_in, chi2_cv : float
+        In-sample and held-out chi-square (normalised by noise and dispersion).
+    delta_cv : float
+        Held-out improvement over the model as given.
+    p, p_adjusted : float
+        Marginal and library-adjusted p-values of ``delta_cv`` (NaN for combinations).
+    significant : bool
+    rows_cv : ndarray
+        Held-out chi-square per row.
+    nfev : int
+        Model evaluations spent.
+    refit : bool
+        The held-out score is from full refits per fold (otherwise the one-step screening score).
+    """
 
     keys: tuple[str, ...]
     physics: tuple[str, ...]
+    kinds: tuple[str, ...]
     names: tuple[str, ...]
     units: tuple[str, ...]
     values: tuple[float, ...]
@@ -502,262 +132,184 @@ class CandidateScore:
     chi2_in: float
     chi2_cv: float
     delta_cv: float
-    p_paired: float
-    accepted: bool
-    seconds: float
+    p: float
+    p_adjusted: float
+    significant: bool
+    rows_cv: NDArray[np.float64] = field(repr=False)
+    nfev: int = 0
+    refit: bool = False
 
+    @property
+    def label(self) -> str:
+        """``key1 + key2``."""
+        return " + ".join(self.keys)
 
-def _normalised(pred: Mapping[str, NDArray[np.float64]], rec: SingleWheelRecording, fail_z: float) -> NDArray[np.float64]:
-    cols = []
-    for ch in CHANNELS:
-        zz = (rec.measured[ch] - pred[ch]) / rec.noise[ch]
-        cols.append(np.where(np.isfinite(zz), zz, fail_z))
-    return np.stack(cols, axis=1)
-
-
-def _fit(
-    cands: Sequence[Candidate], params: ParameterSet, options: ModelOptions, rec: SingleWheelRecording, fail_z: float,
-    x0: NDArray[np.float64] | None = None, max_nfev: int = 25,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], float, NDArray[np.float64]]:
-    """Least-squares fit of the candidates' parameters (in reported units)."""
-    from scipy.optimize import least_squares
-
-    specs = [q for c in cands for q in c.params]
-    lb = np.array([q[2] for q in specs])
-    ub = np.array([q[3] for q in specs])
-    start = np.array([q[4] for q in specs]) if x0 is None else x0
-    start = np.clip(start, lb + 1e-6 * (ub - lb), ub - 1e-6 * (ub - lb))
-    conv = np.array([q[5] for q in specs])
-
-    def ext_of(x: NDArray[np.float64]) -> Extension:
-        e = Extension()
-        i = 0
-        for c in cands:
-            e = e.merge(c.build(x[i:i + c.k] * conv[i:i + c.k], params))
-            i += c.k
-        return e
-
-    def resid(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        pred, _ = predict_recording(params, options, rec, ext_of(x))
-        return _normalised(pred, rec, fail_z).ravel()
-
-    res = least_squares(resid, start, bounds=(lb, ub), diff_step=1e-3, max_nfev=max_nfev, x_scale=(ub - lb) * 0.1)
-    r = res.fun
-    dof = max(r.size - len(specs), 1)
-    s2 = max(float(r @ r) / dof, 1.0)
-    try:
-        se = np.sqrt(np.clip(np.diag(np.linalg.pinv(res.jac.T @ res.jac)) * s2, 0, None))
-    except np.linalg.LinAlgError:
-        se = np.full(len(specs), np.nan)
-    return res.x, se, float(r @ r), r.reshape(-1, len(CHANNELS))
-
-
-def _folds(rec: SingleWheelRecording, k: int) -> NDArray[np.int_]:
-    """Fold of each row, stratified by commanded slip angle (rows are conditions)."""
-    fold = np.empty(len(rec), dtype=int)
-    for b in np.unique(rec.beta_cmd):
-        idx = np.flatnonzero(rec.beta_cmd == b)
-        order = idx[np.argsort(rec.features["slip"][idx])]
-        fold[order] = np.arange(order.size) % k
-    return fold
-
-
-def _cv(
-    cands: Sequence[Candidate], params: ParameterSet, options: ModelOptions, rec: SingleWheelRecording, folds: NDArray[np.int_],
-    fail_z: float, x_full: NDArray[np.float64] | None,
-) -> NDArray[np.float64]:
-    """Held-out squared normalised residual of every row (summed over channels)."""
-    out = np.empty(len(rec))
-    for f in np.unique(folds):
-        tr, te = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
-        if cands:
-            x, _, _, _ = _fit(cands, params, options, rec.subset(tr), fail_z, x0=x_full, max_nfev=12)
-            conv = np.array([q[5] for c in cands for q in c.params])
-            e = Extension()
-            i = 0
-            for c in cands:
-                e = e.merge(c.build(x[i:i + c.k] * conv[i:i + c.k], params))
-                i += c.k
-        else:
-            e = Extension()
-        sub = rec.subset(te)
-        pred, _ = predict_recording(params, options, sub, e)
-        out[te] = (_normalised(pred, sub, fail_z) ** 2).sum(axis=1)
-    return out
-
-
-def _paired_p(base: NDArray[np.float64], cand: NDArray[np.float64]) -> float:
-    """One-sided paired t-test that the candidate lowers the held-out squared error."""
-    from scipy import stats
-
-    d = base - cand
-    if np.allclose(d, 0):
-        return 1.0
-    t = d.mean() / (d.std(ddof=1) / math.sqrt(d.size))
-    return float(stats.t.sf(t, d.size - 1))
+    def parameters_text(self) -> str:
+        """``name = value ± error unit`` list."""
+        return ", ".join(f"{n} = {v:.4g} ± {e:.2g} {u}" if math.isfinite(e) else f"{n} = {v:.4g} (not determined) {u}"
+                         for n, u, v, e in zip(self.names, self.units, self.values, self.std_errors))
 
 
 @dataclass(frozen=True)
-class SparseTerm:
-    """One fitted term of the unexplained sparse residual model."""
+class Separation:
+    """The probe experiment that best separates two indistinguishable explanations."""
 
+    a: str
+    b: str
+    experiment: str
     channel: str
-    formula: str
-    coefficients: dict[str, float]
-    chi2_cv_before: float
-    chi2_cv_after: float
+    max_difference: float
+    unit: str
+    noise_units: float
+
+    def describe(self) -> str:
+        """One report line."""
+        if self.noise_units < 2.0:
+            return (f"{self.a} vs {self.b}: no probe in the library separates them (largest difference "
+                    f"{self.noise_units:.1f} noise units); a different kind of experiment is needed")
+        return (f"{self.a} vs {self.b}: {self.experiment} -- predictions differ by up to {self.max_difference:.3g} "
+                f"{self.unit} in {self.channel} ({self.noise_units:.0f} noise units)")
 
 
-def _sparse_fit(rec: SingleWheelRecording, resid: Mapping[str, NDArray[np.float64]], folds: NDArray[np.int_]) -> list[SparseTerm]:
-    """SINDy-like sequentially thresholded least squares over physical features."""
-    s = rec.features["slip"]
-    sb = np.sin(np.radians(rec.features["abs_beta_deg"]))
-    h = rec.features["sinkage_mm"] * 1e-3
-    W = rec.load
-    # residual units: N for forces, m for sinkage; h in m, W in N
-    lib = {"1": np.ones_like(s), "s": s, "s^2": s**2, "|s|": np.abs(s), "sin b": sb, "sin^2 b": sb**2, "h": h,
-           "h^2": h**2, "W": W, "s h": s * h, "h sin b": h * sb, "h^2 sin b": h**2 * sb}
-    names = list(lib)
-    X = np.stack([lib[n] for n in names], axis=1)
-    scale = np.abs(X).max(axis=0) + 1e-12
-    Xs = X / scale
-    out = []
-    for ch in CHANNELS:
-        y = resid[ch]
-        wgt = 1.0 / rec.noise[ch]
-        ok = np.isfinite(y)
-        if ok.sum() < 8:
-            continue
-
-        def stlsq(rows: NDArray[np.bool_], thr: float) -> NDArray[np.float64]:
-            A = Xs[rows] * wgt[rows, None]
-            b = y[rows] * wgt[rows]
-            coef = np.linalg.lstsq(A, b, rcond=None)[0]
-            for _ in range(10):
-                small = np.abs(coef) < thr * np.abs(coef).max()
-                coef[small] = 0
-                big = ~small
-                if not big.any():
-                    break
-                coef[big] = np.linalg.lstsq(A[:, big], b, rcond=None)[0]
-            return coef
-
-        best = None
-        before = float(np.sum((y[ok] * wgt[ok]) ** 2))
-        for thr in (0.05, 0.1, 0.2, 0.4):
-            err = 0.0
-            for f in np.unique(folds):
-                tr, te = ok & (folds != f), ok & (folds == f)
-                c = stlsq(tr, thr)
-                err += float(np.sum(((y[te] - Xs[te] @ c) * wgt[te]) ** 2))
-            if best is None or err < best[0]:
-                best = (err, thr)
-        assert best is not None
-        if best[0] > 0.8 * before:
-            continue  # no sparse form predicts held-out data clearly better than nothing
-        coef = stlsq(ok, best[1]) / scale
-        terms = {n: float(c) for n, c in zip(names, coef) if c != 0}
-        formula = " + ".join(f"{c:.3g}·{n}" if n != "1" else f"{c:.3g}" for n, c in terms.items())
-        out.append(SparseTerm(ch, formula or "0", terms, before, best[0]))
-    return out
-
-
-# ------------------------------------------------------------------------- verdict
 @dataclass
 class Verdict:
     """Everything the tool found, and the files it can write."""
 
-    recording: SingleWheelRecording
-    params: ParameterSet
-    options: ModelOptions
+    status: str
+    observations: Any
+    model: Any
+    scale: dict[str, float]
     residual_before: dict[str, NDArray[np.float64]]
     residual_after: dict[str, NDArray[np.float64]]
     pred_before: dict[str, NDArray[np.float64]]
     pred_after: dict[str, NDArray[np.float64]]
     failed_before: int
+    failed_after: int
     regions: list[Region]
     regions_after: list[Region]
     scores: list[CandidateScore]
     chosen: CandidateScore | None
+    indistinguishable: list[CandidateScore]
+    separations: list[Separation]
     chi2_cv_base: float
-    sparse: list[SparseTerm]
+    explained_fraction: float
+    recalibrated: ParameterSet | None
     criterion: str
     seconds: float
 
     @property
     def missing_physics(self) -> list[str]:
-        """Keys of the accepted candidate terms (empty: nothing is missing)."""
-        return list(self.chosen.keys) if self.chosen else []
+        """Keys of the accepted explanation (empty: nothing named). For ``unexplained`` nothing is named."""
+        if self.chosen is None or self.status == "unexplained":
+            return []
+        return list(self.chosen.keys)
+
+    @property
+    def parameters_off(self) -> bool:
+        """True when the accepted explanation is (or includes) a change of the model's own parameters."""
+        return self.chosen is not None and self.status != "unexplained" and "parameters" in self.chosen.kinds
 
     def summary(self) -> str:
-        lines = [f"{len(self.recording)} conditions; noise: {self.recording.noise_source}"]
+        """Plain-text verdict."""
+        obs = self.observations
+        lines = [f"verdict: {self.status.replace('_', ' ').upper()}",
+                 f"{len(obs)} rows; noise: {obs.noise_source}; dispersion s = "
+                 + ", ".join(f"{ch} {v:.2f}" for ch, v in self.scale.items())]
         if self.failed_before:
-            lines.append(f"model could not carry the load in {self.failed_before} conditions")
-        lines.append("significant regions:" if self.regions else "no significant region (model and data agree within noise structure)")
+            lines.append(f"the model could not carry the load in {self.failed_before} rows")
+        lines.append("significant regions:" if self.regions else "no significant region")
         lines += [f"  - {r.describe()}" for r in self.regions]
-        if self.chosen:
-            lines.append("missing physics (accepted): " + "; ".join(self.chosen.physics))
-            for n, u, v, e in zip(self.chosen.names, self.chosen.units, self.chosen.values, self.chosen.std_errors):
-                lines.append(f"  {n} = {v:.4g} ± {e:.2g} {u}")
-            lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {self.chosen.chi2_cv:.1f} "
-                         f"({100 * self.chosen.delta_cv / self.chi2_cv_base:.0f} % lower), paired p = {self.chosen.p_paired:.2g}")
+        c = self.chosen
+        if self.status == "agree":
+            lines.append("model and data agree within noise: no candidate and no region is significant")
+        elif c is None:
+            lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
         else:
-            lines.append("no candidate physics passes the criterion")
-        for t in self.sparse:
-            lines.append(f"unexplained {t.channel} residual ~ {t.formula} (held-out chi2 {t.chi2_cv_before:.1f} -> {t.chi2_cv_after:.1f})")
+            head = {"explained": "missing physics", "parameters_off": "the model's own parameters are off",
+                    "partly_explained": "partly explained by", "unexplained": "UNEXPLAINED; the best candidate only absorbs part"}[self.status]
+            lines.append(f"{head}: {c.label}")
+            lines += [f"  {p}" for p in c.physics]
+            lines.append(f"  {c.parameters_text()}")
+            lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {c.chi2_cv:.1f} "
+                         f"({100 * self.explained_fraction:.0f} % of the excess over noise explained)")
+            if self.parameters_off and self.recalibrated is not None:
+                lines.append("recalibration explains the data as well as any new term: see recalibrated.toml")
+            if self.indistinguishable:
+                lines.append("indistinguishable on these data (held-out Vuong V < 2): "
+                             + ", ".join(s.label for s in self.indistinguishable))
+                lines += [f"  to separate: {s.describe()}" for s in self.separations]
+        if self.regions_after:
+            lines.append("regions still significant after the explanation:")
+            lines += [f"  - {r.describe()}" for r in self.regions_after]
+        if self.failed_after:
+            lines.append(f"the explained model still fails in {self.failed_after} rows")
         return "\n".join(lines)
 
     def to_json(self) -> dict[str, Any]:
+        """Machine-readable verdict (``verdict.json``)."""
         def sc(s: CandidateScore) -> dict[str, Any]:
-            return {"terms": list(s.keys), "physics": list(s.physics),
-                    "parameters": [{"name": n, "unit": u, "value": v, "std_error": e}
+            return {"terms": list(s.keys), "physics": list(s.physics), "kinds": list(s.kinds),
+                    "parameters": [{"name": n, "unit": u, "value": v, "std_error": e if math.isfinite(e) else None}
                                    for n, u, v, e in zip(s.names, s.units, s.values, s.std_errors)],
                     "k": s.k, "chi2_in_sample": s.chi2_in, "chi2_held_out": s.chi2_cv, "held_out_improvement": s.delta_cv,
-                    "paired_p": s.p_paired, "accepted": s.accepted}
+                    "p": s.p if math.isfinite(s.p) else None,
+                    "p_adjusted": s.p_adjusted if math.isfinite(s.p_adjusted) else None, "significant": s.significant,
+                    "model_evaluations": s.nfev}
 
+        obs = self.observations
         return {
-            "conditions": len(self.recording),
-            "noise": self.recording.noise_source,
-            "failed_conditions_before": self.failed_before,
+            "verdict": self.status,
+            "rows": len(obs),
+            "noise": obs.noise_source,
+            "dispersion": self.scale,
+            "failed_rows_before": self.failed_before,
+            "failed_rows_after": self.failed_after,
             "regions": [{"channel": r.channel, "bounds": r.bounds, "n": r.n, "mean_residual": r.mean, "stderr": r.stderr,
-                         "unit": UNITS[r.channel], "z": r.z, "p_value": r.p_value, "text": r.describe()} for r in self.regions],
+                         "unit": r.unit, "z": r.z, "p_value": r.p_value, "text": r.describe()} for r in self.regions],
             "regions_after": [r.describe() for r in self.regions_after],
             "missing_physics": self.missing_physics,
+            "parameters_off": self.parameters_off,
             "chosen": sc(self.chosen) if self.chosen else None,
+            "indistinguishable": [sc(s) for s in self.indistinguishable],
+            "separating_experiments": [s.describe() for s in self.separations],
             "held_out_chi2_before": self.chi2_cv_base,
             "held_out_chi2_after": self.chosen.chi2_cv if self.chosen else self.chi2_cv_base,
+            "explained_fraction": self.explained_fraction,
             "candidates": [sc(s) for s in self.scores],
-            "unexplained_sparse_fit": [{"channel": t.channel, "formula": t.formula, "coefficients": t.coefficients,
-                                        "held_out_chi2_before": t.chi2_cv_before, "held_out_chi2_after": t.chi2_cv_after}
-                                       for t in self.sparse],
             "decision_criterion": self.criterion,
             "seconds": self.seconds,
         }
 
     def write(self, folder: str | Path) -> Path:
-        """Write ``report.md``, ``verdict.json`` and PNG plots into ``folder``."""
+        """Write ``report.md``, ``verdict.json``, PNG plots and, for "parameters off",
+        ``recalibrated.toml`` into ``folder`` (each file atomically)."""
         out = Path(folder)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "verdict.json").write_text(json.dumps(self.to_json(), indent=2, default=float))
+        write_text(out / "verdict.json", json.dumps(self.to_json(), indent=2, default=float))
+        if self.recalibrated is not None:
+            with atomic_path(out / "recalibrated.toml") as tmp:
+                save_toml(tmp, {"written_by": "offline.fit.discrepancy (parameters off)",
+                                "recording": Path(str(self.observations.source)).name,
+                                "held_out_chi2_before": self.chi2_cv_base,
+                                "held_out_chi2_after": self.chosen.chi2_cv if self.chosen else self.chi2_cv_base},
+                          soil=self.recalibrated.soil, wheel=self.recalibrated.wheel, tuning=self.recalibrated.tuning)
         pngs = _plots(self, out)
-        md = ["# Discrepancy report", "", f"Recording: `{self.recording.source}`", "",
-              f"Model: soil `{self.params.soil.name}`, wheel `{self.params.wheel.name}`, tuning `{self.params.tuning.name}`, "
-              f"options `{self.options}`", "", "## Summary", "", "```", self.summary(), "```", "",
+        md = ["# Discrepancy report", "", f"Recording: `{Path(str(self.observations.source)).name}`", "",
+              f"Model: {self.model.describe() if hasattr(self.model, 'describe') else self.model}", "",
+              "## Summary", "", "```", self.summary(), "```", "",
               "## Candidates (ranked by held-out improvement)", "",
-              "| terms | parameters | held-out chi2 | improvement | paired p | accepted |", "|---|---|---|---|---|---|",
-              f"| (model as given) | | {self.chi2_cv_base:.1f} | | | |"]
-        for s in sorted(self.scores, key=lambda s: -(s.delta_cv if math.isfinite(s.delta_cv) else -1e300)):
-            par = ", ".join(f"{n} = {v:.3g} ± {e:.2g} {u}" for n, u, v, e in zip(s.names, s.units, s.values, s.std_errors))
-            if math.isfinite(s.chi2_cv):
-                md.append(f"| {' + '.join(s.keys)} | {par} | {s.chi2_cv:.1f} | {s.delta_cv:.1f} | {s.p_paired:.2g} | "
-                          f"{'yes' if s.accepted else ''} |")
-            else:
-                md.append(f"| {' + '.join(s.keys)} | {par} | screened out (in-sample chi2 {s.chi2_in:.1f}) | | | |")
+              "| candidate | kind | parameters | held-out chi2 | improvement | p (adjusted) | significant |",
+              "|---|---|---|---|---|---|---|",
+              f"| (model as given) | | | {self.chi2_cv_base:.1f} | | | |"]
+        for s in sorted(self.scores, key=lambda s: -s.delta_cv):
+            padj = f"{s.p_adjusted:.3g}" if math.isfinite(s.p_adjusted) else "(extra term test)"
+            md.append(f"| {s.label} | {'/'.join(s.kinds)} | {s.parameters_text()} | {s.chi2_cv:.1f} | {s.delta_cv:.1f} | "
+                      f"{padj} | {'yes' if s.significant else ''} |")
         md += ["", "## Decision criterion", "", self.criterion, ""]
         if self.regions_after:
-            md += ["## Regions still significant after the accepted terms", ""] + [f"- {r.describe()}" for r in self.regions_after] + [""]
+            md += ["## Regions still significant after the explanation", ""] + [f"- {r.describe()}" for r in self.regions_after] + [""]
         md += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
-        (out / "report.md").write_text("\n".join(md) + "\n")
+        write_text(out / "report.md", "\n".join(md) + "\n")
         return out
 
 
@@ -767,67 +319,102 @@ def _plots(v: Verdict, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rec = v.recording
+    obs = v.observations
+    chans = obs.channels
+    fx, fy = list(obs.features)[:2]
     paths = []
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7), sharex=True, sharey="row")
-    for j, ch in enumerate(CHANNELS):
+    fig, axes = plt.subplots(2, len(chans), figsize=(4.3 * len(chans), 7), sharex=True, sharey="row", squeeze=False)
+    sc = None
+    for j, ch in enumerate(chans):
         for i, (label, res) in enumerate((("before", v.residual_before), ("after", v.residual_after))):
             ax = axes[i, j]
-            zz = res[ch] / rec.noise[ch]
-            sc = ax.scatter(rec.features["slip"], rec.features["abs_beta_deg"], c=np.clip(zz, -10, 10), cmap="RdBu_r",
+            zz = res[ch] / obs.noise[ch]
+            sc = ax.scatter(obs.features[fx], obs.features[fy], c=np.clip(zz, -10, 10), cmap="RdBu_r",
                             vmin=-10, vmax=10, s=40, edgecolors="k", linewidths=0.3)
             bad = ~np.isfinite(zz)
-            ax.scatter(rec.features["slip"][bad], rec.features["abs_beta_deg"][bad], marker="x", c="k", s=30)
+            ax.scatter(obs.features[fx][bad], obs.features[fy][bad], marker="x", c="k", s=30)
             ax.set_title(f"{ch} residual / noise, {label}")
             if i == 1:
-                ax.set_xlabel("slip ratio")
+                ax.set_xlabel(fx)
             if j == 0:
-                ax.set_ylabel("|slip angle| [deg]")
+                ax.set_ylabel(fy)
     fig.colorbar(sc, ax=axes, label="(measured - predicted) / noise (clipped at ±10; x: model failed)")
     p = out / "residual_map.png"
-    fig.savefig(p, dpi=100)
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
     paths.append(p)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2))
-    for j, ch in enumerate(CHANNELS):
-        ax = axes[j]
-        sc_ = SCALE_OUT[ch]
-        m = rec.measured[ch] * sc_
-        ax.plot(m, v.pred_before[ch] * sc_, "o", mfc="none", color="tab:gray", label="model as given")
-        ax.plot(m, v.pred_after[ch] * sc_, ".", color="tab:red", label="with accepted terms")
+    fig, axes = plt.subplots(1, len(chans), figsize=(4.3 * len(chans), 4.2), squeeze=False)
+    for j, ch in enumerate(chans):
+        ax = axes[0, j]
+        k = obs.scale_out[ch]
+        m = obs.measured[ch] * k
+        ax.plot(m, v.pred_before[ch] * k, "o", mfc="none", color="tab:gray", label="model as given")
+        ax.plot(m, v.pred_after[ch] * k, ".", color="tab:red", label="with the explanation")
         lim = [np.nanmin(m), np.nanmax(m)]
         ax.plot(lim, lim, "k-", lw=0.8)
-        ax.set_xlabel(f"measured {ch} [{UNITS[ch]}]")
-        ax.set_ylabel(f"predicted {ch} [{UNITS[ch]}]")
+        ax.set_xlabel(f"measured {ch} [{obs.units[ch]}]")
+        ax.set_ylabel(f"predicted {ch} [{obs.units[ch]}]")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    axes[0, 0].legend(fontsize=8)
     fig.tight_layout()
     p = out / "measured_vs_predicted.png"
-    fig.savefig(p, dpi=100)
+    with atomic_path(p) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
     paths.append(p)
     return paths
 
 
 CRITERION = (
-    "A term (or pair of terms) with k fitted parameters is accepted when its grouped {k_folds}-fold cross-validated "
-    "chi-square (sum over held-out conditions and channels of ((measured - predicted) / noise)^2) is lower than the "
-    "current model's by more than 2 k, and a one-sided paired t-test over conditions of that reduction gives "
-    "p < {p_max}. Candidates are screened in-sample and the best {n_cv} are cross-validated; a second term is added "
-    "only if it passes the same test on top of the first. Conditions the model cannot carry count as a residual of "
-    "{fail_z} noise units per channel."
+    "Each candidate (and the full recalibration of the model's parameters) is fitted by bounded least squares and "
+    "scored by its held-out improvement D = chi2_cv(model) - chi2_cv(model + candidate), {k_folds}-fold over rows "
+    "(chi2 of residuals normalised by the noise and the per-channel dispersion s). The null distribution of D for every "
+    "candidate (data = noise around the model) comes from a parametric bootstrap of {n_boot} draws in the candidate's "
+    "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
+    "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
+    "held-out rows (Vuong V < 2) are reported as indistinguishable; if one of them is a change of the model's own "
+    "parameters the verdict is 'parameters off'. A second term is added when its extra improvement exceeds the "
+    "1 - {alpha}/tries quantile of its null. Remaining regions make the verdict 'partly explained'; less than half of "
+    "the held-out excess chi2 explained makes it 'unexplained'. A run whose model fails on more than half of the rows "
+    "is an error."
 )
 
 
+def _ext_of(cands: Sequence[Candidate], x: NDArray[np.float64], params: Any) -> Extension:
+    e = Extension()
+    i = 0
+    for c in cands:
+        e = e.merge(c.build(x[i:i + c.k] * c.to_si, params))
+        i += c.k
+    return e
+
+
+def _fd_jac(resid: Callable[[NDArray[np.float64]], NDArray[np.float64]], x: NDArray[np.float64],
+            lower: NDArray[np.float64], upper: NDArray[np.float64]) -> NDArray[np.float64]:
+    r0 = resid(x)
+    J = np.empty((r0.size, x.size))
+    for i in range(x.size):
+        h = 1e-3 * (upper[i] - lower[i])
+        xi = x.copy()
+        xi[i] = x[i] + h if x[i] + h <= upper[i] else x[i] - h
+        J[:, i] = (resid(xi) - r0) / (xi[i] - x[i])
+    return J
+
+
 def diagnose(
-    trials_or_recording: TrialSet | SingleWheelRecording,
-    params: ParameterSet,
+    trials_or_recording: TrialSet | Any,
+    params: ParameterSet | Any,
     options: ModelOptions | None = None,
     candidates: Sequence[Candidate] = CANDIDATES,
+    recalibrate: bool = True,
     k_folds: int = 5,
-    n_cv: int = 4,
-    p_max: float = 0.01,
+    alpha: float = 0.01,
+    n_boot: int = 2000,
+    n_points: int = 6,
+    n_refit: int = 4,
     max_terms: int = 2,
+    max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> Verdict:
@@ -835,98 +422,248 @@ def diagnose(
 
     Parameters
     ----------
-    trials_or_recording : TrialSet or SingleWheelRecording
-        Recordings; trials are averaged per condition.
-    params : ParameterSet
-        The model to check.
+    trials_or_recording : TrialSet or Observations
+        Recordings; trials are averaged per condition (:class:`SingleWheelRecording`).
+    params : ParameterSet or model
+        The model under test: a parameter set (with ``options``), or any object with
+        ``predict(observations, extension)`` (and optionally ``recalibration()``,
+        ``parameter_set(extension)``, ``describe()``).
     options : ModelOptions, optional
     candidates : sequence of Candidate
-        The physics library (default :data:`CANDIDATES`).
+        The library (default :data:`CANDIDATES`).
+    recalibrate : bool
+        Also try the full recalibration of the model's own parameters.
+    k_folds : int
+        Folds of the held-out score.
+    alpha : float
+        Family-wise false-alarm level of the library test.
+    n_boot : int
+        Null draws of the tangent bootstrap.
+    n_points : int
+        Linearisation points per candidate for the null (the fit and ``n_points - 1`` spread
+        over the parameter box).
+    n_refit : int
+        At most this many candidates (those passing on the screening score) are scored again
+        with a full refit per fold.
+    max_terms : int
+        At most this many candidates combined.
+    max_nfev : int
+        Least-squares iterations per start (budget in iterations).
+    seed : int
+        Seed of every random draw (bootstrap, region test, linearisation points).
+
+    Raises
+    ------
+    DiscrepancyError
+        Fewer rows than folds, or the model fails on more than half of the rows (forces in
+        a wrong unit, a parameter file for another wheel): no verdict can be given.
     """
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
-    options = options or ModelOptions()
-    rec = (trials_or_recording if isinstance(trials_or_recording, SingleWheelRecording)
+    model = params if hasattr(params, "predict") else SingleWheelModel(params, options or ModelOptions())
+    obs = (trials_or_recording if hasattr(trials_or_recording, "channels")
            else SingleWheelRecording.from_trials(trials_or_recording))
+    if len(obs) < max(2 * k_folds, 6):
+        raise DiscrepancyError(f"{obs.source}: {len(obs)} rows (conditions); the held-out test needs at least "
+                               f"{max(2 * k_folds, 6)}: record more conditions or lower k_folds")
     rng = np.random.default_rng(seed)
-    fail_z = 10.0
-    pred0, ok0 = predict_recording(params, options, rec)
-    res0 = {ch: rec.measured[ch] - pred0[ch] for ch in CHANNELS}
+    chans = obs.channels
+    nc = len(chans)
+    pred0, ok0 = model.predict(obs, None)
+    failed0 = int((~ok0).sum())
+    if failed0 > 0.5 * len(obs):
+        raise DiscrepancyError(
+            f"{obs.source}: the model could not predict {failed0} of {len(obs)} rows (it cannot carry the recorded "
+            f"load, median load {float(np.median(getattr(obs, 'load', np.nan))):.4g}). No verdict is possible: check the "
+            "units of the force columns (N expected; mN or kN give loads 1000x off) and that the parameter file "
+            "is for this wheel and soil.")
+    scale = dispersion(obs, pred0)
+    res0 = {ch: obs.measured[ch] - pred0[ch] for ch in chans}
     say("locating regions")
-    regions = []
-    for ch in CHANNELS:
-        regions += locate(res0[ch] / rec.noise[ch], res0[ch] * SCALE_OUT[ch], rec.features, ch, rng)
-    folds = _folds(rec, k_folds)
-    say("cross-validating the model as given")
-    cv_base_rows = _cv([], params, options, rec, folds, fail_z, None)
-    chi2_cv_base = float(cv_base_rows.sum())
+    regions: list[Region] = []
+    for ch in chans:
+        regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+    folds = obs.folds(k_folds)
+    z0 = normalised(obs, pred0, scale)
+    base_rows = (z0**2).sum(axis=1)
+    chi2_base = float(base_rows.sum())
+    ps = getattr(model, "params", None)
+    library = list(candidates)
+    if recalibrate and hasattr(model, "recalibration"):
+        library.append(model.recalibration())
 
-    def score(cands: Sequence[Candidate], base_rows: NDArray[np.float64], x_full: NDArray[np.float64], se: NDArray[np.float64],
-              chi2_in: float, t_start: float) -> CandidateScore:
-        rows = _cv(cands, params, options, rec, folds, fail_z, x_full)
-        k = sum(c.k for c in cands)
-        delta = float(base_rows.sum() - rows.sum())
-        p = _paired_p(base_rows, rows)
-        return CandidateScore(tuple(c.key for c in cands), tuple(c.physics for c in cands),
-                              tuple(q[0] for c in cands for q in c.params), tuple(q[1] for c in cands for q in c.params),
-                              tuple(float(x) for x in x_full), tuple(float(e) for e in se), k, chi2_in, float(rows.sum()),
-                              delta, p, bool(delta > 2 * k and p < p_max), time.perf_counter() - t_start)
+    def resid_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+        def r(x: NDArray[np.float64]) -> NDArray[np.float64]:
+            pred, _ = model.predict(obs, _ext_of(cands, x, ps))
+            return normalised(obs, pred, scale).ravel()
+        return r
 
-    # screen in-sample
-    screened = []
-    for c in candidates:
+    def rows_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]]:
+        def r(x: NDArray[np.float64], rows: NDArray[np.int_]) -> NDArray[np.float64]:
+            sub = obs.subset(rows)
+            pred, _ = model.predict(sub, _ext_of(cands, x, ps))
+            return normalised(sub, pred, scale)
+        return r
+
+    def score(cands: Sequence[Candidate], starts: Sequence[NDArray[np.float64]]) -> tuple[CandidateScore, Any]:
+        lo = np.concatenate([c.lower for c in cands])
+        hi = np.concatenate([c.upper for c in cands])
+        r = resid_fn(cands)
+        f = fit(r, lo, hi, starts, nc, max_nfev=max_nfev)
+        rows = held_out(f, lambda x: r(x).reshape(-1, nc), folds, lo, hi)
+        s = CandidateScore(tuple(c.key for c in cands), tuple(c.physics for c in cands), tuple(c.kind for c in cands),
+                           tuple(q[0] for c in cands for q in c.params), tuple(q[1] for c in cands for q in c.params),
+                           tuple(float(v) for v in f.x), tuple(float(e) for e in f.std_errors), sum(c.k for c in cands),
+                           f.chi2, float(rows.sum()), chi2_base - float(rows.sum()), math.nan, math.nan, False, rows,
+                           f.nfev + k_folds)
+        return s, f
+
+    singles: list[CandidateScore] = []
+    fits = []
+    for c in library:
         say(f"fitting {c.key}")
-        ts = time.perf_counter()
-        x, se, chi2, _ = _fit([c], params, options, rec, fail_z)
-        screened.append((chi2 + 2 * c.k, c, x, se, chi2, ts))
-    screened.sort(key=lambda t: t[0])
-    scores: list[CandidateScore] = []
-    for _, c, x, se, chi2, ts in screened[:n_cv]:
-        say(f"cross-validating {c.key}")
-        scores.append(score([c], cv_base_rows, x, se, chi2, ts))
-    for _, c, x, se, chi2, ts in screened[n_cv:]:
-        scores.append(CandidateScore((c.key,), (c.physics,), tuple(q[0] for q in c.params), tuple(q[1] for q in c.params),
-                                     tuple(float(v) for v in x), tuple(float(e) for e in se), c.k, chi2, math.nan, math.nan,
-                                     math.nan, False, time.perf_counter() - ts))
-    passed = sorted([s for s in scores if s.accepted], key=lambda s: -(s.delta_cv - 2 * s.k))
-    chosen = passed[0] if passed else None
-    if chosen and max_terms > 1:
-        first = next(c for c in candidates if c.key == chosen.keys[0])
-        base_rows = _cv([first], params, options, rec, folds, fail_z, np.array(chosen.values))
-        fam = {c.key: c.family or c.key for c in candidates}
-        seconds = [s for s in sorted(scores, key=lambda s: -(s.delta_cv if math.isfinite(s.delta_cv) else -1e9))
-                   if len(s.keys) == 1 and fam[s.keys[0]] != fam[first.key]][: max(n_cv - 1, 1)]
-        best2 = None
-        for s2 in seconds:
-            c2 = next(c for c in candidates if c.key == s2.keys[0])
-            say(f"trying {first.key} + {c2.key}")
-            ts = time.perf_counter()
-            x, se, chi2, _ = _fit([first, c2], params, options, rec, fail_z, x0=np.array([*chosen.values, *s2.values]))
-            sc2 = score([first, c2], base_rows, x, se, chi2, ts)
-            extra = sc2.delta_cv  # improvement over the one-term model
-            ok2 = extra > 2 * c2.k and sc2.p_paired < p_max
-            sc2 = replace(sc2, delta_cv=float(cv_base_rows.sum() - sc2.chi2_cv), accepted=ok2)
-            scores.append(sc2)
-            if ok2 and (best2 is None or sc2.chi2_cv < best2.chi2_cv):
-                best2 = sc2
-        if best2 is not None:
-            chosen = best2
-    if chosen:
-        conv = np.array([q[5] for key in chosen.keys for c in candidates if c.key == key for q in c.params])
-        e = Extension()
-        i = 0
-        for key in chosen.keys:
-            c = next(c for c in candidates if c.key == key)
-            e = e.merge(c.build(np.array(chosen.values[i:i + c.k]) * conv[i:i + c.k], params))
-            i += c.k
-        pred1, _ = predict_recording(params, options, rec, e)
+        starts = [np.array([q[4] for q in c.params])] + [np.array(s, dtype=float) for s in c.starts]
+        s, f = score([c], starts)
+        singles.append(s)
+        fits.append(f)
+    say("null distribution (tangent bootstrap)")
+    tangents = []
+    for c, f in zip(library, fits):
+        pts = [f.jac]
+        r = resid_fn([c])
+        if c.k > 4:  # a recalibration: linear enough, linearised at the fit and at the model's own values
+            xs = [np.array([q[4] for q in c.params])]
+        else:  # thresholds and directions: the starts and points spread over the box
+            xs = [np.array(q, dtype=float) for q in c.starts][: n_points - 1]
+            xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
+        pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
+        tangents.append(pts)
+    null = tangent_null(tangents, folds, nc, n_boot, rng)
+    observed = np.array([s.delta_cv for s in singles])
+    _, p_adj = adjusted_p(observed, null)
+    # candidates that pass on the screening score are scored again with a full refit per fold
+    for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > 0 and library[i].threshold][:n_refit]:
+        c = library[i]
+        say(f"held-out refits of {c.key}")
+        starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])]
+        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev)
+        singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
+                           nfev=singles[i].nfev + nf, refit=True)
+    observed = np.array([s.delta_cv for s in singles])
+    p, p_adj = adjusted_p(observed, null)
+    singles = [_with(s, p=float(pi), p_adjusted=float(pa), significant=bool((s.refit or not c.threshold) and pa < alpha and s.delta_cv > 0))
+               for s, c, pi, pa in zip(singles, library, p, p_adj)]
+    by_key = {c.key: (c, s, i) for i, (c, s) in enumerate(zip(library, singles))}
+    sig = sorted([s for s in singles if s.significant], key=lambda s: -s.delta_cv)
+    scores = list(singles)
+    chosen: CandidateScore | None = None
+    equivalent: list[CandidateScore] = []
+    separations: list[Separation] = []
+    if sig:
+        best = sig[0]
+        equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0]
+        group = [best] + equivalent
+        params_kind = [s for s in group if "parameters" in s.kinds]
+        # "parameters off" when a change of the model's own parameters is as good as any term;
+        # among those, the fewest parameters that are as good (the full recalibration last)
+        primary = min(params_kind, key=lambda s: (s.keys[0] == RECALIBRATION_KEY, s.k)) if params_kind else best
+        equivalent = [s for s in group if s is not primary]
+        chosen = primary
+        # separating experiments
+        probes = obs.probes() if hasattr(obs, "probes") else []
+        for s in equivalent:
+            separations.append(_separate(model, ps, by_key, primary, s, probes))
+        # forward step: one more term on top, when the first leaves significant regions
+        leftover = _regions_of(model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)
+        if max_terms > 1 and leftover:
+            first = [by_key[k][0] for k in primary.keys]
+            fam = {c.family or c.key for c in first}
+            tries = [s for s in sig if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
+                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:2]
+            best2 = None
+            for s2 in tries:
+                c2 = by_key[s2.keys[0]][0]
+                say(f"trying {primary.label} + {c2.key}")
+                x0 = np.array([*primary.values, *s2.values])
+                sc2, f2 = score(first + [c2], [x0])
+                if any(c.threshold for c in first + [c2]):
+                    lo = np.concatenate([c.lower for c in first + [c2]])
+                    hi = np.concatenate([c.upper for c in first + [c2]])
+                    rows, nf = refit_held_out(rows_fn(first + [c2]), folds, lo, hi, [f2.x], nc, max_nfev=max_nfev)
+                    sc2 = _with(sc2, chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
+                                nfev=sc2.nfev + nf, refit=True)
+                extra = primary.chi2_cv - sc2.chi2_cv
+                q = float(np.quantile(null[by_key[c2.key][2]], 1.0 - alpha / max(len(tries), 1)))
+                sc2 = _with(sc2, significant=bool(extra > max(q, 0.0)))
+                scores.append(sc2)
+                if sc2.significant and (best2 is None or sc2.chi2_cv < best2.chi2_cv):
+                    best2 = sc2
+            if best2 is not None:
+                chosen = best2
+    if chosen is not None:
+        cands = [by_key[k][0] for k in chosen.keys]
+        ext = _ext_of(cands, np.array(chosen.values), ps)
+        pred1, ok1 = model.predict(obs, ext)
+        excess0 = chi2_base - len(obs) * nc
+        frac = 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0 if excess0 > 0 else 1.0
     else:
-        pred1 = pred0
-    res1 = {ch: rec.measured[ch] - pred1[ch] for ch in CHANNELS}
-    regions_after = []
-    for ch in CHANNELS:
-        regions_after += locate(res1[ch] / rec.noise[ch], res1[ch] * SCALE_OUT[ch], rec.features, ch, rng)
-    sparse = _sparse_fit(rec, res1, folds) if regions_after else []
-    crit = CRITERION.format(k_folds=k_folds, p_max=p_max, n_cv=n_cv, fail_z=fail_z)
-    return Verdict(rec, params, options, res0, res1, pred0, pred1, int((~ok0).sum()), regions, regions_after, scores,
-                   chosen, chi2_cv_base, sparse, crit, time.perf_counter() - t0)
+        ext, pred1, ok1, frac = Extension(), pred0, ok0, 0.0
+    res1 = {ch: obs.measured[ch] - pred1[ch] for ch in chans}
+    regions_after: list[Region] = []
+    if chosen is not None:
+        for ch in chans:
+            regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
+                                    obs.units[ch], rng)
+    failed1 = int((~ok1).sum())
+    if chosen is None:
+        status = "agree" if not regions and failed0 == 0 else "unexplained"
+    elif frac < 0.5:
+        status = "unexplained"
+    elif regions_after or failed1:
+        status = "partly_explained"
+    elif "parameters" in chosen.kinds and "term" not in chosen.kinds:
+        status = "parameters_off"
+    else:
+        status = "explained"
+    recal = None
+    if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
+        recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
+    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha)
+    return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
+                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0)
+
+
+def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
+    """Significant regions of the residuals of the model with ``ext``."""
+    pred, ok = model.predict(obs, ext)
+    out: list[Region] = []
+    for ch in obs.channels:
+        r = obs.measured[ch] - pred[ch]
+        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+    if not ok.all():
+        out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
+    return out
+
+
+def _with(s: CandidateScore, **kw: Any) -> CandidateScore:
+    from dataclasses import replace
+
+    return replace(s, **kw)
+
+
+def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any]) -> Separation:
+    """The probe where the two fitted explanations' predictions differ most, in noise units."""
+    best = Separation(a.label, b.label, "", "", 0.0, "", 0.0)
+    ea = _ext_of([by_key[k][0] for k in a.keys], np.array(a.values), ps)
+    eb = _ext_of([by_key[k][0] for k in b.keys], np.array(b.values), ps)
+    for pr in probes:
+        o = pr.observations
+        pa, _ = model.predict(o, ea)
+        pb, _ = model.predict(o, eb)
+        for ch in o.channels:
+            d = np.abs(pa[ch] - pb[ch])
+            zn = d / o.noise[ch]
+            if np.isfinite(zn).any() and np.nanmax(zn) > best.noise_units:
+                i = int(np.nanargmax(zn))
+                best = Separation(a.label, b.label, pr.description, ch, float(d[i] * o.scale_out[ch]), o.units[ch], float(zn[i]))
+    return best

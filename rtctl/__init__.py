@@ -4,7 +4,13 @@ Light by contract: numpy, osqp, filterpy (and qpsolvers for cross-checks) only; 
 or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 
 * :mod:`rtctl.layout`: the named layout of the steady-state NLP (7.25), shared with the table builder;
-* :mod:`rtctl.messages`: measurements in, commands out.
+* :mod:`rtctl.messages`: measurements in, commands out;
+* :mod:`rtctl.table`: lookup tables (load, hash/schema check, interpolation at an operating point);
+* :mod:`rtctl.config`: the controller's TOML configuration (actuator limits, noise, gains, QP settings);
+* :mod:`rtctl.estimator`: EKF on heading, position, slip, crab angle and gyro bias (filterpy);
+* :mod:`rtctl.allocator`: the QP around the tabulated primitive (OSQP, set up once per table);
+* :mod:`rtctl.controller`: ``Controller(tables, config).step(measurements) -> (commands, diagnostics)``;
+* :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count.
 """
 
-__all__ = ["layout", "messages"]
+__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "controller", "runner"]

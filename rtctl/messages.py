@@ -17,10 +17,14 @@ from typing import Literal
 
 from .layout import WHEELS
 
-__all__ = ["WHEELS", "FAILURE_KINDS", "FailureDeclaration", "Pose", "Measurements", "Commands"]
+__all__ = ["WHEELS", "FAILURE_KINDS", "MODES", "FailureDeclaration", "Pose", "Measurements", "Commands", "Diagnostics"]
 
 FAILURE_KINDS: tuple[str, ...] = ("steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit")
 """Failure kinds a rover can declare (see :class:`FailureDeclaration`)."""
+MODES: tuple[str, ...] = ("qp", "fallback", "hold")
+"""What produced a tick's commands: the QP; the safe fallback (the interpolated primitive,
+rate-limited) after a failed, infeasible or refused QP; or the previous commands held because
+the measurement itself was rejected (duplicate, out of order, no valid time)."""
 
 
 @dataclass(frozen=True)
@@ -125,3 +129,68 @@ class Commands:
                 and all(math.isfinite(v) for v in vals)
                 and all(abs(v) <= max_rim_speed for v in self.rim_speed)
                 and all(abs(v) <= max_steer for v in self.steer_angle))
+
+
+@dataclass(frozen=True)
+class Diagnostics:
+    """What the controller did at one tick (recorded beside the commands).
+
+    Attributes
+    ----------
+    t, seq : float, int
+        Time stamp and sequence number of the measurement (as received; may be NaN if rejected).
+    mode : str
+        One of :data:`MODES`.
+    reason : str
+        Why the mode is not ``qp`` (empty otherwise).
+    table : str
+        Name of the table in use; ``table_status`` its interpolation status.
+    table_status : str
+        ``interpolated``, ``extrapolated``, ``nearest feasible grid point`` (see :mod:`rtctl.table`).
+    operating_point : tuple of (str, float)
+        Axis values the table was interpolated at (SI).
+    qp_status : str
+        Solver status text; ``qp_iterations`` ADMM iterations; ``qp_slack`` largest model-row slack.
+    qp_iterations : int
+        See ``qp_status``.
+    qp_slack : float
+        See ``qp_status``.
+    heading_error, crosstrack_error : float
+        Outer-loop errors, rad and m (positive: turn / move left).
+    mz_offset, fy_offset : float
+        Offsets of eqs. (7.26)-(7.27) given to the QP, N m and N (outer loop plus slip correction).
+    speed_factor : float
+        Operating-point shift of the table speed from the EKF's slip (1: none).
+    state : tuple of 6 float
+        EKF estimate (x, y, heading, slip, crab, gyro bias), :data:`rtctl.estimator.STATE`.
+    state_sigma : tuple of 6 float
+        Its 1-sigma uncertainties.
+    pose_verdict : str
+        What happened to a pose fix at this tick (``''`` if none came).
+    counters : tuple of (str, int)
+        Cumulative counts of rejected or down-weighted inputs and of fallbacks, sorted by name.
+    """
+
+    t: float
+    seq: int
+    mode: str
+    reason: str
+    table: str
+    table_status: str
+    operating_point: tuple[tuple[str, float], ...]
+    qp_status: str
+    qp_iterations: int
+    qp_slack: float
+    heading_error: float
+    crosstrack_error: float
+    mz_offset: float
+    fy_offset: float
+    speed_factor: float
+    state: tuple[float, ...]
+    state_sigma: tuple[float, ...]
+    pose_verdict: str
+    counters: tuple[tuple[str, int], ...]
+
+    def counter(self, name: str) -> int:
+        """A counter's value (0 if it never counted)."""
+        return dict(self.counters).get(name, 0)

@@ -15,6 +15,8 @@ envelope    Steepest feasible slope and the slope where slip crosses a limit.
 chapter7    Reproduce chapter 7 beside the dissertation's numbers.
 bekker      Fit Bekker's p = k z^n to static plate tests.
 soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
+tables      Build, inspect and verify lookup tables for the on-rover QP.
+drive       Closed-loop drive of the simulated rover (section 7.3), plots and MCAP recordings.
 """
 
 from __future__ import annotations
@@ -23,12 +25,12 @@ import argparse
 import sys
 from typing import Sequence
 
-from . import discrepancy, fit, physics, rover
+from . import discrepancy, fit, physics, rover, sim, tables
 from .common import DEFAULT_PARAMS
 
 __all__ = ["main", "build_parser", "DEFAULT_PARAMS"]
 
-COMMAND_MODULES = (fit, discrepancy, rover, physics)
+COMMAND_MODULES = (fit, discrepancy, rover, physics, tables, sim)
 """Modules whose ``register(sub)`` adds commands, in help order."""
 
 

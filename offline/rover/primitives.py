@@ -3,31 +3,38 @@
 For a rover, a soil and a :class:`~offline.rover.scenario.Scenario`, find the wheel speeds and
 steering angles (with each wheel's load and sinkage) that hold the rover in steady straight
 driving with the least actuator effort, ``min sum M_y^2`` (7.24), subject to the balance
-equations (7.12)-(7.18)/(7.23) (with the slope (7.32)-(7.33) and steering offsets
-(7.26)-(7.27)), the per-wheel load constraints (7.19)-(7.22), the failure constraints
-(7.30)-(7.31), locked/unpowered/raised/torque-limited wheels, and trenching goals
-(7.28)-(7.29).
+equations (7.12)-(7.18)/(7.23) (derived from the geometry, :mod:`offline.rover.statics`; with
+the slope (7.32)-(7.33), a cross slope and the steering offsets (7.26)-(7.27)), the per-wheel
+load constraints (7.19)-(7.22), the failure constraints (one object per kind,
+:mod:`offline.rover.failures`) and trenching goals (7.28)-(7.29).
 
 Design (the dissertation's section 7.2.7 lists what made its solver fragile)
 --------------------------------------------------------------------------
+* One named layout (:class:`rtctl.layout.NlpLayout`) of variables, parameters and constraint
+  rows with their scales: the NLP builder, the bounds, the independent check and the
+  evidence index by name, and the table files carry the same description.
 * Exact derivatives: the wheel physics is the casadi graph of
-  :func:`offline.physics.terramechanics.wrench_core` (Gauss-Legendre quadrature, no finite
-  differences), solved by IPOPT with the exact Hessian.
+  :func:`offline.physics.terramechanics.wrench_core`, solved by IPOPT with the exact Hessian.
 * No inner loops: per wheel the decision variables are ``omega, beta, W, h`` **and** the
-  zero-slip sinkage ``h0`` that fixes theta_m0 in skid, with its own load constraint
-  ``F_z(v, omega0 = v / r_s, h0, h0) = W``.
+  zero-slip sinkage ``h0`` that fixes theta_m0 in skid, with its own load constraint.
 * One NLP structure per (parameters, rover, exit angle, trench wheel): a scenario only
-  changes variable/constraint bounds and parameters (speed, slope, offsets, wheel contact),
-  so the solver is built once and warm-started across scenarios and table grids.
-* Scaled variables (typical values ``v / r_s``, 0.3 rad, ``W / 4``, ``r_s / 4``) and
-  constraints (forces by the rover weight, moments by weight times rocker length).
-* Automatic start: the nominal primitive from a symmetric guess, then the scenario reached
-  by continuation of its bounds from the nominal solution (what the dissertation did by
-  hand for the speed cap), adaptive step halving, and a few perturbed restarts. No
-  per-scenario hand tuning.
-* Infeasibility is reported with evidence: the furthest point of the continuation (the
-  closest achievable compromise: the lowest reachable speed cap, the steepest slope, ...)
-  and the constraint that could not be met.
+  changes bounds and parameters, so the solver is built once (:func:`get_problem`).
+* Deterministic budgets: every search is limited by IPOPT iterations per attempt, a number
+  of attempts and a total of iterations, never by seconds, so a scenario gets the same
+  verdict on an idle and on a loaded machine. An optional wall-clock limit
+  (``SolverOptions.time_limit``, off by default) is a reported safety net only.
+* Automatic start: the nominal primitive (starts on both sides of zero slip: driving and
+  skidding wheels), then the scenario by continuation of its bounds from the nominal
+  solution with adaptive step halving, jumps from where a continuation stalls (on both sides
+  of zero slip), the failure kinds' own start hints, the mirror-image scenario and seeded
+  perturbed restarts. An IPOPT run that stops at its iteration limit on a point that
+  satisfies the constraints is continued from there, never thrown away.
+* Verdicts with distinct meanings (:class:`PrimitiveResult`): ``optimal`` (IPOPT converged
+  and the independent check passed); ``infeasible`` (the search and a second, longer and
+  differently started confirmation search failed, and the evidence is consistent: the
+  furthest point reached is feasible for its intermediate problem and passes the
+  independent check); ``not_found`` (budget spent without a verdict); ``solver_failure``
+  (IPOPT converged on a point the independent check rejects, or could not evaluate).
 """
 
 from __future__ import annotations
@@ -41,17 +48,22 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from rtctl.layout import PARAMETERS, WHEEL_VARIABLES, NlpLayout
+
 from ..physics.backend import CASADI, NUMPY
 from ..physics.params import ParameterSet, Rover
-from .statics import BALANCE_NAMES, WHEELS, FourWheelRocker
-from .scenario import Scenario, WheelFailure
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
+from .failures import SolutionView, WheelBounds
+from .scenario import Scenario, WheelFailure
+from .statics import BALANCE_NAMES, WHEELS, FourWheelRocker, free_body_residuals
 
 __all__ = [
     "SolverOptions",
     "SteadyStateProblem",
     "WheelSolution",
     "PrimitiveResult",
+    "STATUSES",
+    "get_problem",
     "solve_primitive",
     "check_solution",
     "steering_controllers",
@@ -59,24 +71,21 @@ __all__ = [
     "envelope",
     "lowest_speed_cap",
     "mirror_scenario",
-    "DISSERTATION_CH7",
+    "mirror_x",
 ]
 
-DISSERTATION_CH7 = {
-    "nominal": "15 % slip on flat ground; feasible up to 24 deg; slip reaches 50 % at 12.5 deg",
-    "rr_speed_cap_half": "69 % average / 76 % maximum slip on flat ground; lowest reachable cap 1.5 cm/s",
-    "rr_steer_stuck_50": "40 % average slip on flat ground; slip reaches 50 % at 2.5 deg",
-    "rr_trench_clean": "a clean-sided trench 2.6 cm deep predicted (1.5 cm measured) with zeta = 1",
-}
-"""What the dissertation reports for the chapter-7 scenarios (section 7.3.4, Fig. 7.12)."""
+STATUSES = ("optimal", "infeasible", "not_found", "solver_failure")
+"""The four verdicts of :func:`solve_primitive` (module docstring)."""
 
-VARS = ("omega", "beta", "W", "h", "h0")
 BETA_LIMIT = math.radians(89.0)  # |beta| < 90 deg keeps v_x > 0 (travel direction well defined)
+_IPOPT_OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+_IPOPT_ERROR = ("Invalid_Number_Detected", "Error_In_Step_Computation", "Internal_Error", "Insufficient_Memory",
+                "NonIpopt_Exception_Thrown", "Unrecoverable_Exception", "Invalid_Problem_Definition", "Invalid_Option")
 
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Solver settings (not scenario data).
+    """Solver settings (not scenario data). Every budget counts iterations or attempts.
 
     Parameters
     ----------
@@ -84,6 +93,24 @@ class SolverOptions:
         IPOPT tolerance on the scaled problem.
     max_iter : int
         IPOPT iterations per attempt.
+    max_attempts : int
+        IPOPT runs of the main search (nominal primitive included).
+    max_iterations : int
+        IPOPT iterations of the main search, all attempts together.
+    continue_rounds : int
+        An attempt that stops at ``max_iter`` on a feasible point is continued from that point
+        up to this many more times.
+    confirm : bool
+        Run the confirmation search before declaring a scenario infeasible (otherwise the
+        verdict without a solution is ``not_found``).
+    confirm_starts, confirm_rounds : int
+        Seeded starts of the confirmation search, and IPOPT runs chained per start (each
+        continuing from where the last stopped: ``confirm_rounds * max_iter`` iterations).
+    seed : int
+        Seed of every perturbed start.
+    time_limit : float or None
+        Wall-clock safety net in seconds (off by default). When it stops a search the result
+        says so in ``stats["time_limit_hit"]`` and the status is ``not_found``.
     max_rim_speed_factor : float
         Motor limit: rim speed at most this times the travel speed (bound 7.2).
     continuation : tuple of int
@@ -97,27 +124,40 @@ class SolverOptions:
     check_rtol : float
         Tolerance of the independent numeric check, relative to the rover weight (forces)
         and weight times rocker length (moments).
-    time_budget : float
-        Seconds after which no further attempt (continuation step, restart) is started; the
-        result then reports what was reached.
+    feasibility_tol : float
+        Largest scaled constraint violation of a point called feasible.
+    hessian : str
+        IPOPT ``hessian_approximation`` (``"exact"`` or ``"limited-memory"``).
     """
 
     tol: float = 1e-9
     max_iter: int = 150
-    time_budget: float = 6.5
+    max_attempts: int = 40
+    max_iterations: int = 3000
+    continue_rounds: int = 2
+    confirm: bool = True
+    confirm_starts: int = 4
+    confirm_rounds: int = 3
+    seed: int = 0
+    time_limit: float | None = None
     max_rim_speed_factor: float = 12.0
     continuation: tuple[int, ...] = (4, 12)
     restarts: int = 3
     pitch_includes_wheel_torque: bool = True
     shear_direction_smoothing: float = 1e-6
     check_rtol: float = 1e-6
+    feasibility_tol: float = 1e-7
     hessian: str = "exact"
 
 
 @functools.lru_cache(maxsize=16)
-def _problem(params: ParameterSet, rover: Rover, exit_angle: str, trench_wheel: str | None,
-             options: SolverOptions) -> "SteadyStateProblem":
-    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options)
+def get_problem(params: ParameterSet, rover: Rover, exit_angle: str = "classic", trench_wheel: str | None = None,
+                options: SolverOptions | None = None) -> "SteadyStateProblem":
+    """The (cached) NLP of one parameter set, rover, exit-angle model and trench wheel."""
+    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions())
+
+
+_problem = get_problem  # former private name
 
 
 class SteadyStateProblem:
@@ -125,12 +165,23 @@ class SteadyStateProblem:
 
     Built once (graph and IPOPT instance); :meth:`solve` takes a scenario's bounds and
     parameters and a start point. Use :func:`solve_primitive` for the automatic strategy.
+
+    Attributes
+    ----------
+    layout : rtctl.layout.NlpLayout
+        Names, slices and scales of variables, parameters (in :data:`rtctl.layout.PARAMETERS`
+        order) and constraint rows.
+    symbols : dict
+        casadi SX ``"x"`` (scaled variables, ``x_phys = x * layout.variable_scale``), ``"p"``
+        (physical parameters), ``"f"`` (objective), ``"g"`` (rows = physical residual /
+        ``layout.constraint_scale``).
     """
 
-    def __init__(self, params: ParameterSet, rover: Rover, exit_angle: str = "soil_flow",
+    def __init__(self, params: ParameterSet, rover: Rover, exit_angle: str = "classic",
                  trench_wheel: str | None = None, options: SolverOptions | None = None) -> None:
         import casadi as ca
 
+        t0 = time.perf_counter()
         self.params, self.rover, self.exit_angle, self.trench_wheel = params, rover, exit_angle, trench_wheel
         self.options = options or SolverOptions()
         self.model_options = ModelOptions(exit_angle=exit_angle,  # type: ignore[arg-type]
@@ -140,100 +191,107 @@ class SteadyStateProblem:
         wheel = params.wheel
         self.rs = wheel.shearing_radius
         W = rover.weight
-        v_typ = rover.travel_speed
-        self.xscale = np.tile([v_typ / self.rs, 0.3, W / 4, self.rs / 4, self.rs / 4], len(WHEELS))
+        self.torque_scale = W / 4 * self.rs
+        self.layout = NlpLayout.build(
+            {"omega": rover.travel_speed / self.rs, "beta": 0.3, "W": W / 4, "h": self.rs / 4, "h0": self.rs / 4},
+            {"force": W, "moment": W * rover.rocker_length, "load": W / 4, "torque": self.torque_scale,
+             "trench_area": 1e-4, "trench_length": 1e-2},
+            trench_wheel=trench_wheel, wheels=WHEELS)
+        L = self.layout
+        assert tuple(L.parameter_names) == PARAMETERS  # noqa: S101  (internal consistency, not input)
+        self.xscale = L.variable_scale
+        self.gscale = L.constraint_scale
+        self.ng = L.ng
         phys = PhysParams.from_sets(params.soil, wheel, params.tuning)
-        xs = ca.SX.sym("x", 5 * len(WHEELS))
-        p = ca.SX.sym("p", 5 + len(WHEELS))  # speed, slope, fy_offset, mz_offset, contact per wheel, pivot lock
+        xs = ca.SX.sym("x", L.nx)
+        p = ca.SX.sym("p", L.np_)
         x = xs * ca.DM(self.xscale)
-        speed, slope, fyo, mzo = p[0], p[1], p[2], p[3]
-        wr, beta, h, load = {}, {}, {}, {}
-        g_load, g_load0, g_torque, my_all = [], [], [], []
-        trench_g: list[Any] = []
-        for i, k in enumerate(WHEELS):
-            om, b, Wi, hi, h0 = (x[5 * i + j] for j in range(5))
-            c = p[4 + i]
+        P = {n: p[L.index(n)] for n in L.parameter_names}
+        speed = P["speed"]
+        rows: dict[str, Any] = {}
+        wr, beta, h, load, contact = {}, {}, {}, {}, {}
+        f = 0
+        for k in WHEELS:
+            om, b, Wi, hi, h0 = (x[L.var(v, k)] for v in WHEEL_VARIABLES)
+            c = P[f"contact {k}"]
             vx, vy = self.statics.wheel_velocity(CASADI, speed, b)
             w6, _ = wrench_core(CASADI, vx, vy, om, hi, h0, phys, self.model_options)
             w6 = tuple(c * q for q in w6)
             w0, _ = wrench_core(CASADI, vx, vy, speed / self.rs, h0, h0, phys, self.model_options)
-            wr[k], beta[k], h[k], load[k] = w6, b, hi, Wi
-            g_load.append((w6[2] - Wi) / (W / 4))
-            g_load0.append(c * (w0[2] - Wi) / (W / 4))
-            g_torque.append(w6[4])
-            my_all.append(w6[4])
+            wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
+            rows[f"load {k}"] = w6[2] - Wi
+            rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
+            rows[f"wheel torque {k}"] = w6[4]
+            f = f + w6[4] * w6[4]
             if k == trench_wheel:
                 from ..physics.soil_flow import trench_quantities
 
                 tq = trench_quantities(CASADI, hi, b, om, vx, _WheelView(phys), _SoilView(phys))
-                trench_g = [tq["A_R2_margin"] * 1e4, tq["d"] * 1e2, tq["p"] * 1e2]
-        bal = self.statics.balance(CASADI, wr, beta, h, load, slope, fyo, mzo)
-        bal["My_right"], bal["My_left"] = self.statics.pivot_balance(bal, p[4 + len(WHEELS)])
-        bal_scaled = [bal[n] / (W if n in ("Fx", "Fy", "Fz") else W * rover.rocker_length) for n in BALANCE_NAMES]
-        g = ca.vertcat(*bal_scaled, *g_load, *g_load0, *g_torque, *trench_g)
-        f = sum(m * m for m in my_all) / ((W / 4 * self.rs) ** 2)
-        self.g_names = ([f"balance {n}" for n in ("Fx", "Fy", "Fz", "Mx", "My (both rockers)", "My (right rocker)", "Mz")] + [f"load {k}" for k in WHEELS]
-                        + [f"zero-slip load {k}" for k in WHEELS] + [f"wheel torque {k}" for k in WHEELS]
-                        + ([f"trench clean-side pile {trench_wheel}", f"trench depth {trench_wheel}",
-                            f"trench flat width {trench_wheel}"] if trench_wheel else []))
-        self.ng = int(g.shape[0])
-        nlp = {"x": xs, "p": p, "f": f, "g": g}
-        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": self.options.tol,
-              "ipopt.max_iter": self.options.max_iter, "ipopt.mu_strategy": "adaptive",
-              "ipopt.hessian_approximation": self.options.hessian, "ipopt.constr_viol_tol": 1e-9}
-        t0 = time.perf_counter()
-        self.solver = ca.nlpsol("primitive", "ipopt", nlp, io)
+                rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
+                rows[f"trench depth {k}"] = tq["d"]
+                rows[f"trench flat width {k}"] = tq["p"]
+        bal = self.statics.balance(CASADI, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"],
+                                   P["cross_slope"], contact)
+        bal["My_right"], bal["My_left"] = self.statics.pivot_rows(bal, P["pivot_locked"])
+        for n in BALANCE_NAMES:
+            rows[f"balance {n}"] = bal[n]
+        g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
+        f = f / self.torque_scale ** 2
+        self.symbols = {"x": xs, "p": p, "f": f, "g": g}
+        self.g_names = L.constraint_names
+        self._nlp = {"x": xs, "p": p, "f": f, "g": g}
+        self.solver = ca.nlpsol("primitive", "ipopt", self._nlp, self._ipopt_options(warm=False))
+        self._warm_solver: Any = None
         self.eval_g = ca.Function("eval_g", [xs, p], [g, f])
         self.build_seconds = time.perf_counter() - t0
 
+    def _ipopt_options(self, warm: bool) -> dict[str, Any]:
+        o = self.options
+        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol, "ipopt.max_iter": o.max_iter,
+              "ipopt.mu_strategy": "adaptive", "ipopt.hessian_approximation": o.hessian, "ipopt.constr_viol_tol": 1e-9}
+        if warm:
+            io.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+                       "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-6})
+        return io
+
     # ------------------------------------------------------------------ bounds
+    def wheel_bounds(self, sc: Scenario, wheel: str) -> WheelBounds:
+        """Physical bounds of one wheel: the general bounds (7.2)-(7.5), then every failure kind."""
+        w = self.params.wheel
+        hmin, hmax = w.grouser_height, 1.5 * w.radius + w.grouser_height
+        wb = WheelBounds(lo={"omega": 0.0, "beta": -BETA_LIMIT, "W": 0.0, "h": hmin, "h0": hmin},
+                         hi={"omega": self.options.max_rim_speed_factor * sc.speed / self.rs, "beta": BETA_LIMIT,
+                             "W": self.rover.weight / 2, "h": hmax, "h0": hmax},
+                         rim_radius=self.rs, speed=sc.speed)
+        for kind in sc.failure(wheel).kinds():
+            kind.apply(wb)
+        return wb
+
     def bounds(self, sc: Scenario) -> dict[str, NDArray[np.float64]]:
-        """Variable and constraint bounds and parameters of a scenario (scaled variables)."""
-        wheel = self.params.wheel
-        W = self.rover.weight
-        hmin, hmax = wheel.grouser_height, 1.5 * wheel.radius + wheel.grouser_height
-        wmax = self.options.max_rim_speed_factor * sc.speed / self.rs
-        lbx, ubx = np.zeros(5 * len(WHEELS)), np.zeros(5 * len(WHEELS))
-        lbg, ubg = np.zeros(self.ng), np.zeros(self.ng)
-        contact = np.ones(len(WHEELS))
-        t0 = 7 + 2 * len(WHEELS)
-        for i, k in enumerate(WHEELS):
-            f = sc.failure(k)
-            om_hi = min(wmax, f.rim_speed_max / self.rs) if math.isfinite(f.rim_speed_max) else wmax
-            if f.locked:
-                om_hi = 0.0
-            b_lo, b_hi = max(f.steer_min, -BETA_LIMIT), min(f.steer_max, BETA_LIMIT)
-            if f.steer_stuck is not None:
-                b_lo = b_hi = max(min(f.steer_stuck, BETA_LIMIT), -BETA_LIMIT)
-            lo = [0.0, b_lo, 0.0, hmin, hmin]
-            hi = [om_hi, b_hi, W / 2 * 1.0, hmax, hmax]
-            if f.raised:
-                contact[i] = 0.0
-                lo = [sc.speed / self.rs, 0.0, 0.0, 2 * hmin, 2 * hmin]
-                hi = list(lo)
-            lbx[5 * i:5 * i + 5], ubx[5 * i:5 * i + 5] = lo, hi
-            tq = math.inf
-            if f.unpowered:
-                tq = 0.0
-            elif math.isfinite(f.torque_limit):
-                tq = f.torque_limit
-            lbg[t0 + i], ubg[t0 + i] = -tq, tq
-        if self.trench_wheel:
-            j = t0 + len(WHEELS)
-            tr = sc.trench
-            lbg[j:j + 3], ubg[j:j + 3] = -math.inf, math.inf  # no trench goal: quantities are free
-            if tr is not None:
-                if tr.clean_side:
-                    ubg[j] = 0.0
-                if tr.target_depth is not None:
-                    lbg[j + 1] = ubg[j + 1] = tr.target_depth * 1e2
-                elif tr.min_depth > 0:
-                    lbg[j + 1] = tr.min_depth * 1e2
-                if tr.min_flat_width > 0:
-                    lbg[j + 2] = tr.min_flat_width * 1e2
+        """Variable (scaled) and constraint (scaled) bounds and parameters (physical) of a scenario."""
+        L = self.layout
+        lbx, ubx = np.zeros(L.nx), np.zeros(L.nx)
+        lbg, ubg = np.zeros(L.ng), np.zeros(L.ng)
+        par = {"speed": sc.speed, "slope": sc.slope, "cross_slope": sc.cross_slope, "fy_offset": sc.fy_offset,
+               "mz_offset": sc.mz_offset}
+        for k in WHEELS:
+            wb = self.wheel_bounds(sc, k)
+            for v in WHEEL_VARIABLES:
+                lbx[L.var(v, k)], ubx[L.var(v, k)] = wb.lo[v], wb.hi[v]
+            j = L.index(f"wheel torque {k}")
+            lbg[j], ubg[j] = wb.torque
+            par[f"contact {k}"] = wb.contact
         # a raised wheel means a stuck suspension: the pivot transmits the pitch moment
-        p = np.array([sc.speed, sc.slope, sc.fy_offset, sc.mz_offset, *contact, float(np.any(contact == 0))])
-        return {"lbx": lbx / self.xscale, "ubx": ubx / self.xscale, "lbg": lbg, "ubg": ubg, "p": p}
+        par["pivot_locked"] = float(any(par[f"contact {k}"] == 0.0 for k in WHEELS))
+        if self.trench_wheel:
+            for row, (lo, hi) in (sc.trench.row_bounds() if sc.trench is not None else {
+                    "clean-side pile": (-math.inf, math.inf), "depth": (-math.inf, math.inf),
+                    "flat width": (-math.inf, math.inf)}).items():
+                j = L.index(f"trench {row} {self.trench_wheel}")
+                lbg[j], ubg[j] = lo, hi
+        p = np.array([par[n] for n in L.parameter_names])
+        return {"lbx": lbx / self.xscale, "ubx": ubx / self.xscale, "lbg": lbg / self.gscale, "ubg": ubg / self.gscale,
+                "p": p}
 
     def guess(self, sc: Scenario, omega: Sequence[float], beta: Sequence[float], load: Sequence[float]) -> NDArray[np.float64]:
         """A start point from wheel speeds, angles and loads, with every sinkage (and
@@ -243,28 +301,67 @@ class SteadyStateProblem:
         sol = self.model.sinkage_from_load(np.maximum(W, 1e-3), vx, vy, om)
         h = np.where(sol.converged, sol.h, self.rs / 4)
         h0 = np.where(sol.converged, sol.h_zero_slip, h)
-        return np.stack([om, b, W, h, h0], axis=1).ravel() / self.xscale
+        x = np.zeros(self.layout.nx)
+        for i, k in enumerate(WHEELS):
+            for v, val in zip(WHEEL_VARIABLES, (om[i], b[i], W[i], h[i], h0[i])):
+                x[self.layout.var(v, k)] = val
+        return x / self.xscale
 
     def nominal_guess(self, sc: Scenario, slip: float = 0.08) -> NDArray[np.float64]:
-        """Symmetric start: straight wheels at a small slip, equal loads, sinkage from load."""
+        """Symmetric start: straight wheels at a slip (negative: skid), equal loads, sinkage from load."""
         n = len(WHEELS)
-        load = self.rover.weight * math.cos(sc.slope) / n
-        om = sc.speed / (self.rs * (1 - slip))
+        load = self.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
+        om = sc.speed / (self.rs * (1 - slip)) if slip >= 0 else sc.speed * (1 + slip) / self.rs
         return self.guess(sc, [om] * n, [0.0] * n, [load] * n)
 
+    def physical(self, x: NDArray[np.float64]) -> dict[str, dict[str, float]]:
+        """Physical variables by wheel: ``{wheel: {omega, beta, W, h, h0}}``."""
+        xp = np.asarray(x, dtype=float) * self.xscale
+        return {k: {v: float(xp[self.layout.var(v, k)]) for v in WHEEL_VARIABLES} for k in WHEELS}
+
+    def violation(self, b: dict[str, NDArray[np.float64]], x: NDArray[np.float64], g: NDArray[np.float64]) -> float:
+        """Largest scaled violation of the bounds ``b`` by the point ``x`` with rows ``g``."""
+        v = np.concatenate([np.maximum(b["lbg"] - g, 0), np.maximum(g - b["ubg"], 0),
+                            np.maximum(b["lbx"] - x, 0), np.maximum(x - b["ubx"], 0)])
+        return float(np.max(v)) if v.size and np.isfinite(v).all() else math.inf
+
     # ------------------------------------------------------------------ solve
-    def solve(self, b: dict[str, NDArray[np.float64]], x0: NDArray[np.float64]) -> dict[str, Any]:
-        """One IPOPT run; returns x (scaled), g, f, status, iterations, seconds, feasible flag."""
-        t = time.perf_counter()
-        x0 = np.clip(x0, b["lbx"], b["ubx"])
-        r = self.solver(x0=x0, p=b["p"], lbx=b["lbx"], ubx=b["ubx"], lbg=b["lbg"], ubg=b["ubg"])
-        st = self.solver.stats()
-        x = np.asarray(r["x"]).ravel()
-        g = np.asarray(r["g"]).ravel()
-        viol = np.maximum(b["lbg"] - g, 0) + np.maximum(g - b["ubg"], 0)
-        ok = bool(st["success"]) or (st["return_status"] in ("Solved_To_Acceptable_Level",) and viol.max() < 1e-6)
-        return {"x": x, "g": g, "f": float(r["f"]), "status": st["return_status"], "iterations": int(st["iter_count"]),
-                "seconds": time.perf_counter() - t, "success": ok and np.isfinite(x).all(), "violation": viol}
+    def solve(self, b: dict[str, NDArray[np.float64]], x0: NDArray[np.float64], lam_x0: NDArray[np.float64] | None = None,
+              lam_g0: NDArray[np.float64] | None = None) -> dict[str, Any]:
+        """One IPOPT run from ``x0`` (scaled; clipped into the bounds).
+
+        With multipliers ``lam_x0``, ``lam_g0`` (from a previous result) IPOPT is warm-started
+        (``warm_start_init_point``). Returns ``x`` (scaled), ``g`` (scaled rows), ``f``,
+        ``lam_x``, ``lam_g`` (IPOPT multipliers), ``status`` (IPOPT return status),
+        ``iterations``, ``success`` (converged and within ``feasibility_tol``), ``feasible``
+        (the end point satisfies the constraints) and ``violation``.
+        """
+        import casadi as ca
+
+        x0 = np.clip(np.asarray(x0, dtype=float), b["lbx"], b["ubx"])
+        args = {"x0": x0, "p": b["p"], "lbx": b["lbx"], "ubx": b["ubx"], "lbg": b["lbg"], "ubg": b["ubg"]}
+        solver = self.solver
+        if lam_x0 is not None or lam_g0 is not None:
+            if self._warm_solver is None:
+                self._warm_solver = ca.nlpsol("primitive_warm", "ipopt", self._nlp, self._ipopt_options(warm=True))
+            solver = self._warm_solver
+            args["lam_x0"] = np.zeros(self.layout.nx) if lam_x0 is None else lam_x0
+            args["lam_g0"] = np.zeros(self.layout.ng) if lam_g0 is None else lam_g0
+        try:
+            r = solver(**args)
+            st = solver.stats()
+            status, iters = str(st["return_status"]), int(st["iter_count"])
+            x, g = np.asarray(r["x"]).ravel(), np.asarray(r["g"]).ravel()
+            lam_x, lam_g, fv = np.asarray(r["lam_x"]).ravel(), np.asarray(r["lam_g"]).ravel(), float(r["f"])
+        except RuntimeError as exc:  # casadi raises when IPOPT cannot even start (e.g. NaN at x0)
+            status, iters = f"exception: {exc}".splitlines()[0][:120], 0
+            x, g = x0.copy(), np.full(self.layout.ng, np.nan)
+            lam_x, lam_g, fv = np.zeros(self.layout.nx), np.zeros(self.layout.ng), math.nan
+        finite = bool(np.isfinite(x).all() and np.isfinite(g).all())
+        viol = self.violation(b, x, g) if finite else math.inf
+        feasible = finite and viol <= self.options.feasibility_tol
+        return {"x": x, "g": g, "f": fv, "lam_x": lam_x, "lam_g": lam_g, "status": status, "iterations": iters,
+                "success": status in _IPOPT_OK and feasible, "feasible": feasible, "violation": viol}
 
 
 # ---------------------------------------------------------------------- results
@@ -293,21 +390,28 @@ class PrimitiveResult:
     Attributes
     ----------
     status : str
-        ``"optimal"``, ``"infeasible"`` (with evidence) or ``"failed"`` (solver trouble).
+        One of :data:`STATUSES`: ``"optimal"``, ``"infeasible"`` (evidence consistent and
+        checked, confirmed by a second search), ``"not_found"`` (budget spent without a
+        verdict) or ``"solver_failure"``.
     wheels : dict
-        :class:`WheelSolution` per wheel (the best point found when not optimal).
+        :class:`WheelSolution` per wheel (the furthest point reached when not optimal).
     power : float
         Mechanical drive power ``sum(T_i omega_i)`` with ``T = -M_y`` the motor torque, W.
     residuals : dict
         Independent numeric check: every balance and wheel constraint evaluated with the
-        numpy model (not casadi), in N or N m.
+        numpy model and the free-body balance (not casadi), in N, N m, m/s or m.
     check_passed : bool
     trench : TrenchProfile or None
     evidence : dict
-        For infeasible scenarios: the constraint that could not be met, the continuation
-        fraction reached and the closest achievable compromise.
+        When not optimal: the constraint that could not be met, the continuation fraction
+        reached, the furthest feasible point (and whether it passed the check) and what it
+        shows per failure kind.
     stats : dict
-        Solver statistics: attempts, iterations, seconds, IPOPT status.
+        ``attempts`` (list of text), ``iterations``, ``n_attempts``, ``seconds``,
+        ``build_seconds``, ``time_limit_hit``; ``lam_x``, ``lam_g`` (IPOPT multipliers, scaled
+        problem) when optimal.
+    x : ndarray
+        Scaled decision variables (``x * layout.variable_scale`` is physical).
     """
 
     scenario: Scenario
@@ -324,6 +428,7 @@ class PrimitiveResult:
 
     @property
     def ok(self) -> bool:
+        """True for an optimal, checked primitive."""
         return self.status == "optimal"
 
     def mean_slip(self, exclude_failed: bool = True) -> float:
@@ -332,6 +437,7 @@ class PrimitiveResult:
         return float(np.mean(s)) if s else math.nan
 
     def max_slip(self) -> float:
+        """Largest slip of the wheels on the ground."""
         return float(max(w.slip for w in self.wheels.values() if not w.failure.raised))
 
     def table(self) -> str:
@@ -348,11 +454,11 @@ class PrimitiveResult:
 
 
 def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64]) -> tuple[dict[str, WheelSolution], float]:
-    xs = x * pb.xscale
+    xs = pb.physical(x)
     out: dict[str, WheelSolution] = {}
     power = 0.0
-    for i, k in enumerate(WHEELS):
-        om, b, Wi, hi, h0 = xs[5 * i:5 * i + 5]
+    for k in WHEELS:
+        om, b, Wi, hi, h0 = (xs[k][v] for v in WHEEL_VARIABLES)
         f = sc.failure(k)
         if f.raised:
             zero = (0.0,) * 6
@@ -360,73 +466,105 @@ def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64
             continue
         vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, b)
         w = pb.model.wrench(vx, vy, om, hi, h0)
-        wrench = tuple(float(q) for q in w.as_array())
+        wrench = tuple(float(np.asarray(q).ravel()[0]) for q in w.as_array())
         torque = -wrench[4]
         power += torque * om
         out[k] = WheelSolution(k, float(om), float(om * pb.rs), float(b), float(Wi), float(hi), float(h0),
-                               float(w.slip), float(w.beta), torque, wrench, f)
+                               float(np.asarray(w.slip).ravel()[0]), float(np.asarray(w.beta).ravel()[0]), torque, wrench, f)
     return out, power
 
 
-def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64]) -> tuple[dict[str, float], bool]:
-    """Re-evaluate a solution with the numeric (numpy) model and the rover statics.
-
-    Returns every residual in physical units and whether all are within
-    ``options.check_rtol`` (relative to the weight, or weight times rocker length).
-    """
-    xs = x * pb.xscale
-    W, lr = pb.rover.weight, pb.rover.rocker_length
-    wr, beta, h, load = {}, {}, {}, {}
-    res: dict[str, float] = {}
-    tol: dict[str, float] = {}
-    for i, k in enumerate(WHEELS):
-        om, b, Wi, hi, h0 = (float(v) for v in xs[5 * i:5 * i + 5])
-        f = sc.failure(k)
-        vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, b)
-        if f.raised:
-            wr[k] = (0.0,) * 6
+def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np.float64]) -> dict[str, Any]:
+    """Independent numeric evaluation of a point: wheel wrenches (numpy model), zero-slip
+    loads and the free-body balance (:func:`offline.rover.statics.free_body_residuals`)."""
+    L = pb.layout
+    P = {n: float(p[L.index(n)]) for n in L.parameter_names}
+    xs = pb.physical(x)
+    wr, beta, h, load, contact, fz0 = {}, {}, {}, {}, {}, {}
+    for k in WHEELS:
+        om, b, Wi, hi, h0 = (xs[k][v] for v in WHEEL_VARIABLES)
+        contact[k] = P[f"contact {k}"]
+        vx, vy = pb.statics.wheel_velocity(NUMPY, P["speed"], b)
+        if contact[k] == 0.0:
+            wr[k], fz0[k] = (0.0,) * 6, Wi
         else:
             w = pb.model.wrench(vx, vy, om, hi, h0)
-            wr[k] = tuple(float(q) for q in w.as_array())
-            w0 = pb.model.wrench(vx, vy, sc.speed / pb.rs, h0, h0)
-            res[f"load {k}"] = wr[k][2] - Wi
-            res[f"zero-slip load {k}"] = float(w0.Fz) - Wi
-            tol[f"load {k}"] = tol[f"zero-slip load {k}"] = W
-            if f.unpowered or math.isfinite(f.torque_limit):
-                lim = 0.0 if f.unpowered else f.torque_limit
-                res[f"torque {k}"] = max(abs(wr[k][4]) - lim, 0.0)
-                tol[f"torque {k}"] = W * lr
-            if math.isfinite(f.rim_speed_max) or f.locked:
-                cap = 0.0 if f.locked else f.rim_speed_max
-                res[f"rim speed {k}"] = max(om * pb.rs - cap, 0.0)
-                tol[f"rim speed {k}"] = sc.speed
-            if f.steer_stuck is not None:
-                res[f"steer {k}"] = b - f.steer_stuck
-                tol[f"steer {k}"] = 1.0
+            wr[k] = tuple(float(np.asarray(q).ravel()[0]) * contact[k] for q in w.as_array())
+            fz0[k] = float(np.asarray(pb.model.wrench(vx, vy, P["speed"] / pb.rs, h0, h0).Fz).ravel()[0])
         beta[k], h[k], load[k] = b, hi, Wi
+    bal = free_body_residuals(pb.rover, wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"], P["mz_offset"],
+                              contact, pb.options.pitch_includes_wheel_torque)
+    if P["pivot_locked"]:
+        bal["My_right"], bal["My_left"] = bal["My_right"] + bal["My_left"], 0.0
+    return {"wrench": wr, "fz0": fz0, "balance": bal, "phys": xs, "P": P}
+
+
+def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64]) -> tuple[dict[str, float], bool]:
+    """Re-evaluate a solution independently: numpy wheel model, free-body balance (3-D
+    positions, rotation matrices; :func:`offline.rover.statics.free_body_residuals`) and
+    each failure kind's and the trench goal's own check.
+
+    Returns every residual in physical units and whether all are within
+    ``options.check_rtol`` (relative to the weight, or weight times rocker length; speeds to
+    the travel speed; trench dimensions to 0.5 mm absolute).
+    """
+    W, lr = pb.rover.weight, pb.rover.rocker_length
+    b = pb.bounds(sc)
+    num = _numeric_point(pb, x, b["p"])
+    res: dict[str, float] = {}
+    tol: dict[str, float] = {}
+    rtol = pb.options.check_rtol
+    for k in WHEELS:
+        ph = num["phys"][k]
+        if num["P"][f"contact {k}"] != 0.0:
+            res[f"load {k}"] = num["wrench"][k][2] - ph["W"]
+            res[f"zero-slip load {k}"] = num["fz0"][k] - ph["W"]
+            tol[f"load {k}"] = tol[f"zero-slip load {k}"] = rtol * W
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
+        for kind in sc.failure(k).kinds():
+            for name, (val, scale) in kind.check(view).items():
+                key = f"{name} {k}"
+                if not math.isfinite(scale):
+                    scale = W * lr if "torque" in name else W
+                res[key], tol[key] = float(val), rtol * scale
     if sc.trench is not None:
         from ..physics.soil_flow import trench_profile
 
-        i = WHEELS.index(sc.trench.wheel)
-        om, b, _, hi, _ = (float(v) for v in xs[5 * i:5 * i + 5])
-        tp = trench_profile(hi, b, om, sc.speed * math.cos(b), pb.params.wheel, pb.params.soil)
-        dim_tol = 5e-4 / pb.options.check_rtol  # trench dimensions to 0.5 mm (section 7.2.7 used 1 mm)
-        if sc.trench.clean_side:
-            res["trench rim-side pile height"] = tp.h_R2
-            tol["trench rim-side pile height"] = dim_tol
-        if sc.trench.target_depth is not None:
-            res["trench depth"] = tp.d - sc.trench.target_depth
-        else:
-            res["trench depth"] = max(sc.trench.min_depth - tp.d, 0.0)
-        tol["trench depth"] = dim_tol
-    bal = pb.statics.balance(NUMPY, wr, beta, h, load, sc.slope, sc.fy_offset, sc.mz_offset)
-    locked = float(any(sc.failure(k).raised for k in WHEELS))
-    bal["My_right"], bal["My_left"] = pb.statics.pivot_balance(bal, locked)
+        ph = num["phys"][sc.trench.wheel]
+        tp = trench_profile(ph["h"], ph["beta"], ph["omega"], sc.speed * math.cos(ph["beta"]), pb.params.wheel, pb.params.soil)
+        for name, (val, t) in sc.trench.check(tp).items():
+            res[name], tol[name] = float(val), t
     for n in BALANCE_NAMES:
-        res[f"balance {n}"] = float(bal[n])
-        tol[f"balance {n}"] = W if n in ("Fx", "Fy", "Fz") else W * lr
-    ok = all(abs(res[k]) <= pb.options.check_rtol * tol[k] for k in res)
+        res[f"balance {n}"] = float(num["balance"][n])
+        tol[f"balance {n}"] = rtol * (W if n in ("Fx", "Fy", "Fz") else W * lr)
+    ok = all(math.isfinite(res[k]) and abs(res[k]) <= tol[k] for k in res)
     return res, ok
+
+
+def _point_check(pb: SteadyStateProblem, x: NDArray[np.float64], b: dict[str, NDArray[np.float64]]) -> tuple[bool, float]:
+    """Is ``x`` feasible for the (intermediate) problem ``b``, by the independent numeric
+    evaluation? Balance rows and loads to ``check_rtol``; bounds and the torque and trench
+    rows (casadi) to ``feasibility_tol``. Returns (passed, largest relative residual)."""
+    W, lr = pb.rover.weight, pb.rover.rocker_length
+    num = _numeric_point(pb, x, b["p"])
+    worst = 0.0
+    for n, v in num["balance"].items():
+        worst = max(worst, abs(v) / (W if n.startswith("F") else W * lr))
+    for k in WHEELS:
+        if num["P"][f"contact {k}"] != 0.0:
+            worst = max(worst, abs(num["wrench"][k][2] - num["phys"][k]["W"]) / W,
+                        abs(num["fz0"][k] - num["phys"][k]["W"]) / W)
+        j = pb.layout.index(f"wheel torque {k}")
+        t = num["wrench"][k][4] / pb.gscale[j]
+        if not b["lbg"][j] - pb.options.feasibility_tol <= t <= b["ubg"][j] + pb.options.feasibility_tol:
+            return False, worst
+    g, _ = pb.eval_g(x, b["p"])
+    g = np.asarray(g).ravel()
+    for j in pb.layout.rows("trench"):
+        if not b["lbg"][j] - pb.options.feasibility_tol <= g[j] <= b["ubg"][j] + pb.options.feasibility_tol:
+            return False, worst
+    inside = bool(np.all(x >= b["lbx"] - 1e-12) and np.all(x <= b["ubx"] + 1e-12))
+    return inside and worst <= pb.options.check_rtol, worst
 
 
 def _interpolate(b0: dict[str, NDArray[np.float64]], b1: dict[str, NDArray[np.float64]], x0: NDArray[np.float64],
@@ -435,7 +573,7 @@ def _interpolate(b0: dict[str, NDArray[np.float64]], b1: dict[str, NDArray[np.fl
 
     A target bound that the nominal solution already satisfies applies at once; one that it
     violates moves linearly from the nominal value (so the start is always feasible for
-    the bounds); parameters (speed, slope, offsets, wheel contact) move linearly.
+    the bounds); parameters (speed, slope, cross slope, offsets, wheel contact) move linearly.
     """
     def lo(start_val: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
         fin = np.isfinite(target)
@@ -455,176 +593,152 @@ def _nominal_of(sc: Scenario) -> Scenario:
     return replace(sc, failures={}, trench=None, name=f"{sc.name} (nominal)")
 
 
-@functools.lru_cache(maxsize=64)
-def _nominal_solution(pb: SteadyStateProblem, speed: float, slope: float, fyo: float, mzo: float) -> tuple[Any, ...]:
-    sc = Scenario("nominal", pb.params, pb.rover, pb.exit_angle, speed, 0.0, 0.0, 0.0)
-    b = pb.bounds(sc)
-    best = None
-    for slip in (0.08, 0.2, 0.02):
-        r = pb.solve(b, pb.nominal_guess(sc, slip))
+def _flat_of(sc: Scenario) -> Scenario:
+    return replace(sc, failures={}, trench=None, slope=0.0, cross_slope=0.0, fy_offset=0.0, mz_offset=0.0,
+                   name=f"{sc.name} (flat nominal)")
+
+
+class _BudgetSpent(Exception):
+    """Raised inside a search when its attempt, iteration or (safety-net) time budget is spent."""
+
+
+class _Search:
+    """Bookkeeping of one deterministic search: attempts, iterations, the log, the best
+    feasible target point and the furthest continuation point."""
+
+    def __init__(self, pb: SteadyStateProblem, sc: Scenario, options: SolverOptions, max_attempts: int,
+                 max_iterations: int, t_start: float) -> None:
+        self.pb, self.sc, self.o = pb, sc, options
+        self.max_attempts, self.max_iterations, self.t_start = max_attempts, max_iterations, t_start
+        self.attempts = 0
+        self.iterations = 0
+        self.log: list[str] = []
+        self.time_limit_hit = False
+        self.errors = 0
+        self.last_fail: dict[str, Any] | None = None
+
+    def spent(self) -> bool:
+        """Budget spent (attempts, iterations, or the optional wall-clock safety net)."""
+        if self.o.time_limit is not None and time.perf_counter() - self.t_start > self.o.time_limit:
+            self.time_limit_hit = True
+            return True
+        return self.attempts >= self.max_attempts or self.iterations >= self.max_iterations
+
+    def charge(self, attempts: int, iterations: int) -> None:
+        """Count work done elsewhere (a cached nominal primitive, a mirror-image search)."""
+        self.attempts += attempts
+        self.iterations += iterations
+
+    def solve(self, b: dict[str, Any], x0: NDArray[np.float64], label: str | None = None,
+              rounds: int | None = None) -> dict[str, Any]:
+        """IPOPT from ``x0``; a run that stops at ``max_iter`` on a feasible point (or making
+        progress) is continued from its end point up to ``rounds`` more times."""
+        if self.spent():
+            raise _BudgetSpent
+        rounds = self.o.continue_rounds if rounds is None else rounds
+        r = self.pb.solve(b, x0)
+        self.attempts += 1
+        self.iterations += r["iterations"]
+        n = 0
+        while (not r["success"] and r["status"] == "Maximum_Iterations_Exceeded" and n < rounds
+               and np.isfinite(r["x"]).all() and not self.spent()):
+            r2 = self.pb.solve(b, r["x"])
+            self.attempts += 1
+            self.iterations += r2["iterations"]
+            n += 1
+            r = r2
+        if r["status"] in _IPOPT_ERROR or r["status"].startswith("exception"):
+            self.errors += 1
+        if label is not None:
+            self.log.append(f"{label}: {r['status']}" + (f" (+{n} continued runs)" if n else ""))
+        if not r["success"]:
+            self.last_fail = r
+        return r
+
+
+def _nominal_search(pb: SteadyStateProblem, sc: Scenario, srch: _Search) -> tuple[Any, float, Any]:
+    """The nominal primitive at the scenario's slope, cross slope and offsets: direct starts
+    on both sides of zero slip, else continuation from flat ground with adaptive steps and
+    jumps. Returns (IPOPT result or None, fraction of the way from flat reached, furthest
+    point as (x, g, bounds there))."""
+    nom = _nominal_of(sc)
+    b1 = pb.bounds(nom)
+    downhill = sc.slope < 0
+    slips = (-0.05, 0.08, -0.2, 0.2) if downhill else (0.08, 0.2, -0.05, 0.02)
+    for s in slips:
+        r = srch.solve(b1, pb.nominal_guess(nom, s), f"nominal from a {'skid' if s < 0 else 'slip'} start ({s:+.2f})")
         if r["success"]:
-            best = r
+            return r, 1.0, (r["x"], r["g"], b1)
+    flat = _flat_of(sc)
+    b0 = pb.bounds(flat)
+    x0 = None
+    for s in (0.08, 0.2, -0.05):
+        r = srch.solve(b0, pb.nominal_guess(flat, s), f"flat-ground nominal ({s:+.2f})")
+        if r["success"]:
+            x0, g0 = r["x"], r["g"]
             break
-    if best is None:
-        return (None, None, 0)
-    x, g, attempts = best["x"], best["g"], 1
-    target = Scenario("nominal", pb.params, pb.rover, pb.exit_angle, speed, slope, fyo, mzo)
-    if slope or fyo or mzo:  # continuation in slope and offsets from flat ground
-        b1 = pb.bounds(target)
-        for n in (1, 4, 10):
-            xs, gs, ok = x, g, True
-            for i in range(1, n + 1):
-                r = pb.solve(_interpolate(b, b1, xs, gs, i / n), xs)
-                attempts += 1
-                if not r["success"]:
-                    ok = False
-                    break
-                xs, gs = r["x"], r["g"]
-            if ok:
-                return (xs, gs, attempts)
-        return (None, None, attempts)
-    return (x, g, attempts)
-
-
-def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
-                    x0: NDArray[np.float64] | None = None) -> PrimitiveResult:
-    """Solve a scenario from the automatic start (module docstring); never raises on an
-    infeasible scenario: the result says ``"infeasible"`` and carries the evidence."""
-    options = options or SolverOptions()
-    t_start = time.perf_counter()
-    pb = _problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None, options)
-    b1 = pb.bounds(sc)
-    attempts: list[str] = []
-    iterations = 0
-    best: dict[str, Any] | None = None
-    t_reached = 0.0
-    last_fail: dict[str, Any] | None = None
-
-    def try_starts(starts: Sequence[tuple[str, NDArray[np.float64]]], suffix: str = "") -> dict[str, Any] | None:
-        """Direct solves of the target from each start in turn, within the time budget."""
-        nonlocal iterations, last_fail
-        for label, start in starts:
-            if time.perf_counter() - t_start > options.time_budget:
-                attempts.append("time budget spent")
-                return None
-            r = pb.solve(b1, start)
-            iterations += r["iterations"]
-            attempts.append(f"{label}{suffix}: {r['status']}")
-            if r["success"]:
-                return r
-            last_fail = r
-        return None
-
-    if x0 is not None:
-        r = pb.solve(b1, x0)
-        attempts.append(f"given start: {r['status']}")
-        iterations += r["iterations"]
+    if x0 is None:
+        return None, 0.0, None
+    xs, gs, t, last = _continue(pb, srch, b0, b1, x0, g0, n=8, label="nominal: slope/offset continuation from flat ground")
+    if t >= 1.0:
+        return last, 1.0, (xs, gs, b1)
+    partial = (xs, gs, _interpolate(b0, b1, x0, g0, t))
+    for name, start in _jumps(pb, nom, xs, seed=srch.o.seed):
+        r = srch.solve(b1, start, f"nominal: {name}")
         if r["success"]:
-            best = r
-    xn, gn, n_att = _nominal_solution(pb, sc.speed, sc.slope, sc.fy_offset, sc.mz_offset)
-    attempts.append(f"nominal primitive ({n_att} solves): {'ok' if xn is not None else 'failed'}")
-    if best is None and xn is not None:
-        b0 = pb.bounds(replace(_nominal_of(sc)))
-        r = pb.solve(b1, xn)
-        iterations += r["iterations"]
-        attempts.append(f"direct from nominal: {r['status']}")
-        if r["success"]:
-            best, t_reached = r, 1.0
-        else:
-            last_fail = r
-            best = try_starts(_symmetric_guesses(pb, sc, b1))  # cheap single solves first
-            t_reached = 1.0 if best is not None else 0.0
-        if best is None:
-            for n in options.continuation:
-                if time.perf_counter() - t_start > options.time_budget:
-                    attempts.append("time budget spent")
-                    break
-                xs, gs, t_ok = xn, gn, 0.0
-                step = 1.0 / n
-                t = 0.0
-                while (t < 1.0 - 1e-12 and step >= 1.0 / (8 * n)
-                       and time.perf_counter() - t_start < options.time_budget):
-                    t_try = min(1.0, t + step)
-                    r = pb.solve(_interpolate(b0, b1, xs, gs, t_try), xs)
-                    iterations += r["iterations"]
-                    if r["success"]:
-                        xs, gs, t = r["x"], r["g"], t_try
-                        t_ok = t
-                    else:
-                        last_fail = r
-                        step /= 2  # adaptive: halve the continuation step
-                attempts.append(f"continuation in {n} steps: reached t = {t_ok:.3f}")
-                if t_ok > t_reached:
-                    t_reached = t_ok
-                    best_partial = (xs, gs)
-                if t >= 1.0 - 1e-12:
-                    best = {"x": xs, "g": gs, "status": "Solve_Succeeded (continuation)", "success": True}
-                    break
-                # the continuation path may hit a fold or a model kink (a wheel crossing from slip
-                # to skid): jump to the target from where it stopped, and from perturbed points
-                best = try_starts(_jumps(pb, sc, xs, seed=n), f" (after {n}-step continuation)")
-                if best is not None:
-                    t_reached = 1.0
-                    break
-    if best is None and x0 is None and _mirror_depth(sc) == 0 and time.perf_counter() - t_start < options.time_budget:
-        # the rover is left-right symmetric: the mirror-image scenario takes another numerical
-        # path; if it solves, its mirrored solution is a start for this one
-        left = options.time_budget - (time.perf_counter() - t_start)
-        mr = solve_primitive(mirror_scenario(sc), replace(options, time_budget=0.5 * left))
-        attempts.append(f"mirror-image scenario: {mr.status}")
-        if mr.ok:
-            r = pb.solve(b1, mirror_x(mr.x))
-            iterations += r["iterations"]
-            attempts.append(f"from the mirrored solution: {r['status']}")
-            if r["success"]:
-                best, t_reached = r, 1.0
-    if best is None:
-        starts = [] if xn is not None else _symmetric_guesses(pb, sc, b1)
-        rng = np.random.default_rng(0)
-        guess = pb.nominal_guess(sc)
-        for k in range(options.restarts):
-            pert = guess * (1 + 0.3 * rng.standard_normal(guess.size) * np.tile([1, 0, 0.2, 0.2, 0.2], len(WHEELS)))
-            pert += np.tile([0, 1, 0, 0, 0], len(WHEELS)) * rng.uniform(-0.5, 0.5, guess.size)
-            starts.append((f"restart {k + 1}", pert))
-        best = try_starts(starts)
-        if best is not None:
-            t_reached = 1.0
-    evidence: dict[str, Any] = {}
-    if best is not None:
-        x = best["x"]
-        status = "optimal"
-    else:
-        partial = locals().get("best_partial")
-        x = partial[0] if partial is not None else (xn if xn is not None else pb.nominal_guess(sc))
-        status = "infeasible" if xn is not None else "failed"
-        evidence = _evidence(pb, sc, b1, xn, gn, t_reached, last_fail)
-    wheels, power = _wheel_solutions(pb, sc, x)
-    residuals, passed = check_solution(pb, sc, x)
-    if status == "optimal" and not passed:
-        status = "failed"
-        evidence["check"] = "IPOPT converged but the independent numeric check failed"
-    trench = None
-    if sc.trench is not None:
-        from ..physics.soil_flow import trench_profile
+            return r, 1.0, (r["x"], r["g"], b1)
+    return None, t, partial
 
-        w = wheels[sc.trench.wheel]
-        vx = sc.speed * math.cos(w.steer)
-        trench = trench_profile(w.sinkage, w.steer, w.omega, vx, sc.params.wheel, sc.params.soil)
-    g, f = pb.eval_g(x, b1["p"])
-    stats = {"attempts": attempts, "iterations": iterations, "seconds": time.perf_counter() - t_start,
-             "continuation_reached": t_reached, "build_seconds": pb.build_seconds}
-    return PrimitiveResult(sc, status, wheels, power, float(f), residuals, passed, trench, evidence, stats, x)
+
+def _continue(pb: SteadyStateProblem, srch: _Search, b0: dict[str, Any], b1: dict[str, Any], x0: NDArray[np.float64],
+              g0: NDArray[np.float64], n: int, label: str) -> tuple[NDArray[np.float64], NDArray[np.float64], float, Any]:
+    """Continuation from ``b0`` (solved at ``x0``) toward ``b1`` in ``n`` steps, halving a
+    step that fails (down to 1/8 of it). Returns the furthest point, its fraction and the
+    last successful IPOPT result (``None`` if no step succeeded)."""
+    xs, gs, t, step, last = x0, g0, 0.0, 1.0 / n, None
+    try:
+        while t < 1.0 - 1e-12 and step >= 1.0 / (8 * n):
+            t_try = min(1.0, t + step)
+            r = srch.solve(_interpolate(b0, b1, x0, g0, t_try), xs)
+            if r["success"]:
+                xs, gs, t, last = r["x"], r["g"], t_try, r
+            else:
+                step /= 2
+    finally:
+        srch.log.append(f"{label} in {n} steps: reached t = {t:.3f}")
+    return xs, gs, t, last
 
 
 def _jumps(pb: SteadyStateProblem, sc: Scenario, x_partial: NDArray[np.float64], seed: int) -> list[tuple[str, NDArray[np.float64]]]:
-    """Starts for a direct solve of the target: the furthest continuation point, and two
-    perturbations of it (speeds and loads +-30 %, steering +-0.3 rad on unconstrained wheels)."""
+    """Starts for a direct solve of the target from where a continuation stopped: the point
+    itself, the same point with every free wheel moved to a small skid and to a small slip
+    (a continuation can stall where wheels cross zero slip), and two perturbations."""
     rng = np.random.default_rng(seed)
+    L = pb.layout
     out = [("jump from the continuation end", x_partial)]
-    for k in range(2):
-        pert = x_partial * (1 + 0.3 * rng.standard_normal(x_partial.size) * np.tile([1, 0, 0.5, 0.3, 0.3], len(WHEELS)))
-        pert = pert + np.tile([0, 1, 0, 0, 0], len(WHEELS)) * rng.uniform(-1.0, 1.0, x_partial.size)
-        out.append((f"perturbed jump {k + 1}", pert))
+    for s in (-0.05, 0.1):
+        xj = x_partial.copy()
+        om = sc.speed / (pb.rs * (1 - s)) if s >= 0 else sc.speed * (1 + s) / pb.rs
+        for k in WHEELS:
+            if sc.failure(k).nominal:
+                xj[L.var("omega", k)] = om / pb.xscale[L.var("omega", k)]
+        out.append((f"jump with free wheels at {'skid' if s < 0 else 'slip'} {s:+.2f}", xj))
+    om_i = [L.var("omega", k) for k in WHEELS]
+    b_i = [L.var("beta", k) for k in WHEELS]
+    for j in range(2):
+        pert = x_partial * (1 + 0.3 * rng.standard_normal(x_partial.size) * _pattern(pb, 1.0, 0.0, 0.5, 0.3, 0.3))
+        pert[b_i] += rng.uniform(-1.0, 1.0, len(b_i))
+        pert[om_i] = np.abs(pert[om_i])
+        out.append((f"perturbed jump {j + 1}", pert))
+    return out
+
+
+def _pattern(pb: SteadyStateProblem, *per_var: float) -> NDArray[np.float64]:
+    """A vector with one value per wheel variable kind (omega, beta, W, h, h0), in layout order."""
+    out = np.zeros(pb.layout.nx)
+    for k in WHEELS:
+        for v, val in zip(WHEEL_VARIABLES, per_var):
+            out[pb.layout.var(v, k)] = val
     return out
 
 
@@ -636,93 +750,310 @@ def _mirror_depth(sc: Scenario) -> int:
 
 
 def mirror_scenario(sc: Scenario) -> Scenario:
-    """The left-right mirror image: wheels swapped, steer angles, lateral force and yaw
-    moment offsets negated (a trench wheel moves to the other side)."""
-    fails = {}
-    for k, f in sc.failures.items():
-        fails[_MIRROR[k]] = replace(
-            f, steer_stuck=None if f.steer_stuck is None else -f.steer_stuck, steer_min=-f.steer_max, steer_max=-f.steer_min)
-    trench = replace(sc.trench, wheel=_MIRROR[sc.trench.wheel]) if sc.trench else None
+    """The left-right mirror image: wheels swapped with every failure kind mirrored (steer
+    angles negated), lateral force and yaw moment offsets and the cross slope negated (a
+    trench wheel moves to the other side)."""
+    fails = {_MIRROR[k]: f.mirror() for k, f in sc.failures.items()}
+    trench = sc.trench.mirror() if sc.trench else None
     return replace(sc, failures=fails, trench=trench, fy_offset=-sc.fy_offset, mz_offset=-sc.mz_offset,
-                   name=f"{sc.name} (mirror)")
+                   cross_slope=-sc.cross_slope, name=f"{sc.name} (mirror)")
 
 
-def mirror_x(x: NDArray[np.float64]) -> NDArray[np.float64]:
+def mirror_x(x: NDArray[np.float64], layout: NlpLayout | None = None) -> NDArray[np.float64]:
     """Mirror a solution vector: swap left and right wheels, negate steer angles."""
-    xs = x.reshape(len(WHEELS), 5).copy()
-    out = np.empty_like(xs)
-    for i, k in enumerate(WHEELS):
-        j = WHEELS.index(_MIRROR[k])
-        out[j] = xs[i]
-        out[j, 1] = -xs[i, 1]
-    return out.ravel()
+    L = layout or NlpLayout.build({v: 1.0 for v in WHEEL_VARIABLES}, {"force": 1, "moment": 1, "load": 1, "torque": 1})
+    out = np.asarray(x, dtype=float).copy()
+    for k in WHEELS:
+        for v in WHEEL_VARIABLES:
+            val = x[L.var(v, k)]
+            out[L.var(v, _MIRROR[k])] = -val if v == "beta" else val
+    return out
 
 
 def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) -> list[tuple[str, NDArray[np.float64]]]:
-    """Hand-style starts the dissertation used (section 7.2.7), generated from the scenario:
-    the axle partner of a steered failed wheel mirrors it (balanced lateral forces and yaw),
-    and a trenching wheel starts turned 60 deg toward its allowed side, partner mirrored, both
-    rear wheels at 4x the travel speed and a sinkage near the required depth."""
+    """Hand-style starts the dissertation used (section 7.2.7), generated from the failure
+    kinds' start hints: the axle partner of a wheel with a steer hint mirrors it (balanced
+    lateral forces and yaw), a wheel with a speed hint (locked) starts there with the other
+    wheels slipping more; a trenching wheel starts turned 60-85 deg toward its allowed side,
+    partner mirrored, both at 4-8x the travel speed."""
     out = []
-    partner = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
     n = len(WHEELS)
-    load = pb.rover.weight * math.cos(sc.slope) / n
+    L = pb.layout
+    load = pb.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
     lo, hi = b["lbx"] * pb.xscale, b["ubx"] * pb.xscale
     om0 = sc.speed / (pb.rs * 0.85)
     for k, f in sc.failures.items():
-        if f.steer_stuck is not None:
+        hints: dict[str, float] = {}
+        for kind in f.kinds():
+            hints.update(kind.start())
+        if "beta" in hints:
             betas = [0.0] * n
-            betas[WHEELS.index(k)], betas[WHEELS.index(partner[k])] = f.steer_stuck, -f.steer_stuck
+            betas[WHEELS.index(k)], betas[WHEELS.index(_MIRROR[k])] = hints["beta"], -hints["beta"]
             out.append((f"mirrored partner of {k}", [om0] * n, betas))
+        if "omega" in hints:
+            for fast in (0.6, 0.4):
+                oms = [sc.speed / (pb.rs * (1 - fast))] * n
+                oms[WHEELS.index(k)] = hints["omega"]
+                out.append((f"{k} at {hints['omega']:.2f} rad/s, others at slip {fast:.1f}", oms, [0.0] * n))
     if sc.trench is not None:
         k = sc.trench.wheel
-        i, j = WHEELS.index(k), WHEELS.index(partner[k])
-        sign = -1.0 if hi[5 * i + 1] <= 0 else 1.0
+        i, j = WHEELS.index(k), WHEELS.index(_MIRROR[k])
+        sign = -1.0 if hi[L.var("beta", k)] <= 0 else 1.0
         for ang, fast in ((75.0, 8.0), (60.0, 4.0), (85.0, 8.0)):
             betas, oms = [0.0] * n, [om0] * n
             betas[i], betas[j] = sign * math.radians(ang), -sign * math.radians(ang)
             oms[i] = oms[j] = fast * sc.speed / pb.rs
             out.append((f"trench start: {k} at {sign * ang:.0f} deg, partner mirrored, rim speed x{fast:.0f}", oms, betas))
     res = []
+    col = lambda v: [L.var(v, k) for k in WHEELS]  # noqa: E731
     for name, oms, betas in out:
-        oms = np.clip(oms, lo[0::5], hi[0::5])
-        betas = np.clip(betas, lo[1::5], hi[1::5])
-        g = pb.guess(sc, oms, betas, np.clip([load] * n, lo[2::5], hi[2::5]))
+        oms = np.clip(oms, lo[col("omega")], hi[col("omega")])
+        betas = np.clip(betas, lo[col("beta")], hi[col("beta")])
+        g = pb.guess(sc, oms, betas, np.clip([load] * n, lo[col("W")], hi[col("W")]))
         res.append((name, g))
     return res
 
 
-def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], xn: Any, gn: Any, t: float,
-              fail: dict[str, Any] | None) -> dict[str, Any]:
-    """What could not be met, and the closest achievable compromise (continuation end)."""
-    ev: dict[str, Any] = {"continuation_reached": t}
-    if fail is not None:
-        v = fail["violation"]
+def _restarts(pb: SteadyStateProblem, sc: Scenario, count: int, seed: int, spread: float) -> list[tuple[str, NDArray[np.float64]]]:
+    """Seeded perturbed starts around the symmetric guess, alternating slip and skid."""
+    rng = np.random.default_rng(seed)
+    beta_i = [pb.layout.var("beta", k) for k in WHEELS]
+    other = np.ones(pb.layout.nx, dtype=bool)
+    other[beta_i] = False
+    out = []
+    for k in range(count):
+        guess = pb.nominal_guess(sc, (0.15, -0.1, 0.4, -0.3)[k % 4])
+        pert = guess * (1 + spread * rng.standard_normal(guess.size) * _pattern(pb, 1, 0, 0.2, 0.2, 0.2))
+        pert[beta_i] += rng.uniform(-0.5, 0.5, len(beta_i)) * spread / 0.3
+        pert[other] = np.abs(pert[other])
+        out.append((f"seeded restart {k + 1} (seed {seed})", pert))
+    return out
+
+
+_SEARCH_FIELDS = ("max_attempts", "max_iterations", "continue_rounds", "confirm", "confirm_starts", "confirm_rounds",
+                  "seed", "time_limit", "continuation", "restarts")
+
+
+def _problem_for(sc: Scenario, options: SolverOptions) -> SteadyStateProblem:
+    """The cached NLP; search budgets do not change the NLP, so they do not key the cache."""
+    canon = replace(options, **{k: getattr(SolverOptions(), k) for k in _SEARCH_FIELDS})
+    return get_problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None, canon)
+
+
+_NOMINAL_CACHE: dict[tuple[Any, ...], tuple[Any, ...]] = {}
+
+
+def _nominal(pb: SteadyStateProblem, sc: Scenario, options: SolverOptions) -> tuple[Any, float, Any, int, int, list[str]]:
+    """Nominal search, cached per problem and operating point together with its cost (the
+    attempts and iterations are charged again on a cache hit, so the budget accounting and
+    the reported counts do not depend on what was solved before)."""
+    key = (id(pb), sc.speed, sc.slope, sc.cross_slope, sc.fy_offset, sc.mz_offset, options.seed, options.max_iter,
+           options.continue_rounds)
+    if key not in _NOMINAL_CACHE:
+        s = _Search(pb, sc, replace(options, time_limit=None), options.max_attempts, options.max_iterations, time.perf_counter())
+        try:
+            r, t, partial = _nominal_search(pb, sc, s)
+        except _BudgetSpent:
+            r, t, partial = None, 0.0, None
+            s.log.append("nominal: budget spent")
+        if len(_NOMINAL_CACHE) > 256:
+            _NOMINAL_CACHE.clear()
+        _NOMINAL_CACHE[key] = (r, t, partial, s.attempts, s.iterations, list(s.log))
+    return _NOMINAL_CACHE[key]
+
+
+def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
+                    x0: NDArray[np.float64] | None = None) -> PrimitiveResult:
+    """Solve a scenario from the automatic start (module docstring); never raises on an
+    infeasible scenario: the result's status is one of :data:`STATUSES` with evidence.
+
+    Deterministic: the same scenario, options and ``x0`` give the same status, point and
+    iteration count on any machine load (budgets count attempts and iterations).
+    """
+    options = options or SolverOptions()
+    t_start = time.perf_counter()
+    pb = _problem_for(sc, options)
+    b1 = pb.bounds(sc)
+    srch = _Search(pb, sc, options, options.max_attempts, options.max_iterations, t_start)
+    best: dict[str, Any] | None = None
+    feasible_target: dict[str, Any] | None = None
+    furthest: tuple[Any, ...] | None = None  # (x, g, bounds there, fraction t, what was continued)
+
+    def consider(r: dict[str, Any]) -> bool:
+        nonlocal best, feasible_target
+        if r["success"]:
+            best = r
+            return True
+        if r["feasible"] and feasible_target is None:
+            feasible_target = r
+        return False
+
+    def run_starts(starts: Sequence[tuple[str, NDArray[np.float64]]], suffix: str = "") -> bool:
+        return any(consider(srch.solve(b1, x, f"{name}{suffix}")) for name, x in starts)
+
+    has_failures = bool(sc.trench is not None or any(not f.nominal for f in sc.failures.values()))
+    xn = None
+    try:
+        if x0 is not None:
+            consider(srch.solve(b1, x0, "given start"))
+        if best is None:
+            rn, t_nom, partial, n_att, n_it, nlog = _nominal(pb, sc, options)
+            srch.charge(n_att, n_it)
+            srch.log.extend(nlog)
+            if rn is None:
+                if partial is not None:
+                    furthest = (*partial, t_nom, "slope/offsets from flat ground")
+            elif not has_failures:
+                best = rn
+            else:
+                xn, gn = rn["x"], rn["g"]
+                furthest = (xn, gn, pb.bounds(_nominal_of(sc)), 0.0, "failures from the nominal primitive")
+                b0 = pb.bounds(_nominal_of(sc))
+                if not consider(srch.solve(b1, xn, "direct from the nominal primitive")):
+                    run_starts(_symmetric_guesses(pb, sc, b1))
+                for n in options.continuation if best is None else ():
+                    xs, gs, t, last = _continue(pb, srch, b0, b1, xn, gn, n, "failure continuation")
+                    if t > furthest[3]:
+                        furthest = (xs, gs, _interpolate(b0, b1, xn, gn, t), t, "failures from the nominal primitive")
+                    if t >= 1.0 - 1e-12 and last is not None:
+                        consider(last)
+                        break
+                    if run_starts(_jumps(pb, sc, xs, seed=options.seed + n), f" (after {n}-step continuation)"):
+                        break
+        if best is None and x0 is None and _mirror_depth(sc) == 0 and has_failures:
+            # the rover is left-right symmetric: the mirror-image scenario takes another numerical
+            # path; if it solves, its mirrored solution is a start for this one
+            left_a, left_i = options.max_attempts - srch.attempts, options.max_iterations - srch.iterations
+            if left_a > 2 and left_i > options.max_iter:
+                mr = solve_primitive(mirror_scenario(sc), replace(options, confirm=False, max_attempts=left_a // 2,
+                                                                  max_iterations=left_i // 2))
+                srch.charge(mr.stats["n_attempts"], mr.stats["iterations"])
+                srch.log.append(f"mirror-image scenario: {mr.status}")
+                if mr.ok:
+                    consider(srch.solve(b1, mirror_x(mr.x, pb.layout), "from the mirrored solution"))
+        if best is None:
+            run_starts(_restarts(pb, sc, options.restarts, options.seed, 0.3))
+    except _BudgetSpent:
+        srch.log.append(f"main search budget spent ({srch.attempts} attempts, {srch.iterations} iterations"
+                        + (", wall-clock safety net" if srch.time_limit_hit else "") + ")")
+    if best is None and feasible_target is not None and not srch.time_limit_hit:
+        # a feasible point of the target is never thrown away: polish it with a fresh budget
+        pol = _Search(pb, sc, options, 1 + options.confirm_rounds, options.confirm_rounds * options.max_iter, t_start)
+        consider(pol.solve(b1, feasible_target["x"], "polish the feasible point reached", rounds=options.confirm_rounds))
+        srch.charge(pol.attempts, pol.iterations)
+        srch.log.extend(pol.log)
+    confirmed = False
+    if best is None and options.confirm and not srch.time_limit_hit:
+        conf = _Search(pb, sc, options, options.confirm_starts * (options.confirm_rounds + 1) + 2,
+                       (options.confirm_starts + 1) * (options.confirm_rounds + 1) * options.max_iter, t_start)
+        starts = [("confirmation: longer run from the furthest point", furthest[0])] if furthest is not None else []
+        starts += [(f"confirmation: {n}", x) for n, x in _restarts(pb, sc, options.confirm_starts, options.seed + 7919, 0.6)]
+        try:
+            for name, x in starts:
+                if consider(conf.solve(b1, x, name, rounds=options.confirm_rounds)):
+                    break
+            confirmed = best is None
+        except _BudgetSpent:
+            conf.log.append("confirmation budget spent")
+            confirmed = best is None and not conf.time_limit_hit
+        srch.charge(conf.attempts, conf.iterations)
+        srch.log.extend(conf.log)
+        srch.time_limit_hit = srch.time_limit_hit or conf.time_limit_hit
+    evidence: dict[str, Any] = {}
+    if best is not None:
+        x = best["x"]
+        residuals, passed = check_solution(pb, sc, x)
+        status = "optimal" if passed else "solver_failure"
+        if not passed:
+            evidence["check"] = "IPOPT converged but the independent numeric check failed"
+    else:
+        evidence = _evidence(pb, sc, b1, furthest, srch.last_fail, feasible_target)
+        if furthest is not None:
+            x = furthest[0]
+        elif feasible_target is not None:
+            x = feasible_target["x"]
+        else:
+            x = pb.nominal_guess(sc)
+        residuals, passed = check_solution(pb, sc, x)
+        if srch.time_limit_hit:
+            status = "not_found"
+            evidence["verdict"] = "wall-clock safety net reached before a verdict"
+        elif feasible_target is not None:
+            status = "not_found"
+            evidence["verdict"] = "a point satisfying every constraint was reached but IPOPT did not converge from it"
+        elif furthest is None and srch.errors == srch.attempts and srch.attempts > 0:
+            status = "solver_failure"
+            evidence["verdict"] = "every IPOPT run ended in an evaluation or solver error"
+        elif confirmed and evidence.get("furthest_point_checked", False):
+            status = "infeasible"
+            evidence["verdict"] = ("no primitive: the search and a longer, differently started confirmation search "
+                                   "failed; the furthest point reached is feasible for its intermediate problem "
+                                   "and passes the independent check")
+        else:
+            status = "not_found"
+            evidence["verdict"] = "budget spent without a primitive and without consistent evidence of infeasibility"
+    wheels, power = _wheel_solutions(pb, sc, x)
+    trench = None
+    if sc.trench is not None:
+        from ..physics.soil_flow import trench_profile
+
+        w = wheels[sc.trench.wheel]
+        vx = sc.speed * math.cos(w.steer)
+        trench = trench_profile(w.sinkage, w.steer, w.omega, vx, sc.params.wheel, sc.params.soil)
+    g, f = pb.eval_g(x, b1["p"])
+    stats: dict[str, Any] = {"attempts": srch.log, "iterations": srch.iterations, "n_attempts": srch.attempts,
+                             "seconds": time.perf_counter() - t_start, "build_seconds": pb.build_seconds,
+                             "time_limit_hit": srch.time_limit_hit,
+                             "continuation_reached": 1.0 if best is not None else (furthest[3] if furthest else 0.0)}
+    if best is not None:
+        stats.update(lam_x=best["lam_x"], lam_g=best["lam_g"], ipopt_status=best["status"])
+    return PrimitiveResult(sc, status, wheels, power, float(f), residuals, passed, trench, evidence, stats, x)
+
+
+def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest: tuple[Any, ...] | None,
+              fail: dict[str, Any] | None, feasible_target: dict[str, Any] | None) -> dict[str, Any]:
+    """What could not be met, and what the furthest feasible point reached shows (per failure
+    kind, from the point itself: e.g. the lowest rim speed actually reached)."""
+    ev: dict[str, Any] = {}
+    if fail is not None and np.isfinite(fail["g"]).all():
+        g = fail["g"]
+        v = np.maximum(b1["lbg"] - g, 0) + np.maximum(g - b1["ubg"], 0)
         i = int(np.argmax(v))
-        ev["most_violated_constraint"] = pb.g_names[i]
-        ev["violation"] = float(v[i])
-    if xn is None:
-        ev["closest"] = "no nominal primitive: the rover cannot drive at this speed and slope even without failures"
+        ev["most_violated_constraint"] = pb.layout.constraint_names[i]
+        ev["violation"] = float(v[i] * pb.gscale[i])
+        ev["violation_unit"] = pb.layout.constraints[i].unit
+    if feasible_target is not None:
+        ev["feasible_point_found"] = True
+    if furthest is None:
+        ev["closest"] = "no feasible point reached: the rover cannot drive here even without failures"
+        ev["furthest_point_checked"] = False
         return ev
-    b0 = pb.bounds(_nominal_of(sc))
-    bt = _interpolate(b0, b1, xn, gn, t)
+    x, _, bt, t, what = furthest
+    ok, worst = _point_check(pb, x, bt)
+    ev.update(continuation_reached=t, continued=what, furthest_point_checked=ok, furthest_point_worst_residual=worst)
+    num = _numeric_point(pb, x, bt["p"])
     parts = []
-    for i, k in enumerate(WHEELS):
-        f = sc.failure(k)
-        if math.isfinite(f.rim_speed_max) or f.locked:
-            parts.append(f"{k}: lowest reachable rim speed cap {bt['ubx'][5 * i] * pb.xscale[5 * i] * pb.rs * 100:.2f} cm/s")
-        if f.steer_stuck is not None:
-            lo, hi = bt["lbx"][5 * i + 1] * pb.xscale[1], bt["ubx"][5 * i + 1] * pb.xscale[1]
-            parts.append(f"{k}: steer reachable within [{math.degrees(lo):.1f}, {math.degrees(hi):.1f}] deg")
-        if f.unpowered or math.isfinite(f.torque_limit):
-            j = 7 + 2 * len(WHEELS) + i
-            parts.append(f"{k}: smallest reachable |torque| limit {bt['ubg'][j]:.4f} N m")
-    if sc.slope:
-        parts.append(f"steepest slope on the path {math.degrees(bt['p'][1]):.2f} deg")
+    for k in WHEELS:
+        ph = num["phys"][k]
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
+        for kind in sc.failure(k).kinds():
+            e = kind.evidence(view)
+            if e:
+                parts.append(f"{k}: {e}")
+    if sc.trench is not None:
+        from ..physics.soil_flow import trench_profile
+
+        ph = num["phys"][sc.trench.wheel]
+        tp = trench_profile(ph["h"], ph["beta"], ph["omega"], sc.speed * math.cos(ph["beta"]), pb.params.wheel,
+                            pb.params.soil)
+        parts.append(sc.trench.evidence(tp))
+    P = num["P"]
+    if sc.slope and abs(P["slope"] - sc.slope) > 1e-12:
+        parts.append(f"steepest slope reached {math.degrees(P['slope']):.2f} deg (target {math.degrees(sc.slope):.2f})")
+    if sc.cross_slope and abs(P["cross_slope"] - sc.cross_slope) > 1e-12:
+        parts.append(f"largest cross slope reached {math.degrees(P['cross_slope']):.2f} deg")
     ev["closest"] = "; ".join(parts) if parts else f"continuation stopped at {t:.2f} of the way"
     return ev
-
-
 def steering_controllers(sc: Scenario, primitive: PrimitiveResult, mz_offset: float = 0.2, fy_offset: float = 1.0,
                          options: SolverOptions | None = None) -> dict[str, dict[str, tuple[float, float]]]:
     """Steering controllers of section 7.2.4: re-solve with +/- yaw-moment and lateral-force

@@ -15,7 +15,8 @@ File format
     rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section
     exit_angle = "classic"           # default; "soil_flow" takes theta_r from the trench model
     speed_m_s = 0.03
-    slope_deg = 0.0
+    slope_deg = 0.0                  # pitch of the terrain along the travel direction (uphill +)
+    cross_slope_deg = 0.0            # roll of the terrain, left side up positive (hillside traverse)
     yaw_moment_offset_Nm = 0.0       # (7.26)
     lateral_force_offset_N = 0.0     # (7.27)
     grouser_volume_fraction = 1.0    # optional override of zeta (the dissertation trenches with 1)
@@ -41,12 +42,20 @@ File format
 
 Recipe: add a failure mode
 --------------------------
-1. Add the key to ``_WHEEL_KEYS`` with its type and physical range.
-2. Express it as bounds on the wheel's decision variables (omega, beta, W, h) or on the
-   wheel-torque constraint in :meth:`offline.rover.primitives.SteadyStateProblem.bounds`.
-3. Give it a continuation path from the nominal primitive in
-   :func:`offline.rover.primitives._interpolate` if the solver should approach it gradually.
-4. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark.
+A failure kind is ONE object in :mod:`offline.rover.failures`:
+
+1. Write a class deriving :class:`~offline.rover.failures.FailureKind` with its
+   ``TOML_KEYS`` and ``from_toml`` (keys and their plausible ranges), ``apply`` (its
+   constraints: bounds on the wheel's omega, beta, W, h, h0, its torque row, its contact),
+   ``mirror``, ``check`` and ``evidence``; optionally ``start`` (start-point hints).
+2. List it in :data:`offline.rover.failures.KINDS`. The scenario loader, the NLP bounds,
+   the continuation (which moves every bound from the nominal primitive), the independent
+   check, the evidence and the mirror image then use it; nothing else changes.
+3. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark
+   (``tests/bench/bench_primitives.py``) and to ``tests/test_failures.py``.
+
+Units are checked where a value is implausible for its unit: ``speed_m_s = 3.0`` is refused
+with a hint that it looks like cm/s; slopes beyond 60 deg are refused (degrees expected).
 """
 
 from __future__ import annotations
@@ -68,10 +77,23 @@ from ..physics.params import (
     Rover,
     load_toml,
 )
+from .failures import (
+    KINDS,
+    FailureKind,
+    FailureSpecError,
+    Locked,
+    Raised,
+    RimSpeedCap,
+    SteerRange,
+    StuckSteering,
+    TorqueLimit,
+    TrenchGoal,
+    Unpowered,
+)
 from .statics import WHEELS
 
 __all__ = ["ScenarioError", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
-           "ROVER_PRESETS", "example_scenarios"]
+           "ROVER_PRESETS", "example_scenarios", "MAX_SPEED", "MAX_SLOPE_DEG"]
 
 
 class ScenarioError(ValueError):
@@ -89,7 +111,12 @@ ROVER_PRESETS: dict[str, Rover] = {"mini-rover-t72": ROVER_MINI_T72}
 
 @dataclass(frozen=True)
 class WheelFailure:
-    """Constraints on one wheel (all optional; defaults mean nominal)."""
+    """The failure kinds on one wheel (all optional; defaults mean nominal).
+
+    The keyword fields are shorthands for the built-in kinds of :mod:`offline.rover.failures`;
+    :meth:`kinds` returns the kind objects that carry the constraints, checks and evidence.
+    A kind without a shorthand goes into ``extra``.
+    """
 
     rim_speed_max: float = math.inf
     steer_stuck: float | None = None
@@ -99,21 +126,59 @@ class WheelFailure:
     torque_limit: float = math.inf
     steer_min: float = -math.pi / 2
     steer_max: float = math.pi / 2
+    extra: tuple[FailureKind, ...] = ()
 
     @property
     def nominal(self) -> bool:
-        return self == WheelFailure()
+        """True when no failure kind applies."""
+        return not self.kinds()
 
+    def kinds(self) -> tuple[FailureKind, ...]:
+        """The failure-kind objects, in :data:`offline.rover.failures.KINDS` order."""
+        out: list[FailureKind] = []
+        if self.steer_min > -math.pi / 2 or self.steer_max < math.pi / 2:
+            out.append(SteerRange(self.steer_min, self.steer_max))
+        if self.steer_stuck is not None:
+            out.append(StuckSteering(self.steer_stuck))
+        if math.isfinite(self.rim_speed_max):
+            out.append(RimSpeedCap(self.rim_speed_max))
+        if self.locked:
+            out.append(Locked())
+        if self.unpowered:
+            out.append(Unpowered())
+        if self.raised:
+            out.append(Raised())
+        if math.isfinite(self.torque_limit):
+            out.append(TorqueLimit(self.torque_limit))
+        return (*out, *self.extra)
 
-@dataclass(frozen=True)
-class TrenchGoal:
-    """Trenching objective for one wheel, eqs. (7.28)-(7.29)."""
+    @classmethod
+    def from_kinds(cls, kinds: "list[FailureKind] | tuple[FailureKind, ...]") -> "WheelFailure":
+        """Gather kind objects into one wheel's record (built-in kinds into their fields)."""
+        kw: dict[str, Any] = {}
+        extra: list[FailureKind] = []
+        for k in kinds:
+            if isinstance(k, SteerRange):
+                kw.update(steer_min=k.steer_min, steer_max=k.steer_max)
+            elif isinstance(k, StuckSteering):
+                kw["steer_stuck"] = k.angle
+            elif isinstance(k, RimSpeedCap):
+                kw["rim_speed_max"] = k.cap
+            elif isinstance(k, Locked):
+                kw["locked"] = True
+            elif isinstance(k, Unpowered):
+                kw["unpowered"] = True
+            elif isinstance(k, Raised):
+                kw["raised"] = True
+            elif isinstance(k, TorqueLimit):
+                kw["torque_limit"] = k.limit
+            else:
+                extra.append(k)
+        return cls(**kw, extra=tuple(extra))
 
-    wheel: str
-    clean_side: bool = False
-    min_depth: float = 0.0
-    min_flat_width: float = 0.0
-    target_depth: float | None = None
+    def mirror(self) -> "WheelFailure":
+        """The failures of the mirror-image wheel (every kind mirrored)."""
+        return WheelFailure.from_kinds([k.mirror() for k in self.kinds()])
 
 
 @dataclass(frozen=True)
@@ -132,8 +197,11 @@ class Scenario:
     trench: TrenchGoal | None = None
     description: str = ""
     source: str = ""
+    cross_slope: float = 0.0
+    """Roll of the terrain about the travel direction, rad, left side up positive."""
 
     def failure(self, wheel: str) -> WheelFailure:
+        """The wheel's failures (nominal when none)."""
         return self.failures.get(wheel, WheelFailure())
 
     def with_(self, **kw: Any) -> "Scenario":
@@ -142,18 +210,13 @@ class Scenario:
 
 
 _SCENARIO_KEYS = {"name": str, "description": str, "params": str, "rover": str, "exit_angle": str, "speed_m_s": float,
-                  "slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
+                  "slope_deg": float, "cross_slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
                   "grouser_volume_fraction": float, "grouser_area_ratio": float}
-_WHEEL_KEYS: dict[str, tuple[type, float, float]] = {
-    "rim_speed_max_m_s": (float, 0.0, 10.0),
-    "steer_stuck_deg": (float, -90.0, 90.0),
-    "locked": (bool, 0, 1),
-    "unpowered": (bool, 0, 1),
-    "raised": (bool, 0, 1),
-    "torque_limit_Nm": (float, 0.0, 1e4),
-    "steer_min_deg": (float, -90.0, 90.0),
-    "steer_max_deg": (float, -90.0, 90.0),
-}
+_WHEEL_KEYS: tuple[str, ...] = tuple(k for kind in KINDS for k in kind.TOML_KEYS)
+MAX_SPEED = 0.5
+"""Largest plausible travel speed, m/s (planetary rovers drive at cm/s; 3.0 is a unit slip)."""
+MAX_SLOPE_DEG = 60.0
+"""Largest |slope| and |cross slope| accepted, deg (beyond it: degrees expected, or not a slope)."""
 _TRENCH_KEYS = {"wheel": str, "clean_side": bool, "min_depth_m": float, "min_depth": str, "min_flat_width_m": float,
                 "target_depth_m": float}
 
@@ -238,11 +301,16 @@ def load_scenario(path: str | Path) -> Scenario:
     if exit_angle not in ("classic", "soil_flow"):
         raise ScenarioError(f"{p}: [scenario] exit_angle = {exit_angle!r}; use 'classic' or 'soil_flow'")
     speed = vals.get("speed_m_s", 0.03)
-    if not 0.0 < speed <= 5.0:
-        raise ScenarioError(f"{p}: [scenario] speed_m_s = {speed} must be in (0, 5] m/s (is it in cm/s?)")
+    if not 0.0 < speed <= MAX_SPEED:
+        cm = f"; if it is in cm/s, write speed_m_s = {speed / 100:g}" if speed > MAX_SPEED else ""
+        raise ScenarioError(f"{p}: [scenario] speed_m_s = {speed} m/s outside (0, {MAX_SPEED}] m/s, implausible for a "
+                            f"planetary rover (is it in cm/s?){cm}")
     slope_deg = vals.get("slope_deg", 0.0)
-    if not -45.0 < slope_deg < 45.0:
-        raise ScenarioError(f"{p}: [scenario] slope_deg = {slope_deg} outside (-45, 45) deg")
+    cross_deg = vals.get("cross_slope_deg", 0.0)
+    for key, val in (("slope_deg", slope_deg), ("cross_slope_deg", cross_deg)):
+        if not -MAX_SLOPE_DEG <= val <= MAX_SLOPE_DEG:
+            raise ScenarioError(f"{p}: [scenario] {key} = {val} outside [-{MAX_SLOPE_DEG:g}, {MAX_SLOPE_DEG:g}] deg "
+                                "(degrees expected; no rover drives steeper soft-soil slopes)")
     params = _resolve_params(p, vals.get("params", "dissertation-ch7"), vals.get("grouser_volume_fraction"),
                              vals.get("grouser_area_ratio"))
     rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
@@ -258,31 +326,21 @@ def load_scenario(path: str | Path) -> Scenario:
         bad = sorted(set(tab) - set(_WHEEL_KEYS))
         if bad:
             raise ScenarioError(f"{p}: [wheels.{wname}] unknown key(s) {bad}; known: {sorted(_WHEEL_KEYS)}")
-        kw: dict[str, Any] = {}
-        for key, (typ, lo, hi) in _WHEEL_KEYS.items():
-            if key not in tab:
-                continue
-            v = _get(str(p), tab, key, typ, f"wheels.{wname}")
-            if typ is float and not lo <= v <= hi:
-                hint = " (degrees expected)" if key.endswith("_deg") else ""
-                raise ScenarioError(f"{p}: [wheels.{wname}] {key} = {v} outside [{lo}, {hi}]{hint}")
-            kw[key] = v
-        f = WheelFailure(
-            rim_speed_max=kw.get("rim_speed_max_m_s", math.inf),
-            steer_stuck=math.radians(kw["steer_stuck_deg"]) if "steer_stuck_deg" in kw else None,
-            locked=kw.get("locked", False), unpowered=kw.get("unpowered", False), raised=kw.get("raised", False),
-            torque_limit=kw.get("torque_limit_Nm", math.inf),
-            steer_min=math.radians(kw.get("steer_min_deg", -90.0)), steer_max=math.radians(kw.get("steer_max_deg", 90.0)),
-        )
-        if f.steer_min > f.steer_max:
-            raise ScenarioError(f"{p}: [wheels.{wname}] steer_min_deg > steer_max_deg")
+        kinds = []
+        for kind in KINDS:
+            mine = {k: tab[k] for k in kind.TOML_KEYS if k in tab}
+            try:
+                obj = kind.from_toml(mine) if mine else None
+            except FailureSpecError as exc:
+                raise ScenarioError(f"{p}: [wheels.{wname}] {exc}") from None
+            if obj is not None:
+                kinds.append(obj)
+        f = WheelFailure.from_kinds(kinds)
         if f.steer_stuck is not None and not f.steer_min - 1e-12 <= f.steer_stuck <= f.steer_max + 1e-12:
             raise ScenarioError(f"{p}: [wheels.{wname}] steer_stuck_deg outside the wheel's steer range")
         if f.locked and f.unpowered:
             raise ScenarioError(f"{p}: [wheels.{wname}] locked and unpowered contradict each other: a locked wheel "
                                 "carries a braking torque, an unpowered one carries none")
-        if f.locked and f.rim_speed_max == 0.0:
-            pass
         if f.raised and (f.locked or f.unpowered or f.steer_stuck is not None or math.isfinite(f.torque_limit)):
             raise ScenarioError(f"{p}: [wheels.{wname}] a raised wheel has no ground contact: its other failure "
                                 "keys have no effect; remove them")
@@ -314,6 +372,7 @@ def load_scenario(path: str | Path) -> Scenario:
                             tv.get("target_depth_m"))
     return Scenario(
         name=name, params=params, rover=rover, exit_angle=exit_angle, speed=speed, slope=math.radians(slope_deg),
+        cross_slope=math.radians(cross_deg),
         mz_offset=vals.get("yaw_moment_offset_Nm", 0.0), fy_offset=vals.get("lateral_force_offset_N", 0.0),
         failures=failures, trench=trench, description=vals.get("description", ""), source=str(p),
     )

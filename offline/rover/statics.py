@@ -1,32 +1,76 @@
-"""Rover statics for steady straight driving (dissertation section 7.2.2).
+"""Rover statics for steady straight driving (dissertation section 7.2.2), derived from the geometry.
 
 The 4-wheel rocker rover of Table 7.2: two rockers joined by a passive pivot, independent
 steer and drive on every wheel. :class:`FourWheelRocker` implements the wheel kinematics
-(7.6)-(7.7), rocker angles (7.10)-(7.11) and the balance equations (7.12)-(7.18) with the
-load constraint (7.23), the steering offsets (7.26)-(7.27) and the slope (7.32)-(7.33),
-backend-generic like the wheel physics (numpy for checking a solution, casadi for the NLP).
+(7.6)-(7.7), the rocker angles (7.10)-(7.11) and the balance (7.12)-(7.18) with the load
+constraint (7.23), the steering offsets (7.26)-(7.27), the slope (7.32)-(7.33) and a cross
+slope, backend-generic like the wheel physics (numpy for checking a solution, casadi for the
+NLP). :func:`free_body_residuals` computes the same balance independently (numpy, explicit
+3-D positions and rotation matrices, cross products); the optimizer's independent check
+uses it.
 
-Another layout (a 6-wheel rocker-bogie) implements :class:`RoverStatics`: wheel names,
-their velocities from the rover motion, and the balance residuals from wheel wrenches.
+Frames: terrain frame x forward (travel direction), y left, z along the terrain normal
+(Fig. 7.2); the wheel forces and moments are expressed in it (the wheel model sees flat
+ground), each wheel's wrench about its wheel centre. A wheel steered by ``beta`` has its
+heading rotated by ``beta`` about z (positive toward +y, i.e. left); for a rover driving
+straight the steer angle equals the wheel's slip angle (5.1). The right rear wheel
+"pointed outwards" is at a negative angle (Fig. 7.11: stuck at -50 deg).
 
-Frames: rover x forward, y left, z up (Fig. 7.2). A wheel steered by ``beta`` has its heading
-rotated by ``beta`` about z (positive toward +y, i.e. left); for a rover driving straight the
-steer angle equals the wheel's slip angle (5.1). The right rear wheel "pointed outwards" is
-at a negative angle (Fig. 7.11: stuck at -50 deg).
+Geometry (derived here; where it departs from the printed equations)
+--------------------------------------------------------------------
+Each rocker carries its front and rear wheel centres at ``+-l_r/2`` along the rocker and
+``h_r`` below its pivot; the pivots sit at ``y = -+w_r/2`` of the reference point O (the
+body at pivot height, where the weight acts: the rover's centre of mass is taken at O, as
+the printed moment equations imply by having no weight terms). The rocker angle ``phi``
+is the nose-up angle of (7.10)-(7.11): ``phi_R = asin((h_RR - h_FR) / l_r)`` is positive
+when the rear wheel sinks deeper (its centre ``r - h`` is lower). A nose-up angle is a
+rotation by ``-phi`` about +y, so the wheel centres relative to O are::
+
+    front: ( cos(phi) l_r/2 + sin(phi) h_r,  -+w_r/2,  sin(phi) l_r/2 - cos(phi) h_r)
+    rear:  (-cos(phi) l_r/2 + sin(phi) h_r,  -+w_r/2, -sin(phi) l_r/2 - cos(phi) h_r)
+
+and the balance is ``sum(r x F + M) = 0`` about O (pitch of each rocker: about its pivot
+axis). Compared with the printed equations:
+
+* (7.15)-(7.17): the ``sin(phi)`` terms have the opposite sign. The printed signs put the
+  front axle lower for a positive angle (nose down), which contradicts (7.10)-(7.11)
+  (nose up when the rear sinks more). Here the signs follow the geometry.
+* (7.18): the yaw balance gains ``(F_y,F + F_y,R) h_r sin(phi)`` per rocker, the lever arm
+  of the lateral forces along x that a tilted rocker gives its wheel centres (omitted in
+  the printed equation).
+* (7.16)-(7.17): the soil moments ``M_y`` about the wheel axles act on the rocker-plus-wheel
+  body (the motor torque is internal) and are included (``pitch_includes_wheel_torque``).
+* Cross slope ``gamma`` (not in the dissertation): gravity in the terrain frame is
+  ``W (-sin(alpha), -cos(alpha) sin(gamma), -cos(alpha) cos(gamma))`` (pitch alpha about y,
+  then roll gamma about x, left side up positive), so (7.13) gains ``- W cos(alpha) sin(gamma)``
+  and (7.33) becomes ``sum W_i = W cos(alpha) cos(gamma)``. With the centre of mass at O the
+  weight has no moment about O.
+* Roll of the body is neglected, as in the dissertation (section 7.2.2).
+* A raised wheel (stuck suspension, pivot locked): its rocker is held at the other
+  rocker's angle (the locked body is one rigid frame), so its placeholder sinkage does not
+  enter any angle.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, Mapping, Protocol, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
 
 from ..physics.backend import Backend
 from ..physics.params import Rover
 
-__all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES"]
+__all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES", "free_body_residuals", "rotation_x",
+           "rotation_y", "rotation_z"]
 
 WHEELS: tuple[str, ...] = ("FR", "FL", "RR", "RL")
+"""Wheel order (front right, front left, rear right, rear left); same as :data:`rtctl.layout.WHEELS`."""
 BALANCE_NAMES: tuple[str, ...] = ("Fx", "Fy", "Fz", "Mx", "My_right", "My_left", "Mz")
+"""Balance rows; same as :data:`rtctl.layout.BALANCE_ROWS`."""
+_SIDE = {"FR": "R", "RR": "R", "FL": "L", "RL": "L"}
+_FRONT = {"FR": True, "FL": True, "RR": False, "RL": False}
 
 
 class RoverStatics(Protocol):
@@ -40,7 +84,8 @@ class RoverStatics(Protocol):
 
     def balance(
         self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
-        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any,
+        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
+        contact: Mapping[str, Any] | None = None,
     ) -> dict[str, Any]:
         """Residuals of the steady-state balance (zero at a driving primitive)."""
         ...
@@ -56,10 +101,8 @@ class FourWheelRocker:
         Rocker length l_r, pivot height h_r above the wheel centres, track width w_r,
         weight, nominal speed.
     pitch_includes_wheel_torque : bool
-        The rocker pitch balances (7.16)-(7.17) as printed omit the soil moments M_y about
-        the wheel axles. Those act on the rocker-plus-wheel body (the motor torque is
-        internal to it), so by default they are included; ``False`` reproduces the printed
-        equations.
+        Include the soil moments M_y about the wheel axles in the rocker pitch balances
+        (default; ``False`` reproduces the printed (7.16)-(7.17) in this respect).
     """
 
     rover: Rover
@@ -70,10 +113,29 @@ class FourWheelRocker:
         """Eqs. (7.6)-(7.7) with v_x,rover = speed, v_y,rover = 0."""
         return speed * ops.cos(beta), -speed * ops.sin(beta)
 
-    def rocker_angles(self, ops: Backend, h: dict[str, Any]) -> tuple[Any, Any]:
-        """Eqs. (7.10)-(7.11): phi_R, phi_L from the sinkage difference along each rocker."""
+    def rocker_angles(self, ops: Backend, h: Mapping[str, Any], contact: Mapping[str, Any] | None = None) -> tuple[Any, Any]:
+        """Eqs. (7.10)-(7.11): nose-up angles phi_R, phi_L from the sinkage difference along each rocker.
+
+        ``contact`` (1 on the ground, 0 raised; smooth in the casadi graph): a rocker with a
+        raised wheel takes the other rocker's angle (pivot locked, module docstring).
+        """
         lr = self.rover.rocker_length
-        return ops.arcsin((h["RR"] - h["FR"]) / lr), ops.arcsin((h["RL"] - h["FL"]) / lr)
+        pr = ops.arcsin((h["RR"] - h["FR"]) / lr)
+        pl = ops.arcsin((h["RL"] - h["FL"]) / lr)
+        if contact is None:
+            return pr, pl
+        cr = contact["FR"] * contact["RR"]
+        cl = contact["FL"] * contact["RL"]
+        return cr * pr + (1 - cr) * pl, cl * pl + (1 - cl) * pr
+
+    def wheel_centre(self, ops: Backend, wheel: str, phi: Any) -> tuple[Any, Any, Any]:
+        """Wheel centre relative to the reference point O for a nose-up rocker angle ``phi``
+        (module docstring)."""
+        lr, hr, wr = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
+        c, s = ops.cos(phi), ops.sin(phi)
+        sx = 1.0 if _FRONT[wheel] else -1.0
+        y = -wr / 2 if _SIDE[wheel] == "R" else wr / 2
+        return sx * c * lr / 2 + s * hr, y, sx * s * lr / 2 - c * hr
 
     @staticmethod
     def to_rover_frame(ops: Backend, w: Sequence[Any], beta: Any) -> tuple[Any, ...]:
@@ -84,49 +146,105 @@ class FourWheelRocker:
 
     def balance(
         self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
-        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any,
+        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
+        contact: Mapping[str, Any] | None = None,
     ) -> dict[str, Any]:
-        """Residuals of (7.12)/(7.32), (7.13)/(7.27), (7.23)/(7.33), (7.15)-(7.17), (7.18)/(7.26).
+        """Residuals of (7.12)/(7.32), (7.13)/(7.27), (7.23)/(7.33), (7.15)-(7.17), (7.18)/(7.26),
+        derived from the geometry (module docstring lists where they depart from print).
 
-        ``wrench`` holds each wheel's soil wrench in its own wheel frame; it is rotated into the
-        rover frame here.
+        ``wrench`` holds each wheel's soil wrench in its own wheel frame (about the wheel
+        centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
+        pitch moments of each rocker about its pivot axis.
         """
-        lr, hr, wr = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
         W = self.rover.weight
         F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
-        fx = {k: F[k][0] for k in F}
-        fy = {k: F[k][1] for k in F}
-        fz = {k: F[k][2] for k in F}
-        mx = {k: F[k][3] for k in F}
-        my = {k: F[k][4] for k in F}
-        mz = {k: F[k][5] for k in F}
-        phi_r, phi_l = self.rocker_angles(ops, h)
-        cr, sr, cl, sl = ops.cos(phi_r), ops.sin(phi_r), ops.cos(phi_l), ops.sin(phi_l)
-        res = {
-            "Fx": fx["FR"] + fx["FL"] + fx["RR"] + fx["RL"] - W * ops.sin(slope),
-            "Fy": fy["FR"] + fy["FL"] + fy["RR"] + fy["RL"] - fy_offset,
-            "Fz": load["FR"] + load["FL"] + load["RR"] + load["RL"] - W * ops.cos(slope),
-            "Mx": (mx["FR"] + mx["FL"] + mx["RR"] + mx["RL"]
-                   + (fy["FR"] + fy["RR"]) * cr * hr + (fy["FR"] - fy["RR"]) * sr * lr / 2
-                   + (fy["FL"] + fy["RL"]) * cl * hr + (fy["FL"] - fy["RL"]) * sl * lr / 2
-                   + (-fz["FR"] + fz["FL"] - fz["RR"] + fz["RL"]) * wr / 2),
-            "My_right": ((-fx["FR"] - fx["RR"]) * cr * hr + (-fx["FR"] + fx["RR"]) * sr * lr / 2
-                         + (-fz["FR"] + fz["RR"]) * cr * lr / 2 + (fz["FR"] + fz["RR"]) * sr * hr),
-            "My_left": ((-fx["FL"] - fx["RL"]) * cl * hr + (-fx["FL"] + fx["RL"]) * sl * lr / 2
-                        + (-fz["FL"] + fz["RL"]) * cl * lr / 2 + (fz["FL"] + fz["RL"]) * sl * hr),
-            "Mz": (mz["FR"] + mz["FL"] + mz["RR"] + mz["RL"]
-                   + (fx["FR"] - fx["FL"] + fx["RR"] - fx["RL"]) * wr / 2
-                   + (fy["FR"] - fy["RR"]) * lr / 2 * cr + (fy["FL"] - fy["RL"]) * lr / 2 * cl - mz_offset),
+        phi_r, phi_l = self.rocker_angles(ops, h, contact)
+        phi = {"R": phi_r, "L": phi_l}
+        res: dict[str, Any] = {
+            "Fx": sum(F[k][0] for k in self.wheels) - W * ops.sin(slope),
+            "Fy": sum(F[k][1] for k in self.wheels) - W * ops.cos(slope) * ops.sin(cross_slope) - fy_offset,
+            "Fz": sum(load[k] for k in self.wheels) - W * ops.cos(slope) * ops.cos(cross_slope),
         }
-        if self.pitch_includes_wheel_torque:
-            res["My_right"] = res["My_right"] + my["FR"] + my["RR"]
-            res["My_left"] = res["My_left"] + my["FL"] + my["RL"]
-        return res
+        mx = my_r = my_l = 0.0
+        mz = -mz_offset
+        for k in self.wheels:
+            fx, fy, fz, wmx, wmy, wmz = F[k]
+            rx, ry, rz = self.wheel_centre(ops, k, phi[_SIDE[k]])
+            mx = mx + wmx + ry * fz - rz * fy
+            pitch = rz * fx - rx * fz + (wmy if self.pitch_includes_wheel_torque else 0.0)
+            if _SIDE[k] == "R":
+                my_r = my_r + pitch
+            else:
+                my_l = my_l + pitch
+            mz = mz + wmz + rx * fy - ry * fx
+        res.update(Mx=mx, My_right=my_r, My_left=my_l, Mz=mz)
+        return {n: res[n] for n in BALANCE_NAMES}
 
     @staticmethod
-    def pivot_balance(res: dict[str, Any], pivot_locked: Any) -> tuple[Any, Any]:
-        """The two pitch equations with the rocker pivot free (``pivot_locked = 0``): both
-        rocker balances (7.16), (7.17); or locked (``1``, a stuck suspension): only the whole
-        rover's pitch balance, the pivot carrying the difference. Returned as
-        ``(My_right + My_left, (1 - locked) My_right)``, zero in both cases."""
-        return res["My_right"] + res["My_left"], (1.0 - pivot_locked) * res["My_right"]
+    def pivot_rows(res: Mapping[str, Any], pivot_locked: Any) -> tuple[Any, Any]:
+        """The two pitch rows of the NLP. Pivot free (``pivot_locked = 0``): each rocker's
+        balance (7.16), (7.17). Locked (``1``, a stuck suspension): the whole rover's pitch
+        balance in the first row (the pivot carries the difference) and 0 in the second."""
+        r, l_ = res["My_right"], res["My_left"]
+        return r + pivot_locked * l_, (1.0 - pivot_locked) * l_
+
+
+def rotation_x(a: float) -> NDArray[np.float64]:
+    """Rotation matrix about x by ``a`` (right-handed)."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rotation_y(a: float) -> NDArray[np.float64]:
+    """Rotation matrix about y by ``a`` (right-handed; positive tips +x toward -z)."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotation_z(a: float) -> NDArray[np.float64]:
+    """Rotation matrix about z by ``a`` (right-handed)."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def free_body_residuals(rover: Rover, wrench: Mapping[str, Sequence[float]], beta: Mapping[str, float],
+                        h: Mapping[str, float], load: Mapping[str, float], slope: float, cross_slope: float = 0.0,
+                        fy_offset: float = 0.0, mz_offset: float = 0.0, contact: Mapping[str, float] | None = None,
+                        include_wheel_torque: bool = True) -> dict[str, float]:
+    """Independent free-body balance of the rover (numpy, 3-D vectors, rotation matrices).
+
+    Each wheel's wrench (about its centre, wheel frame) is rotated into the terrain frame by
+    ``R_z(beta)``; each wheel centre is placed by rotating its position in the rocker frame,
+    ``(+-l_r/2, 0, -h_r)``, by ``R_y(-phi)`` (``phi`` the nose-up rocker angle of
+    (7.10)-(7.11); a rocker with a raised wheel takes the other rocker's angle) and shifting
+    it to its pivot at ``y = -+w_r/2``; gravity ``R_x(gamma)^T R_y(-alpha)^T (0, 0, -W)`` acts at
+    the reference point O. Returns the same rows as :meth:`FourWheelRocker.balance`:
+    net force (with ``Fz`` from the loads, (7.23)), net moment about O, and each rocker's
+    moment about its pivot axis (the y axis through O).
+    """
+    lr, hr, wr, W = rover.rocker_length, rover.pivot_height, rover.track_width, rover.weight
+    contact = contact or {k: 1.0 for k in WHEELS}
+    ang = {}
+    for side, (f, r) in (("R", ("FR", "RR")), ("L", ("FL", "RL"))):
+        ang[side] = float(np.arcsin((h[r] - h[f]) / lr)) if contact[f] and contact[r] else None
+    ang["R"] = ang["L"] if ang["R"] is None else ang["R"]
+    ang["L"] = ang["R"] if ang["L"] is None else ang["L"]
+    gravity = rotation_x(cross_slope).T @ rotation_y(-slope).T @ np.array([0.0, 0.0, -W])
+    force = gravity.copy()
+    force[2] = 0.0
+    moment = np.zeros(3)
+    pitch = {"R": 0.0, "L": 0.0}
+    for k in WHEELS:
+        side = "R" if k in ("FR", "RR") else "L"
+        local = np.array([lr / 2 if k in ("FR", "FL") else -lr / 2, 0.0, -hr])
+        pos = rotation_y(-ang[side]) @ local + np.array([0.0, -wr / 2 if side == "R" else wr / 2, 0.0])
+        Rz = rotation_z(beta[k])
+        f = Rz @ np.asarray(wrench[k][:3], dtype=float)
+        m = Rz @ np.asarray(wrench[k][3:], dtype=float)
+        force[:2] += f[:2]
+        mk = np.cross(pos, f) + m
+        moment += mk
+        pitch[side] += mk[1] if include_wheel_torque else mk[1] - m[1]
+    force[2] = sum(load[k] for k in WHEELS) + gravity[2]
+    return {"Fx": float(force[0]), "Fy": float(force[1] - fy_offset), "Fz": float(force[2]), "Mx": float(moment[0]),
+            "My_right": float(pitch["R"]), "My_left": float(pitch["L"]), "Mz": float(moment[2] - mz_offset)}

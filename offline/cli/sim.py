@@ -1,0 +1,140 @@
+"""Simulator commands: ``drive`` (a closed-loop drive, or the section 7.3 experiments)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from .common import fail
+
+__all__ = ["register"]
+
+DEFAULT_SCENARIO = "rr_steer_stuck_50"
+
+
+def _sensor_config(args: argparse.Namespace) -> Any:
+    from ..sim.sensors import SensorConfig
+
+    kw: dict[str, Any] = {}
+    if args.pose_period is not None:
+        kw["pose_period"] = math.inf if args.pose_period <= 0 else args.pose_period
+    if args.pose_delay is not None:
+        kw["pose_delay"] = args.pose_delay
+    return SensorConfig(**kw)
+
+
+def _metrics_table(rows: list[dict[str, Any]]) -> str:
+    head = ("| scenario | controller | final heading [deg] | max abs heading [deg] | final y [cm] | max abs y [cm] "
+            "| mean speed [cm/s] | speed error [%] | distance [m] | time [s] |")
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        m = r["metrics"]
+        lines.append(f"| {r['scenario']} | {r['controller']} | {m['final_heading_deg']:.2f} | {m['max_abs_heading_deg']:.2f} | "
+                     f"{m['final_cross_track_cm']:.2f} | {m['max_abs_cross_track_cm']:.2f} | {m['mean_speed_cm_s']:.2f} | "
+                     f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f} |")
+    return "\n".join(lines)
+
+
+def _cmd_drive(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from rtctl.recording import Recorder
+
+    from ..files import OutputError, check_output_dir, write_text
+    from ..sim.actuators import ActuatorError
+    from ..sim.experiments import (DISSERTATION_7_3, SECTION_7_3, ExperimentError, build_controller, plot_runs,
+                                   run_drive, scenario_by_name)
+    from ..sim.plant import SimulationError
+    from ..sim.rtctl_bridge import RtctlUnavailable, rtctl_factory
+    from ..sim.simulator import RoverSimulator
+    from ..sim.truth import Truth, TruthError, load_truth
+
+    if args.section_7_3:
+        plan = {k: list(v) + (["rtctl"] if args.with_rtctl else []) for k, v in SECTION_7_3.items()}
+    else:
+        ctrls = [c.strip() for c in args.controllers.split(",") if c.strip()]
+        plan = {args.scenario or DEFAULT_SCENARIO: ctrls}
+    out = Path(args.out)
+    try:
+        check_output_dir(out, inputs=[args.truth, args.tables, args.config])
+    except OutputError as exc:
+        return fail(str(exc))
+    factory = None
+    if any("rtctl" in c for c in plan.values()):
+        try:
+            factory = rtctl_factory(args.tables, args.config)
+        except RtctlUnavailable as exc:
+            return fail(str(exc))
+    sensors = _sensor_config(args)
+    rows: list[dict[str, Any]] = []
+    total = sum(len(v) for v in plan.values())
+    bar = tqdm(total=total, desc="drives", unit="drive", disable=args.quiet)
+    for name, ctrls in plan.items():
+        try:
+            sc = scenario_by_name(name)
+            truth = load_truth(args.truth, sc.rover, sc.params) if args.truth else Truth.nominal(sc.params, sc.rover)
+        except (ExperimentError, TruthError) as exc:
+            return fail(str(exc))
+        runs = []
+        for kind in ctrls:
+            bar.set_postfix_str(f"{name} / {kind}")
+            try:
+                ctl = build_controller(kind, sc, rtctl_factory=factory)
+                sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed)
+                meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
+                        "seed": args.seed, "dt": args.dt, "truth": truth.describe(),
+                        "sensors": sensors.__dict__, "distance_m": args.distance}
+                if args.no_record:
+                    r = run_drive(sim, ctl, distance=args.distance, name=kind)
+                else:
+                    rec_path = out / f"{sc.name}_{kind.replace('+', '_')}.mcap"
+                    with Recorder(rec_path, meta, truth=True) as rec:
+                        r = run_drive(sim, ctl, distance=args.distance, recorder=rec, name=kind)
+            except (ExperimentError, ActuatorError, SimulationError) as exc:
+                bar.close()
+                return fail(f"{name} / {kind}: {exc}")
+            runs.append(r)
+            rows.append({"scenario": sc.name, "controller": kind, "metrics": r.metrics,
+                         "wall_seconds": r.wall_seconds})
+            bar.update(1)
+        plot_runs(runs, out / f"{sc.name}.png", f"{sc.name}: yaw and y error (cf. Figs. 7.6, 7.9, 7.11)")
+    bar.close()
+    table = _metrics_table(rows)
+    notes = [f"- {k}: dissertation (hardware): {v}" for k, v in DISSERTATION_7_3.items() if k in plan]
+    write_text(out / "metrics.md", "# Closed-loop drives\n\n" + table + "\n\n" + "\n".join(notes) + "\n")
+    write_text(out / "metrics.json", json.dumps(rows, indent=1))
+    print(table)
+    for n in notes:
+        print(n)
+    print(f"wrote {out}/metrics.md, metrics.json, plots and {'no ' if args.no_record else ''}recordings")
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add ``drive`` to the ``offnominal`` parser."""
+    dr = sub.add_parser(
+        "drive", help="closed-loop drive of the simulated mini rover (failures, controllers, truth); section 7.3",
+        description="Drive the simulated mini rover (Table 7.2) with a failure from a scenario file and one or "
+                    "more controllers; print final/max heading and cross-track error and mean speed; write the "
+                    "plot, the metrics and one MCAP recording per drive.")
+    dr.add_argument("scenario", nargs="?", help=f"scenario TOML or shipped name (default: {DEFAULT_SCENARIO})")
+    dr.add_argument("--controllers", default="rtctl,none",
+                    help="comma list of none, ff, fb, ff+fb, ff+optfb, rtctl (default: %(default)s)")
+    dr.add_argument("--section-7-3", action="store_true",
+                    help="run the three scenarios of section 7.3 with the dissertation's controllers")
+    dr.add_argument("--with-rtctl", action="store_true", help="with --section-7-3: add rtctl to every scenario")
+    dr.add_argument("--truth", help="truth TOML (soil, per-wheel radius and steer offset, slope, tether)")
+    dr.add_argument("--tables", help="table index or folder for rtctl (default: the shipped tables)")
+    dr.add_argument("--config", help="rtctl controller config TOML (default: rtctl's defaults)")
+    dr.add_argument("--distance", type=float, default=1.5, help="metres along the path (default: %(default)s)")
+    dr.add_argument("--dt", type=float, default=0.1, help="plant step, s (default: %(default)s)")
+    dr.add_argument("--seed", type=int, default=1, help="noise seed (default: %(default)s)")
+    dr.add_argument("--pose-period", type=float, help="s between pose fixes (0: none; default 0.2)")
+    dr.add_argument("--pose-delay", type=float, help="pose latency, s (default 0)")
+    dr.add_argument("--out", default="out/drive", help="output folder (default: %(default)s)")
+    dr.add_argument("--no-record", action="store_true", help="skip the MCAP recordings")
+    dr.add_argument("--quiet", action="store_true", help="no progress bar")
+    dr.set_defaults(func=_cmd_drive)

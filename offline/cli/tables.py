@@ -1,0 +1,149 @@
+"""Table commands: ``offnominal tables build | info | verify`` (lookup tables for the on-rover QP)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+from .common import fail
+
+__all__ = ["register"]
+
+_BUILD_EPILOG = """\
+Axes (SI inside; --grid takes display units): slope [deg], cross_slope [deg], speed [cm/s], and
+the failure's own parameter when the scenario has one: steer_stuck [deg] (a stuck steering
+wheel), rim_speed_cap_fraction [1] (a rim-speed cap, as a fraction of the travel speed),
+trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10; speed=2,3,4;
+steer_stuck=-90:90:30; rim_speed_cap_fraction=0.25,0.5,0.75,1; trench_depth=20:35:5.
+
+Example: offnominal tables build my_failure.toml --grid "slope=0:20:5;speed=3" --jobs 2 --out tables/
+An interrupted build resumes from <out>/.<name>.partial/ when run again with the same options.
+"""
+
+
+def cmd_build(args: argparse.Namespace) -> int:
+    from ..files import OutputError
+    from ..rover.table_builder import BuildError, build_table, table_spec, write_index
+
+    src = Path(args.scenario)
+    files = sorted(src.glob("*.toml")) if src.is_dir() else [src]
+    if not files:
+        return fail(f"{src}: no scenario files (*.toml) in this folder")
+    if args.jobs < 1:
+        return fail(f"--jobs {args.jobs}: must be >= 1")
+    try:
+        specs = [table_spec(f, args.grid if len(files) == 1 or args.grid_all else None, args.family) for f in files]
+    except BuildError as exc:
+        return fail(str(exc))
+    names = [s.name for s in specs]
+    if len(set(names)) != len(names):
+        return fail(f"two scenario files share a name {sorted(n for n in names if names.count(n) > 1)}; "
+                    "give each [scenario] name a distinct value")
+    built = []
+    t_all = time.perf_counter()
+    for spec, f in zip(specs, files):
+        t0 = time.perf_counter()
+        try:
+            path, summ = build_table(spec, args.out, jobs=args.jobs, scheduler=args.scheduler,
+                                     progress=not args.quiet, keep_partial=args.keep_partial, inputs=files)
+        except (BuildError, OutputError) as exc:
+            return fail(str(exc))
+        built.append(path)
+        st = ", ".join(f"{k} {v}" for k, v in summ["statuses"].items())
+        print(f"{path}: {summ['grid_points']} points {summ['shape']}, {st}; feasible {summ['feasible_fraction']:.0%}; "
+              f"{summ['bytes'] / 1e6:.2f} MB; {time.perf_counter() - t0:.1f} s")
+    if not args.no_index:
+        ip = write_index(args.out, built)
+        print(f"index: {ip}")
+    print(f"built {len(built)} table(s) in {time.perf_counter() - t_all:.1f} s")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from rtctl.table import STATUS_NAMES, TableError, load_table
+
+    try:
+        t = load_table(args.file)
+    except TableError as exc:
+        return fail(str(exc))
+    h = t.header
+    print(f"table {t.name}: {h.get('description', '')}")
+    print(f"schema {h['schema_version']}, library {h.get('library_version')}, content hash {h['content_hash'][:16]}... (checked)")
+    r = h["rover"]
+    print(f"rover {r.get('name')} (weight {r.get('weight')} N, rocker {r.get('rocker_length')} m); sources: "
+          + ", ".join(f"{k} {v['name']} sha256 {v['sha256'][:12]}" if isinstance(v, dict) else f"{k} {v}"
+                      for k, v in h["sources"].items() if k != "scenario_text"))
+    fam = h.get("family")
+    print(f"family: {fam['kind']} of {fam['wheel']} (axis {fam['axis']})" if fam else "family: none (single scenario)")
+    for k, v in t.axes.items():
+        a = h["axes"][k]
+        disp = [round(x / a["display_factor"], 6) for x in v]
+        print(f"  axis {k:<24} [{a['display_unit']}] {disp}")
+    counts = {s: int((t.status == i).sum()) for i, s in enumerate(STATUS_NAMES) if (t.status == i).any()}
+    print(f"grid {t.shape} = {t.feasible.size} points: " + ", ".join(f"{k} {v}" for k, v in counts.items())
+          + f"; feasible {t.feasible_fraction:.0%}")
+    for k, rng in t.feasible_ranges().items():
+        f = h["axes"][k]["display_factor"]
+        print(f"  feasible {k}: " + (f"{rng[0] / f:.4g} .. {rng[1] / f:.4g} {h['axes'][k]['display_unit']}" if rng else "none"))
+    tr = h.get("trust_radius", {})
+    print("trust radius (SI): " + ", ".join(f"{k} {v:.3g}" if v is not None else f"{k} -" for k, v in tr.items()))
+    ev = h.get("evidence", {})
+    for flat in list(ev)[: args.evidence]:
+        idx = tuple(int(i) for i in __import__("numpy").unravel_index(int(flat), t.shape))
+        op = {k: round(v / h["axes"][k]["display_factor"], 4) for k, v in t.grid_point(idx).items()}
+        print(f"  {t.status_at(idx)} at {op}: {json.dumps(ev[flat])[:300]}")
+    if len(ev) > args.evidence:
+        print(f"  ... {len(ev) - args.evidence} more points without a primitive (--evidence N to list them)")
+    return 0
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    from rtctl.table import TableError
+
+    from ..rover.table_verify import verify_table
+
+    try:
+        rep = verify_table(args.file, points=args.points, seed=args.seed)
+    except TableError as exc:
+        return fail(str(exc))
+    print(rep.text())
+    return 0 if rep.passed else 1
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``tables build|info|verify``."""
+    p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
+                       description="Lookup tables: driving primitives and the QP's data over slope, cross-slope, "
+                                   "speed and the failure's parameter.")
+    ts = p.add_subparsers(dest="tables_command", metavar="action")
+    p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
+
+    b = ts.add_parser("build", help="build tables from scenario files", epilog=_BUILD_EPILOG,
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("scenario", help="a scenario TOML file, or a folder: one table per *.toml in it")
+    b.add_argument("--grid", help="axis overrides, e.g. 'slope=0:25:5;speed=2,3,4' (display units; see below)")
+    b.add_argument("--grid-all", action="store_true", help="apply --grid to every file of a folder (default: single file only)")
+    b.add_argument("--family", default="auto",
+                   choices=("auto", "none", "steer_stuck", "rim_speed_cap_fraction", "trench_depth"),
+                   help="the failure parameter to tabulate as an axis (default: from the scenario)")
+    b.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
+    b.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786): run there instead")
+    b.add_argument("--out", required=True, help="output folder (tables and index.json)")
+    b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
+    b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    b.set_defaults(func=cmd_build)
+
+    i = ts.add_parser("info", help="describe a table file (checks its hash)")
+    i.add_argument("file")
+    i.add_argument("--evidence", type=int, default=5, help="points without a primitive to list (default 5)")
+    i.set_defaults(func=cmd_info)
+
+    v = ts.add_parser("verify", help="check Jacobians, linearisation and interpolation against the model")
+    v.add_argument("file")
+    v.add_argument("--points", type=int, default=3, help="sampled points per check (default 3)")
+    v.add_argument("--seed", type=int, default=0)
+    v.set_defaults(func=cmd_verify)

@@ -1,0 +1,434 @@
+"""Failure kinds and trenching goals of the steady-state NLP (7.25): one object per kind.
+
+Each kind says, in one place, everything the optimizer needs to know about it:
+
+* ``TOML_KEYS`` and :meth:`FailureKind.from_toml`: how it is written in a scenario file
+  (``[wheels.<name>]`` keys) and which values are physically plausible;
+* :meth:`FailureKind.apply`: its constraints, as bounds on the wheel's decision variables
+  (``omega``, ``beta``, ``W``, ``h``, ``h0``), on its wheel-torque row and on the wheel's
+  ground contact (:class:`WheelBounds`);
+* :meth:`FailureKind.mirror`: the same failure on the left-right mirror-image rover;
+* :meth:`FailureKind.check`: its residuals at a solution, for the independent numeric check;
+* :meth:`FailureKind.evidence`: what the furthest feasible point reached shows when the
+  target could not be reached (e.g. the lowest rim speed actually reached by a capped wheel);
+* :meth:`FailureKind.start`: optional hints for start points (a stuck wheel's angle).
+
+Adding a failure kind means adding one class here and listing it in :data:`KINDS`
+(see the recipe in :mod:`offline.rover.scenario`). The trenching goal (7.28)-(7.29) is
+:class:`TrenchGoal`, with the same methods for its three constraint rows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+__all__ = [
+    "FailureKind",
+    "WheelBounds",
+    "SolutionView",
+    "SteerRange",
+    "StuckSteering",
+    "RimSpeedCap",
+    "Locked",
+    "Unpowered",
+    "Raised",
+    "TorqueLimit",
+    "TrenchGoal",
+    "KINDS",
+    "FailureSpecError",
+]
+
+
+class FailureSpecError(ValueError):
+    """A failure value that is out of its physical range; the message names the key."""
+
+
+@dataclass
+class WheelBounds:
+    """Mutable bounds of one wheel, physical units, filled by the failure kinds.
+
+    Attributes
+    ----------
+    lo, hi : dict
+        Bounds per wheel variable (``omega`` rad/s, ``beta`` rad, ``W`` N, ``h``, ``h0`` m).
+    torque : tuple
+        Bounds on the wheel torque row (soil moment M_y, N m).
+    contact : float
+        1 in ground contact, 0 raised.
+    rim_radius : float
+        Shearing radius r_s, m (rim speed = omega r_s).
+    speed : float
+        Travel speed, m/s.
+    """
+
+    lo: dict[str, float]
+    hi: dict[str, float]
+    torque: tuple[float, float] = (-math.inf, math.inf)
+    contact: float = 1.0
+    rim_radius: float = 1.0
+    speed: float = 0.03
+
+
+@dataclass(frozen=True)
+class SolutionView:
+    """One wheel of a solution or of the furthest point reached, physical units, as the
+    failure kinds need it for checks and evidence."""
+
+    omega: float
+    beta: float
+    load: float
+    sinkage: float
+    torque: float  # soil moment M_y about the axle (motor torque = -M_y), N m
+    rim_radius: float
+    speed: float
+
+    @property
+    def rim_speed(self) -> float:
+        """omega r_s, m/s."""
+        return self.omega * self.rim_radius
+
+
+_MIRROR_WHEEL = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+
+
+def _num(values: Mapping[str, Any], key: str, lo: float, hi: float, unit_hint: str = "") -> float:
+    v = values[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise FailureSpecError(f"{key} must be a finite number, got {v!r}")
+    v = float(v)
+    if not lo <= v <= hi:
+        raise FailureSpecError(f"{key} = {v} outside [{lo}, {hi}]{unit_hint}")
+    return v
+
+
+def _flag(values: Mapping[str, Any], key: str) -> bool:
+    v = values[key]
+    if not isinstance(v, bool):
+        raise FailureSpecError(f"{key} must be true or false, got {v!r}")
+    return v
+
+
+class FailureKind:
+    """Base of the failure kinds (see the module docstring for the interface)."""
+
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ()
+    """Keys of ``[wheels.<name>]`` this kind reads."""
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "FailureKind | None":
+        """The kind from the wheel table's values (only its own keys present), or ``None``."""
+        raise NotImplementedError
+
+    def apply(self, b: WheelBounds) -> None:
+        """Tighten the wheel's bounds (variables, torque row, contact)."""
+        raise NotImplementedError
+
+    def mirror(self) -> "FailureKind":
+        """The same failure on the mirror-image (left-right swapped) rover."""
+        return self
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Residuals ``name -> (value, scale)`` (0 when met; |value| <= rtol * scale passes)."""
+        return {}
+
+    def evidence(self, s: SolutionView) -> str:
+        """What the furthest feasible point reached shows about this constraint."""
+        return ""
+
+    def start(self) -> dict[str, float]:
+        """Start-point hints for this wheel (variable name -> value)."""
+        return {}
+
+    def describe(self) -> str:
+        """Short human-readable description."""
+        return type(self).__name__
+
+
+@dataclass(frozen=True)
+class SteerRange(FailureKind):
+    """Steering range of the wheel (bound 7.3 narrowed): ``steer_min <= beta <= steer_max``."""
+
+    steer_min: float = -math.pi / 2
+    steer_max: float = math.pi / 2
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("steer_min_deg", "steer_max_deg")
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "SteerRange | None":
+        """From ``steer_min_deg`` / ``steer_max_deg`` (degrees, within +-90)."""
+        if not any(k in values for k in cls.TOML_KEYS):
+            return None
+        lo = _num(values, "steer_min_deg", -90.0, 90.0, " (degrees expected)") if "steer_min_deg" in values else -90.0
+        hi = _num(values, "steer_max_deg", -90.0, 90.0, " (degrees expected)") if "steer_max_deg" in values else 90.0
+        if lo > hi:
+            raise FailureSpecError(f"steer_min_deg = {lo} > steer_max_deg = {hi}")
+        return cls(math.radians(lo), math.radians(hi))
+
+    def apply(self, b: WheelBounds) -> None:
+        """Narrow the steer bounds."""
+        b.lo["beta"], b.hi["beta"] = max(b.lo["beta"], self.steer_min), min(b.hi["beta"], self.steer_max)
+
+    def mirror(self) -> "SteerRange":
+        """Angles negated and swapped."""
+        return SteerRange(-self.steer_max, -self.steer_min)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Distance outside the range, rad."""
+        return {"steer range": (max(self.steer_min - s.beta, s.beta - self.steer_max, 0.0), 1.0)}
+
+    def describe(self) -> str:
+        """Range in degrees."""
+        return f"steer range [{math.degrees(self.steer_min):.0f}, {math.degrees(self.steer_max):.0f}] deg"
+
+
+@dataclass(frozen=True)
+class StuckSteering(FailureKind):
+    """Steering actuator frozen, eq. (7.31): ``beta = angle``."""
+
+    angle: float
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("steer_stuck_deg",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "StuckSteering | None":
+        """From ``steer_stuck_deg`` (degrees, within +-90)."""
+        if "steer_stuck_deg" not in values:
+            return None
+        return cls(math.radians(_num(values, "steer_stuck_deg", -90.0, 90.0, " (degrees expected)")))
+
+    def apply(self, b: WheelBounds) -> None:
+        """Fix beta (the steer limit of +-89 deg still applies)."""
+        a = min(max(self.angle, b.lo["beta"]), b.hi["beta"])
+        b.lo["beta"] = b.hi["beta"] = a
+
+    def mirror(self) -> "StuckSteering":
+        """Angle negated."""
+        return StuckSteering(-self.angle)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Steer error, rad."""
+        return {"steer": (s.beta - self.angle, 1.0)}
+
+    def evidence(self, s: SolutionView) -> str:
+        """Steer angle reached."""
+        return f"steer reached {math.degrees(s.beta):.1f} deg (stuck at {math.degrees(self.angle):.1f} deg)"
+
+    def start(self) -> dict[str, float]:
+        """Start at the stuck angle."""
+        return {"beta": self.angle}
+
+    def describe(self) -> str:
+        """Angle in degrees."""
+        return f"steering stuck at {math.degrees(self.angle):.1f} deg"
+
+
+@dataclass(frozen=True)
+class RimSpeedCap(FailureKind):
+    """Speed-limited wheel, eq. (7.30): ``omega r_s <= cap``."""
+
+    cap: float
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("rim_speed_max_m_s",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "RimSpeedCap | None":
+        """From ``rim_speed_max_m_s`` (m/s; above 2 m/s is taken as a unit mistake)."""
+        if "rim_speed_max_m_s" not in values:
+            return None
+        return cls(_num(values, "rim_speed_max_m_s", 0.0, 2.0, " m/s (is it in cm/s? 1.5 cm/s = 0.015)"))
+
+    def apply(self, b: WheelBounds) -> None:
+        """Upper bound on omega."""
+        b.hi["omega"] = min(b.hi["omega"], self.cap / b.rim_radius)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Rim speed above the cap, m/s."""
+        return {"rim speed": (max(s.rim_speed - self.cap, 0.0), s.speed)}
+
+    def evidence(self, s: SolutionView) -> str:
+        """Lowest rim speed reached at a feasible, checked point."""
+        return (f"lowest rim speed reached at a feasible point {s.rim_speed * 100:.2f} cm/s "
+                f"(cap {self.cap * 100:.2f} cm/s)")
+
+    def describe(self) -> str:
+        """Cap in cm/s."""
+        return f"rim speed <= {self.cap * 100:.2f} cm/s"
+
+
+@dataclass(frozen=True)
+class Locked(FailureKind):
+    """Jammed wheel: ``omega = 0`` (it still steers unless its steering is stuck too)."""
+
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("locked",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "Locked | None":
+        """From ``locked = true``."""
+        return cls() if "locked" in values and _flag(values, "locked") else None
+
+    def apply(self, b: WheelBounds) -> None:
+        """omega fixed at 0."""
+        b.hi["omega"] = 0.0
+        b.lo["omega"] = 0.0
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Rim speed, m/s."""
+        return {"rim speed": (abs(s.rim_speed), s.speed)}
+
+    def evidence(self, s: SolutionView) -> str:
+        """Lowest rim speed reached at a feasible point."""
+        return f"lowest rim speed reached at a feasible point {s.rim_speed * 100:.2f} cm/s (locked: 0)"
+
+    def start(self) -> dict[str, float]:
+        """Start at rest."""
+        return {"omega": 0.0}
+
+    def describe(self) -> str:
+        """'locked'."""
+        return "locked (omega = 0)"
+
+
+@dataclass(frozen=True)
+class Unpowered(FailureKind):
+    """Drive motor without power: free rolling, wheel torque ``M_y = 0``."""
+
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("unpowered",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "Unpowered | None":
+        """From ``unpowered = true``."""
+        return cls() if "unpowered" in values and _flag(values, "unpowered") else None
+
+    def apply(self, b: WheelBounds) -> None:
+        """Torque row fixed at 0."""
+        b.torque = (0.0, 0.0)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """|torque|, N m (scale: weight times rocker length is applied by the caller)."""
+        return {"torque": (abs(s.torque), math.nan)}
+
+    def evidence(self, s: SolutionView) -> str:
+        """Smallest |torque| reached at a feasible point."""
+        return f"smallest |torque| reached at a feasible point {abs(s.torque):.4f} N m (unpowered: 0)"
+
+    def describe(self) -> str:
+        """'unpowered'."""
+        return "unpowered (M_y = 0)"
+
+
+@dataclass(frozen=True)
+class Raised(FailureKind):
+    """Wheel off the ground (stuck suspension): ``W = 0``, no soil wrench, pivot locked.
+
+    The wheel's sinkage variables are fixed at the grouser height only to keep the (zeroed)
+    wheel model finite; they enter neither the balance nor the rocker angle
+    (:meth:`offline.rover.statics.FourWheelRocker.rocker_angles`) and are reported as 0.
+    """
+
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("raised",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "Raised | None":
+        """From ``raised = true``."""
+        return cls() if "raised" in values and _flag(values, "raised") else None
+
+    def apply(self, b: WheelBounds) -> None:
+        """Contact 0, load 0; speed at the rolling value, straight, sinkage parked."""
+        b.contact = 0.0
+        om = b.speed / b.rim_radius
+        b.lo.update(omega=om, beta=0.0, W=0.0)
+        b.hi.update(omega=om, beta=0.0, W=0.0)
+        b.hi["h"], b.hi["h0"] = b.lo["h"], b.lo["h0"]
+        b.torque = (-math.inf, math.inf)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """Load carried, N (scale: the weight, applied by the caller)."""
+        return {"load": (s.load, math.nan)}
+
+    def describe(self) -> str:
+        """'raised'."""
+        return "raised (W = 0, pivot locked)"
+
+
+@dataclass(frozen=True)
+class TorqueLimit(FailureKind):
+    """Weak motor: ``|M_y| <= limit``."""
+
+    limit: float
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("torque_limit_Nm",)
+
+    @classmethod
+    def from_toml(cls, values: Mapping[str, Any]) -> "TorqueLimit | None":
+        """From ``torque_limit_Nm`` (N m, within [0, 1e4])."""
+        if "torque_limit_Nm" not in values:
+            return None
+        return cls(_num(values, "torque_limit_Nm", 0.0, 1e4, " N m"))
+
+    def apply(self, b: WheelBounds) -> None:
+        """Torque row within +-limit."""
+        lo, hi = b.torque
+        b.torque = (max(lo, -self.limit), min(hi, self.limit))
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        """|torque| above the limit, N m."""
+        return {"torque": (max(abs(s.torque) - self.limit, 0.0), math.nan)}
+
+    def evidence(self, s: SolutionView) -> str:
+        """Smallest |torque| reached at a feasible point."""
+        return f"smallest |torque| reached at a feasible point {abs(s.torque):.4f} N m (limit {self.limit:.4f} N m)"
+
+    def describe(self) -> str:
+        """Limit in N m."""
+        return f"|torque| <= {self.limit:.4f} N m"
+
+
+KINDS: tuple[type[FailureKind], ...] = (SteerRange, StuckSteering, RimSpeedCap, Locked, Unpowered, Raised, TorqueLimit)
+"""Every failure kind, in the order they are applied (a range before a stuck angle)."""
+
+
+@dataclass(frozen=True)
+class TrenchGoal:
+    """Trenching objective for one wheel, eqs. (7.28)-(7.29), as bounds on the trench rows.
+
+    Rows (see :mod:`rtctl.layout`): ``trench clean-side pile`` (the rim-side pile area margin,
+    m^2; <= 0 for a clean side, 7.28), ``trench depth`` (m; >= min_depth (7.29) or = target),
+    ``trench flat width`` (m; >= min_flat_width).
+    """
+
+    wheel: str
+    clean_side: bool = False
+    min_depth: float = 0.0
+    min_flat_width: float = 0.0
+    target_depth: float | None = None
+
+    def row_bounds(self) -> dict[str, tuple[float, float]]:
+        """Physical bounds per trench row (``clean-side pile``, ``depth``, ``flat width``)."""
+        out = {"clean-side pile": (-math.inf, 0.0 if self.clean_side else math.inf)}
+        if self.target_depth is not None:
+            out["depth"] = (self.target_depth, self.target_depth)
+        else:
+            out["depth"] = (self.min_depth if self.min_depth > 0 else -math.inf, math.inf)
+        out["flat width"] = (self.min_flat_width if self.min_flat_width > 0 else -math.inf, math.inf)
+        return out
+
+    def mirror(self) -> "TrenchGoal":
+        """The same goal dug by the mirror-image wheel."""
+        return TrenchGoal(_MIRROR_WHEEL[self.wheel], self.clean_side, self.min_depth, self.min_flat_width, self.target_depth)
+
+    def check(self, trench: Any, tol: float = 5e-4) -> dict[str, tuple[float, float]]:
+        """Residuals of the goal on a trench profile, m, each with its absolute tolerance
+        ``tol`` (default 0.5 mm; section 7.2.7 used 1 mm)."""
+        res: dict[str, tuple[float, float]] = {}
+        if self.clean_side:
+            res["trench rim-side pile height"] = (trench.h_R2, tol)
+        if self.target_depth is not None:
+            res["trench depth"] = (trench.d - self.target_depth, tol)
+        else:
+            res["trench depth"] = (max(self.min_depth - trench.d, 0.0), tol)
+        if self.min_flat_width > 0:
+            res["trench flat width"] = (max(self.min_flat_width - trench.p, 0.0), tol)
+        return res
+
+    def evidence(self, trench: Any) -> str:
+        """Trench reached at the furthest feasible point."""
+        return (f"trench reached: depth {trench.d * 1e3:.1f} mm, rim-side pile {trench.h_R2 * 1e3:.1f} mm, "
+                f"flat width {trench.p * 1e3:.1f} mm")

@@ -1,0 +1,912 @@
+"""Table builder: driving primitives and the online QP's data over a grid of operating conditions.
+
+For one scenario file (rover + parameter file + failure) and a grid over slope, cross-slope,
+speed and, for a family, the failure's own parameter (stuck steering angle, rim-speed cap as a
+fraction of the travel speed, trench depth target), solve the steady-state NLP (7.25) at every
+grid point and store what the on-rover QP needs to be one exact SQP step of it
+(:mod:`rtctl.table` describes the file):
+
+* the primitive and IPOPT's multipliers; the constraint values and exact Jacobians in the
+  decision variables and the parameters; the objective gradient; the Hessian of the Lagrangian
+  ``f + lam_g' g``; bounds and active sets;
+* the parametric sensitivity ``dx*/dp`` from the KKT system of the active set (the
+  Fiacco sensitivity system ``[H A'; A 0] [dx; dlam] = -[H_xp; A_p - b_p]``), bounds that move
+  with a parameter (the motor limit and a rim-speed cap scale with the speed) included;
+* each wheel's wrench and its exact Jacobian in ``(v_x, v_y, omega, h, h0)`` from the AD graph;
+* the steering controllers of section 7.2.4: re-solves with +-yaw-moment (7.26) and
+  +-lateral-force (7.27) offsets minus the primitive, per unit offset (the first-order
+  sensitivity column where a re-solve fails, flagged in ``controller_source``).
+
+Schedule (deterministic, so the file is byte-identical whatever the worker count or the order
+in which workers finish): the grid is cut into *chains* along the slope axis (all other axes
+fixed), solved from flat ground upward, each point warm-started from the last solved point of
+its chain (the first from the optimizer's automatic start). Chains are independent tasks for a
+local process pool or a Dask cluster. Points left unsolved (``not_found``/``solver_failure``)
+are then retried from each solved grid neighbour in a fixed order; still unsolved, they are
+``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Every
+finished chain and retry is checkpointed in ``<out>/.<name>.partial/``, so an interrupted
+build continues where it stopped. Finally the linearisation is checked against re-solves at
+a few points to size the trust radius stored in the table.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import functools
+import hashlib
+import importlib
+import json
+import math
+import multiprocessing
+import shutil
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rtctl.layout import NlpLayout
+from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION, STATUS_NAMES, TableError,
+                         content_hash, field_shapes, table_bytes)
+
+from ..files import check_output_dir, write_bytes, write_text
+
+__all__ = [
+    "AXES", "FAMILY_KINDS", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
+    "encode", "decode", "scenario_from_header", "linearisation_errors", "BIG",
+]
+
+BIG = 1e30
+"""Stand-in for an infinite bound inside the QP data (OSQP's ``OSQP_INFTY``); the file keeps inf."""
+
+AXES: dict[str, tuple[str, str, float]] = {
+    "slope": ("rad", "deg", math.pi / 180),
+    "cross_slope": ("rad", "deg", math.pi / 180),
+    "speed": ("m/s", "cm/s", 0.01),
+    "steer_stuck": ("rad", "deg", math.pi / 180),
+    "rim_speed_cap_fraction": ("1", "1", 1.0),
+    "trench_depth": ("m", "mm", 1e-3),
+}
+"""Known axes: name -> (SI unit, display unit, display-to-SI factor)."""
+
+FAMILY_KINDS = ("steer_stuck", "rim_speed_cap_fraction", "trench_depth")
+"""Failure parameters a table can carry as an axis (one table covers the whole family)."""
+
+_DEFAULT_DISPLAY = {
+    "slope": (0.0, 5.0, 10.0, 15.0, 20.0, 25.0),
+    "cross_slope": (-10.0, 0.0, 10.0),
+    "speed": (2.0, 3.0, 4.0),
+    "steer_stuck": (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0),
+    "rim_speed_cap_fraction": (0.25, 0.5, 0.75, 1.0),
+    "trench_depth": (20.0, 25.0, 30.0, 35.0),
+}
+
+
+class BuildError(ValueError):
+    """A table build that cannot start or continue (bad grid, scenario, output or partial build)."""
+
+
+# ------------------------------------------------------------------------------ JSON coding
+def encode(obj: Any) -> Any:
+    """JSON-able form of scenario data: frozen dataclasses tagged with their class (only
+    classes of :mod:`offline` are accepted back), tuples tagged, non-finite floats as strings."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        d = {f.name: encode(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+        return {"__class__": f"{type(obj).__module__}.{type(obj).__qualname__}", **d}
+    if isinstance(obj, (bool, str, type(None))):
+        return obj
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else {"__float__": repr(v)}
+    if isinstance(obj, tuple):
+        return {"__tuple__": [encode(v) for v in obj]}
+    if isinstance(obj, list):
+        return [encode(v) for v in obj]
+    if isinstance(obj, Mapping):
+        return {str(k): encode(v) for k, v in sorted(obj.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(obj, np.ndarray):
+        return [encode(v) for v in obj.tolist()]
+    return str(obj)
+
+
+def decode(obj: Any) -> Any:
+    """Inverse of :func:`encode`."""
+    if isinstance(obj, list):
+        return [decode(v) for v in obj]
+    if not isinstance(obj, dict):
+        return obj
+    if "__float__" in obj:
+        return float(obj["__float__"])
+    if "__tuple__" in obj:
+        return tuple(decode(v) for v in obj["__tuple__"])
+    if "__class__" in obj:
+        mod, _, name = obj["__class__"].rpartition(".")
+        if not mod.startswith("offline."):
+            raise BuildError(f"table header names class {obj['__class__']!r}: only offline classes are rebuilt")
+        cls = getattr(importlib.import_module(mod), name)
+        names = {f.name for f in dataclasses.fields(cls) if f.init}
+        return cls(**{k: decode(v) for k, v in obj.items() if k in names})
+    return {k: decode(v) for k, v in obj.items()}
+
+
+# ------------------------------------------------------------------------------ grid
+@dataclass(frozen=True)
+class GridSpec:
+    """Axes of a table in order; values in SI (:data:`AXES`)."""
+
+    axes: tuple[tuple[str, tuple[float, ...]], ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Axis names in order."""
+        return tuple(k for k, _ in self.axes)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Grid shape."""
+        return tuple(len(v) for _, v in self.axes)
+
+    @property
+    def size(self) -> int:
+        """Number of grid points."""
+        return int(np.prod(self.shape))
+
+    def values(self, name: str) -> tuple[float, ...]:
+        """Values of one axis (SI)."""
+        return dict(self.axes)[name]
+
+    def point(self, flat: int) -> dict[str, float]:
+        """Operating point of a flat grid index."""
+        idx = np.unravel_index(flat, self.shape)
+        return {k: v[i] for (k, v), i in zip(self.axes, idx)}
+
+
+def _parse_values(text: str, where: str) -> tuple[float, ...]:
+    try:
+        if ":" in text:
+            a, b, s = (float(t) for t in text.split(":"))
+            if s <= 0 or b < a:
+                raise ValueError
+            n = int(math.floor((b - a) / s + 1e-9)) + 1
+            return tuple(round(a + i * s, 12) for i in range(n))
+        return tuple(float(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise BuildError(f"--grid {where}: {text!r} is not 'start:stop:step' (step > 0) nor a comma list") from None
+
+
+def parse_grid(text: str | None, base: GridSpec) -> GridSpec:
+    """Override axes of ``base`` from ``"slope=0:25:5;speed=2,3,4"`` (display units of :data:`AXES`:
+    deg, cm/s, mm, fraction).
+
+    Raises
+    ------
+    BuildError
+        Unknown axis, an axis the scenario does not have, bad numbers, repeated or unsorted values.
+    """
+    if not text:
+        return base
+    axes = dict(base.axes)
+    for part in text.replace(" ", "").split(";"):
+        if not part:
+            continue
+        if "=" not in part:
+            raise BuildError(f"--grid: {part!r} is not AXIS=VALUES (e.g. slope=0:25:5)")
+        name, vals = part.split("=", 1)
+        if name not in AXES:
+            raise BuildError(f"--grid: unknown axis {name!r}; known: {sorted(AXES)}")
+        if name not in axes:
+            raise BuildError(f"--grid: this table has no {name!r} axis (its axes: {list(axes)}); "
+                             "a family axis comes from the scenario's failure (see 'offnominal tables build -h')")
+        v = _parse_values(vals, name)
+        if not v or any(np.diff(v) <= 0) or not all(map(math.isfinite, v)):
+            raise BuildError(f"--grid {name}: values must be finite and strictly increasing, got {list(v)}")
+        axes[name] = tuple(x * AXES[name][2] for x in v)
+    return GridSpec(tuple((k, axes[k]) for k, _ in base.axes))
+
+
+# ------------------------------------------------------------------------------ scenario family
+def family_of(sc: Any, choice: str = "auto") -> dict[str, Any] | None:
+    """The failure parameter this scenario's table varies, or None.
+
+    ``auto``: a trench goal gives ``trench_depth``; else a stuck steering wheel gives
+    ``steer_stuck``; else a rim-speed cap gives ``rim_speed_cap_fraction``; else none.
+
+    Raises
+    ------
+    BuildError
+        When ``choice`` names a family the scenario does not have.
+    """
+    if choice == "none":
+        return None
+    found: list[dict[str, Any]] = []
+    if getattr(sc, "trench", None) is not None:
+        found.append({"axis": "trench_depth", "wheel": sc.trench.wheel, "kind": "trench depth target"})
+    for k in ("FR", "FL", "RR", "RL"):
+        f = sc.failure(k)
+        if getattr(f, "steer_stuck", None) is not None:
+            found.append({"axis": "steer_stuck", "wheel": k, "kind": "stuck steering angle"})
+    for k in ("FR", "FL", "RR", "RL"):
+        f = sc.failure(k)
+        if math.isfinite(getattr(f, "rim_speed_max", math.inf)) and not getattr(f, "locked", False):
+            found.append({"axis": "rim_speed_cap_fraction", "wheel": k, "kind": "rim-speed cap / travel speed"})
+    if choice == "auto":
+        return found[0] if found else None
+    for f in found:
+        if f["axis"] == choice:
+            return f
+    raise BuildError(f"scenario {sc.name!r} has no {choice!r} failure to vary; it has {[f['axis'] for f in found] or 'none'}")
+
+
+def scenario_at(sc: Any, family: Mapping[str, Any] | None, point: Mapping[str, float]) -> Any:
+    """The scenario at one operating point (slope, cross-slope, speed, family value); the
+    rim-speed cap of a fraction family follows the speed (cap = fraction x speed)."""
+    kw: dict[str, Any] = {}
+    for k in ("slope", "cross_slope", "speed"):
+        if k in point:
+            kw[k] = float(point[k])
+    out = replace(sc, **kw)
+    if family is None:
+        return out
+    v = float(point[family["axis"]])
+    w = family["wheel"]
+    if family["axis"] == "steer_stuck":
+        return replace(out, failures={**out.failures, w: replace(out.failure(w), steer_stuck=v)})
+    if family["axis"] == "rim_speed_cap_fraction":
+        return replace(out, failures={**out.failures, w: replace(out.failure(w), rim_speed_max=v * out.speed)})
+    if family["axis"] == "trench_depth":
+        return replace(out, trench=replace(out.trench, target_depth=v, min_depth=0.0))
+    raise BuildError(f"unknown family axis {family['axis']!r}")
+
+
+def default_grid(sc: Any, family: Mapping[str, Any] | None) -> GridSpec:
+    """Default axes: slope 0-25 deg by 5, cross-slope -10/0/10 deg, speed 2/3/4 cm/s and the
+    family axis (stuck angle -90..90 by 30 deg, cap fraction 0.25..1, trench depth 20..35 mm)."""
+    names = ["slope", "cross_slope", "speed"] + ([family["axis"]] if family else [])
+    return GridSpec(tuple((n, tuple(v * AXES[n][2] for v in _DEFAULT_DISPLAY[n])) for n in names))
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """Settings of a build that are not scenario data.
+
+    Attributes
+    ----------
+    mz_offset, fy_offset : float
+        Offsets (N m, N) of the section 7.2.4 controller re-solves (7.26)-(7.27).
+    trust_points : int
+        Feasible grid points at which the linearisation is checked to size the trust radius.
+    trust_tolerance : float
+        Largest error of the first-order prediction, as a fraction of each variable's scale
+        (layout), inside the trust radius.
+    trust_steps : tuple
+        Steps tried per parameter, as multiples of the parameter's layout scale.
+    active_tol : float
+        Multiplier magnitude (scaled problem) above which a bound or inequality is active.
+    """
+
+    mz_offset: float = 0.2
+    fy_offset: float = 1.0
+    trust_points: int = 3
+    trust_tolerance: float = 0.02
+    trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
+    active_tol: float = 1e-7
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Everything that determines a table file (its hash covers all of it)."""
+
+    name: str
+    scenario: Any
+    grid: GridSpec
+    family: dict[str, Any] | None
+    description: str
+    sources: dict[str, Any]
+    build: BuildOptions = field(default_factory=BuildOptions)
+    solver: Any = None
+
+    def key(self) -> str:
+        """sha256 of the spec (names the checkpoint folder's content)."""
+        blob = json.dumps(encode({"name": self.name, "scenario": self.scenario, "grid": self.grid.axes,
+                                  "family": self.family, "build": self.build, "solver": self.solver,
+                                  "sources": self.sources}), sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _file_record(path: Path) -> dict[str, str]:
+    return {"name": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
+def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", build: BuildOptions | None = None,
+               solver: Any = None) -> TableSpec:
+    """Read a scenario file and make the spec of its table (default grid, overridden by ``grid``).
+
+    Raises
+    ------
+    BuildError
+        Unreadable scenario (the loader's message), or a bad grid.
+    """
+    from .scenario import ScenarioError, load_scenario
+
+    p = Path(path)
+    try:
+        sc = load_scenario(p)
+    except ScenarioError as exc:
+        raise BuildError(str(exc)) from None
+    fam = family_of(sc, family)
+    g = parse_grid(grid, default_grid(sc, fam))
+    sources: dict[str, Any] = {"scenario_file": _file_record(p), "scenario_text": p.read_text()}
+    try:
+        ref = tomllib.loads(p.read_text()).get("scenario", {}).get("params")
+    except tomllib.TOMLDecodeError:
+        ref = None
+    if isinstance(ref, str) and (p.parent / ref).is_file():
+        sources["params_file"] = _file_record(p.parent / ref)
+    elif isinstance(ref, str):
+        sources["params_preset"] = ref
+    sc = replace(sc, source=p.name)
+    return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver)
+
+
+def chains(grid: GridSpec) -> list[list[int]]:
+    """Flat grid indices cut into chains along the slope axis (ascending), other axes fixed;
+    chains are listed in flat-index order of their first point."""
+    shape = grid.shape
+    idx = np.arange(grid.size).reshape(shape)
+    if "slope" not in grid.names:
+        return [[int(i)] for i in idx.ravel()]
+    a = grid.names.index("slope")
+    moved = np.moveaxis(idx, a, -1).reshape(-1, shape[a])
+    return sorted(([int(i) for i in row] for row in moved), key=lambda c: c[0])
+
+
+# ------------------------------------------------------------------------------ per point
+class _Derivatives:
+    """casadi functions of one NLP for the table data (built once per problem and process)."""
+
+    def __init__(self, pb: Any) -> None:
+        import casadi as ca
+
+        s = pb.symbols
+        x, p, f, g = s["x"], s["p"], s["f"], s["g"]
+        lam = ca.SX.sym("lam_g", g.shape[0])
+        lag = f + ca.dot(lam, g)
+        gl = ca.gradient(lag, x)
+        self.fun = ca.Function("table_data", [x, p, lam],
+                               [g, f, ca.jacobian(g, x), ca.jacobian(g, p), ca.gradient(f, x),
+                                ca.jacobian(gl, x), ca.jacobian(gl, p)])
+        self.gfun = ca.Function("table_g", [x, p], [g])
+
+    def __call__(self, x: NDArray[np.float64], p: NDArray[np.float64], lam_g: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        return [np.asarray(v, dtype=float) for v in self.fun(x, p, lam_g)]
+
+
+_DERIV: dict[int, _Derivatives] = {}
+
+
+def _derivatives(pb: Any) -> _Derivatives:
+    d = _DERIV.get(id(pb))
+    if d is None:
+        d = _DERIV[id(pb)] = _Derivatives(pb)
+    return d
+
+
+def _problem(sc: Any, solver: Any) -> Any:
+    from . import primitives as P
+
+    return P.get_problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None,
+                         solver if solver is not None else P.SolverOptions())
+
+
+def _active_codes(v: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64], lam: NDArray[np.float64],
+                  tol: float) -> NDArray[np.int8]:
+    """-1 lower active, +1 upper active, 2 fixed (lo == hi), 0 inactive (casadi's sign: lam > 0 upper)."""
+    out = np.zeros(v.shape, dtype=np.int8)
+    out[(lam < -tol) & np.isfinite(lo)] = -1
+    out[(lam > tol) & np.isfinite(hi)] = 1
+    out[np.isfinite(lo) & (lo == hi)] = 2
+    return out
+
+
+def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDArray[np.float64],
+               lam_g_s: NDArray[np.float64]) -> dict[str, Any]:
+    """Everything the table stores for one solved grid point, in physical units (module doc).
+
+    ``x_s``, ``lam_x_s``, ``lam_g_s``: IPOPT's scaled primal and dual solution.
+    """
+    from ..physics.backend import NUMPY
+
+    pb = _problem(sc, spec.solver)
+    lay: NlpLayout = pb.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    b = pb.bounds(sc)
+    p = np.asarray(b["p"], dtype=float)
+    g_s, f, jgx_s, jgp_s, gf_s, h_s, hxp_s = _derivatives(pb)(x_s, p, lam_g_s)
+    g_s = g_s.ravel()
+    nx, np_, ng = lay.nx, lay.np_, lay.ng
+    tol = spec.build.active_tol
+    act_x = _active_codes(x_s, b["lbx"], b["ubx"], lam_x_s, tol)
+    act_g = _active_codes(g_s, b["lbg"], b["ubg"], lam_g_s, tol)
+    # d(bounds)/dp: only the speed moves bounds (motor limit, rim-speed cap = fraction x speed,
+    # raised wheel); bounds are linear in it, so a central difference is exact
+    dlbx = np.zeros((nx, np_))
+    dubx = np.zeros((nx, np_))
+    dlbg = np.zeros((ng, np_))
+    dubg = np.zeros((ng, np_))
+    i_speed = lay.index("speed")
+    ds = 1e-4 * sc.speed
+    bp = pb.bounds(replace(sc, speed=sc.speed + ds, **_fam_follow(spec, sc, sc.speed + ds)))
+    bm = pb.bounds(replace(sc, speed=sc.speed - ds, **_fam_follow(spec, sc, sc.speed - ds)))
+    for dst, key in ((dlbx, "lbx"), (dubx, "ubx"), (dlbg, "lbg"), (dubg, "ubg")):
+        with np.errstate(invalid="ignore"):
+            d = (np.asarray(bp[key]) - np.asarray(bm[key])) / (2 * ds)
+        dst[:, i_speed] = np.where(np.isfinite(d), d, 0.0)
+    # KKT sensitivity system on the active set (scaled variables, physical parameters)
+    rows, rhs = [], []
+    for i in np.flatnonzero(act_g):
+        rows.append(jgx_s[i])
+        rhs.append(jgp_s[i] - (dubg[i] if act_g[i] == 1 else dlbg[i]))
+    for i in np.flatnonzero(act_x):
+        e = np.zeros(nx)
+        e[i] = 1.0
+        rows.append(e)
+        rhs.append(-(dlbx[i] if act_x[i] == -1 else dubx[i]))
+    A = np.array(rows).reshape(-1, nx)
+    Ap = np.array(rhs).reshape(-1, np_)
+    m = A.shape[0]
+    K = np.block([[h_s, A.T], [A, np.zeros((m, m))]])
+    R = -np.vstack([hxp_s, Ap])
+    cond = float(np.linalg.cond(K))
+    if np.isfinite(cond) and cond < 1e12:
+        sol = np.linalg.solve(K, R)
+    else:
+        sol = np.linalg.lstsq(K, R, rcond=None)[0]
+    dx_dp_s = sol[:nx]
+    # physical units
+    x = x_s * xsc
+    out: dict[str, Any] = {
+        "x": x, "p": p, "g": g_s * csc,
+        "lbx": np.asarray(b["lbx"]) * xsc, "ubx": np.asarray(b["ubx"]) * xsc,
+        "lbg": np.asarray(b["lbg"]) * csc, "ubg": np.asarray(b["ubg"]) * csc,
+        "lam_x": lam_x_s / xsc, "lam_g": lam_g_s / csc,
+        "jac_g_x": csc[:, None] * jgx_s / xsc[None, :], "jac_g_p": csc[:, None] * jgp_s,
+        "grad_f": gf_s.ravel() / xsc, "hess_lag": h_s / np.outer(xsc, xsc), "dx_dp": xsc[:, None] * dx_dp_s,
+        "objective": np.float64(f.item()),
+    }
+    # per wheel: wrench and its exact Jacobian (AD graph), slip, slip angle, torque, power
+    model = pb.model
+    fj = model.casadi_function(jacobian=True)
+    nw = len(lay.wheels)
+    wr, wj = np.zeros((nw, 6)), np.zeros((nw, 6, 5))
+    slip, sang, torque, power = (np.zeros(nw) for _ in range(4))
+    for k, wname in enumerate(lay.wheels):
+        om, beta, _, h, h0 = (x[lay.var(v, wname)] for v in ("omega", "beta", "W", "h", "h0"))
+        contact = p[lay.index(f"contact {wname}")]
+        if contact == 0.0:
+            sang[k] = beta
+            continue
+        vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, beta)
+        w6, J = fj(np.array([vx, vy, om, h, h0], dtype=float))
+        wr[k], wj[k] = np.asarray(w6).ravel(), np.asarray(J)
+        d = model.wrench(vx, vy, om, h, h0)
+        slip[k], sang[k] = float(d.slip), float(d.beta)
+        torque[k] = -wr[k, 4]
+        power[k] = torque[k] * om
+    out.update(wrench=wr, wrench_jac=wj, slip=slip, slip_angle=sang, torque=torque, power=power)
+    # steering controllers of section 7.2.4: +-offset re-solves minus the primitive, per unit offset
+    ctl = np.zeros((len(CONTROLLER_NAMES), nw, 2))
+    src = np.zeros(len(CONTROLLER_NAMES), dtype=np.int8)
+    rs = pb.rs
+    for c, name in enumerate(CONTROLLER_NAMES):
+        par = "mz_offset" if name.startswith("Mz") else "fy_offset"
+        mag = spec.build.mz_offset if par == "mz_offset" else spec.build.fy_offset
+        sgn = 1.0 if name.endswith("+") else -1.0
+        b2 = dict(b)
+        b2["p"] = p.copy()
+        b2["p"][lay.index(par)] += sgn * mag
+        r = pb.solve(b2, x_s, lam_x_s, lam_g_s)
+        if r["success"]:
+            dx = (np.asarray(r["x"]) - x_s) * xsc / (sgn * mag)
+        else:
+            dx = out["dx_dp"][:, lay.index(par)]
+            src[c] = 1
+        for k, wname in enumerate(lay.wheels):
+            ctl[c, k] = (dx[lay.var("omega", wname)] * rs, dx[lay.var("beta", wname)])
+    out["controllers"] = ctl
+    out["controller_source"] = src
+    out["active_x"], out["active_g"] = act_x, act_g
+    out["kkt_cond"] = np.float64(cond)
+    return out
+
+
+def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
+    """Scenario fields that follow the speed in a family (a cap given as a fraction of it)."""
+    fam = spec.family
+    if fam is None or fam["axis"] != "rim_speed_cap_fraction":
+        return {}
+    w = fam["wheel"]
+    frac = sc.failure(w).rim_speed_max / sc.speed
+    return {"failures": {**sc.failures, w: replace(sc.failure(w), rim_speed_max=frac * speed)}}
+
+
+def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> dict[str, Any]:
+    from . import primitives as P
+
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    r = P.solve_primitive(sc, spec.solver, x0=x0)
+    rec: dict[str, Any] = {"flat": flat, "status": r.status, "iterations": int(r.stats.get("iterations", 0)),
+                           "evidence": encode(r.evidence) if r.status != "optimal" else None}
+    if r.status == "optimal":
+        lam_x = np.asarray(r.stats["lam_x"], dtype=float).ravel()
+        lam_g = np.asarray(r.stats["lam_g"], dtype=float).ravel()
+        rec["x_scaled"] = np.asarray(r.x, dtype=float)
+        rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g)
+    return rec
+
+
+def solve_chain(spec: TableSpec, chain: Sequence[int]) -> list[dict[str, Any]]:
+    """Solve the grid points of one chain in order, each warm-started from the last solved one."""
+    out, x0 = [], None
+    for flat in chain:
+        rec = _solve_point(spec, flat, x0)
+        if rec["status"] == "optimal":
+            x0 = rec["x_scaled"]
+        out.append(rec)
+    return out
+
+
+def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
+    idx = np.unravel_index(flat, shape)
+    out = []
+    for a in range(len(shape)):
+        for d in (-1, 1):
+            j = list(idx)
+            j[a] += d
+            if 0 <= j[a] < shape[a]:
+                out.append(int(np.ravel_multi_index(j, shape)))
+    return out
+
+
+def retry_point(spec: TableSpec, flat: int, starts: Sequence[tuple[int, NDArray[np.float64]]]) -> dict[str, Any]:
+    """Retry an unsolved point from its solved neighbours (fixed order); ``not_found`` if none solves it."""
+    tried = []
+    for nb, x0 in starts:
+        rec = _solve_point(spec, flat, x0)
+        tried.append(f"from neighbour {nb}: {rec['status']}")
+        if rec["status"] == "optimal":
+            rec["retried_from"] = nb
+            return rec
+        if rec["status"] == "infeasible":
+            return rec
+    rec = {"flat": flat, "status": "not_found", "iterations": 0,
+           "evidence": {"retries": tried or ["no solved neighbour to start from"]}}
+    return rec
+
+
+# ------------------------------------------------------------------------------ linearisation check
+def linearisation_errors(spec: TableSpec, flat: int, data: Mapping[str, Any], x_s: NDArray[np.float64],
+                         params: Sequence[str] = ("speed", "slope", "cross_slope", "fy_offset", "mz_offset"),
+                         steps: Sequence[float] | None = None) -> dict[str, list[tuple[float, float]]]:
+    """First-order prediction ``x + dx/dp dp`` against a re-solve of the NLP at ``p + dp``.
+
+    Returns, per parameter, ``[(dp, error), ...]`` with the error the largest
+    ``|x_pred - x_solved| / scale`` over the variables (NaN when the re-solve fails).
+    """
+    pb = _problem(spec.scenario, spec.solver)
+    lay = pb.layout
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    b = pb.bounds(sc)
+    xsc = lay.variable_scale
+    out: dict[str, list[tuple[float, float]]] = {}
+    for name in params:
+        j = lay.index(name)
+        res = []
+        for m in (steps or spec.build.trust_steps):
+            dp = m * lay.parameters[j].scale
+            if name in ("speed", "slope", "cross_slope"):
+                kw = {name: getattr(sc, name) + dp}
+                if name == "speed":
+                    kw.update(_fam_follow(spec, sc, sc.speed + dp))
+                b2 = pb.bounds(replace(sc, **kw))
+            else:
+                b2 = dict(b)
+                b2["p"] = np.asarray(b["p"], dtype=float).copy()
+                b2["p"][j] += dp
+            r = pb.solve(b2, x_s)
+            if not r["success"]:
+                res.append((dp, math.nan))
+                continue
+            pred = data["x"] + data["dx_dp"][:, j] * dp
+            res.append((dp, float(np.max(np.abs(pred - np.asarray(r["x"]) * xsc) / xsc))))
+        out[name] = res
+    return out
+
+
+def _trust_radius(errs: Mapping[str, list[tuple[float, float]]], tol: float) -> dict[str, float]:
+    out = {}
+    for name, res in errs.items():
+        r = 0.0
+        for dp, e in res:  # ascending steps: the radius ends at the first failure
+            if not (e <= tol):
+                break
+            r = dp
+        out[name] = r
+    return out
+
+
+# ------------------------------------------------------------------------------ orchestration
+class _Checkpoint:
+    """Finished chains and retries of one build, one file each (atomic), keyed by the spec."""
+
+    def __init__(self, folder: Path, key: str) -> None:
+        self.folder, self.key = folder, key
+        if folder.exists():
+            kf = folder / "spec.sha256"
+            if not kf.is_file() or kf.read_text().strip() != key:
+                raise BuildError(f"{folder}: a partial build of a different spec (grid, scenario or options changed); "
+                                 "delete this folder to start afresh, or rerun with the original options")
+        else:
+            folder.mkdir(parents=True)
+            write_text(folder / "spec.sha256", key)
+
+    def _path(self, kind: str, i: int) -> Path:
+        return self.folder / f"{kind}_{i:06d}.npz"
+
+    def load(self, kind: str, i: int) -> list[dict[str, Any]] | None:
+        p = self._path(kind, i)
+        if not p.is_file():
+            return None
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            head = json.loads(arrays.pop("header").tobytes().decode())
+            if head.get("content_hash") != content_hash(head, arrays):
+                raise ValueError("hash mismatch")
+        except (OSError, ValueError, KeyError) as exc:
+            p.unlink()  # a damaged checkpoint is recomputed, not trusted
+            print(f"note: discarded damaged checkpoint {p.name} ({exc})")
+            return None
+        recs = head["records"]
+        for r in recs:
+            if r["status"] == "optimal":
+                n = r["flat"]
+                r["x_scaled"] = arrays[f"{n}/x_scaled"]
+                r["data"] = {k.split("/", 1)[1]: arrays[k] for k in arrays if k.startswith(f"{n}/") and k != f"{n}/x_scaled"}
+        return recs
+
+    def save(self, kind: str, i: int, recs: list[dict[str, Any]]) -> None:
+        arrays, meta = {}, []
+        for r in recs:
+            m = {k: v for k, v in r.items() if k not in ("x_scaled", "data")}
+            meta.append(m)
+            if r["status"] == "optimal":
+                arrays[f"{r['flat']}/x_scaled"] = r["x_scaled"]
+                for k, v in r["data"].items():
+                    arrays[f"{r['flat']}/{k}"] = np.asarray(v)
+        head = {"schema": SCHEMA + " checkpoint", "records": meta}
+        write_bytes(self._path(kind, i), table_bytes(head, arrays))
+
+
+def _executor(jobs: int, scheduler: str | None) -> tuple[cf.Executor | None, Any]:
+    if scheduler:
+        try:
+            from distributed import Client
+        except ImportError:  # pragma: no cover - dependency of the package
+            raise BuildError("--scheduler needs dask.distributed: pip install 'dask[distributed]'") from None
+        try:
+            client = Client(scheduler, timeout="10s")
+        except OSError as exc:
+            raise BuildError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc}); check the address") from None
+        return client.get_executor(pure=False), client
+    if jobs <= 1:
+        return None, None
+    return cf.ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")), None
+
+
+def _run(tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]], ex: cf.Executor | None,
+         done: Callable[[int, Any], None]) -> None:
+    """Run ``fn(*args)`` for every task; ``done(task_id, result)`` in the main process as each finishes."""
+    if ex is None:
+        for fn, args, tid in tasks:
+            done(tid, fn(*args))
+        return
+    futs = {ex.submit(fn, *args): tid for fn, args, tid in tasks}
+    for fut in cf.as_completed(futs):
+        done(futs[fut], fut.result())
+
+
+def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
+                progress: bool = True, keep_partial: bool = False,
+                inputs: Sequence[str | Path] = ()) -> tuple[Path, dict[str, Any]]:
+    """Build (or resume) one table and write ``<out_dir>/<name>.npz`` atomically.
+
+    Returns the path and a summary (grid points, statuses, feasible fraction, file size,
+    retries, trust radius). Finished chains are checkpointed; a rerun resumes.
+    """
+    from tqdm import tqdm
+
+    out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+    ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
+    ch = chains(spec.grid)
+    recs: dict[int, dict[str, Any]] = {}
+    todo = []
+    for i, c in enumerate(ch):
+        got = ck.load("chain", i)
+        if got is not None:
+            recs.update({r["flat"]: r for r in got})
+        else:
+            todo.append((solve_chain, (spec, c), i))
+    bar = tqdm(total=spec.grid.size, initial=len(recs), desc=f"{spec.name}", unit="pt", disable=not progress,
+               leave=True, dynamic_ncols=True)
+    ex, client = _executor(jobs, scheduler)
+    try:
+        def chain_done(i: int, res: list[dict[str, Any]]) -> None:
+            ck.save("chain", i, res)
+            recs.update({r["flat"]: r for r in res})
+            bar.update(len(res))
+
+        _run(todo, ex, chain_done)
+        # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
+        unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
+        retry_tasks, retried = [], {}
+        for f in unsolved:
+            got = ck.load("retry", f)
+            if got is not None:
+                retried[f] = got[0]
+                continue
+            starts = [(nb, recs[nb]["x_scaled"]) for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"]
+            retry_tasks.append((retry_point, (spec, f, starts), f))
+        if retry_tasks:
+            bar.set_description(f"{spec.name} (retrying {len(retry_tasks)})")
+
+        def retry_done(f: int, rec: dict[str, Any]) -> None:
+            ck.save("retry", f, [rec])
+            retried[f] = rec
+
+        _run(retry_tasks, ex, retry_done)
+        for f, rec in retried.items():
+            rec = dict(rec)
+            rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
+                if rec["status"] != "optimal" else None
+            recs[f] = rec
+        # trust radius from re-solves at a few feasible points (deterministic choice)
+        feas = [f for f in sorted(recs) if recs[f]["status"] == "optimal"]
+        picks = sorted(set(feas[int(round(q))] for q in np.linspace(0, len(feas) - 1, min(spec.build.trust_points, len(feas))))) if feas else []
+        lin_tasks = [(linearisation_errors, (spec, f, recs[f]["data"], recs[f]["x_scaled"]), f) for f in picks]
+        lin: dict[int, Any] = {}
+        _run(lin_tasks, ex, lambda f, r: lin.__setitem__(f, r))
+    finally:
+        bar.close()
+        if client is not None:
+            client.close()
+        elif ex is not None:
+            ex.shutdown()
+    header, arrays = _assemble(spec, recs, lin)
+    path = out / f"{spec.name}.npz"
+    blob = table_bytes(header, arrays)
+    write_bytes(path, blob)
+    if not keep_partial:
+        shutil.rmtree(ck.folder, ignore_errors=True)
+    st = [recs[f]["status"] for f in range(spec.grid.size)]
+    summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
+               "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
+               "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
+               "retried": len(retried), "trust_radius": header["trust_radius"]}
+    return path, summary
+
+
+def _library_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("offnominal-rover")
+    except Exception:  # noqa: BLE001 - metadata missing in a source checkout
+        return "unknown"
+
+
+def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]], lin: Mapping[int, Any]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    pb = _problem(spec.scenario, spec.solver)
+    lay: NlpLayout = pb.layout
+    shapes = field_shapes(lay.nx, lay.np_, lay.ng, len(lay.wheels))
+    shapes.update(controller_source=(len(CONTROLLER_NAMES),), kkt_cond=())
+    G = spec.grid.shape
+    arrays: dict[str, NDArray[Any]] = {k: np.full(G + s, np.nan) for k, s in shapes.items() if k != "controller_source"}
+    arrays["controller_source"] = np.full(G + (len(CONTROLLER_NAMES),), -1, dtype=np.int8)
+    arrays["active_x"] = np.zeros(G + (lay.nx,), dtype=np.int8)
+    arrays["active_g"] = np.zeros(G + (lay.ng,), dtype=np.int8)
+    arrays["status"] = np.full(G, STATUS_NAMES.index("not_attempted"), dtype=np.int8)
+    arrays["iterations"] = np.zeros(G, dtype=np.int32)
+    arrays["retried_from"] = np.full(G, -1, dtype=np.int64)
+    evidence: dict[str, Any] = {}
+    for f in range(spec.grid.size):
+        r = recs.get(f)
+        if r is None:
+            continue
+        idx = np.unravel_index(f, G)
+        status = r["status"] if r["status"] in STATUS_NAMES else "solver_failure"
+        arrays["status"][idx] = STATUS_NAMES.index(status)
+        arrays["iterations"][idx] = r.get("iterations", 0)
+        arrays["retried_from"][idx] = r.get("retried_from", -1)
+        if status == "optimal":
+            for k in (*shapes, "active_x", "active_g"):
+                arrays[k][idx] = r["data"][k]
+        else:
+            evidence[str(f)] = r.get("evidence")
+    # trust radius: smallest verified radius over the checked points
+    tr: dict[str, float] = {}
+    for f, errs in sorted(lin.items()):
+        for name, r in _trust_radius(errs, spec.build.trust_tolerance).items():
+            tr[name] = min(tr.get(name, math.inf), r)
+    axes = {k: {"values": list(v), "unit": AXES[k][0], "display_unit": AXES[k][1], "display_factor": AXES[k][2]}
+            for k, v in spec.grid.axes}
+    sc = spec.scenario
+    header: dict[str, Any] = {
+        "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "name": spec.name, "description": spec.description,
+        "library_version": _library_version(),
+        "rover": {k: v for k, v in dataclasses.asdict(sc.rover).items()},
+        "params": encode(sc.params), "scenario": encode(sc), "sources": spec.sources,
+        "family": spec.family, "axis_order": list(spec.grid.names), "axes": axes,
+        "layout": json.loads(lay.to_json()), "status_names": list(STATUS_NAMES),
+        "controller_names": list(CONTROLLER_NAMES),
+        "controller_offsets": {"mz_offset_Nm": spec.build.mz_offset, "fy_offset_N": spec.build.fy_offset},
+        "objective": "f = sum_i M_y,i^2 / (W/4 r_s)^2 (eq. 7.24, dimensionless as the NLP defines it)",
+        "units": {"x": "per layout variable unit", "p": "per layout parameter unit", "g": "per layout constraint unit",
+                  "wrench": "N, N m (Fx, Fy, Fz, Mx, My, Mz), wheel frame Fig. 5.1",
+                  "wrench_jac": "per (m/s, m/s, rad/s, m, m)", "slip": "1", "slip_angle": "rad", "torque": "N m",
+                  "power": "W", "controllers": "(m/s, rad) per N m (Mz) or per N (Fy)",
+                  "bounds": "inf where unbounded (rtctl uses 1e30 inside the QP)"},
+        "solver_options": encode(pb.options),
+        "build_options": encode(spec.build),
+        "evidence": evidence,
+        "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
+        "linearisation_check": {str(f): {k: [[dp, (e if math.isfinite(e) else None)] for dp, e in v] for k, v in errs.items()}
+                                for f, errs in sorted(lin.items())},
+        "grid_points": spec.grid.size,
+        "feasible_points": int(np.sum(arrays["status"] == 0)),
+    }
+    return header, arrays
+
+
+def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
+    """Write ``<out_dir>/index.json``: every table's file, hashes, grid, family and feasible ranges
+    (entries of tables already in the index and not rebuilt are kept)."""
+    from rtctl.table import load_table
+
+    out = Path(out_dir)
+    ip = out / "index.json"
+    entries: dict[str, Any] = {}
+    if ip.is_file():
+        try:
+            old = json.loads(ip.read_text())
+            entries = dict(old.get("tables", {}))
+        except json.JSONDecodeError:
+            entries = {}
+    for p in paths:
+        t = load_table(p)
+        entries[t.name] = {
+            "file": p.name, "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
+            "content_hash": t.header["content_hash"], "description": t.header.get("description", ""),
+            "axes": {k: v.tolist() for k, v in t.axes.items()}, "family": t.header.get("family"),
+            "grid_points": int(t.feasible.size), "feasible_fraction": t.feasible_fraction,
+            "feasible_ranges": {k: (list(v) if v else None) for k, v in t.feasible_ranges().items()},
+            "statuses": {s: int(np.sum(t.status == i)) for i, s in enumerate(STATUS_NAMES) if np.any(t.status == i)},
+            "rover": t.meta["rover"].get("name"), "sources": {k: v for k, v in t.header["sources"].items() if k != "scenario_text"},
+            "trust_radius": t.header.get("trust_radius"), "library_version": t.header.get("library_version"),
+        }
+    doc = {"schema": SCHEMA + " index", "schema_version": SCHEMA_VERSION, "tables": dict(sorted(entries.items()))}
+    write_text(ip, json.dumps(doc, indent=1, sort_keys=True) + "\n")
+    return ip
+
+
+def scenario_from_header(header: Mapping[str, Any]) -> Any:
+    """Rebuild the scenario a table was built from (its header's ``scenario`` entry)."""
+    try:
+        return decode(header["scenario"])
+    except (KeyError, TypeError) as exc:
+        raise TableError(f"table header has no usable scenario spec ({exc}); rebuild the table") from None

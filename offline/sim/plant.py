@@ -1,0 +1,312 @@
+"""The rover plant: a planar rigid body on a slope carried by four terramechanics wheels.
+
+State and unknowns
+------------------
+The rover moves in the plane of the terrain (world frame ``X`` along the initial heading,
+``Y`` to its left). Its pose ``(X, Y, psi)`` is integrated from the body velocities
+``(u, v, r)`` (forward, left, yaw rate). Each step solves, by Newton's method on one
+C-compiled casadi function, 15 unknowns:
+
+* ``u, v, r`` from the planar equations of motion of the rigid body, implicit Euler
+  (``m (u - u_prev)/dt - m r v = sum F_x``, ``m (v - v_prev)/dt + m r u = sum F_y``,
+  ``I_z (r - r_prev)/dt = sum M_z``). At 3 cm/s the soil's damping gives the body a time
+  constant of a few milliseconds, so implicit Euler is the stable choice at any step (and
+  ``dt = inf`` gives the quasi-static limit);
+* ``log h`` of each wheel's sinkage from the rover's vertical, roll and two rocker-pitch
+  balances (the passive pivot: each rocker balances its own pitch moment about the pivot,
+  section 7.2.2): the wheel loads follow from the statics and the sinkage follows the load
+  (5.34) in the same solve;
+* ``log h0`` of each wheel's zero-slip sinkage under the same load (it fixes theta_m0 in
+  skid, as in the optimizer);
+* ``omega`` of each wheel: the servo's speed (speed mode) or, for a wheel in torque mode
+  (unpowered: zero torque; torque-limited: the limit), from its axle balance
+  ``M_y + T = 0`` (no wheel inertia).
+
+Per-wheel forces come from the full model of :func:`offline.physics.terramechanics.wrench_core`
+(not the tables). Wheel radius per wheel, the soil parameters, slope, cross-slope, tether
+force, mass and yaw inertia are *inputs* of the compiled function, so the discrepancy tool
+re-simulates with other truths without recompiling.
+
+Statics derived here (not :class:`offline.rover.statics.FourWheelRocker`, whose sign
+conventions are under revision): wheel ``i`` sits at ``(x_i, y_i) = (+-l_r/2, -+w_r/2)``
+in the plan; a rocker pitched by ``phi = asin((h_rear - h_front) / l_r)`` (the wheel that
+sinks more is lower, so the other end rises) puts the wheel centres at
+``(+-l_r/2 cos phi + h_r sin phi, +-l_r/2 sin phi - h_r cos phi)`` from the pivot in the
+rocker's x-z plane. Moments about the pivot are ``r x F``. The weight acts at the pivot
+(the printed balances (7.15)-(7.17) carry no weight moment either).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..physics.backend import CASADI
+from ..physics.params import ParameterSet, Rover
+from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
+
+__all__ = ["SimulationError", "PlantModel", "PlantSolution", "N_UNKNOWNS", "INPUT_NAMES", "PARAM_NAMES", "GRAVITY", "default_yaw_inertia"]
+
+GRAVITY = 9.81
+"""m/s^2; converts the rover weight of Table 7.2 into a mass."""
+
+N_UNKNOWNS = 15
+WHEEL_POS_NAMES = ("FR", "FL", "RR", "RL")
+INPUT_NAMES = (
+    tuple(f"omega_cmd_{k}" for k in WHEEL_POS_NAMES) + tuple(f"speed_mode_{k}" for k in WHEEL_POS_NAMES)
+    + tuple(f"torque_{k}" for k in WHEEL_POS_NAMES) + tuple(f"steer_{k}" for k in WHEEL_POS_NAMES)
+    + ("u_prev", "v_prev", "r_prev", "heading", "inv_dt")
+)
+"""Inputs of the compiled step function (SI)."""
+PARAM_NAMES = (
+    tuple(f"radius_{k}" for k in WHEEL_POS_NAMES)
+    + ("k", "n0", "n1", "n2", "friction_angle", "unit_weight", "cohesion", "shear_modulus", "repose_angle")
+    + ("slope", "cross_slope", "tether_force", "mass", "yaw_inertia")
+)
+"""Truth parameters of the compiled step function (SI): per-wheel radius, soil, terrain, tether, body."""
+_SOIL_FIELDS = ("k", "n0", "n1", "n2", "phi", "rho", "c", "K", "repose")
+
+
+class SimulationError(RuntimeError):
+    """The plant could not be advanced (no equilibrium found); the message gives time and state."""
+
+
+@dataclass(frozen=True)
+class PlantSolution:
+    """The plant's answer for one step (SI; wheel order FR, FL, RR, RL)."""
+
+    u: float
+    v: float
+    r: float
+    omega: NDArray[np.float64]
+    sinkage: NDArray[np.float64]
+    sinkage_zero_slip: NDArray[np.float64]
+    wrench: NDArray[np.float64]
+    slip: NDArray[np.float64]
+    slip_angle: NDArray[np.float64]
+    iterations: int
+    residual: float
+
+
+class PlantModel:
+    """Compiled equations of one rover layout with one wheel geometry and model options.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        Wheel width, grouser geometry and contact tuning are fixed here; radius and soil
+        enter per call (:data:`PARAM_NAMES`).
+    rover : Rover
+        Rocker length, pivot height, track width (fixed); weight enters as ``mass`` per call.
+    options : ModelOptions, optional
+        Terramechanics variant (the optimizer's by default: classic exit angle).
+    compiled : bool
+        C-compile the function (cached on disk by :class:`WheelModel`); ``False`` uses the
+        casadi virtual machine (slower, same numbers to rounding).
+    """
+
+    def __init__(self, params: ParameterSet, rover: Rover, options: ModelOptions | None = None, compiled: bool = True) -> None:
+        self.params, self.rover = params, rover
+        self.options = options or ModelOptions(shear_direction_smoothing=1e-6)
+        self._wheel_model = WheelModel(params.soil, params.wheel, params.tuning, self.options)
+        f = self._build()
+        self.function = self._wheel_model._compile(f, "sim_wheels") if compiled else f
+        self.rs_nominal = params.wheel.shearing_radius
+
+    def _build(self) -> Any:
+        """casadi function of 8 wheel states (the four wheels and their zero-slip twins):
+        ``(x[5, 8], p[10, 8]) -> (wrench[6, 8], d wrench / d x [6, 40], slip[1, 8], beta[1, 8])``,
+        ``p = (r, k, n0, n1, n2, phi, rho, c, K, repose)`` per state."""
+        import casadi as ca
+
+        x = ca.SX.sym("x", 5)
+        pw = ca.SX.sym("p", 10)
+        base = PhysParams.from_sets(self.params.soil, self.params.wheel, self.params.tuning)
+        p = base._replace(r=pw[0], **dict(zip(_SOIL_FIELDS, [pw[1 + i] for i in range(9)])))
+        w6, diag = wrench_core(CASADI, x[0], x[1], x[2], x[3], x[4], p, self.options)
+        w = ca.vertcat(*w6)
+        one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
+        return one.map(8)
+
+    def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Residual (15,), Jacobian (15, 15), wrench (4, 6), slip (4,), slip angle (4,) at unknowns ``z``.
+
+        The Jacobian is exact except for the rocker angle's dependence on the sinkages (a
+        term of order ``h_r / l_r`` times the sinkage difference), so Newton converges to
+        the exact root a little slower than quadratically.
+        """
+        ro = self.rover
+        lr, hr, wr = ro.rocker_length, ro.pivot_height, ro.track_width
+        hg = self.params.wheel.grouser_height
+        mass, iz = q[16], q[17]
+        weight = mass * GRAVITY
+        slope, cross, tether = q[13], q[14], q[15]
+        u, v, r = z[0], z[1], z[2]
+        omega = z[3:7]
+        h, h0 = np.exp(z[7:11]), np.exp(z[11:15])
+        cmd, mode, torque, steer = a[0:4], a[4:8], a[8:12], a[12:16]
+        u0, v0, r0, psi, inv_dt = a[16], a[17], a[18], a[19], a[20]
+        rs = q[0:4] + hg
+        c, s = np.cos(steer), np.sin(steer)
+        vxr, vyr = u - r * _YS(wr), v + r * _XS(lr)
+        vx, vy = c * vxr + s * vyr, -s * vxr + c * vyr
+        speed = np.sqrt(vx * vx + vy * vy + 1e-18)
+        X = np.empty((5, 8))
+        X[:, :4] = np.vstack([vx, vy, omega, h, h0])
+        X[:, 4:] = np.vstack([vx, vy, speed / rs, h0, h0])
+        P = np.empty((10, 8))
+        P[0, :4] = P[0, 4:] = q[0:4]
+        P[1:, :] = q[4:13, None]
+        W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
+        JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
+        # d(vx, vy)/d(u, v, r) per wheel
+        dv = np.zeros((4, 2, 3))
+        dv[:, 0, 0], dv[:, 0, 1], dv[:, 0, 2] = c, s, -c * _YS(wr) + s * _XS(lr)
+        dv[:, 1, 0], dv[:, 1, 1], dv[:, 1, 2] = -s, c, s * _YS(wr) + c * _XS(lr)
+        # d state / d z for the driven states and the zero-slip twins, (4, 5, 15)
+        ds = np.zeros((4, 5, N_UNKNOWNS))
+        ds0 = np.zeros((4, 5, N_UNKNOWNS))
+        for i in range(4):
+            ds[i, 0:2, 0:3] = dv[i]
+            ds[i, 2, 3 + i] = 1.0
+            ds[i, 3, 7 + i] = h[i]
+            ds[i, 4, 11 + i] = h0[i]
+            ds0[i, 0:2, 0:3] = dv[i]
+            ds0[i, 2, 0:3] = (vx[i] * dv[i, 0] + vy[i] * dv[i, 1]) / (speed[i] * rs[i])
+            ds0[i, 3, 11 + i] = ds0[i, 4, 11 + i] = h0[i]
+        wheel = W[:, :4].T  # (4, 6) wheel frame
+        dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
+        dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
+        # rotate into the rover frame (wrench and its derivative; steer is an input)
+        R = np.zeros((4, 6, 6))
+        R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, -s, s, c
+        R[:, 2, 2] = R[:, 5, 5] = 1.0
+        R[:, 3, 3], R[:, 3, 4], R[:, 4, 3], R[:, 4, 4] = c, -s, s, c
+        F = np.einsum("ijk,ik->ij", R, wheel)
+        dF = np.einsum("ijk,ikz->ijz", R, dwheel)
+        xs, ys = _XS(lr), _YS(wr)
+        # rocker geometry (x, z of wheel centres from the pivot)
+        px, pz = np.empty(4), np.empty(4)
+        for fr, re in ((0, 2), (1, 3)):
+            sp = (h[re] - h[fr]) / lr
+            cp = math.sqrt(max(1.0 - sp * sp, 0.0))
+            px[fr], pz[fr] = lr / 2 * cp + hr * sp, lr / 2 * sp - hr * cp
+            px[re], pz[re] = -lr / 2 * cp + hr * sp, -lr / 2 * sp - hr * cp
+        gX, gY = -weight * math.sin(slope), -weight * math.cos(slope) * math.sin(cross)
+        gx, gy = gX * math.cos(psi) + gY * math.sin(psi), -gX * math.sin(psi) + gY * math.cos(psi)
+        normal = weight * math.cos(slope) * math.cos(cross)
+        M = weight * lr
+        res = np.empty(N_UNKNOWNS)
+        J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
+        res[0] = (F[:, 0].sum() + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
+        J[0] = dF[:, 0].sum(0) / weight
+        J[0, 0] -= mass * inv_dt / weight
+        J[0, 1] += mass * r / weight
+        J[0, 2] += mass * v / weight
+        res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
+        J[1] = dF[:, 1].sum(0) / weight
+        J[1, 1] -= mass * inv_dt / weight
+        J[1, 2] -= mass * u / weight
+        J[1, 0] -= mass * r / weight
+        res[2] = (np.sum(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
+        J[2] = (dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0]).sum(0) / M
+        J[2, 2] -= iz * inv_dt / M
+        res[3] = (F[:, 2].sum() - normal) / weight
+        J[3] = dF[:, 2].sum(0) / weight
+        res[4] = np.sum(F[:, 3] + ys * F[:, 2] - pz * F[:, 1]) / M
+        J[4] = (dF[:, 3] + ys[:, None] * dF[:, 2] - pz[:, None] * dF[:, 1]).sum(0) / M
+        for row, idx in ((5, [0, 2]), (6, [1, 3])):
+            res[row] = np.sum(F[idx, 4] + pz[idx] * F[idx, 0] - px[idx] * F[idx, 2]) / M
+            J[row] = (dF[idx, 4] + pz[idx, None] * dF[idx, 0] - px[idx, None] * dF[idx, 2]).sum(0) / M
+        om_scale = ro.travel_speed / rs
+        t_scale = weight / 4 * rs
+        for i in range(4):
+            res[7 + i] = mode[i] * (omega[i] - cmd[i]) / om_scale[i] + (1 - mode[i]) * (wheel[i, 4] + torque[i]) / t_scale[i]
+            J[7 + i] = (1 - mode[i]) * dwheel[i, 4] / t_scale[i]
+            J[7 + i, 3 + i] += mode[i] / om_scale[i]
+            res[11 + i] = (W[2, 4 + i] - wheel[i, 2]) / (weight / 4)
+            J[11 + i] = (dzero[i, 2] - dwheel[i, 2]) / (weight / 4)
+        return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
+
+    MAX_NEWTON = 40
+    TOL = 1e-8
+
+    def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], PlantSolution]:
+        """Newton's method with backtracking on ``||res||`` from ``z0``.
+
+        Raises
+        ------
+        SimulationError
+            No equilibrium within :attr:`MAX_NEWTON` iterations (the message gives the residual).
+        """
+        z = np.array(z0, dtype=float)
+        res, J, w, sl, be = self.evaluate(z, a, q)
+        res = res.ravel()
+        norm = float(np.max(np.abs(res)))
+        it = 0
+        while norm > self.TOL and it < self.MAX_NEWTON:
+            it += 1
+            try:
+                dz = np.linalg.solve(J, -res)
+            except np.linalg.LinAlgError:
+                dz = np.linalg.lstsq(J, -res, rcond=None)[0]
+            # keep log-sinkage steps modest (the wrench is smooth but strongly nonlinear in h)
+            big = np.max(np.abs(dz[7:]))
+            lam = 1.0 if big < 1.0 else 1.0 / big
+            for _ in range(30):
+                zt = z + lam * dz
+                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q)
+                rt = rt.ravel()
+                nt = float(np.max(np.abs(rt)))
+                if np.isfinite(nt) and (nt < (1 - 1e-4 * lam) * norm or nt <= self.TOL):
+                    break
+                lam *= 0.5
+            else:
+                break
+            z, res, J, w, sl, be, norm = zt, rt, Jt, wt, slt, bet, nt
+        if not (norm <= 1e-7 and np.all(np.isfinite(z))):
+            raise SimulationError(
+                f"no equilibrium of the rover found (max scaled residual {norm:.3g} after {it} Newton iterations; "
+                f"body velocity u={z[0]:.4g} v={z[1]:.4g} r={z[2]:.4g}, sinkages {np.exp(z[7:11])}): the terrain or "
+                "commands are outside what the wheels can carry; reduce the slope or the step size")
+        sol = PlantSolution(float(z[0]), float(z[1]), float(z[2]), z[3:7].copy(), np.exp(z[7:11]), np.exp(z[11:15]),
+                            w.reshape(4, 6), sl.ravel(), be.ravel(), it, norm)
+        return z, sol
+
+    def initial_guess(self, speed: float, q: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Straight driving at ``speed``, equal loads, sinkages carried by those loads at zero slip."""
+        weight = q[16] * GRAVITY
+        rs = self.rs_nominal
+        sol = self._wheel_model.sinkage_from_load(np.full(4, weight / 4), np.full(4, speed), np.zeros(4),
+                                                  np.full(4, speed / rs))
+        h = np.where(sol.converged, sol.h, rs / 5)
+        return np.concatenate([[speed, 0.0, 0.0], np.full(4, speed / rs), np.log(h), np.log(h)])
+
+    @staticmethod
+    def param_vector(radius: tuple[float, float, float, float], soil: Any, slope: float, cross_slope: float,
+                     tether_force: float, mass: float, yaw_inertia: float) -> NDArray[np.float64]:
+        """Pack :data:`PARAM_NAMES` from SI values (``soil`` is a :class:`offline.physics.params.Soil`)."""
+        return np.array([*radius, soil.k, soil.n0, soil.n1, soil.n2, soil.friction_angle, soil.unit_weight,
+                         soil.cohesion, soil.shear_modulus, soil.repose_angle, slope, cross_slope, tether_force,
+                         mass, yaw_inertia], dtype=float)
+
+
+def _XS(lr: float) -> NDArray[np.float64]:
+    return np.array([lr / 2, lr / 2, -lr / 2, -lr / 2])
+
+
+def _YS(wr: float) -> NDArray[np.float64]:
+    return np.array([-wr / 2, wr / 2, -wr / 2, wr / 2])
+
+
+def default_yaw_inertia(rover: Rover) -> float:
+    """Yaw inertia of a uniform plate spanning the wheelbase and track, kg m^2 (an estimate:
+    the dissertation gives none; at 3 cm/s it hardly matters, the soil damping dominates)."""
+    m = rover.weight / GRAVITY
+    return m * (rover.rocker_length**2 + rover.track_width**2) / 12.0
+

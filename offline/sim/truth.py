@@ -1,0 +1,190 @@
+"""What the simulated world really is: the truth parameter file, separate from the controller's.
+
+The controller's tables are built on a believed parameter set; the simulator's truth may
+differ: softer or stiffer soil, a worn wheel (radius per wheel), a steering offset per
+wheel (the wheel points elsewhere than its encoder says), slope and cross-slope, a tether
+or drawbar force. The discrepancy tool fits exactly these.
+
+File format (every key optional; units in the key names)
+--------------------------------------------------------
+.. code-block:: toml
+
+    [truth]
+    params = "dissertation-ch7"      # preset or parameter TOML (soil, wheel, tuning), relative to this file
+    soil_stiffness_scale = 0.7       # multiplies k (0.7: 30 % softer)
+    slope_deg = 5.0                  # terrain rises along the initial heading (uphill positive)
+    cross_slope_deg = 0.0            # terrain rises to the rover's initial left (left side up positive)
+    tether_force_N = 1.0             # pulls the rover backward along its own -x
+    mass_kg = 3.5                    # default: rover weight / 9.81
+    yaw_inertia_kg_m2 = 0.06         # default: uniform plate over wheelbase x track
+
+    [wheels.RR]
+    radius_mm = 54.0                 # default: the parameter set's wheel radius
+    steer_offset_deg = 2.0           # true steer = encoder steer + offset
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
+from ..rover.scenario import PARAM_PRESETS
+from .plant import GRAVITY, PlantModel, default_yaw_inertia
+
+__all__ = ["TruthError", "Truth", "load_truth", "WHEELS"]
+
+WHEELS = ("FR", "FL", "RR", "RL")
+
+
+class TruthError(ValueError):
+    """A truth file is malformed or out of range; the message names file, section and key."""
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The simulated world (SI units).
+
+    Attributes
+    ----------
+    params : ParameterSet
+        Soil, wheel geometry and contact tuning of the truth.
+    wheel_radius : tuple of 4 float
+        Rim radius per wheel (FR, FL, RR, RL), m.
+    steer_offset : tuple of 4 float
+        True steer minus encoder steer per wheel, rad.
+    slope, cross_slope : float
+        Terrain inclination, rad (see the module notes for the signs).
+    tether_force : float
+        Backward pull along the rover's -x, N.
+    mass, yaw_inertia : float
+        kg, kg m^2.
+    """
+
+    params: ParameterSet
+    wheel_radius: tuple[float, float, float, float]
+    steer_offset: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    slope: float = 0.0
+    cross_slope: float = 0.0
+    tether_force: float = 0.0
+    mass: float = 0.0
+    yaw_inertia: float = 0.0
+    source: str = ""
+    notes: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def nominal(cls, params: ParameterSet, rover: Rover, **kw: Any) -> "Truth":
+        """The world the tables believe in: the parameter set's wheel on every corner, flat ground."""
+        base = cls(params=params, wheel_radius=(params.wheel.radius,) * 4, mass=rover.weight / GRAVITY,
+                   yaw_inertia=default_yaw_inertia(rover))
+        return replace(base, **kw)
+
+    def vector(self) -> NDArray[np.float64]:
+        """The parameter vector of :class:`offline.sim.plant.PlantModel` (:data:`PARAM_NAMES`)."""
+        return PlantModel.param_vector(self.wheel_radius, self.params.soil, self.slope, self.cross_slope,
+                                       self.tether_force, self.mass, self.yaw_inertia)
+
+    def describe(self) -> dict[str, Any]:
+        """Plain values (degrees, mm) for recordings and reports."""
+        return {
+            "soil": self.params.soil.name, "soil_k": self.params.soil.k,
+            "wheel_radius_mm": [1e3 * r for r in self.wheel_radius],
+            "steer_offset_deg": [math.degrees(o) for o in self.steer_offset],
+            "slope_deg": math.degrees(self.slope), "cross_slope_deg": math.degrees(self.cross_slope),
+            "tether_force_N": self.tether_force, "mass_kg": self.mass, "yaw_inertia_kg_m2": self.yaw_inertia,
+            "source": Path(self.source).name if self.source else "",
+        }
+
+
+_TRUTH_KEYS = {"params": str, "soil_stiffness_scale": float, "slope_deg": float, "cross_slope_deg": float,
+               "tether_force_N": float, "mass_kg": float, "yaw_inertia_kg_m2": float}
+_RANGES = {"soil_stiffness_scale": (0.05, 20.0), "slope_deg": (-40.0, 40.0), "cross_slope_deg": (-40.0, 40.0),
+           "tether_force_N": (-100.0, 100.0), "mass_kg": (0.01, 1e4), "yaw_inertia_kg_m2": (1e-6, 1e4)}
+_WHEEL_KEYS = {"radius_mm": (10.0, 2000.0), "steer_offset_deg": (-30.0, 30.0)}
+
+
+def _num(path: Path, where: str, key: str, v: Any, lo: float, hi: float) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise TruthError(f"{path}: [{where}] {key} must be a finite number, got {v!r}")
+    if not lo <= float(v) <= hi:
+        hint = " (degrees expected)" if key.endswith("_deg") else " (millimetres expected)" if key.endswith("_mm") else ""
+        raise TruthError(f"{path}: [{where}] {key} = {v} outside [{lo}, {hi}]{hint}")
+    return float(v)
+
+
+def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | None = None) -> Truth:
+    """Read a truth file (format in the module notes).
+
+    Raises
+    ------
+    TruthError
+        Unknown section or key, non-numeric or out-of-range value, unreadable parameter file.
+    """
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise TruthError(f"{p}: no such truth file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise TruthError(f"{p}: not valid TOML ({exc})") from None
+    bad = sorted(set(data) - {"truth", "wheels"})
+    if bad:
+        raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth] and [wheels.<FR|FL|RR|RL>]")
+    t = data.get("truth", {})
+    bad = sorted(set(t) - set(_TRUTH_KEYS))
+    if bad:
+        raise TruthError(f"{p}: [truth] unknown key(s) {bad}; known: {sorted(_TRUTH_KEYS)}")
+    ref = t.get("params")
+    if ref is None:
+        ps = default_params or PARAM_PRESETS["dissertation-ch7"]
+    elif not isinstance(ref, str):
+        raise TruthError(f"{p}: [truth] params must be a preset name or a file path, got {ref!r}")
+    elif ref in PARAM_PRESETS:
+        ps = PARAM_PRESETS[ref]
+    else:
+        f = Path(ref) if Path(ref).is_absolute() else p.parent / ref
+        try:
+            loaded = load_toml(f)
+        except (ParameterError, OSError) as exc:
+            raise TruthError(f"{p}: [truth] params = {ref!r}: {exc}") from None
+        if "parameter_set" not in loaded:
+            raise TruthError(f"{p}: [truth] params = {ref!r} has no [soil], [wheel] and [tuning]")
+        ps = loaded["parameter_set"]
+    vals = {k: _num(p, "truth", k, t[k], *_RANGES[k]) for k in _RANGES if k in t}
+    if "soil_stiffness_scale" in vals:
+        soil: Soil = ps.soil
+        ps = replace(ps, soil=replace(soil, k=soil.k * vals["soil_stiffness_scale"],
+                                      name=f"{soil.name} x{vals['soil_stiffness_scale']:g} k"))
+    radius = [ps.wheel.radius] * 4
+    offset = [0.0] * 4
+    wheels = data.get("wheels", {})
+    if not isinstance(wheels, dict):
+        raise TruthError(f"{p}: [wheels] must hold tables [wheels.FR] ...")
+    for name, tab in wheels.items():
+        if name not in WHEELS:
+            raise TruthError(f"{p}: [wheels.{name}] unknown wheel; use one of {list(WHEELS)}")
+        if not isinstance(tab, dict):
+            raise TruthError(f"{p}: [wheels.{name}] must be a table")
+        bad = sorted(set(tab) - set(_WHEEL_KEYS))
+        if bad:
+            raise TruthError(f"{p}: [wheels.{name}] unknown key(s) {bad}; known: {sorted(_WHEEL_KEYS)}")
+        i = WHEELS.index(name)
+        if "radius_mm" in tab:
+            radius[i] = 1e-3 * _num(p, f"wheels.{name}", "radius_mm", tab["radius_mm"], *_WHEEL_KEYS["radius_mm"])
+            if radius[i] <= ps.wheel.grouser_height:
+                raise TruthError(f"{p}: [wheels.{name}] radius_mm must exceed the grouser height")
+        if "steer_offset_deg" in tab:
+            offset[i] = math.radians(_num(p, f"wheels.{name}", "steer_offset_deg", tab["steer_offset_deg"],
+                                          *_WHEEL_KEYS["steer_offset_deg"]))
+    return Truth(
+        params=ps, wheel_radius=tuple(radius), steer_offset=tuple(offset),  # type: ignore[arg-type]
+        slope=math.radians(vals.get("slope_deg", 0.0)), cross_slope=math.radians(vals.get("cross_slope_deg", 0.0)),
+        tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
+        yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)), source=str(p),
+    )

@@ -1,0 +1,395 @@
+"""The allocation QP: one SQP step of the steady-state problem (7.25) around the tabulated primitive.
+
+Decision (scaled): ``z = dx / s_x``, the change of every wheel's variables (omega, beta, W, h,
+h0; :mod:`rtctl.layout`) from the interpolated primitive ``x0``, plus two non-negative slacks per
+model row. With the table's data at the operating point (all physical, contract C2):
+
+.. math::
+
+    \\min_{z,\\sigma^\\pm}\\ & \\tfrac12 z^T \\bar H z + \\bar g^T z
+        + \\rho_1 \\mathbf 1^T(\\sigma^+ + \\sigma^-) + \\rho_2 (\\|\\sigma^+\\|^2 + \\|\\sigma^-\\|^2)
+        + w\\,\\|z_c - z_{c,prev}\\|^2 \\\\
+    \\text{s.t. }\\ & l_g \\le \\frac{g_0 + J_x S_x z + J_p\\,\\Delta p}{s_g} - \\sigma^+ + \\sigma^- \\le u_g,
+    \\qquad z_{lo} \\le z \\le z_{hi}, \\qquad \\sigma^\\pm \\ge 0,
+
+where ``H_bar = S_x hess_lag S_x / c_f`` (the Hessian of the Lagrangian of (7.24)-(7.25),
+convexified by an eigenvalue floor and normalised by ``c_f``), ``g_bar = S_x grad_f / c_f``,
+``Delta p`` the change of the parameters (speed, slope, cross slope, and the offsets of
+(7.26)-(7.27)) from the table's point, and ``s_g`` the layout's row scales. The model rows are
+soft with an exact L1 penalty (``rho_1`` larger than any multiplier of the normalised problem),
+so a QP whose hard box leaves the linearised balance unreachable (a rate limit, a failure, the
+trust region) stays feasible and reports its slack; a feasible one has zero slack. The box
+``[z_lo, z_hi]`` is built by :func:`merge_bounds` so that it is never empty.
+
+Set up once per table layout with OSQP (fixed sparsity: the Jacobian block is dense with
+explicit zeros); each tick changes values only: :meth:`QpAllocator.prepare` (between ticks:
+matrix values and the refactorisation, the preparation phase of real-time iteration) and
+:meth:`QpAllocator.solve` (on the new measurement: vectors, warm start, solve; the feedback
+phase). qpsolvers is used only by :func:`solve_with_qpsolvers` (cross-checks; imported lazily).
+The smoothness weight ``w`` on the commanded variables (every wheel's omega and beta) is fixed
+(``QpSettings.command_weight``) so that it lives in P and never forces a refactorisation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from .config import QpSettings
+from .layout import NlpLayout
+
+__all__ = ["AllocatorError", "TablePointLike", "QpProblem", "Allocation", "merge_bounds", "QpAllocator",
+           "solve_with_qpsolvers"]
+
+_INF = 1e30
+
+
+class AllocatorError(ValueError):
+    """QP data of the wrong shape or not finite (a table or caller bug; never raised by a bad
+    measurement, which the controller filters before)."""
+
+
+class TablePointLike(Protocol):
+    """The fields of :class:`rtctl.table.TablePoint` the allocator reads (contract C2)."""
+
+    x: NDArray[np.float64]
+    p: NDArray[np.float64]
+    g: NDArray[np.float64]
+    jac_g_x: NDArray[np.float64]
+    jac_g_p: NDArray[np.float64]
+    grad_f: NDArray[np.float64]
+    hess_lag: NDArray[np.float64]
+    lbx: NDArray[np.float64]
+    ubx: NDArray[np.float64]
+    lbg: NDArray[np.float64]
+    ubg: NDArray[np.float64]
+    dx_dp: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class QpProblem:
+    """One QP as solved, in OSQP form ``min 1/2 z'Pz + q'z, l <= Az <= u`` (P upper triangle)."""
+
+    P: Any
+    q: NDArray[np.float64]
+    A: Any
+    l: NDArray[np.float64]
+    u: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Allocation:
+    """Result of one allocation.
+
+    Attributes
+    ----------
+    x : ndarray
+        Physical decision variables ``x0 + dx`` (nx,), clipped into the box.
+    dx : ndarray
+        The step from the primitive (nx,).
+    ok : bool
+        Solved, finite, and the model-row slack within the tolerance.
+    status : str
+        OSQP status text (or why the result was refused).
+    iterations : int
+        ADMM iterations.
+    slack : float
+        Largest slack of a model row (scaled units); 0 when the linearised balance is met.
+    objective : float
+        Optimal value of the normalised QP.
+    """
+
+    x: NDArray[np.float64]
+    dx: NDArray[np.float64]
+    ok: bool
+    status: str
+    iterations: int
+    slack: float
+    objective: float
+
+
+def merge_bounds(hard_lo: NDArray[np.float64], hard_hi: NDArray[np.float64],
+                 *soft: tuple[NDArray[np.float64], NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Intersect a hard box with softer boxes in priority order, never leaving it empty.
+
+    Each soft box ``(a, b)`` is intersected with the current one where they overlap; where they
+    do not, the current box collapses to its point nearest the soft box (e.g. a rate limit that
+    cannot reach a declared stuck angle yields to it). The hard box must be non-empty.
+    """
+    lo, hi = np.array(hard_lo, dtype=float), np.array(hard_hi, dtype=float)
+    if np.any(lo > hi):
+        i = int(np.argmax(lo > hi))
+        raise AllocatorError(f"hard bounds empty at entry {i}: [{lo[i]}, {hi[i]}]")
+    for a, b in soft:
+        nlo, nhi = np.maximum(lo, a), np.minimum(hi, b)
+        empty = nlo > nhi
+        if np.any(empty):
+            point = np.where(b < lo, lo, hi)
+            nlo = np.where(empty, point, nlo)
+            nhi = np.where(empty, point, nhi)
+        lo, hi = nlo, nhi
+    return lo, hi
+
+
+class QpAllocator:
+    """OSQP allocator for one table layout (module docstring).
+
+    Parameters
+    ----------
+    layout : NlpLayout
+        The table's variable / parameter / constraint layout.
+    settings : QpSettings
+        Penalties, regularisation, budgets.
+    """
+
+    def __init__(self, layout: NlpLayout, settings: QpSettings) -> None:
+        self.layout = layout
+        self.settings = settings
+        nx, ng = layout.nx, layout.ng
+        self.nx, self.ng = nx, ng
+        self.n = nx + 2 * ng
+        self.m = ng + nx + 2 * ng
+        self.sx = layout.variable_scale
+        self.sg = layout.constraint_scale
+        self._sxx = self.sx[:, None] * self.sx[None, :]
+        self._sx_over_sg = self.sx[None, :] / self.sg[:, None]
+        # ---- fixed sparsity of P: dense upper triangle of the nx block, diagonal slack block
+        cols_p, rows_p = [], []
+        for j in range(nx):
+            rows_p.extend(range(j + 1))
+            cols_p.extend([j] * (j + 1))
+        for j in range(nx, self.n):
+            rows_p.append(j)
+            cols_p.append(j)
+        self._p_rows = np.array(rows_p)
+        self._p_cols = np.array(cols_p)
+        self._p_indptr = np.searchsorted(self._p_cols, np.arange(self.n + 1)).astype(np.int64)
+        # ---- fixed sparsity of A: [J | -I | I] over the model rows, I for z, I for the slacks
+        rows_a: list[int] = []
+        self._a_jac_pos = []  # positions of the Jacobian entries in A.data, column-major
+        for j in range(nx):
+            self._a_jac_pos.extend(range(len(rows_a), len(rows_a) + ng))
+            rows_a.extend(range(ng))
+            rows_a.append(ng + j)
+        for k in range(ng):  # sigma+ columns
+            rows_a.extend([k, ng + nx + k])
+        for k in range(ng):  # sigma- columns
+            rows_a.extend([k, ng + nx + ng + k])
+        self._a_rows = np.array(rows_a)
+        counts = [ng + 1] * nx + [2] * (2 * ng)
+        self._a_indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self._a_data = np.ones(len(rows_a))
+        for k in range(ng):
+            self._a_data[self._a_indptr[nx + k]] = -1.0
+        self._a_jac_pos_arr = np.array(self._a_jac_pos)
+        self._w = np.zeros(nx)
+        for w_ in layout.wheels:
+            self._w[layout.var("omega", w_)] = settings.command_weight
+            self._w[layout.var("beta", w_)] = settings.command_weight
+        self._w_diag = np.diag(2.0 * self._w)
+        self._p_k = nx * (nx + 1) // 2
+        self._p_rows_h, self._p_cols_h = self._p_rows[:self._p_k], self._p_cols[:self._p_k]
+        self._p_slack = np.full(len(self._p_rows), 2.0 * settings.slack_l2)
+        self._l_tail, self._u_tail = np.zeros(2 * ng), np.full(2 * ng, _INF)
+        self._solver: Any = None
+        self._prepared = False
+        self._x0 = np.zeros(nx)
+        self._p0 = np.zeros(layout.np_)
+        self._last_z: NDArray[np.float64] | None = None
+        self._last_y: NDArray[np.float64] | None = None
+        self._last_x: NDArray[np.float64] | None = None
+        self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
+
+    # ------------------------------------------------------------------ preparation phase
+    def prepare(self, tp: TablePointLike) -> None:
+        """Load a table point: matrix values (convexified Hessian, scaled Jacobian) and OSQP's
+        refactorisation. Needs no measurement (the preparation phase)."""
+        nx, ng, npar = self.nx, self.ng, self.layout.np_
+        shapes = {"x": (nx,), "p": (npar,), "g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, npar), "grad_f": (nx,),
+                  "hess_lag": (nx, nx), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,)}
+        f: dict[str, NDArray[np.float64]] = {}
+        for name, shape in shapes.items():
+            a = np.asarray(getattr(tp, name), dtype=float)
+            if a.shape != shape:
+                raise AllocatorError(f"table point field {name!r} has shape {a.shape}, expected {shape} for this layout")
+            # one reduction per field: a NaN or inf anywhere makes the sum non-finite
+            if name not in ("lbx", "ubx", "lbg", "ubg") and not math.isfinite(float(a.sum())):
+                raise AllocatorError(f"table point field {name!r} is not finite")
+            f[name] = a
+        s = self.settings
+        sx, sg = self.sx, self.sg
+        H = self._sxx * f["hess_lag"]
+        H = 0.5 * (H + H.T)
+        g = sx * f["grad_f"]
+        cf = max(float(np.abs(H).max()), float(np.abs(g).max()), 1e-12)
+        H /= cf
+        g /= cf
+        w, V = np.linalg.eigh(H)
+        H = (V * np.maximum(w, s.regularization)) @ V.T
+        H.flat[::nx + 1] += s.regularization
+        self._H = 0.5 * (H + H.T)
+        self._g = g
+        self._cf = cf
+        self._J = f["jac_g_x"] * self._sx_over_sg
+        self._Jp = f["jac_g_p"] / sg[:, None]
+        self._g0 = f["g"] / sg
+        self._lbg = f["lbg"] / sg
+        self._ubg = f["ubg"] / sg
+        x0_new = f["x"].copy()
+        if self._last_x is not None:  # warm start carried over to the new linearisation point
+            self._last_z = (self._last_x - x0_new) / sx
+        self._x0 = x0_new
+        self._p0 = f["p"].copy()
+        self._lbx = f["lbx"]
+        self._ubx = f["ubx"]
+        self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
+        self._Px = self._p_values()
+        Ax = self._a_data.copy()
+        Ax[self._a_jac_pos_arr] = self._J.T.ravel()
+        self._Ax = Ax
+        if self._solver is None:
+            self._setup()
+        else:
+            self._solver.update(Px=self._Px, Ax=Ax)
+        self._prepared = True
+
+    def _p_values(self) -> NDArray[np.float64]:
+        Hd = self._H + self._w_diag
+        vals = self._p_slack.copy()
+        vals[:self._p_k] = Hd[self._p_rows_h, self._p_cols_h]
+        return vals
+
+    def _setup(self) -> None:
+        s = self.settings
+        P = sp.csc_matrix((self._Px, self._p_rows, self._p_indptr), shape=(self.n, self.n))
+        A = sp.csc_matrix((self._Ax, self._a_rows, self._a_indptr), shape=(self.m, self.n))
+        q = np.concatenate([self._g, np.full(2 * self.ng, s.slack_l1)])
+        l = np.concatenate([self._lbg, -np.ones(self.nx), np.zeros(2 * self.ng)])
+        u = np.concatenate([self._ubg, np.ones(self.nx), np.full(2 * self.ng, _INF)])
+        self._solver = osqp.OSQP()
+        self._solver.setup(P, q, A, np.maximum(l, -_INF), np.minimum(u, _INF), verbose=False, eps_abs=s.eps, eps_rel=s.eps,
+                           max_iter=s.max_iter, polishing=False, warm_starting=True)
+
+    # ------------------------------------------------------------------ feedback phase
+    @property
+    def x0(self) -> NDArray[np.float64]:
+        """The interpolated primitive the QP is linearised around (physical, copy)."""
+        return self._x0.copy()
+
+    @property
+    def p0(self) -> NDArray[np.float64]:
+        """The parameters of the table point (physical, copy)."""
+        return self._p0.copy()
+
+    @property
+    def table_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The table's variable bounds at the point (physical)."""
+        return self._lbx.copy(), self._ubx.copy()
+
+    def solve(self, p: NDArray[np.float64], box: tuple[NDArray[np.float64], NDArray[np.float64]],
+              lbg: NDArray[np.float64] | None = None, ubg: NDArray[np.float64] | None = None,
+              x_ref: NDArray[np.float64] | None = None) -> Allocation:
+        """One warm-started solve (the feedback phase).
+
+        Parameters
+        ----------
+        p : ndarray (np,)
+            Wanted parameters (speed, slope, cross slope, offsets ...); ``p - p0`` enters through
+            the table's parameter Jacobian.
+        box : (lo, hi)
+            Physical bounds on ``x`` (non-empty; build them with :func:`merge_bounds`).
+        lbg, ubg : ndarray (ng,), optional
+            Physical constraint bounds replacing the table's (e.g. a torque row of an unpowered
+            wheel, lbg = ubg = 0).
+        x_ref : ndarray (nx,), optional
+            Smoothness reference (the previous command): penalises ``w (z_c - z_ref,c)^2`` on the
+            commanded variables; without it the same weight pulls toward the primitive.
+        """
+        if not self._prepared:
+            raise AllocatorError("solve() before prepare(): load a table point first")
+        s = self.settings
+        sx = self.sx
+        dp = np.asarray(p, dtype=float) - self._p0
+        shift = self._g0 + self._Jp @ dp
+        lg = (self._lbg if lbg is None else np.asarray(lbg, dtype=float) / self.sg) - shift
+        ug = (self._ubg if ubg is None else np.asarray(ubg, dtype=float) / self.sg) - shift
+        zlo = (np.asarray(box[0], dtype=float) - self._x0) / sx
+        zhi = (np.asarray(box[1], dtype=float) - self._x0) / sx
+        if not (math.isfinite(float(dp.sum())) and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
+            return self._refused("bad QP data (non-finite parameters or empty box)")
+        q = self._q_base.copy()
+        if x_ref is not None:
+            zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - self._x0) / sx)
+            q[:self.nx] -= 2.0 * self._w * zr
+        l = np.concatenate([lg, zlo, self._l_tail])
+        u = np.concatenate([ug, zhi, self._u_tail])
+        np.clip(l, -_INF, _INF, out=l)
+        np.clip(u, -_INF, _INF, out=u)
+        self._solver.update(q=q, l=l, u=u)
+        if self._last_z is not None:
+            zw = np.concatenate([np.clip(self._last_z, zlo, zhi), np.zeros(2 * self.ng)])
+            self._solver.warm_start(x=zw, y=self._last_y)
+        self._q, self._l, self._u = q, l, u
+        res = self._solver.solve(raise_error=False)
+        self.last_solution = np.array(res.x, dtype=float) if res.x is not None else np.full(self.n, np.nan)
+        status = str(res.info.status)
+        it = int(res.info.iter)
+        zf = res.x
+        if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or zf is None or not np.all(np.isfinite(zf)):
+            self._last_z = self._last_y = self._last_x = None
+            return self._refused(f"OSQP: {status}", it)
+        z = np.clip(zf[:self.nx], zlo, zhi)
+        sig = np.maximum(zf[self.nx:], 0.0)
+        slack = float(np.max(sig[:self.ng] + sig[self.ng:])) if self.ng else 0.0
+        dx = z * sx
+        x = self._x0 + dx
+        self._last_z, self._last_y, self._last_x = zf[:self.nx].copy(), np.asarray(res.y, dtype=float).copy(), x.copy()
+        ok = slack <= s.balance_tolerance
+        return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
+                          slack, float(res.info.obj_val))
+
+    def _refused(self, why: str, iterations: int = 0) -> Allocation:
+        return Allocation(self._x0.copy(), np.zeros(self.nx), False, why, iterations, math.inf, math.nan)
+
+    # ------------------------------------------------------------------ checks
+    def snapshot(self) -> tuple[Any, ...]:
+        """References to the data of the last :meth:`solve` and OSQP's raw answer (cheap: the
+        arrays are replaced, never changed in place, by later calls); see :meth:`problem`."""
+        return (self._Px, self._Ax, self._q, self._l, self._u, self.last_solution)
+
+    def problem(self, snapshot: tuple[Any, ...] | None = None) -> QpProblem:
+        """The QP of the last :meth:`solve` (or of a :meth:`snapshot`), for recording and
+        cross-checks; OSQP's raw answer to it is :attr:`last_solution` (scaled step, slacks)."""
+        Px, Ax, q, l, u = (snapshot or self.snapshot())[:5]
+        P = sp.csc_matrix((Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
+        A = sp.csc_matrix((Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
+        return QpProblem(P, q.copy(), A, l.copy(), u.copy())
+
+
+def solve_with_qpsolvers(problem: QpProblem, solver: str = "clarabel") -> NDArray[np.float64] | None:
+    """Solve a recorded QP with another backend through ``qpsolvers.solve_qp`` (lazy import).
+
+    The two-sided rows ``l <= A z <= u`` become equalities where ``l == u`` and inequalities
+    ``A z <= u``, ``-A z <= -l`` where finite. Returns None when the backend fails.
+    """
+    import qpsolvers
+
+    P = problem.P
+    Pf = (P + sp.triu(P, 1).T).tocsc()  # full symmetric matrix from the upper triangle
+    A = problem.A.tocsr()
+    l, u = problem.l, problem.u
+    eq = l == u
+    up = (~eq) & (u < _INF / 2)
+    lo = (~eq) & (l > -_INF / 2)
+    G = sp.vstack([A[up], -A[lo]]).tocsc()
+    h = np.concatenate([u[up], -l[lo]])
+    Ae = A[eq].tocsc() if np.any(eq) else None
+    be = u[eq] if np.any(eq) else None
+    return qpsolvers.solve_qp(Pf, problem.q, G, h, Ae, be, solver=solver)
+

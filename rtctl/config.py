@@ -1,0 +1,457 @@
+"""Controller configuration: actuator limits, noise levels, gains, QP settings (TOML).
+
+One frozen :class:`ControllerConfig` holds everything :class:`rtctl.controller.Controller`
+needs besides its tables; nothing global. The file is TOML with degrees where a human writes
+angles (keys ending in ``_deg``), converted to radians once here; every other value is SI.
+Unknown sections or keys, wrong types and out-of-range values raise :class:`ConfigError`
+naming the file, the section and the key, e.g.::
+
+    controller.toml: [actuators] max_steer_deg = -5.0: must be > 0 (got -5.0)
+
+Every key has a default (:data:`DEFAULT_TOML` shows them all), so an empty file is valid.
+A gain left at ``nan`` means "from the table" (the section 7.2.4 steering controllers).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ConfigError", "Actuators", "Drive", "Noise", "EstimatorSettings", "OuterLoop", "QpSettings",
+           "ControllerConfig", "DEFAULT_TOML"]
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that is malformed; the message names the key and the fix."""
+
+
+def _deg(x: float) -> float:
+    return math.radians(x)
+
+
+# Each field: (toml key, converter from file units to SI, check, description). The check returns
+# an error text or None.
+def _pos(v: float) -> str | None:
+    return None if (math.isfinite(v) and v > 0) else "must be finite and > 0"
+
+
+def _nonneg(v: float) -> str | None:
+    return None if (math.isfinite(v) and v >= 0) else "must be finite and >= 0"
+
+
+def _any_finite(v: float) -> str | None:
+    return None if math.isfinite(v) else "must be finite"
+
+
+def _gain(v: float) -> str | None:
+    return None if (math.isnan(v) or (math.isfinite(v) and v >= 0)) else "must be >= 0, or nan for the table's gain"
+
+
+def _fraction(v: float) -> str | None:
+    return None if (math.isfinite(v) and 0 < v < 1) else "must be in (0, 1)"
+
+
+def _key(name: str, toml_key: str | None = None, conv: Any = None, check: Any = None) -> dict[str, Any]:
+    return {"toml": toml_key or name, "conv": conv, "check": check}
+
+
+@dataclass(frozen=True)
+class Actuators:
+    """Actuator limits (SI). TOML section ``[actuators]``.
+
+    Attributes
+    ----------
+    max_rim_speed : float
+        Largest rim speed ``omega * r_s`` a drive motor can command, m/s (``max_rim_speed``).
+    min_rim_speed : float
+        Smallest rim speed, m/s (0: the drive does not reverse; ``min_rim_speed``).
+    max_steer : float
+        Largest steering angle magnitude, rad (``max_steer_deg``).
+    max_steer_rate : float
+        Steering slew rate, rad/s (``max_steer_rate_deg_s``).
+    max_rim_accel : float
+        Largest change of rim speed per second, m/s^2 (``max_rim_accel``).
+    """
+
+    max_rim_speed: float = 0.15
+    min_rim_speed: float = 0.0
+    max_steer: float = math.radians(90.0)
+    max_steer_rate: float = math.radians(20.0)
+    max_rim_accel: float = 0.02
+
+    SPEC = {"max_rim_speed": _key("max_rim_speed", check=_pos), "min_rim_speed": _key("min_rim_speed", check=_nonneg),
+            "max_steer": _key("max_steer", "max_steer_deg", _deg, _pos),
+            "max_steer_rate": _key("max_steer_rate", "max_steer_rate_deg_s", _deg, _pos),
+            "max_rim_accel": _key("max_rim_accel", check=_pos)}
+
+
+@dataclass(frozen=True)
+class Drive:
+    """What to drive (``[drive]``): target travel speed and the straight reference line.
+
+    Attributes
+    ----------
+    speed : float
+        Target travel speed, m/s (``speed``).
+    path_heading : float
+        Heading of the reference line in the world frame, rad (``path_heading_deg``).
+    path_x, path_y : float
+        A point of the reference line, m (``path_x``, ``path_y``).
+    wheel_radius : float
+        Shearing radius r_s used to turn omega into rim speed, m (``wheel_radius``); nan: from the
+        table's metadata.
+    """
+
+    speed: float = 0.03
+    path_heading: float = 0.0
+    path_x: float = 0.0
+    path_y: float = 0.0
+    wheel_radius: float = math.nan
+
+    SPEC = {"speed": _key("speed", check=_pos), "path_heading": _key("path_heading", "path_heading_deg", _deg, _any_finite),
+            "path_x": _key("path_x", check=_any_finite), "path_y": _key("path_y", check=_any_finite),
+            "wheel_radius": _key("wheel_radius", check=lambda v: None if (math.isnan(v) or (math.isfinite(v) and v > 0))
+                                 else "must be > 0, or nan for the table's")}
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Sensor and process noise, 1-sigma (``[noise]``).
+
+    Attributes
+    ----------
+    wheel_speed : float
+        Encoder wheel-speed noise, rad/s.
+    steer : float
+        Encoder steering-angle noise, rad (``steer_deg``).
+    gyro : float
+        Gyro yaw-rate noise, rad/s.
+    gyro_bias_walk : float
+        Gyro bias random walk, rad/s per sqrt(s).
+    slip_walk : float
+        Random walk of the longitudinal slip, 1/sqrt(s).
+    crab_walk : float
+        Random walk of the crab angle, rad/sqrt(s) (``crab_walk_deg``).
+    position_walk : float
+        Unmodelled position motion, m/sqrt(s).
+    pose_xy : float
+        Pose-fix position noise, m.
+    pose_heading : float
+        Pose-fix heading noise, rad (``pose_heading_deg``).
+    """
+
+    wheel_speed: float = 0.02
+    steer: float = math.radians(0.5)
+    gyro: float = 0.002
+    gyro_bias_walk: float = 2e-5
+    slip_walk: float = 0.005
+    crab_walk: float = math.radians(0.3)
+    position_walk: float = 2e-4
+    pose_xy: float = 0.01
+    pose_heading: float = math.radians(1.0)
+
+    SPEC = {"wheel_speed": _key("wheel_speed", check=_pos), "steer": _key("steer", "steer_deg", _deg, _pos),
+            "gyro": _key("gyro", check=_pos), "gyro_bias_walk": _key("gyro_bias_walk", check=_pos),
+            "slip_walk": _key("slip_walk", check=_pos), "crab_walk": _key("crab_walk", "crab_walk_deg", _deg, _pos),
+            "position_walk": _key("position_walk", check=_pos),
+            "pose_xy": _key("pose_xy", check=_pos), "pose_heading": _key("pose_heading", "pose_heading_deg", _deg, _pos)}
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """EKF settings (``[estimator]``).
+
+    Attributes
+    ----------
+    gate_chi2 : float
+        Mahalanobis gate on the squared normalised innovation of a 3-dof pose fix (default: the
+        99.9 % point of chi-square(3), 16.27).
+    max_pose_delay : float
+        Oldest pose fix (taken this long before the tick) still used at the time it was taken, s.
+    reset_after_rejections : int
+        After this many consecutive gated-out pose fixes that agree with each other, the filter
+        re-initialises its pose on them (a pose jump of the tracker, not an outlier).
+    initial_sigma_xy, initial_sigma_heading, initial_sigma_slip, initial_sigma_crab, initial_sigma_bias
+        Initial 1-sigma uncertainties (m, rad ``_deg``, 1, rad ``_deg``, rad/s).
+    initial_slip : float
+        Initial longitudinal slip estimate.
+    """
+
+    gate_chi2: float = 16.27
+    max_pose_delay: float = 2.0
+    reset_after_rejections: int = 5
+    initial_sigma_xy: float = 0.02
+    initial_sigma_heading: float = math.radians(2.0)
+    initial_sigma_slip: float = 0.2
+    initial_sigma_crab: float = math.radians(5.0)
+    initial_sigma_bias: float = 0.005
+    initial_slip: float = 0.1
+
+    SPEC = {"gate_chi2": _key("gate_chi2", check=_pos), "max_pose_delay": _key("max_pose_delay", check=_nonneg),
+            "reset_after_rejections": _key("reset_after_rejections", check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
+            "initial_sigma_xy": _key("initial_sigma_xy", check=_pos),
+            "initial_sigma_heading": _key("initial_sigma_heading", "initial_sigma_heading_deg", _deg, _pos),
+            "initial_sigma_slip": _key("initial_sigma_slip", check=_pos),
+            "initial_sigma_crab": _key("initial_sigma_crab", "initial_sigma_crab_deg", _deg, _pos),
+            "initial_sigma_bias": _key("initial_sigma_bias", check=_pos),
+            "initial_slip": _key("initial_slip", check=lambda v: None if (math.isfinite(v) and -1 < v < 1) else "must be in (-1, 1)")}
+
+
+@dataclass(frozen=True)
+class OuterLoop:
+    """Heading / cross-track loop producing the offsets of eqs. (7.26)-(7.27) (``[outer_loop]``).
+
+    Attributes
+    ----------
+    heading_gain : float
+        M_z offset per rad of heading error, N m/rad; nan: from the table's steering controller.
+    crosstrack_gain : float
+        F_y offset per m of cross-track error, N/m; nan: from the table.
+    heading_integral : float, crosstrack_integral : float
+        Integral gains, N m/(rad s) and N/(m s) (0 by default: the EKF's crab estimate removes
+        the steady drift instead, see :mod:`rtctl.controller`).
+    max_mz_offset : float
+        Clamp of the yaw-moment offset, N m (the table's verified range limits it further).
+    max_fy_offset : float
+        Clamp of the lateral-force offset, N.
+    """
+
+    heading_gain: float = math.nan
+    crosstrack_gain: float = math.nan
+    heading_integral: float = 0.0
+    crosstrack_integral: float = 0.0
+    max_mz_offset: float = 0.4
+    max_fy_offset: float = 2.0
+
+    SPEC = {"heading_gain": _key("heading_gain", check=_gain), "crosstrack_gain": _key("crosstrack_gain", check=_gain),
+            "heading_integral": _key("heading_integral", check=_nonneg),
+            "crosstrack_integral": _key("crosstrack_integral", check=_nonneg),
+            "max_mz_offset": _key("max_mz_offset", check=_pos), "max_fy_offset": _key("max_fy_offset", check=_pos)}
+
+
+@dataclass(frozen=True)
+class QpSettings:
+    """Allocator QP settings (``[qp]``).
+
+    Attributes
+    ----------
+    slack_l1 : float
+        Exact (L1) penalty on the slack of every linearised model row, in units of the
+        normalised objective: where it exceeds the row's multiplier a feasible QP has zero slack.
+    slack_l2 : float
+        Quadratic penalty on the same slacks. Measured on the synthetic table: (l1, l2) = (10, 100)
+        converges in ~50 warm ADMM iterations where (100, 10) needs ~1000.
+    regularization : float
+        Proximal weight on the scaled step (Levenberg-Marquardt style), and the floor of the
+        Hessian's eigenvalues after convexification.
+    command_weight : float
+        Weight on the change of the commanded variables from the previous command (smoothness).
+    trust_scale : float
+        Multiplier of the table's verified trust radius.
+    max_iter : int
+        OSQP iteration budget per solve.
+    eps : float
+        OSQP absolute and relative tolerance.
+    balance_tolerance : float
+        Largest accepted slack of a model row (scaled units: 0.5 = half the rover's weight in a
+        force row) before the step is refused and the fallback used; smaller slacks (a rate limit
+        that keeps the balance out of reach for a tick) are commanded and reported.
+    """
+
+    slack_l1: float = 10.0
+    slack_l2: float = 100.0
+    regularization: float = 1e-2
+    command_weight: float = 1e-2
+    trust_scale: float = 1.0
+    max_iter: int = 1000
+    eps: float = 1e-6
+    balance_tolerance: float = 0.5
+
+    SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
+            "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
+            "trust_scale": _key("trust_scale", check=_pos),
+            "max_iter": _key("max_iter", check=lambda v: None if (v >= 10 and v == int(v)) else "must be an integer >= 10"),
+            "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos)}
+
+
+_SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
+                              "outer_loop": OuterLoop, "qp": QpSettings}
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Everything the controller is tuned with; frozen, logged with the controller state.
+
+    Attributes
+    ----------
+    actuators, drive, noise, estimator, outer_loop, qp
+        One frozen dataclass per TOML section (see each class).
+    period : float
+        Control period, s (``[timing] period``; 0.2 s for 5 Hz).
+    max_gap : float
+        A gap between ticks longer than this is a dropout: the EKF predicts over at most this
+        long and counts it (``[timing] max_gap``).
+    tables_index : str
+        Path of the table index (``[tables] index``), relative to the config file; '' if none.
+    """
+
+    actuators: Actuators = field(default_factory=Actuators)
+    drive: Drive = field(default_factory=Drive)
+    noise: Noise = field(default_factory=Noise)
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
+    outer_loop: OuterLoop = field(default_factory=OuterLoop)
+    qp: QpSettings = field(default_factory=QpSettings)
+    period: float = 0.2
+    max_gap: float = 1.0
+    tables_index: str = ""
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "ControllerConfig":
+        """Read a TOML file; raises :class:`ConfigError` naming the file and key on any problem."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: no such config file; pass the path of a controller TOML file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        cfg = cls.from_dict(data, source=path.name)
+        if cfg.tables_index:
+            cfg = replace(cfg, tables_index=str((path.parent / cfg.tables_index)))
+        return cfg
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "<config>") -> "ControllerConfig":
+        """Build from a parsed TOML mapping (file units); errors name ``source``, section and key."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"{source}: expected a table of sections, got {type(data).__name__}")
+        known = set(_SECTIONS) | {"timing", "tables"}
+        for sec in data:
+            if sec not in known:
+                raise ConfigError(f"{source}: unknown section [{sec}]; known sections: {sorted(known)}")
+        kw: dict[str, Any] = {}
+        for sec, klass in _SECTIONS.items():
+            kw[sec] = _section(klass, data.get(sec, {}), sec, source)
+        timing = data.get("timing", {})
+        _only(timing, {"period", "max_gap"}, "timing", source)
+        for k, default in (("period", 0.2), ("max_gap", 1.0)):
+            v = _number(timing.get(k, default), "timing", k, source)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{source}: [timing] {k} = {v}: must be finite and > 0")
+            kw[k] = v
+        if kw["max_gap"] < kw["period"]:
+            raise ConfigError(f"{source}: [timing] max_gap = {kw['max_gap']} is shorter than period = {kw['period']}")
+        tables = data.get("tables", {})
+        _only(tables, {"index"}, "tables", source)
+        idx = tables.get("index", "")
+        if not isinstance(idx, str):
+            raise ConfigError(f"{source}: [tables] index must be a path string, got {idx!r}")
+        kw["tables_index"] = idx
+        act = kw["actuators"]
+        if act.min_rim_speed >= act.max_rim_speed:
+            raise ConfigError(f"{source}: [actuators] min_rim_speed = {act.min_rim_speed} must be < max_rim_speed = {act.max_rim_speed}")
+        if kw["drive"].speed > act.max_rim_speed:
+            raise ConfigError(f"{source}: [drive] speed = {kw['drive'].speed} m/s exceeds [actuators] max_rim_speed = {act.max_rim_speed}")
+        return cls(**kw)
+
+
+def _only(table: Any, allowed: set[str], sec: str, source: str) -> None:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{sec}] must be a table of keys, got {table!r}")
+    for k in table:
+        if k not in allowed:
+            raise ConfigError(f"{source}: [{sec}] unknown key {k!r}; known keys: {sorted(allowed)}")
+
+
+def _number(v: Any, sec: str, key: str, source: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ConfigError(f"{source}: [{sec}] {key} = {v!r}: expected a number")
+    return float(v)
+
+
+def _section(klass: type, table: Any, sec: str, source: str) -> Any:
+    spec: dict[str, dict[str, Any]] = klass.SPEC  # type: ignore[attr-defined]
+    by_toml = {s["toml"]: (attr, s) for attr, s in spec.items()}
+    _only(table, set(by_toml), sec, source)
+    kw: dict[str, Any] = {}
+    names = {f.name for f in fields(klass)}
+    for tkey, value in table.items():
+        attr, s = by_toml[tkey]
+        raw = _number(value, sec, tkey, source)
+        v = s["conv"](raw) if s["conv"] else raw
+        err = s["check"](v) if s["check"] else None
+        if err:
+            raise ConfigError(f"{source}: [{sec}] {tkey} = {value!r}: {err}")
+        if attr in names and isinstance(getattr(klass(), attr), int) and not isinstance(getattr(klass(), attr), bool):
+            v = int(v)
+        kw[attr] = v
+    return klass(**kw)
+
+
+DEFAULT_TOML = """\
+# rtctl controller configuration (SI; angles in degrees where the key ends in _deg)
+[actuators]
+max_rim_speed = 0.15        # m/s
+min_rim_speed = 0.0         # m/s
+max_steer_deg = 90.0
+max_steer_rate_deg_s = 20.0
+max_rim_accel = 0.02        # m/s^2
+
+[drive]
+speed = 0.03                # m/s
+path_heading_deg = 0.0
+path_x = 0.0
+path_y = 0.0
+wheel_radius = nan          # m; nan: from the table
+
+[noise]
+wheel_speed = 0.02          # rad/s
+steer_deg = 0.5
+gyro = 0.002                # rad/s
+gyro_bias_walk = 2e-5       # rad/s/sqrt(s)
+slip_walk = 0.005           # 1/sqrt(s)
+crab_walk_deg = 0.3         # deg/sqrt(s)
+position_walk = 2e-4        # m/sqrt(s)
+pose_xy = 0.01              # m
+pose_heading_deg = 1.0
+
+[estimator]
+gate_chi2 = 16.27
+max_pose_delay = 2.0        # s
+reset_after_rejections = 5
+initial_sigma_xy = 0.02
+initial_sigma_heading_deg = 2.0
+initial_sigma_slip = 0.2
+initial_sigma_crab_deg = 5.0
+initial_sigma_bias = 0.005
+initial_slip = 0.1
+
+[outer_loop]
+heading_gain = nan          # N m/rad; nan: the table's steering controller
+crosstrack_gain = nan       # N/m
+heading_integral = 0.0
+crosstrack_integral = 0.0
+max_mz_offset = 0.4         # N m
+max_fy_offset = 2.0         # N
+
+[qp]
+slack_l1 = 10.0
+slack_l2 = 100.0
+regularization = 1e-2
+command_weight = 1e-2
+trust_scale = 1.0
+max_iter = 1000
+eps = 1e-6
+balance_tolerance = 0.5
+
+[timing]
+period = 0.2
+max_gap = 1.0
+
+[tables]
+index = ""
+"""
+"""Every key with its default value (a valid config file)."""

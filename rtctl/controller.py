@@ -1,0 +1,669 @@
+"""The 5 Hz controller: measurements -> EKF -> outer loop -> QP around the tabulated primitive -> commands.
+
+``Controller(tables, config).step(m) -> (Commands, Diagnostics)`` is pure and deterministic:
+the same sequence of measurements gives the same commands bit for bit; there is no clock, no
+randomness and no global state (the 5 Hz clock and the deadline are :mod:`rtctl.runner`'s).
+
+Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
+
+* **feedback** (:meth:`Controller.feedback`, on the new measurement): input checks, EKF predict
+  and update, outer loop, the QP's vectors, one warm-started OSQP solve, command checks;
+* **preparation** (:meth:`Controller.prepare`, after the commands are out, for the next tick):
+  table choice from the declared failures, table interpolation at the operating point (measured
+  slope and cross slope, the travel speed shifted by the EKF's slip, the failure's own
+  parameter), the QP's matrix values and OSQP's refactorisation.
+
+:meth:`Controller.step` is feedback then preparation.
+
+Outer loop (section 7.2.4): the heading error and the cross-track error to a straight reference
+line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27); the QP turns them
+into wheel changes through the table's parameter Jacobian, which to first order *is* the table's
+steering controller (the re-solve with an offset minus the primitive). By default the gains put
+the table's verified trust radius of each offset at 5 deg of heading error and 5 cm of
+cross-track error (Table 7.2's +/-0.2 N m and +/-1 N where the table verified no radius).
+
+Slip correction: where the EKF's slip departs from the primitive's, the model is corrected
+rather than ignored. (a) Operating-point shift: the table is read at the speed ``v (1 - s0) /
+(1 - s_hat)``, whose primitive makes the real rover (slipping at ``s_hat``) travel at ``v``.
+(b) Force bias: a steady crab ``alpha_hat`` means the real rover balances with a lateral speed
+``v tan(alpha_hat)`` the model does not have; the model's lateral force and yaw moment at that
+speed (from the wheels' wrench Jacobians, eqs. (7.6)-(7.7) and (7.13), (7.18)) are added to the
+offsets, so the QP cancels the disturbance that causes the crab. The lateral speed the outer
+loop's own F_y offset asks for (offset / lateral resistance) is subtracted first: that part of
+the crab is wanted.
+
+Bad input never raises and never reaches the commands: a measurement without a valid time, a
+duplicate or one out of order is rejected (the previous commands are held); a NaN, infinite or
+out-of-range wheel reading takes that wheel out of the odometry; a bad gyro or tilt reading is
+replaced by the last good one with inflated uncertainty; a bad, late, future or inconsistent
+pose is rejected or gated by the EKF; every case is counted in the diagnostics. A QP that fails,
+is infeasible in its model rows beyond the tolerance, or returns non-finite values gives the
+flagged fallback: the interpolated primitive (with the declared failures), rate-limited.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .allocator import AllocatorError, QpAllocator, merge_bounds
+from .config import ControllerConfig
+from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
+from .layout import WHEELS
+from .messages import FAILURE_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements
+
+__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of"]
+
+_MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft soil
+_MAX_TILT = math.radians(45.0)
+_TILT_TAU = 1.0  # s: low-pass time constant of the slope / cross-slope measurement
+_SPEED_SHIFT = (0.7, 1.5)  # bounds of the slip operating-point shift factor
+_SLIP_SIGMA_USE = 0.05  # use the slip / crab correction only when the EKF is this sure
+_CRAB_SIGMA_USE = math.radians(3.0)
+_REF_HEADING_ERROR = math.radians(5.0)
+_REF_CROSSTRACK_ERROR = 0.05
+_SIDE = np.array([-1.0, 1.0, -1.0, 1.0])  # y sign of FR, FL, RR, RL (right is negative; Fig. 7.2)
+_FRONT = np.array([1.0, 1.0, -1.0, -1.0])
+
+
+class ControllerError(ValueError):
+    """Tables or configuration the controller cannot run with (raised at construction only)."""
+
+
+def _failure_kinds(f: Any) -> set[str]:
+    """Failure kinds of a table's encoded WheelFailure (dict) or of a live object."""
+    get = (lambda k, d=None: f.get(k, d)) if isinstance(f, dict) else (lambda k, d=None: getattr(f, k, d))
+    kinds = set()
+    if get("steer_stuck") is not None:
+        kinds.add("steer_stuck")
+    rim = get("rim_speed_max", math.inf)
+    if rim is not None and isinstance(rim, (int, float)) and math.isfinite(rim) and not get("locked", False):
+        kinds.add("rim_speed_cap")
+    for k in ("locked", "unpowered", "raised"):
+        if get(k, False):
+            kinds.add(k)
+    tl = get("torque_limit", math.inf)
+    if tl is not None and isinstance(tl, (int, float)) and math.isfinite(tl) and not get("unpowered", False):
+        kinds.add("torque_limit")
+    return kinds
+
+
+def table_signature(table: Any) -> frozenset[tuple[str, str]]:
+    """The declared failures a table was built for: ``{(wheel, kind), ...}`` from its scenario."""
+    sc = table.meta.get("scenario") or {}
+    fails = sc.get("failures") or {}
+    out = set()
+    if isinstance(fails, dict):
+        for w, f in fails.items():
+            if w in WHEELS and isinstance(f, dict):
+                out |= {(w, k) for k in _failure_kinds(f)}
+    return frozenset(out)
+
+
+def _find_key(obj: Any, key: str) -> Any:
+    if isinstance(obj, dict):
+        if key in obj:
+            return obj[key]
+        for v in obj.values():
+            r = _find_key(v, key)
+            if r is not None:
+                return r
+    return None
+
+
+def wheel_radius_of(table: Any) -> float:
+    """Shearing radius r_s = r + h_g (eq. (5.2)) from a table's parameter record (nan if absent)."""
+    wheel = _find_key(table.meta.get("params", {}), "wheel")
+    if isinstance(wheel, dict):
+        r, hg = wheel.get("radius"), wheel.get("grouser_height", 0.0)
+        if isinstance(r, (int, float)) and isinstance(hg, (int, float)):
+            return float(r) + float(hg)
+    return math.nan
+
+
+class _Index:
+    """Positions in a table layout, looked up once (the 5 Hz path does no name lookups)."""
+
+    def __init__(self, lay: Any) -> None:
+        self.om = np.array([lay.var("omega", w) for w in lay.wheels])
+        self.be = np.array([lay.var("beta", w) for w in lay.wheels])
+        self.speed, self.slope, self.cross = lay.index("speed"), lay.index("slope"), lay.index("cross_slope")
+        self.fy, self.mz = lay.index("fy_offset"), lay.index("mz_offset")
+        self.varying = [self.speed, self.slope, self.cross, self.fy, self.mz]
+        rows = {b.name: b.start for b in lay.constraints}
+        self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
+
+
+@dataclass
+class _Prepared:
+    """Everything the preparation phase leaves for the next feedback phase."""
+
+    table: str
+    point: Any
+    allocator: QpAllocator
+    idx: _Index
+    trust_dp: NDArray[np.float64]
+    trust_box: NDArray[np.float64]
+    crab_sensitivity: tuple[float, float]
+    primitive_slip: float
+    speed_factor: float
+    operating_point: tuple[tuple[str, float], ...]
+    signature: frozenset[tuple[str, str]]
+
+
+class Controller:
+    """The on-rover controller (module docstring).
+
+    Parameters
+    ----------
+    tables : Table or mapping name -> Table
+        Loaded tables (:func:`rtctl.table.load_table`), all for the same rover. The table whose
+        scenario's failures equal the declared ones is used; otherwise the one with no failure
+        (nominal), with the declared failures imposed as QP constraints.
+    config : ControllerConfig
+    """
+
+    def __init__(self, tables: Any, config: ControllerConfig) -> None:
+        if hasattr(tables, "at"):
+            tables = {str(getattr(tables, "name", "table")): tables}
+        if not isinstance(tables, Mapping) or not tables:
+            raise ControllerError("tables: expected a Table or a non-empty mapping name -> Table")
+        self.tables = dict(sorted(tables.items()))
+        self.config = config
+        self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
+        self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
+        nominal = [k for k, s in self.signatures.items() if not s]
+        self.default_table = nominal[0] if nominal else next(iter(self.tables))
+        layouts = {t.layout.to_json() for t in self.tables.values()}
+        del layouts  # each table gets its own allocator (sparsity fixed per table)
+        rs = config.drive.wheel_radius
+        if not math.isfinite(rs):
+            radii = {wheel_radius_of(t) for t in self.tables.values()}
+            radii = {r for r in radii if math.isfinite(r)}
+            if len(radii) != 1:
+                raise ControllerError(f"wheel radius: tables give {sorted(radii) or 'none'}; set [drive] wheel_radius in the config")
+            rs = radii.pop()
+        self.wheel_radius = float(rs)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Back to the state right after construction (same outputs for the same inputs)."""
+        cfg = self.config
+        self.ekf = SlipHeadingEKF(cfg, self.wheel_radius)
+        self.ekf.reset(0.0, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
+        self._allocators: dict[str, QpAllocator] = {}
+        self._last_t: float | None = None
+        self._last_seq: int | None = None
+        self._pose_seen = False
+        self._slope = 0.0
+        self._cross = 0.0
+        self._int_psi = 0.0
+        self._int_y = 0.0
+        self._failures: dict[tuple[str, str], float] = {}
+        self._steer_meas = [math.nan] * len(WHEELS)
+        self._counters: dict[str, int] = {}
+        self._prep: _Prepared | None = None
+        self._table_error = ""
+        self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
+        self._prev_cmd: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * len(WHEELS), (0.0,) * len(WHEELS))
+        self.prepare()
+        if self._prep is None:
+            raise ControllerError(f"no table could be prepared at the start ({self._table_error}); check the tables")
+        self._prev_cmd = self._primitive_commands(self._prep.allocator.x0)
+
+    def _count(self, name: str, n: int = 1) -> None:
+        self._counters[name] = self._counters.get(name, 0) + n
+
+    # ------------------------------------------------------------------ preparation phase
+    def _choose_table(self) -> str:
+        declared = frozenset(self._failures)
+        for name, sig in self.signatures.items():
+            if sig and sig == declared:
+                return name
+        return self.default_table
+
+    def prepare(self) -> None:
+        """Preparation phase: choose and interpolate the table, load the QP's matrices."""
+        cfg = self.config
+        name = self._choose_table()
+        table = self.tables[name]
+        lay = table.layout
+        speed = cfg.drive.speed
+        factor = 1.0
+        x = self.ekf.x
+        P = self.ekf.P
+        prev = self._prep
+        if prev is not None and prev.table == name and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
+            s_hat = min(max(float(x[3]), -0.5), 0.9)
+            factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])
+        op: dict[str, float] = {}
+        for axis, values in table.axes.items():
+            if axis == "slope":
+                op[axis] = self._slope
+            elif axis == "cross_slope":
+                op[axis] = self._cross
+            elif axis == "speed":
+                op[axis] = speed * factor
+            else:
+                op[axis] = self._family_value(table, axis, speed * factor, values)
+        try:
+            tp = table.at(**op)
+        except (ValueError, KeyError) as exc:  # the table reader's TableError: keep the last good preparation
+            self._count("table_errors")
+            self._table_error = str(exc)
+            return
+        alloc = self._allocators.get(name)
+        if alloc is None:
+            alloc = self._allocators[name] = QpAllocator(lay, cfg.qp)
+        try:
+            alloc.prepare(tp)
+        except AllocatorError as exc:
+            self._count("table_point_refused")
+            self._table_error = str(exc)
+            return
+        trust = np.asarray(tp.trust_radius, dtype=float) * cfg.qp.trust_scale
+        if trust.shape != (lay.np_,):
+            trust = np.full(lay.np_, np.inf)
+        ix = self._index[name]
+        varying = ix.varying
+        dxdp = np.abs(np.asarray(tp.dx_dp, dtype=float))[:, varying]
+        r = trust[varying]
+        box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * alloc.sx
+        box = np.where(np.any((dxdp > 0) & ~np.isfinite(r)[None, :], axis=1), np.inf, box)
+        self._prep = _Prepared(name, tp, alloc, ix, trust, box, self._crab_sensitivity(table, tp, ix),
+                               self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
+                               self.signatures[name])
+
+    def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64]) -> float:
+        fam = table.meta.get("family") or {}
+        w = fam.get("wheel")
+        mid = float(values[len(values) // 2])
+        if w not in WHEELS:
+            return mid
+        i = WHEELS.index(w)
+        if axis == "steer_stuck":
+            v = self._steer_meas[i]
+            if not math.isfinite(v):
+                v = self._failures.get((w, "steer_stuck"), math.nan)
+            return float(v) if math.isfinite(v) else mid
+        if axis == "rim_speed_cap_fraction":
+            cap = self._failures.get((w, "rim_speed_cap"), math.nan)
+            return cap / speed if math.isfinite(cap) else mid
+        return mid
+
+    def _primitive_slip(self, tp: Any, ix: _Index) -> float:
+        """Rover-level slip of the primitive, by the EKF's own odometry definition."""
+        x = tp.x
+        om, be = x[ix.om].tolist(), x[ix.be].tolist()
+        ok = [(w, "locked") not in self._failures and (w, "unpowered") not in self._failures for w in WHEELS]
+        v_odo, _ = wheel_odometry(om, be, ok, self.wheel_radius, 1.0)
+        v = float(tp.p[ix.speed])
+        return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
+
+    def _crab_sensitivity(self, table: Any, tp: Any, ix: _Index) -> tuple[float, float]:
+        """d(sum F_y)/d v_y and d(M_z balance)/d v_y of the rover (eqs. (7.6)-(7.7), (7.13), (7.18))."""
+        rover = table.meta.get("rover") or {}
+        wr, lr = rover.get("track_width"), rover.get("rocker_length")
+        J = np.asarray(tp.wrench_jac, dtype=float)
+        b = tp.x[ix.be]
+        c, s = np.cos(b), np.sin(b)
+        d = J[:, :, 0] * s[:, None] + J[:, :, 1] * c[:, None]  # d wrench / d v_y,rover (wheel frame), per wheel
+        fx, fy, mz = c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 5]
+        dfy = float(fy.sum())
+        dmz = 0.0
+        if isinstance(wr, (int, float)) and isinstance(lr, (int, float)) and len(b) == len(WHEELS):
+            dmz = float(np.sum(mz - _SIDE * fx * wr / 2 + _FRONT * fy * lr / 2))
+        return dfy, dmz
+
+    # ------------------------------------------------------------------ feedback phase
+    def step(self, m: Measurements) -> tuple[Commands, Diagnostics]:
+        """Feedback on ``m``, then preparation for the next tick."""
+        out = self.feedback(m)
+        self.prepare()
+        return out
+
+    def feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
+        """Feedback phase: from the measurement to the commands (module docstring)."""
+        cfg = self.config
+        t, seq = getattr(m, "t", math.nan), getattr(m, "seq", -1)
+        if not _finite(t) or isinstance(seq, bool) or not isinstance(seq, (int, np.integer)):
+            self._count("rejected_bad_time_or_seq")
+            return self._hold(t, seq, "measurement without a finite time stamp or an integer sequence number")
+        t = float(t)
+        seq = int(seq)
+        if self._last_t is not None:
+            if seq == self._last_seq and t == self._last_t:
+                self._count("rejected_duplicate")
+                return self._hold(t, seq, "duplicate measurement")
+            if t <= self._last_t or seq <= self._last_seq:  # type: ignore[operator]
+                self._count("rejected_out_of_order")
+                return self._hold(t, seq, "out-of-order measurement")
+            if seq != self._last_seq + 1:  # type: ignore[operator]
+                self._count("sequence_gaps")
+        dt = cfg.period if self._last_t is None else t - self._last_t
+        stale = dt > cfg.max_gap
+        if stale:
+            self._count("stale_gaps")
+            self._int_psi = self._int_y = 0.0
+        if self._last_t is None:
+            self.ekf.reset(t - cfg.period, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
+        self._last_t, self._last_seq = t, seq
+        # ---- declared failures
+        self._read_failures(getattr(m, "failures", ()))
+        # ---- wheels
+        om, st, valid = self._read_wheels(m)
+        rs = self.wheel_radius
+        odo_ok = [v and (w, "locked") not in self._failures and (w, "unpowered") not in self._failures
+                  and (w, "raised") not in self._failures for w, v in zip(WHEELS, valid)]
+        v_odo, var = wheel_odometry(om, st, odo_ok, rs, cfg.noise.wheel_speed)
+        if stale:
+            v_odo, var = math.nan, math.inf
+        r = getattr(m, "yaw_rate", math.nan)
+        if not (_finite(r) and abs(r) <= _MAX_YAW_RATE):
+            self._count("rejected_yaw_rate")
+            r = math.nan
+        self._read_tilt(m, dt)
+        # ---- EKF
+        self.ekf.predict(t, Odometry(v_odo, var, float(r)))
+        verdict = ""
+        pose = getattr(m, "pose", None)
+        if pose is not None:
+            if not self._pose_seen and all(_finite(getattr(pose, k, math.nan)) for k in ("t", "x", "y", "heading")) \
+                    and t - cfg.period <= pose.t <= t:
+                self.ekf.initialise_pose(pose)
+                verdict = "initial"
+                self._pose_seen = True
+            else:
+                try:
+                    verdict = self.ekf.update_pose(pose)
+                except (TypeError, AttributeError):
+                    verdict = "invalid"
+                if verdict == "invalid":
+                    self._count("rejected_pose_invalid")
+                elif verdict in ("accepted", "late", "reset"):
+                    self._pose_seen = True
+        # ---- outer loop
+        x = self.ekf.x
+        h = cfg.drive.path_heading
+        e_psi = float(wrap_angle(h - x[2]))
+        lateral = -math.sin(h) * (x[0] - cfg.drive.path_x) + math.cos(h) * (x[1] - cfg.drive.path_y)
+        e_y = -lateral
+        prep = self._prep
+        if prep is None:
+            return self._fallback(t, seq, "no table point prepared", e_psi, e_y, 0.0, 0.0, verdict, None)
+        mz, fy = self._offsets(prep, e_psi, e_y, dt)
+        # ---- slip correction (b): crab bias into the offsets
+        P = self.ekf.P
+        mz_bias = fy_bias = 0.0
+        if math.sqrt(P[4, 4]) < _CRAB_SIGMA_USE and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
+            v_hat = (1.0 - min(max(float(x[3]), -0.5), 0.9)) * (v_odo if math.isfinite(v_odo) else cfg.drive.speed)
+            vy = v_hat * math.tan(min(max(float(x[4]), -0.5), 0.5))
+            dfy, dmz = prep.crab_sensitivity
+            # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
+            # rover balances an F_y offset by crabbing until the lateral resistance matches it
+            vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
+            fy_bias, mz_bias = dfy * (vy - vy_wanted), dmz * (vy - vy_wanted)
+        # ---- QP
+        ix = prep.idx
+        p = np.array(prep.point.p, dtype=float)
+        p[ix.speed] = cfg.drive.speed * prep.speed_factor
+        p[ix.slope] = self._slope
+        p[ix.cross] = self._cross
+        p[ix.fy] = fy + fy_bias
+        p[ix.mz] = mz + mz_bias
+        p0 = prep.allocator.p0
+        dp = np.clip(p - p0, -prep.trust_dp, prep.trust_dp)
+        p = p0 + dp
+        box, lbg, ubg = self._bounds(prep, dt)
+        res = prep.allocator.solve(p, box, lbg, ubg, x_ref=self._x_of_commands(prep))
+        self._last_qp = (prep.allocator, prep.allocator.snapshot())
+        if not res.ok:
+            self._count("qp_fallbacks")
+            return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
+                                  float(p[ix.fy]), verdict, res)
+        rim, steer = self._commands_from_x(prep, res.x)
+        rim, steer = self._limit(rim, steer, dt)
+        cmd = Commands(t, seq, rim, steer)
+        if not self._valid(cmd):  # cannot happen after _limit; kept as the last guard
+            self._count("invalid_commands_caught")
+            return self._hold(t, seq, "command failed the final check")
+        self._prev_cmd = (rim, steer)
+        return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[ix.mz]),
+                               float(p[ix.fy]), verdict)
+
+    def last_qp(self) -> tuple[Any, NDArray[np.float64]] | None:
+        """The QP of the last feedback phase that reached the solver and OSQP's answer in the
+        QP's own variables (scaled step, slacks): ``(QpProblem, z)``; None before any."""
+        if self._last_qp is None:
+            return None
+        alloc, snap = self._last_qp
+        return alloc.problem(snap), snap[-1]
+
+    # ------------------------------------------------------------------ pieces
+    def _read_failures(self, failures: Any) -> None:
+        out: dict[tuple[str, str], float] = {}
+        try:
+            items = tuple(failures)
+        except TypeError:
+            items = ()
+            self._count("rejected_failure_declaration")
+        for f in items:
+            if not isinstance(f, FailureDeclaration) or f.wheel not in WHEELS or f.kind not in FAILURE_KINDS:
+                self._count("rejected_failure_declaration")
+                continue
+            v = f.value
+            if not isinstance(v, (int, float)) or math.isinf(v):
+                self._count("rejected_failure_declaration")
+                continue
+            if f.kind in ("rim_speed_cap", "torque_limit") and not (math.isfinite(v) and v >= 0):
+                self._count("rejected_failure_declaration")
+                continue
+            if f.kind == "steer_stuck" and math.isfinite(v) and abs(v) > math.pi:
+                self._count("rejected_failure_declaration")
+                continue
+            out[(f.wheel, f.kind)] = float(v)
+        self._failures = out
+
+    def _read_wheels(self, m: Any) -> tuple[list[float], list[float], list[bool]]:
+        cfg = self.config
+        om_max = 2.0 * cfg.actuators.max_rim_speed / self.wheel_radius
+        try:
+            om = [float(v) for v in m.wheel_speed]
+            st = [float(v) for v in m.steer_angle]
+            if len(om) != len(WHEELS) or len(st) != len(WHEELS):
+                raise ValueError
+        except (TypeError, ValueError, AttributeError):
+            self._count("rejected_wheel_vectors")
+            return [0.0] * len(WHEELS), [0.0] * len(WHEELS), [False] * len(WHEELS)
+        valid = []
+        for i, w in enumerate(WHEELS):
+            ok = math.isfinite(om[i]) and math.isfinite(st[i]) and abs(om[i]) <= om_max and abs(st[i]) <= math.pi
+            if not ok:
+                self._count(f"rejected_wheel_{w}")
+                om[i], st[i] = 0.0, 0.0
+            else:
+                self._steer_meas[i] = st[i]
+            valid.append(ok)
+        return om, st, valid
+
+    def _read_tilt(self, m: Any, dt: float) -> None:
+        a = min(max(dt, 0.0) / _TILT_TAU, 1.0)
+        for attr, name in (("pitch", "_slope"), ("roll", "_cross")):
+            v = getattr(m, attr, math.nan)
+            if _finite(v) and abs(v) <= _MAX_TILT:
+                setattr(self, name, (1 - a) * getattr(self, name) + a * float(v))
+            else:
+                self._count(f"rejected_{attr}")
+
+    def _gains(self, prep: _Prepared) -> tuple[float, float]:
+        ol = self.config.outer_loop
+        k_psi, k_y = ol.heading_gain, ol.crosstrack_gain
+        if math.isnan(k_psi):
+            r = float(prep.trust_dp[prep.idx.mz])
+            k_psi = (r if math.isfinite(r) else 0.2) / _REF_HEADING_ERROR
+        if math.isnan(k_y):
+            r = float(prep.trust_dp[prep.idx.fy])
+            k_y = (r if math.isfinite(r) else 1.0) / _REF_CROSSTRACK_ERROR
+        return k_psi, k_y
+
+    def _offsets(self, prep: _Prepared, e_psi: float, e_y: float, dt: float) -> tuple[float, float]:
+        ol = self.config.outer_loop
+        k_psi, k_y = self._gains(prep)
+        mz_max, fy_max = ol.max_mz_offset, ol.max_fy_offset
+        if ol.heading_integral > 0:
+            self._int_psi = min(max(self._int_psi + dt * e_psi, -mz_max / ol.heading_integral), mz_max / ol.heading_integral)
+        if ol.crosstrack_integral > 0:
+            self._int_y = min(max(self._int_y + dt * e_y, -fy_max / ol.crosstrack_integral), fy_max / ol.crosstrack_integral)
+        mz = k_psi * e_psi + ol.heading_integral * self._int_psi
+        fy = k_y * e_y + ol.crosstrack_integral * self._int_y
+        return min(max(mz, -mz_max), mz_max), min(max(fy, -fy_max), fy_max)
+
+    def _bounds(self, prep: _Prepared, dt: float) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]],
+                                                           NDArray[np.float64], NDArray[np.float64]]:
+        """Physical box on x (failures > actuators > table > rate limits > trust region) and
+        the constraint bounds with the declared torque failures."""
+        act = self.config.actuators
+        alloc = prep.allocator
+        lay = alloc.layout
+        rs = self.wheel_radius
+        tlo, thi = alloc.table_bounds
+        x0 = alloc.x0
+        nx = lay.nx
+        alo, ahi = np.full(nx, -np.inf), np.full(nx, np.inf)
+        rlo, rhi = np.full(nx, -np.inf), np.full(nx, np.inf)
+        prev_rim, prev_steer = self._prev_cmd
+        ix = prep.idx
+        pr, ps = np.array(prev_rim), np.array(prev_steer)
+        alo[ix.om], ahi[ix.om] = act.min_rim_speed / rs, act.max_rim_speed / rs
+        alo[ix.be], ahi[ix.be] = -act.max_steer, act.max_steer
+        rlo[ix.om], rhi[ix.om] = (pr - act.max_rim_accel * dt) / rs, (pr + act.max_rim_accel * dt) / rs
+        rlo[ix.be], rhi[ix.be] = ps - act.max_steer_rate * dt, ps + act.max_steer_rate * dt
+        lo, hi = merge_bounds(alo, ahi, (tlo, thi))
+        lbg, ubg = prep.point.lbg, prep.point.ubg
+        fixed = np.zeros(nx, dtype=bool)
+        f = self._failures
+        copied = False
+        for i, w in enumerate(lay.wheels):
+            if not f:
+                break
+            io, ib = int(ix.om[i]), int(ix.be[i])
+            if (w, "steer_stuck") in f:
+                v = self._steer_meas[i] if math.isfinite(self._steer_meas[i]) else f[(w, "steer_stuck")]
+                if not math.isfinite(v):
+                    v = float(x0[ib])
+                lo[ib] = hi[ib] = v
+                fixed[ib] = True
+            if (w, "locked") in f:
+                lo[io] = hi[io] = 0.0
+                fixed[io] = True
+            if (w, "rim_speed_cap") in f:
+                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / rs)
+                lo[io] = min(lo[io], hi[io])
+            j = ix.torque[i]
+            if j >= 0 and ((w, "unpowered") in f or (w, "torque_limit") in f):
+                if not copied:
+                    lbg, ubg, copied = np.array(lbg, dtype=float), np.array(ubg, dtype=float), True
+                if (w, "unpowered") in f:
+                    lbg[j] = ubg[j] = 0.0
+                else:
+                    lbg[j], ubg[j] = -f[(w, "torque_limit")], f[(w, "torque_limit")]
+        rlo[fixed], rhi[fixed] = -np.inf, np.inf
+        tb = prep.trust_box
+        zlo, zhi = np.where(fixed, -np.inf, x0 - tb), np.where(fixed, np.inf, x0 + tb)
+        lo, hi = merge_bounds(lo, hi, (rlo, rhi), (zlo, zhi))
+        return (lo, hi), lbg, ubg
+
+    def _x_of_commands(self, prep: _Prepared) -> NDArray[np.float64]:
+        x = prep.allocator.x0
+        rim, steer = self._prev_cmd
+        x[prep.idx.om] = np.array(rim) / self.wheel_radius
+        x[prep.idx.be] = steer
+        return x
+
+    def _commands_from_x(self, prep: _Prepared, x: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        rim = tuple((x[prep.idx.om] * self.wheel_radius).tolist())
+        steer = tuple(x[prep.idx.be].tolist())
+        return rim, steer
+
+    def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        rim, steer = self._commands_from_x(self._prep, x0)  # type: ignore[arg-type]
+        act = self.config.actuators
+        return (tuple(min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim),
+                tuple(min(max(v, -act.max_steer), act.max_steer) for v in steer))
+
+    def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Rate-limit from the previous command and clip into the actuator range; the result
+        is always finite (a non-finite target holds the previous command)."""
+        act = self.config.actuators
+        prev_rim, prev_steer = self._prev_cmd
+        out_r, out_s = [], []
+        for i in range(len(WHEELS)):
+            a = rim[i] if math.isfinite(rim[i]) else prev_rim[i]
+            b = steer[i] if math.isfinite(steer[i]) else prev_steer[i]
+            w = WHEELS[i]
+            if (w, "locked") in self._failures:
+                a = 0.0
+            da, db = act.max_rim_accel * dt * (1 + 1e-9), act.max_steer_rate * dt * (1 + 1e-9)
+            if (w, "steer_stuck") not in self._failures:
+                b = min(max(b, prev_steer[i] - db), prev_steer[i] + db)
+            a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
+            out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
+            out_s.append(min(max(b, -act.max_steer), act.max_steer))
+        return tuple(out_r), tuple(out_s)
+
+    def _valid(self, c: Commands) -> bool:
+        act = self.config.actuators
+        return c.is_valid(act.max_rim_speed, act.max_steer) and all(v >= act.min_rim_speed for v in c.rim_speed)
+
+    def _fallback(self, t: float, seq: int, why: str, e_psi: float, e_y: float, mz: float, fy: float, verdict: str,
+                  res: Any) -> tuple[Commands, Diagnostics]:
+        prep = self._prep
+        dt = self.config.period
+        if prep is not None:
+            lo_hi, _, _ = self._bounds(prep, dt)
+            x = np.clip(prep.allocator.x0, lo_hi[0], lo_hi[1])  # primitive with the failures applied
+            rim, steer = self._commands_from_x(prep, x)
+        else:
+            rim, steer = self._prev_cmd
+        rim, steer = self._limit(rim, steer, dt)
+        cmd = Commands(t, seq, rim, steer)
+        if not self._valid(cmd):
+            self._count("invalid_commands_caught")
+            return self._hold(t, seq, why + "; fallback failed the final check")
+        self._prev_cmd = (rim, steer)
+        self._count("fallbacks")
+        return cmd, self._diag(t, seq, "fallback", why, res, e_psi, e_y, mz, fy, verdict)
+
+    def _hold(self, t: Any, seq: Any, why: str) -> tuple[Commands, Diagnostics]:
+        rim, steer = self._prev_cmd
+        tt = float(t) if _finite(t) else (self._last_t if self._last_t is not None else 0.0)
+        ss = int(seq) if isinstance(seq, (int, np.integer)) and not isinstance(seq, bool) else -1
+        self._count("holds")
+        return Commands(tt, ss, rim, steer), self._diag(tt, ss, "hold", why, None, math.nan, math.nan, 0.0, 0.0, "")
+
+    def _diag(self, t: float, seq: int, mode: str, why: str, res: Any, e_psi: float, e_y: float, mz: float, fy: float,
+              verdict: str) -> Diagnostics:
+        prep = self._prep
+        ec = self.ekf.counters
+        counters = dict(self._counters)
+        for k, v in vars(ec).items():
+            counters[f"ekf_{k}"] = v
+        x, P = self.ekf.x, self.ekf.P
+        return Diagnostics(
+            t=t, seq=seq, mode=mode, reason=why, table=prep.table if prep else "", table_status=str(getattr(prep.point, "status", "")) if prep else "",
+            operating_point=prep.operating_point if prep else (), qp_status=res.status if res is not None else "",
+            qp_iterations=res.iterations if res is not None else 0, qp_slack=res.slack if res is not None else math.nan,
+            heading_error=e_psi, crosstrack_error=e_y, mz_offset=mz, fy_offset=fy,
+            speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
+            state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
+            counters=tuple(sorted(counters.items())))
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool) and math.isfinite(v)
+

@@ -1,0 +1,392 @@
+"""Recordings of a drive as MCAP: every controller input, output, diagnostic and timing.
+
+The recorder's input is the controller's own stream (:class:`rtctl.messages.Measurements`
+in, :class:`rtctl.messages.Commands` out, diagnostics, step timing), so the same recorder
+runs on the rover and in simulation; a simulator may add its truth on an extra channel.
+
+Format
+------
+An MCAP file (https://mcap.dev) with JSON-schema'd channels (``message_encoding = "json"``,
+schema encoding ``"jsonschema"``), readable by standard MCAP tools (``mcap info``, Foxglove):
+
+=====================  ==========================================================
+topic                  content
+=====================  ==========================================================
+``/rtctl/measurements``  one :class:`Measurements` per tick
+``/rtctl/commands``      one :class:`Commands` per tick
+``/rtctl/diagnostics``   the controller's diagnostics (free-form object)
+``/rtctl/timing``        ``{"t", "seq", "step_s", "deadline_s", "missed"}``
+``/sim/truth``           optional simulator truth (free-form object)
+=====================  ==========================================================
+
+Log time is the message's own time stamp ``t`` in integer nanoseconds. Floats are written
+with Python's shortest round-trip repr, so a read gives back the same bits; non-finite
+values (a NaN measurement the controller must reject) are written as the strings
+``"NaN"``, ``"Infinity"``, ``"-Infinity"`` (JSON has no such numbers). The file is written
+to a temporary name beside the target and renamed into place at :meth:`Recorder.close`, so
+an interrupted drive leaves no truncated recording.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from .messages import Commands, FailureDeclaration, Measurements, Pose
+
+__all__ = ["RecordingError", "Recorder", "Recording", "read_recording", "export_csv", "TOPICS", "FORMAT_VERSION",
+           "to_jsonable"]
+
+FORMAT_VERSION = "1"
+TOPICS = {
+    "measurements": "/rtctl/measurements",
+    "commands": "/rtctl/commands",
+    "diagnostics": "/rtctl/diagnostics",
+    "timing": "/rtctl/timing",
+    "truth": "/sim/truth",
+}
+"""Channel topics by kind."""
+
+_NUM = {"type": ["number", "string"], "description": "SI value; non-finite as 'NaN' / 'Infinity' / '-Infinity'"}
+_WHEELS4 = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4, "description": "FR, FL, RR, RL"}
+_SCHEMAS: dict[str, dict[str, Any]] = {
+    "measurements": {
+        "title": "rtctl.Measurements", "type": "object",
+        "properties": {
+            "t": _NUM, "seq": {"type": "integer"}, "wheel_speed": _WHEELS4, "steer_angle": _WHEELS4,
+            "yaw_rate": _NUM, "roll": _NUM, "pitch": _NUM,
+            "motor_torque": {"oneOf": [_WHEELS4, {"type": "null"}]},
+            "pose": {"oneOf": [{"type": "null"}, {"type": "object", "properties": {
+                "t": _NUM, "x": _NUM, "y": _NUM, "heading": _NUM}}]},
+            "failures": {"type": "array", "items": {"type": "object", "properties": {
+                "wheel": {"type": "string"}, "kind": {"type": "string"}, "value": _NUM}}},
+        },
+        "required": ["t", "seq", "wheel_speed", "steer_angle", "yaw_rate"],
+    },
+    "commands": {
+        "title": "rtctl.Commands", "type": "object",
+        "properties": {"t": _NUM, "seq": {"type": "integer"}, "rim_speed": _WHEELS4, "steer_angle": _WHEELS4},
+        "required": ["t", "seq", "rim_speed", "steer_angle"],
+    },
+    "diagnostics": {"title": "rtctl.Diagnostics", "type": "object", "additionalProperties": True},
+    "timing": {
+        "title": "rtctl.StepTiming", "type": "object",
+        "properties": {"t": _NUM, "seq": {"type": "integer"}, "step_s": _NUM, "deadline_s": _NUM,
+                       "missed": {"type": "boolean"}},
+    },
+    "truth": {"title": "offnominal.SimTruth", "type": "object", "additionalProperties": True},
+}
+
+
+class RecordingError(ValueError):
+    """A recording cannot be written or read (the message names the file and what is wrong)."""
+
+
+def _num_out(x: float) -> float | str:
+    x = float(x)
+    if math.isfinite(x):
+        return x
+    return "NaN" if math.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
+
+
+def _num_in(x: Any) -> float:
+    if isinstance(x, str):
+        if x in ("NaN", "Infinity", "-Infinity"):
+            return float(x.replace("Infinity", "inf"))
+        raise RecordingError(f"expected a number or 'NaN'/'Infinity'/'-Infinity', got {x!r}")
+    return float(x)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Dataclasses, numpy arrays and scalars, tuples and mappings as JSON values (non-finite
+    floats as strings, see the module notes)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        return [to_jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return _num_out(float(obj))
+    if obj is None or isinstance(obj, str):
+        return obj
+    return str(obj)
+
+
+def _measurements_out(m: Measurements) -> dict[str, Any]:
+    return to_jsonable(m)
+
+
+def _commands_out(c: Commands) -> dict[str, Any]:
+    return to_jsonable(c)
+
+
+def _tuple4(v: Any, what: str) -> tuple[float, float, float, float]:
+    if not isinstance(v, list) or len(v) != 4:
+        raise RecordingError(f"{what}: expected 4 values (FR, FL, RR, RL), got {v!r}")
+    return tuple(_num_in(x) for x in v)  # type: ignore[return-value]
+
+
+def measurements_from_json(d: Mapping[str, Any]) -> Measurements:
+    """Rebuild a :class:`Measurements` from its recorded JSON object."""
+    pose = d.get("pose")
+    mt = d.get("motor_torque")
+    return Measurements(
+        t=_num_in(d["t"]), seq=int(d["seq"]), wheel_speed=_tuple4(d["wheel_speed"], "wheel_speed"),
+        steer_angle=_tuple4(d["steer_angle"], "steer_angle"), yaw_rate=_num_in(d["yaw_rate"]),
+        roll=_num_in(d.get("roll", 0.0)), pitch=_num_in(d.get("pitch", 0.0)),
+        motor_torque=None if mt is None else _tuple4(mt, "motor_torque"),
+        pose=None if pose is None else Pose(_num_in(pose["t"]), _num_in(pose["x"]), _num_in(pose["y"]),
+                                            _num_in(pose["heading"])),
+        failures=tuple(FailureDeclaration(f["wheel"], f["kind"], _num_in(f.get("value", "NaN")))
+                       for f in d.get("failures", [])),
+    )
+
+
+def commands_from_json(d: Mapping[str, Any]) -> Commands:
+    """Rebuild a :class:`Commands` from its recorded JSON object."""
+    return Commands(t=_num_in(d["t"]), seq=int(d["seq"]), rim_speed=_tuple4(d["rim_speed"], "rim_speed"),
+                    steer_angle=_tuple4(d["steer_angle"], "steer_angle"))
+
+
+def _ns(t: float) -> int:
+    if not math.isfinite(t):
+        return 0
+    return max(0, int(round(t * 1e9)))
+
+
+class Recorder:
+    """Write a drive to an MCAP file (atomically: temporary name, renamed at :meth:`close`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Target ``.mcap`` file. Its folder is created; an existing file is replaced only at close.
+    metadata : mapping, optional
+        Free-form facts about the run (controller config, table names and sha256, scenario,
+        seed), stored as an MCAP metadata record ``"run"`` (values as strings).
+    truth : bool
+        Register the ``/sim/truth`` channel.
+
+    Examples
+    --------
+    >>> with Recorder("drive.mcap", {"seed": 1}) as rec:   # doctest: +SKIP
+    ...     rec.measurements(m); rec.commands(c)
+    """
+
+    def __init__(self, path: str | Path, metadata: Mapping[str, Any] | None = None, truth: bool = False) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise RecordingError(f"{self.path}: is a folder; give a file name ending in .mcap")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent)
+        self._tmp = Path(tmp)
+        self._fh = os.fdopen(fd, "wb")
+        self._writer = Writer(self._fh, compression=CompressionType.NONE)
+        self._writer.start(profile="", library="offnominal-rover rtctl.recording")
+        self._channels: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        kinds = [k for k in TOPICS if k != "truth" or truth]
+        for kind in kinds:
+            sid = self._writer.register_schema(_SCHEMAS[kind]["title"], "jsonschema",
+                                               json.dumps(_SCHEMAS[kind]).encode())
+            self._channels[kind] = self._writer.register_channel(TOPICS[kind], "json", sid)
+            self._seq[kind] = 0
+        meta = {"format_version": FORMAT_VERSION}
+        for k, v in (metadata or {}).items():
+            meta[str(k)] = v if isinstance(v, str) else json.dumps(to_jsonable(v))
+        self._writer.add_metadata("run", meta)
+        self._closed = False
+
+    def _write(self, kind: str, t: float, obj: Mapping[str, Any]) -> None:
+        if self._closed:
+            raise RecordingError(f"{self.path}: recorder already closed")
+        if kind not in self._channels:
+            raise RecordingError(f"{self.path}: no {kind!r} channel (open the recorder with truth=True)")
+        data = json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
+        ns = _ns(t)
+        self._writer.add_message(self._channels[kind], log_time=ns, data=data, publish_time=ns,
+                                 sequence=self._seq[kind])
+        self._seq[kind] += 1
+
+    def measurements(self, m: Measurements) -> None:
+        """Record one tick's measurements."""
+        self._write("measurements", m.t, _measurements_out(m))
+
+    def commands(self, c: Commands) -> None:
+        """Record one tick's commands."""
+        self._write("commands", c.t, _commands_out(c))
+
+    def diagnostics(self, t: float, diag: Any) -> None:
+        """Record the controller's diagnostics (a dataclass or mapping) at time ``t``."""
+        d = to_jsonable(diag)
+        if not isinstance(d, dict):
+            d = {"value": d}
+        d.setdefault("t", _num_out(t))
+        self._write("diagnostics", t, d)
+
+    def timing(self, t: float, seq: int, step_s: float, deadline_s: float = 0.2, missed: bool | None = None) -> None:
+        """Record a step's computation time and whether it missed its deadline."""
+        self._write("timing", t, {"t": _num_out(t), "seq": int(seq), "step_s": _num_out(step_s),
+                                  "deadline_s": _num_out(deadline_s),
+                                  "missed": bool(step_s > deadline_s) if missed is None else bool(missed)})
+
+    def truth(self, t: float, state: Any) -> None:
+        """Record the simulator's truth (a dataclass or mapping) at time ``t``."""
+        d = to_jsonable(state)
+        self._write("truth", t, d if isinstance(d, dict) else {"value": d})
+
+    def close(self) -> Path:
+        """Finish the file and rename it onto the target path."""
+        if self._closed:
+            return self.path
+        self._writer.finish()
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self._fh.close()
+        os.replace(self._tmp, self.path)
+        self._closed = True
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the recording (the target path is left untouched)."""
+        if not self._closed:
+            self._fh.close()
+            self._closed = True
+        if self._tmp.exists():
+            self._tmp.unlink()
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+@dataclass
+class Recording:
+    """A recording read back: typed measurements and commands, the rest as JSON objects."""
+
+    measurements: list[Measurements] = field(default_factory=list)
+    commands: list[Commands] = field(default_factory=list)
+    diagnostics: list[dict[str, Any]] = field(default_factory=list)
+    timing: list[dict[str, Any]] = field(default_factory=list)
+    truth: list[dict[str, Any]] = field(default_factory=list)
+    metadata: dict[str, str] = field(default_factory=dict)
+    path: str = ""
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read an MCAP recording written by :class:`Recorder`.
+
+    Raises
+    ------
+    RecordingError
+        Missing or unreadable file, not MCAP, a message that does not decode.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    p = Path(path)
+    if not p.is_file():
+        raise RecordingError(f"{p}: no such recording")
+    rec = Recording(path=str(p))
+    by_topic = {v: k for k, v in TOPICS.items()}
+    try:
+        with open(p, "rb") as fh:
+            reader = make_reader(fh)
+            for md in reader.iter_metadata():
+                if md.name == "run":
+                    rec.metadata = dict(md.metadata)
+            for _schema, channel, message in reader.iter_messages(log_time_order=False):
+                kind = by_topic.get(channel.topic)
+                if kind is None:
+                    continue
+                try:
+                    obj = json.loads(message.data)
+                    if kind == "measurements":
+                        rec.measurements.append(measurements_from_json(obj))
+                    elif kind == "commands":
+                        rec.commands.append(commands_from_json(obj))
+                    else:
+                        getattr(rec, kind).append(obj)
+                except (ValueError, KeyError, TypeError) as exc:
+                    raise RecordingError(f"{p}: message {message.sequence} on {channel.topic} does not decode ({exc})") from None
+    except McapError as exc:
+        raise RecordingError(f"{p}: not a readable MCAP file ({exc})") from None
+    if rec.metadata.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+        raise RecordingError(f"{p}: recording format {rec.metadata.get('format_version')!r}, this reader reads "
+                             f"{FORMAT_VERSION!r}; re-record or convert it")
+    return rec
+
+
+def _flatten(prefix: str, v: Any, out: dict[str, Any]) -> None:
+    """Flatten nested JSON into ``a.b`` columns; per-wheel lists of 4 into ``a.FR`` ... ``a.RL``."""
+    if isinstance(v, dict):
+        for k, x in v.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), x, out)
+    elif isinstance(v, list) and all(not isinstance(x, (dict, list)) for x in v):
+        labels = ("FR", "FL", "RR", "RL") if len(v) == 4 else tuple(str(i) for i in range(len(v)))
+        for n, x in zip(labels, v):
+            out[f"{prefix}.{n}"] = x
+    elif isinstance(v, list):
+        out[prefix] = json.dumps(v)
+    else:
+        out[prefix] = v
+
+
+def _rows(objs: Iterable[Any]) -> list[dict[str, Any]]:
+    rows = []
+    for o in objs:
+        flat: dict[str, Any] = {}
+        _flatten("", to_jsonable(o), flat)
+        rows.append(flat)
+    return rows
+
+
+def export_csv(path: str | Path, out_dir: str | Path) -> list[Path]:
+    """Write one CSV per channel of a recording into ``out_dir`` (atomically, one file each);
+    per-wheel arrays become ``<field>.FR`` ... columns. Returns the files written."""
+    rec = read_recording(path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for kind in ("measurements", "commands", "diagnostics", "timing", "truth"):
+        rows = _rows(getattr(rec, kind))
+        if not rows:
+            continue
+        cols: list[str] = []
+        for r in rows:
+            cols.extend(c for c in r if c not in cols)
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+        target = out / f"{kind}.csv"
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=out)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(buf.getvalue())
+        os.replace(tmp, target)
+        written.append(target)
+    return written

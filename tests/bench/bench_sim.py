@@ -1,0 +1,85 @@
+"""Speed benchmark of the rover simulator (issue 13: ">= 20 simulated seconds per wall second").
+
+Run on demand, never in the test suite::
+
+    nice python tests/bench/bench_sim.py [--quick]
+
+Drives the section 7.3 scenarios 1.5 m at 3 cm/s (50 simulated seconds each) open loop
+(feed-forward primitive: commands constant) and closed loop (feed-forward + PID: commands
+change every 0.2 s, so the plant's Newton solve works every step), at the default step
+(0.1 s) and at 0.05 s. Primitives and steering controllers are solved before the clock
+starts; the plant's C compile is cached on disk (first run only). Writes
+``tests/bench/results_sim.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from offline.files import write_text
+from offline.sim.experiments import build_controller, run_drive, scenario_by_name
+from offline.sim.simulator import RoverSimulator
+
+HERE = Path(__file__).resolve().parent
+TARGET = 20.0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="one repeat, 0.5 m drives")
+    args = ap.parse_args(argv)
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    repeat = 1 if args.quick else 3
+    distance = 0.5 if args.quick else 1.5
+    rows = []
+    for name in ("rr_steer_stuck_50", "rr_speed_cap_half", "rr_trench_clean"):
+        sc = scenario_by_name(name)
+        for kind in ("ff", "ff+optfb"):
+            ctl = build_controller(kind, sc)
+            for dt in (0.1, 0.05):
+                rates, iters = [], []
+                for _ in range(repeat):
+                    sim = RoverSimulator(sc, dt=dt, seed=0)
+                    t = time.perf_counter()
+                    run_drive(sim, ctl, distance=distance)
+                    wall = time.perf_counter() - t
+                    rates.append(sim.t / wall)
+                    iters.append(sim.newton_iterations / max(sim.steps, 1))
+                rate = max(rates)
+                rows.append((name, kind, dt, rate, statistics.median(rates), float(np.mean(iters))))
+                print(f"{name:18s} {kind:9s} dt={dt:<5} {rate:6.1f} sim-s/s (median {statistics.median(rates):.1f}), "
+                      f"{np.mean(iters):.2f} Newton iterations per step", flush=True)
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [
+        "# Simulator benchmark",
+        "",
+        f"Written by `nice python tests/bench/bench_sim.py{' --quick' if args.quick else ''}` on {stamp}; "
+        f"{platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, pinned to one core "
+        f"(machine shared with other jobs); best of {repeat}, {distance} m drives at 3 cm/s.",
+        "",
+        f"Target: >= {TARGET:.0f} simulated seconds per wall second.",
+        "",
+        "| scenario | controller | step [s] | sim-s per wall-s (best) | median | Newton it./step | |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, kind, dt, rate, med, it in rows:
+        lines.append(f"| {name} | {kind} | {dt} | {rate:.1f} | {med:.1f} | {it:.2f} | "
+                     f"{'PASS' if rate >= TARGET else 'below target'} |")
+    lines.append("")
+    write_text(HERE / "results_sim.md", "\n".join(lines))
+    print(f"wrote {HERE / 'results_sim.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -73,9 +73,10 @@ from .candidates import Extension
 from .discrepancy import Verdict, diagnose
 from .drive_candidates import DRIVE_CANDIDATES, recalibration_candidate, rover_terms, truth_from_terms, write_truth_toml
 from .observations import FEATURE_LABELS, Probe
+from .significance import normalised
 
 __all__ = ["DriveDataError", "DriveData", "DriveRecording", "DriveModel", "load_drives", "diagnose_drives",
-           "write_drive_report", "TICK_CHANNELS", "POSE_CHANNELS"]
+           "write_drive_report", "accepted_extension", "held_out_drives", "TICK_CHANNELS", "POSE_CHANNELS"]
 
 TICK_CHANNELS = (*(f"omega_{w}" for w in WHEELS), *(f"torque_{w}" for w in WHEELS), "yaw_rate", "roll", "pitch")
 """Per-tick readings averaged over a segment."""
@@ -385,10 +386,11 @@ class DriveModel:
     sensors : SensorConfig, optional
         Only the believed biases are used (gyro bias, IMU mounting); predictions are noise-free.
     stride : int
-        The plant is solved every ``stride`` ticks (and at the last), the readings in between
-        interpolated linearly; the actuators (steering slew, servo lag) follow every tick's
-        commands. At drive speeds the plant is quasi-static, so 2 (0.4 s at 5 Hz) halves the
-        cost at a small error right after a command step.
+        In steady stretches (commands unchanged, servos settled) the plant is solved every
+        ``stride`` ticks and the readings in between interpolated linearly; around every command
+        change and while the servos move (steering slew, speed lag) it is solved at every tick.
+        The actuators follow every tick's commands. At drive speeds the plant is quasi-static,
+        so the interpolation error is that of a slowly turning gravity vector.
     """
 
     scenario: Scenario
@@ -396,7 +398,7 @@ class DriveModel:
     actuators: ActuatorConfig | None = None
     sensors: SensorConfig | None = None
     cache_size: int = 96
-    stride: int = 2
+    stride: int = 3
     _cache: dict[Any, Any] = field(default_factory=dict, init=False, repr=False)
     simulations: int = field(default=0, init=False)
 
@@ -474,18 +476,26 @@ class DriveModel:
                 omega[k] = m.wheel_speed
 
             record(0)
-            solved = [k for k in range(n) if k % self.stride == 0 or k == n - 1]
+            cmd = np.hstack([d.rim_cmd, d.steer_cmd])
+            act = sim.act
+            solved, settled = [0], True
             for k in range(1, n):
                 c = d.rim_cmd[k - 1], d.steer_cmd[k - 1]
                 sim.apply(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))  # type: ignore[arg-type]
-                if k % self.stride and k != n - 1:
-                    sim.act.advance(d.period)  # actuators follow every tick; the plant is solved on solved ticks
-                    servo[k] = sim.act.omega_servo
+                steady = settled and (k < 2 or bool(np.all(cmd[k - 1] == cmd[k - 2])))
+                last_of_regime = k < n - 1 and bool(np.any(cmd[k] != cmd[k - 1]))
+                if steady and not last_of_regime and k % self.stride and k != n - 1:
+                    act.advance(d.period)  # actuators follow every tick; the plant is solved where needed
+                    servo[k] = act.omega_servo
                     continue
                 sim.heading = float(hd[k])
+                steer_before = act.steer.copy()
                 sim.step()
                 sim.heading = float(hd[k])
                 record(k)
+                solved.append(k)
+                settled = bool(np.allclose(act.steer, steer_before, rtol=0, atol=1e-9)
+                               and np.allclose(act.omega_servo, act.omega_cmd, rtol=1e-3, atol=1e-6))
             for ch, v in ticks.items():
                 ticks[ch] = np.interp(np.arange(n), solved, v[solved])
             for i, w in enumerate(WHEELS):  # wheel speed: the servo's every tick, plus what the plant changed
@@ -534,7 +544,8 @@ class DriveModel:
 def diagnose_drives(
     paths: Sequence[str | Path], scenario: Scenario, truth: Truth | None = None, actuators: ActuatorConfig | None = None,
     sensors: SensorConfig | None = None, segment: int = 10, k_folds: int = 5, alpha: float = 0.01, n_boot: int = 2000,
-    n_points: int = 2, max_nfev: int = 8, stride: int = 2, seed: int = 0, candidates: Sequence[Any] = DRIVE_CANDIDATES,
+    n_points: int = 2, max_nfev: int = 8, stride: int = 3, seed: int = 0, candidates: Sequence[Any] = DRIVE_CANDIDATES,
+    recalibrate: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> Verdict:
     """Locate, name and fit the missing physics of recorded drives (module notes) with the engine.
@@ -550,6 +561,11 @@ def diagnose_drives(
         :class:`ActuatorConfig`, :class:`SensorConfig`).
     segment : int
         Ticks per row.
+    candidates, recalibrate
+        The library (default :data:`~offline.fit.drive_candidates.DRIVE_CANDIDATES`) and whether
+        the soil recalibration joins it.
+    stride : int
+        Plant solved every ``stride`` ticks (:class:`DriveModel`).
     k_folds, alpha, n_boot, n_points, max_nfev, seed
         Passed to :func:`offline.fit.discrepancy.diagnose` (``max_nfev`` least-squares
         iterations per start: budget in iterations).
@@ -563,11 +579,12 @@ def diagnose_drives(
     assert model.sensors is not None
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = DriveRecording.build(drives, model, segment)
-    return diagnose(obs, model, candidates=candidates, recalibrate=True, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
+    return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                     n_points=n_points, max_nfev=max_nfev, seed=seed, progress=progress)
 
 
-def _chosen_extension(v: Verdict) -> Extension:
+def accepted_extension(v: Verdict) -> Extension:
+    """The extension of the accepted explanation (no change for ``agree`` and ``unexplained``)."""
     c = v.chosen
     if c is None or v.status in ("agree", "unexplained"):
         return Extension()
@@ -581,6 +598,24 @@ def _chosen_extension(v: Verdict) -> Extension:
     return e
 
 
+def held_out_drives(v: Verdict, paths: Sequence[str | Path]) -> dict[str, float]:
+    """Score the accepted explanation on drives it was not fitted on.
+
+    The drives are segmented and their noise estimated exactly as the fitted ones; the model as
+    given and the model with the accepted extension (parameters fitted on the first drives)
+    predict them. Returns the chi-square (normalised by noise and the verdict's dispersion)
+    before and after, and the number of rows.
+    """
+    model: DriveModel = v.model
+    obs = DriveRecording.build(load_drives(paths, model.sensors.gyro_bias if model.sensors else 0.0), model,
+                               segment=int(v.observations.segments[0].bounds[0, 1] - v.observations.segments[0].bounds[0, 0]))
+    out = {"rows": float(len(obs) * len(obs.channels))}
+    for label, e in (("before", None), ("after", accepted_extension(v))):
+        pred, _ = model.predict(obs, e)
+        out[f"chi2_{label}"] = float((normalised(obs, pred, v.scale) ** 2).sum())
+    return out
+
+
 def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") -> Path:
     """The engine's report folder (report.md, verdict.json, PNGs) plus, for drives: the trajectory
     plot, per-channel residuals over time before and after the explanation, and the accepted
@@ -588,7 +623,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     out = v.write(folder)
     obs: DriveRecording = v.observations
     model: DriveModel = v.model
-    ext = _chosen_extension(v)
+    ext = accepted_extension(v)
     pngs = _drive_plots(v, out, ext)
     extra = ["", "## Drive plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
     truth_file = None

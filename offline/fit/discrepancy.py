@@ -482,7 +482,8 @@ def diagnose(
     say("locating regions")
     regions: list[Region] = []
     for ch in chans:
-        regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+        regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng,
+                          **_locate_kw(obs))
     folds = obs.folds(k_folds)
     z0 = normalised(obs, pred0, scale)
     base_rows = (z0**2).sum(axis=1)
@@ -613,7 +614,7 @@ def diagnose(
     if chosen is not None:
         for ch in chans:
             regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
-                                    obs.units[ch], rng)
+                                    obs.units[ch], rng, **_locate_kw(obs))
     failed1 = int((~ok1).sum())
     if chosen is None:
         status = "agree" if not regions and failed0 == 0 else "unexplained"
@@ -633,13 +634,20 @@ def diagnose(
                    chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0)
 
 
+def _locate_kw(obs: Any) -> dict[str, Any]:
+    """Per-channel level and Monte-Carlo size of the region test: an observations adapter with
+    many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
+    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400)."""
+    return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+
+
 def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
     """Significant regions of the residuals of the model with ``ext``."""
     pred, ok = model.predict(obs, ext)
     out: list[Region] = []
     for ch in obs.channels:
         r = obs.measured[ch] - pred[ch]
-        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs))
     if not ok.all():
         out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
     return out

@@ -1,3 +1,4 @@
-"""Fitting layer: single-wheel data, Bekker plate fit, calibration, validation and the discrepancy tool."""
+"""Fitting layer: single-wheel data, Bekker plate fit, calibration, validation and the discrepancy tool
+(engine :mod:`.discrepancy` with :mod:`.observations`, :mod:`.candidates`, :mod:`.significance`)."""
 
-__all__ = ["dataset", "bekker", "calibration", "validation", "discrepancy"]
+__all__ = ["dataset", "bekker", "calibration", "validation", "observations", "candidates", "significance", "discrepancy"]

@@ -321,7 +321,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "(passive-pressure blade, eq. 5.24 form, resisting the travel)",
         (("clearance", "mm", 0.0, 120.0, 40.0, 1e-3), ("width", "mm", 0.0, 300.0, 30.0, 1e-3)),
         lambda t, p: Extension(hub_clearance=float(t[0]), hub_width=float(t[1])),
-        ("Fx", "Fy"), starts=((20.0, 30.0), (60.0, 30.0)), threshold=True,
+        ("Fx", "Fy"), starts=tuple((float(c), 30.0) for c in range(10, 100, 10)), threshold=True,
     ),
     Candidate(
         "tether",

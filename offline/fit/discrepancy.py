@@ -173,7 +173,32 @@ class Separation:
 
 @dataclass
 class Verdict:
-    """Everything the tool found, and the files it can write."""
+    """Everything the tool found, and the files it can write.
+
+    Attributes
+    ----------
+    status : str
+        One of :data:`VERDICTS`.
+    scale : dict
+        Per-channel dispersion ``s`` (chi-square values are in units of noise x s).
+    regions, regions_after : list of Region
+        Significant regions of the model as given, and of the model with the explanation.
+    scores : list of CandidateScore
+        Every candidate and tried combination.
+    chosen : CandidateScore or None
+        The accepted explanation (for ``unexplained``: the best, which absorbs only part).
+    indistinguishable : list of CandidateScore
+        Significant explanations not separable from ``chosen`` on held-out rows.
+    separations : list of Separation
+        For each of the first look-alikes, the probe experiment that separates it.
+    chi2_cv_base : float
+        Held-out chi-square of the model as given.
+    explained_fraction : float
+        Fraction (at most 1) of the held-out excess chi-square over its noise expectation
+        (rows x channels) that the explanation removes.
+    recalibrated : ParameterSet or None
+        The recalibrated parameters when the explanation changes the model's own parameters.
+    """
 
     status: str
     observations: Any
@@ -227,7 +252,8 @@ class Verdict:
         else:
             head = {"explained": "missing physics", "parameters_off": "the model's own parameters are off",
                     "partly_explained": "partly explained by", "unexplained": "UNEXPLAINED; the best candidate only absorbs part"}[self.status]
-            lines.append(f"{head}: {c.label}")
+            alt = f" (or, indistinguishable on these data: {', '.join(s.label for s in self.indistinguishable)})" if self.indistinguishable else ""
+            lines.append(f"{head}: {c.label}{alt}")
             lines += [f"  {p}" for p in c.physics]
             lines.append(f"  {c.parameters_text()}")
             lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {c.chi2_cv:.1f} "
@@ -369,7 +395,8 @@ def _plots(v: Verdict, out: Path) -> list[Path]:
 CRITERION = (
     "Each candidate (and the full recalibration of the model's parameters) is fitted by bounded least squares and "
     "scored by its held-out improvement D = chi2_cv(model) - chi2_cv(model + candidate), {k_folds}-fold over rows "
-    "(chi2 of residuals normalised by the noise and the per-channel dispersion s). The null distribution of D for every "
+    "(chi2 of residuals normalised by the noise and the per-channel dispersion s; fold parameters by one damped "
+    "Gauss-Newton step from the full fit, and by a full refit per fold for candidates with a threshold parameter). The null distribution of D for every "
     "candidate (data = noise around the model) comes from a parametric bootstrap of {n_boot} draws in the candidate's "
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
@@ -414,6 +441,7 @@ def diagnose(
     n_points: int = 6,
     n_refit: int = 4,
     max_terms: int = 2,
+    max_separations: int = 3,
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
@@ -447,6 +475,8 @@ def diagnose(
         with a full refit per fold.
     max_terms : int
         At most this many candidates combined.
+    max_separations : int
+        Separating experiments are searched for the best this many look-alikes.
     max_nfev : int
         Least-squares iterations per start (budget in iterations).
     seed : int
@@ -532,21 +562,22 @@ def diagnose(
     for c, f in zip(library, fits):
         pts = [f.jac]
         r = resid_fn([c])
-        if c.k > 4:  # a recalibration: linear enough, linearised at the fit and at the model's own values
+        if not (c.threshold or c.starts):  # smooth in its parameters: linearised at the fit and at the start
             xs = [np.array([q[4] for q in c.params])]
         else:  # thresholds and directions: the starts and points spread over the box
-            xs = [np.array(q, dtype=float) for q in c.starts][: n_points - 1]
+            pick = np.unique(np.linspace(0, len(c.starts) - 1, min(len(c.starts), n_points - 1)).round().astype(int)) if c.starts else []
+            xs = [np.array(c.starts[j], dtype=float) for j in pick]
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
         pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
         tangents.append(pts)
-    null = tangent_null(tangents, folds, nc, n_boot, rng)
+    null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None))
     observed = np.array([s.delta_cv for s in singles])
     _, p_adj = adjusted_p(observed, null)
     # candidates that pass on the screening score are scored again with a full refit per fold
     for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > 0 and library[i].threshold][:n_refit]:
         c = library[i]
         say(f"held-out refits of {c.key}")
-        starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])]
+        starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])] + [np.array(q, dtype=float) for q in c.starts]
         rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev)
         singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                            nfev=singles[i].nfev + nf, refit=True)
@@ -571,9 +602,6 @@ def diagnose(
         equivalent = [s for s in group if s is not primary]
         chosen = primary
         # separating experiments
-        probes = obs.probes() if hasattr(obs, "probes") else []
-        for s in equivalent:
-            separations.append(_separate(model, ps, by_key, primary, s, probes))
         # forward step: one more term on top, when the first leaves significant regions
         leftover = _regions_of(model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)
         if max_terms > 1 and leftover:
@@ -606,7 +634,7 @@ def diagnose(
         ext = _ext_of(cands, np.array(chosen.values), ps)
         pred1, ok1 = model.predict(obs, ext)
         excess0 = chi2_base - len(obs) * nc
-        frac = 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0 if excess0 > 0 else 1.0
+        frac = min(1.0, 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0) if excess0 > 0 else 1.0
     else:
         ext, pred1, ok1, frac = Extension(), pred0, ok0, 0.0
     res1 = {ch: obs.measured[ch] - pred1[ch] for ch in chans}
@@ -626,6 +654,13 @@ def diagnose(
         status = "parameters_off"
     else:
         status = "explained"
+    if equivalent and status != "unexplained":
+        say("separating experiments")
+        probes = obs.probes() if hasattr(obs, "probes") else []
+        first = next(s for s in scores if s.keys == chosen.keys[:1]) if chosen is not None and len(chosen.keys) > 1 else chosen
+        cache: dict[Any, Any] = {}
+        for s in equivalent[:max_separations]:
+            separations.append(_separate(model, ps, by_key, first, s, probes, cache))
     recal = None
     if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
@@ -659,14 +694,18 @@ def _with(s: CandidateScore, **kw: Any) -> CandidateScore:
     return replace(s, **kw)
 
 
-def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any]) -> Separation:
-    """The probe where the two fitted explanations' predictions differ most, in noise units."""
+def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any],
+              cache: dict[Any, Any]) -> Separation:
+    """The probe where the two fitted explanations' predictions differ most, in noise units
+    (``cache`` keeps the first explanation's probe predictions between calls)."""
     best = Separation(a.label, b.label, "", "", 0.0, "", 0.0)
     ea = _ext_of([by_key[k][0] for k in a.keys], np.array(a.values), ps)
     eb = _ext_of([by_key[k][0] for k in b.keys], np.array(b.values), ps)
-    for pr in probes:
+    for j, pr in enumerate(probes):
         o = pr.observations
-        pa, _ = model.predict(o, ea)
+        if (a.label, j) not in cache:
+            cache[(a.label, j)] = model.predict(o, ea)[0]
+        pa = cache[(a.label, j)]
         pb, _ = model.predict(o, eb)
         for ch in o.channels:
             d = np.abs(pa[ch] - pb[ch])

@@ -66,6 +66,9 @@ class Observations(Protocol):
 
     def probes(self) -> Sequence[Probe]: ...
 
+    # Optional: ``null_draw(rng, n, n_boot)`` -> (n, n_boot) correlated noise draws for the
+    # significance test (time series); without it rows are independent.
+
 
 @dataclass(frozen=True)
 class SingleWheelRecording:

@@ -330,6 +330,7 @@ def refit_held_out(
 def tangent_null(
     tangents: Sequence[Sequence[NDArray[np.float64]]], folds: NDArray[np.int_], n_channels: int, n_boot: int,
     rng: np.random.Generator,
+    draw: Callable[[np.random.Generator, int, int], NDArray[np.float64]] | None = None,
 ) -> NDArray[np.float64]:
     """Null held-out improvements of each candidate, shape (n_candidates, n_boot).
 
@@ -340,9 +341,16 @@ def tangent_null(
     the largest in-sample reduction is kept (as the nonlinear fit would choose), giving
     ``sum_te e^2 - sum_te (e - D b)^2``. Candidates whose parameters are bounded on one side
     can do no better than this unconstrained fit, so the null is conservative for them.
+
+    ``draw(rng, n, n_boot)`` replaces the independent standard-normal draws (rows x
+    channels flattened row-major, one column per draw): the hook for correlated residuals
+    (a time series needs block or whitened draws so a long recording does not make noise
+    significant).
     """
     n = folds.size * n_channels
-    E = rng.standard_normal((n, n_boot))
+    E = rng.standard_normal((n, n_boot)) if draw is None else np.asarray(draw(rng, n, n_boot), dtype=float)
+    if E.shape != (n, n_boot):
+        raise ValueError(f"draw returned shape {E.shape}, expected ({n}, {n_boot})")
     out = np.empty((len(tangents), n_boot))
     fold_ids = np.unique(folds)
     idx = {f: (_row_index(np.flatnonzero(folds != f), n_channels), _row_index(np.flatnonzero(folds == f), n_channels))

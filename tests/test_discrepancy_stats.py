@@ -1,0 +1,155 @@
+"""The discrepancy engine's statistics and library terms, checked against closed forms (fast).
+
+These tests know the answer analytically: a model linear in its parameters (where the
+one-step held-out score and the tangent null are exact), the family-wise error of the min-P
+adjustment under a simulated null, and the geometry of the new library terms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from offline.fit.candidates import Extension, SingleWheelModel, predict_recording
+from offline.fit.dataset import load_trials
+from offline.fit.discrepancy import DiscrepancyError, diagnose
+from offline.fit.observations import SingleWheelRecording
+from offline.fit.significance import adjusted_p, fit, held_out, tangent_null, vuong
+from offline.physics.params import load_toml
+from offline.physics.terramechanics import ModelOptions
+
+
+@pytest.fixture(scope="module")
+def params():
+    from importlib import resources
+
+    return load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]
+
+
+@pytest.fixture(scope="module")
+def recording():
+    tr = load_trials()
+    return SingleWheelRecording.from_trials(tr.subset(np.degrees(tr.beta_cmd) < 61))
+
+
+def _linear_cv(D, e, folds, nc):
+    """Exact K-fold held-out improvement of the linear model e ~ D b."""
+    total = 0.0
+    for f in np.unique(folds):
+        tr = np.repeat(folds != f, nc)
+        te = ~tr
+        b = np.linalg.lstsq(D[tr], e[tr], rcond=None)[0]
+        total += float((e[te] ** 2).sum() - ((e[te] - D[te] @ b) ** 2).sum())
+    return total
+
+
+def test_one_step_held_out_score_is_exact_for_a_linear_model():
+    rng = np.random.default_rng(1)
+    n, nc, k = 30, 2, 3
+    D = rng.normal(size=(n * nc, k))
+    y = rng.normal(size=n * nc) + D @ np.array([0.5, -1.0, 0.2])
+    folds = np.arange(n) % 5
+    lo, hi = np.full(k, -10.0), np.full(k, 10.0)
+    res = fit(lambda x: y - D @ x, lo, hi, [np.zeros(k)], nc, max_nfev=50)
+    rows = held_out(res, lambda x: (y - D @ x).reshape(-1, nc), folds, lo, hi, damping=0.0)
+    exact = 0.0
+    for f in range(5):
+        tr = np.repeat(folds != f, nc)
+        b = np.linalg.lstsq(D[tr], y[tr], rcond=None)[0]
+        exact += float(((y[~tr] - D[~tr] @ b) ** 2).sum())
+    assert rows.sum() == pytest.approx(exact, rel=1e-6)
+
+
+def test_tangent_null_equals_the_exact_linear_held_out_improvement():
+    rng = np.random.default_rng(2)
+    n, nc, B = 20, 3, 50
+    D = rng.normal(size=(n * nc, 2))
+    folds = np.arange(n) % 4
+    null = tangent_null([[D]], folds, nc, B, np.random.default_rng(7))
+    E = np.random.default_rng(7).standard_normal((n * nc, B))
+    direct = np.array([_linear_cv(D, E[:, b], folds, nc) for b in range(B)])
+    assert null[0] == pytest.approx(direct, rel=1e-9, abs=1e-9)
+
+
+def test_min_p_adjustment_keeps_the_family_wise_error_rate():
+    """Ten candidates, data drawn from the null 400 times: P(any p_adj < 0.05) must be ~0.05
+    (binomial 3-sigma band), where unadjusted p would give ~40 %."""
+    rng = np.random.default_rng(3)
+    m, B, trials = 10, 2000, 400
+    null = rng.standard_normal((m, B))
+    obs = rng.standard_normal((trials, m))
+    fwe = np.mean([adjusted_p(o, null)[1].min() < 0.05 for o in obs])
+    raw = np.mean([adjusted_p(o, null)[0].min() < 0.05 for o in obs])
+    assert abs(fwe - 0.05) < 3 * math.sqrt(0.05 * 0.95 / trials)
+    assert raw > 0.3
+
+
+def test_vuong_statistic():
+    rng = np.random.default_rng(4)
+    a = rng.chisquare(3, size=60)
+    assert vuong(a, a) == 0.0
+    assert vuong(a, a + 2.0 + rng.normal(0, 0.5, 60)) > 10  # b is clearly worse
+    assert vuong(a + 2.0 + rng.normal(0, 0.5, 60), a) < -10
+
+
+def test_tether_along_the_travel_direction_pushes_along_the_velocity(recording, params):
+    """A tether at azimuth 0 pulls along the travel direction (v_x, v_y)/|v| in the wheel frame;
+    one at azimuth = beta pulls along the wheel's own x axis."""
+    base, _ = predict_recording(params, ModelOptions(), recording)
+    along, _ = predict_recording(params, ModelOptions(), recording, Extension(tether_force=2.0))
+    v = np.hypot(recording.vx, recording.vy)
+    assert along["Fx"] - base["Fx"] == pytest.approx(2.0 * recording.vx / v, abs=1e-9)
+    assert along["Fy"] - base["Fy"] == pytest.approx(2.0 * recording.vy / v, abs=1e-9)
+    rows = np.flatnonzero(np.isclose(recording.features["abs_beta_deg"], 30.0))
+    sub = recording.subset(rows)
+    b0, _ = predict_recording(params, ModelOptions(), sub)
+    b = float(sub.beta[0])
+    x, _ = predict_recording(params, ModelOptions(), sub, Extension(tether_force=2.0, tether_azimuth=b))
+    assert x["Fx"] - b0["Fx"] == pytest.approx(np.full(rows.size, 2.0), abs=1e-9)
+    assert x["Fy"] - b0["Fy"] == pytest.approx(np.zeros(rows.size), abs=1e-9)
+
+
+def test_sensor_yaw_rotates_the_horizontal_force_and_keeps_its_magnitude(recording, params):
+    base, _ = predict_recording(params, ModelOptions(), recording)
+    rot, _ = predict_recording(params, ModelOptions(), recording, Extension(sensor_yaw=math.radians(7.0)))
+    assert np.hypot(rot["Fx"], rot["Fy"]) == pytest.approx(np.hypot(base["Fx"], base["Fy"]), rel=1e-12)
+    ang = np.arctan2(rot["Fy"], rot["Fx"]) - np.arctan2(base["Fy"], base["Fx"])
+    assert np.mod(ang + math.pi, 2 * math.pi) - math.pi == pytest.approx(np.full(len(recording), math.radians(7.0)), abs=1e-9)
+
+
+def test_cached_model_predicts_the_same_numbers(recording, params):
+    m = SingleWheelModel(params, ModelOptions())
+    for ext in (Extension(), Extension(hub_clearance=0.03, hub_width=0.05), Extension(soil={"cohesion": 1500.0}), Extension()):
+        a, oka = m.predict(recording, ext)
+        b, okb = predict_recording(params, ModelOptions(), recording, ext)
+        assert (oka == okb).all()
+        for ch in a:
+            assert a[ch] == pytest.approx(b[ch], rel=1e-12, nan_ok=True)
+
+
+def test_probes_change_what_they_say(recording):
+    p = {pr.description: pr.observations for pr in recording.probes()}
+    heavy = next(o for d, o in p.items() if "1.5 x the load" in d)
+    assert heavy.load == pytest.approx(1.5 * recording.load)
+    mirrored = next(o for d, o in p.items() if "mirror" in d)
+    assert mirrored.vy == pytest.approx(-recording.vy, abs=1e-15)
+    assert mirrored.vx == pytest.approx(recording.vx)
+
+
+def test_too_few_rows_is_an_error(recording, params):
+    with pytest.raises(DiscrepancyError, match="rows"):
+        diagnose(recording.subset(np.arange(5)), params)
+
+
+def test_cli_refuses_an_output_that_is_a_file_before_any_work(tmp_path, capsys):
+    from offline.cli import main
+
+    f = tmp_path / "report"
+    f.write_text("not a folder")
+    assert main(["discrepancy", "--out", str(f), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "not a folder" in err and "Traceback" not in err
+    assert f.read_text() == "not a folder"

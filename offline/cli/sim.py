@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,8 @@ from .common import fail
 __all__ = ["register"]
 
 DEFAULT_SCENARIO = "rr_steer_stuck_50"
+MISMATCH_TRUTHS = ("soil_soft_30", "soil_stiff_30", "slope_5deg")
+"""Shipped truths of the issue's model-mismatch runs (plus pose fixes only every 10 s)."""
 
 
 def _sensor_config(args: argparse.Namespace) -> Any:
@@ -27,12 +30,12 @@ def _sensor_config(args: argparse.Namespace) -> Any:
 
 
 def _metrics_table(rows: list[dict[str, Any]]) -> str:
-    head = ("| scenario | controller | final heading [deg] | max abs heading [deg] | final y [cm] | max abs y [cm] "
+    head = ("| scenario | truth | controller | final heading [deg] | max abs heading [deg] | final y [cm] | max abs y [cm] "
             "| mean speed [cm/s] | speed error [%] | distance [m] | time [s] |")
-    lines = [head, "|" + "---|" * 10]
+    lines = [head, "|" + "---|" * 11]
     for r in rows:
         m = r["metrics"]
-        lines.append(f"| {r['scenario']} | {r['controller']} | {m['final_heading_deg']:.2f} | {m['max_abs_heading_deg']:.2f} | "
+        lines.append(f"| {r['scenario']} | {r['truth']} | {r['controller']} | {m['final_heading_deg']:.2f} | {m['max_abs_heading_deg']:.2f} | "
                      f"{m['final_cross_track_cm']:.2f} | {m['max_abs_cross_track_cm']:.2f} | {m['mean_speed_cm_s']:.2f} | "
                      f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f} |")
     return "\n".join(lines)
@@ -50,13 +53,18 @@ def _cmd_drive(args: argparse.Namespace) -> int:
     from ..sim.plant import SimulationError
     from ..sim.rtctl_bridge import RtctlUnavailable, rtctl_factory
     from ..sim.simulator import RoverSimulator
-    from ..sim.truth import Truth, TruthError, load_truth
+    from ..sim.truth import Truth, TruthError, load_truth, resolve_truth_path
 
     if args.section_7_3:
         plan = {k: list(v) + (["rtctl"] if args.with_rtctl else []) for k, v in SECTION_7_3.items()}
     else:
         ctrls = [c.strip() for c in args.controllers.split(",") if c.strip()]
         plan = {args.scenario or DEFAULT_SCENARIO: ctrls}
+    # truths: (label, truth file or None, pose period or None)
+    variants: list[tuple[str, str | None, float | None]] = [("believed" if not args.truth else Path(args.truth).stem,
+                                                            args.truth, None)]
+    if args.mismatch:
+        variants += [(n, n, None) for n in MISMATCH_TRUTHS] + [("pose_every_10s", args.truth, 10.0)]
     out = Path(args.out)
     try:
         check_output_dir(out, inputs=[args.truth, args.tables, args.config])
@@ -68,39 +76,46 @@ def _cmd_drive(args: argparse.Namespace) -> int:
             factory = rtctl_factory(args.tables, args.config)
         except RtctlUnavailable as exc:
             return fail(str(exc))
-    sensors = _sensor_config(args)
     rows: list[dict[str, Any]] = []
-    total = sum(len(v) for v in plan.values())
+    total = sum(len(v) for v in plan.values()) * len(variants)
     bar = tqdm(total=total, desc="drives", unit="drive", disable=args.quiet)
     for name, ctrls in plan.items():
-        try:
-            sc = scenario_by_name(name)
-            truth = load_truth(args.truth, sc.rover, sc.params) if args.truth else Truth.nominal(sc.params, sc.rover)
-        except (ExperimentError, TruthError) as exc:
-            return fail(str(exc))
-        runs = []
-        for kind in ctrls:
-            bar.set_postfix_str(f"{name} / {kind}")
+        for label, truth_file, pose_period in variants:
             try:
-                ctl = build_controller(kind, sc, rtctl_factory=factory)
-                sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed)
-                meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
-                        "seed": args.seed, "dt": args.dt, "truth": truth.describe(),
-                        "sensors": sensors.__dict__, "distance_m": args.distance}
-                if args.no_record:
-                    r = run_drive(sim, ctl, distance=args.distance, name=kind)
-                else:
-                    rec_path = out / f"{sc.name}_{kind.replace('+', '_')}.mcap"
-                    with Recorder(rec_path, meta, truth=True) as rec:
-                        r = run_drive(sim, ctl, distance=args.distance, recorder=rec, name=kind)
-            except (ExperimentError, ActuatorError, SimulationError) as exc:
+                sc = scenario_by_name(name)
+                truth = (load_truth(resolve_truth_path(truth_file), sc.rover, sc.params) if truth_file
+                         else Truth.nominal(sc.params, sc.rover))
+            except (ExperimentError, TruthError) as exc:
                 bar.close()
-                return fail(f"{name} / {kind}: {exc}")
-            runs.append(r)
-            rows.append({"scenario": sc.name, "controller": kind, "metrics": r.metrics,
-                         "wall_seconds": r.wall_seconds})
-            bar.update(1)
-        plot_runs(runs, out / f"{sc.name}.png", f"{sc.name}: yaw and y error (cf. Figs. 7.6, 7.9, 7.11)")
+                return fail(str(exc))
+            sensors = _sensor_config(args)
+            if pose_period is not None:
+                sensors = replace(sensors, pose_period=pose_period)
+            tag = "" if len(variants) == 1 else f"_{label}"
+            runs = []
+            for kind in ctrls:
+                bar.set_postfix_str(f"{name} / {label} / {kind}")
+                try:
+                    ctl = build_controller(kind, sc, rtctl_factory=factory)
+                    sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed)
+                    meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
+                            "seed": args.seed, "dt": args.dt, "truth": truth.describe(), "truth_label": label,
+                            "sensors": sensors.__dict__, "distance_m": args.distance}
+                    if args.no_record:
+                        r = run_drive(sim, ctl, distance=args.distance, name=kind)
+                    else:
+                        rec_path = out / f"{sc.name}{tag}_{kind.replace('+', '_')}.mcap"
+                        with Recorder(rec_path, meta, truth=True) as rec:
+                            r = run_drive(sim, ctl, distance=args.distance, recorder=rec, name=kind)
+                except (ExperimentError, ActuatorError, SimulationError) as exc:
+                    bar.close()
+                    return fail(f"{name} / {label} / {kind}: {exc}")
+                runs.append(r)
+                rows.append({"scenario": sc.name, "truth": label, "controller": kind, "metrics": r.metrics,
+                             "wall_seconds": r.wall_seconds})
+                bar.update(1)
+            plot_runs(runs, out / f"{sc.name}{tag}.png",
+                      f"{sc.name} ({label}): yaw and y error (cf. Figs. 7.6, 7.9, 7.11)")
     bar.close()
     table = _metrics_table(rows)
     notes = [f"- {k}: dissertation (hardware): {v}" for k, v in DISSERTATION_7_3.items() if k in plan]
@@ -126,7 +141,11 @@ def register(sub: Any) -> None:
     dr.add_argument("--section-7-3", action="store_true",
                     help="run the three scenarios of section 7.3 with the dissertation's controllers")
     dr.add_argument("--with-rtctl", action="store_true", help="with --section-7-3: add rtctl to every scenario")
-    dr.add_argument("--truth", help="truth TOML (soil, per-wheel radius and steer offset, slope, tether)")
+    dr.add_argument("--truth", help="truth TOML or shipped name (soil_soft_30, soil_stiff_30, slope_5deg, "
+                    "worn_rr_tether): soil, per-wheel radius and steer offset, slope, tether")
+    dr.add_argument("--mismatch", action="store_true",
+                    help="also drive with truths the model lacks: soil 30%% softer and stiffer, a 5 deg slope, "
+                         "pose fixes only every 10 s")
     dr.add_argument("--tables", help="table index or folder for rtctl (default: the shipped tables)")
     dr.add_argument("--config", help="rtctl controller config TOML (default: rtctl's defaults)")
     dr.add_argument("--distance", type=float, default=1.5, help="metres along the path (default: %(default)s)")

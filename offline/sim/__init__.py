@@ -1,3 +1,9 @@
-"""Simulation layer: the rover plant, actuators and sensors, closed-loop experiments (ch. 7.3)."""
+"""Simulation layer: the rover plant, actuators and sensors, closed-loop experiments (ch. 7.3).
 
-__all__: list[str] = []
+:mod:`.plant` (planar rigid body, terramechanics wheels, rocker statics), :mod:`.actuators`,
+:mod:`.sensors`, :mod:`.truth` (the simulated world's parameter file), :mod:`.simulator`
+(measurements out, commands in), :mod:`.experiments` (section 7.3 harness and its controllers),
+:mod:`.rtctl_bridge` (rtctl as a controller of the harness).
+"""
+
+__all__ = ["plant", "actuators", "sensors", "truth", "simulator", "experiments", "rtctl_bridge"]

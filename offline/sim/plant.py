@@ -115,6 +115,8 @@ class PlantModel:
         self._wheel_model = WheelModel(params.soil, params.wheel, params.tuning, self.options)
         f = self._build()
         self.function = self._wheel_model._compile(f, "sim_wheels") if compiled else f
+        so = self._wheel_model._so_paths.get(f.name()) if compiled else None
+        self._call = _DenseCall(so, f) if so else None
         self.rs_nominal = params.wheel.shearing_radius
 
     def _build(self) -> Any:
@@ -162,7 +164,10 @@ class PlantModel:
         P = np.empty((10, 8))
         P[0, :4] = P[0, 4:] = q[0:4]
         P[1:, :] = q[4:13, None]
-        W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
+        if self._call is not None:
+            W, JW, SL, BE = self._call(X, P)
+        else:
+            W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
         JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
         # d(vx, vy)/d(u, v, r) per wheel
         dv = np.zeros((4, 2, 3))
@@ -171,14 +176,14 @@ class PlantModel:
         # d state / d z for the driven states and the zero-slip twins, (4, 5, 15)
         ds = np.zeros((4, 5, N_UNKNOWNS))
         ds0 = np.zeros((4, 5, N_UNKNOWNS))
-        for i in range(4):
-            ds[i, 0:2, 0:3] = dv[i]
-            ds[i, 2, 3 + i] = 1.0
-            ds[i, 3, 7 + i] = h[i]
-            ds[i, 4, 11 + i] = h0[i]
-            ds0[i, 0:2, 0:3] = dv[i]
-            ds0[i, 2, 0:3] = (vx[i] * dv[i, 0] + vy[i] * dv[i, 1]) / (speed[i] * rs[i])
-            ds0[i, 3, 11 + i] = ds0[i, 4, 11 + i] = h0[i]
+        ds[:, 0:2, 0:3] = dv
+        ds0[:, 0:2, 0:3] = dv
+        ds[_I4, 2, 3 + _I4] = 1.0
+        ds[_I4, 3, 7 + _I4] = h
+        ds[_I4, 4, 11 + _I4] = h0
+        ds0[:, 2, 0:3] = (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
+        ds0[_I4, 3, 11 + _I4] = h0
+        ds0[_I4, 4, 11 + _I4] = h0
         wheel = W[:, :4].T  # (4, 6) wheel frame
         dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
         dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
@@ -225,12 +230,11 @@ class PlantModel:
             J[row] = (dF[idx, 4] + pz[idx, None] * dF[idx, 0] - px[idx, None] * dF[idx, 2]).sum(0) / M
         om_scale = ro.travel_speed / rs
         t_scale = weight / 4 * rs
-        for i in range(4):
-            res[7 + i] = mode[i] * (omega[i] - cmd[i]) / om_scale[i] + (1 - mode[i]) * (wheel[i, 4] + torque[i]) / t_scale[i]
-            J[7 + i] = (1 - mode[i]) * dwheel[i, 4] / t_scale[i]
-            J[7 + i, 3 + i] += mode[i] / om_scale[i]
-            res[11 + i] = (W[2, 4 + i] - wheel[i, 2]) / (weight / 4)
-            J[11 + i] = (dzero[i, 2] - dwheel[i, 2]) / (weight / 4)
+        res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
+        J[7:11] = ((1 - mode) / t_scale)[:, None] * dwheel[:, 4]
+        J[7 + _I4, 3 + _I4] += mode / om_scale
+        res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
+        J[11:15] = (dzero[:, 2] - dwheel[:, 2]) / (weight / 4)
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
 
     MAX_NEWTON = 40
@@ -294,6 +298,65 @@ class PlantModel:
         return np.array([*radius, soil.k, soil.n0, soil.n1, soil.n2, soil.friction_angle, soil.unit_weight,
                          soil.cohesion, soil.shear_modulus, soil.repose_angle, slope, cross_slope, tether_force,
                          mass, yaw_inertia], dtype=float)
+
+
+class _DenseCall:
+    """Call the C-compiled wheel batch through ctypes with preallocated buffers (the casadi
+    Python call costs about as much as the 8 wheel evaluations themselves).
+
+    Generated-code interface: ``int f(const double** arg, double** res, casadi_int* iw,
+    double* w, int mem)`` and ``int f_work(...)``; inputs and outputs are column-major
+    nonzeros, scattered here into dense arrays.
+    """
+
+    def __init__(self, so: Any, ref: Any) -> None:
+        import ctypes
+
+        lib = ctypes.CDLL(str(so))
+        name = ref.name()
+        self._fn = getattr(lib, name)
+        ci = ctypes.c_longlong
+        sz = [ci(0) for _ in range(4)]
+        getattr(lib, f"{name}_work")(*[ctypes.byref(v) for v in sz])
+        n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
+        dp = ctypes.POINTER(ctypes.c_double)
+        self._in = [np.zeros(ref.sparsity_in(i).nnz()) for i in range(ref.n_in())]
+        self._out = [np.zeros(ref.sparsity_out(i).nnz()) for i in range(ref.n_out())]
+        self._shapes = [ref.sparsity_out(i).shape for i in range(ref.n_out())]
+        self._trip = []
+        for i in range(ref.n_out()):
+            sp = ref.sparsity_out(i)
+            r, c = sp.get_triplet()
+            self._trip.append(None if sp.is_dense() else (np.asarray(r, dtype=int), np.asarray(c, dtype=int)))
+        self._arg = (dp * max(n_arg, len(self._in)))()
+        self._res = (dp * max(n_res, len(self._out)))()
+        for i, b in enumerate(self._in):
+            self._arg[i] = b.ctypes.data_as(dp)
+        for i, b in enumerate(self._out):
+            self._res[i] = b.ctypes.data_as(dp)
+        self._iw = (ci * max(n_iw, 1))()
+        self._w = (ctypes.c_double * max(n_w, 1))()
+        self._fn.argtypes = [ctypes.POINTER(dp), ctypes.POINTER(dp), ctypes.POINTER(ci), ctypes.POINTER(ctypes.c_double),
+                             ctypes.c_int]
+        self._fn.restype = ctypes.c_int
+
+    def __call__(self, *args: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        for b, a in zip(self._in, args):
+            b[:] = np.asarray(a, dtype=float).ravel(order="F")
+        if self._fn(self._arg, self._res, self._iw, self._w, 0) != 0:
+            raise SimulationError("the compiled wheel batch returned an error")
+        out = []
+        for b, shape, trip in zip(self._out, self._shapes, self._trip):
+            if trip is None:
+                out.append(b.reshape(shape, order="F").copy())
+            else:
+                d = np.zeros(shape)
+                d[trip[0], trip[1]] = b
+                out.append(d)
+        return out
+
+
+_I4 = np.arange(4)
 
 
 def _XS(lr: float) -> NDArray[np.float64]:

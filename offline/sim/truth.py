@@ -38,7 +38,7 @@ from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_tom
 from ..rover.scenario import PARAM_PRESETS
 from .plant import GRAVITY, PlantModel, default_yaw_inertia
 
-__all__ = ["TruthError", "Truth", "load_truth", "WHEELS"]
+__all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
 
 WHEELS = ("FR", "FL", "RR", "RL")
 
@@ -188,3 +188,28 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
         yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)), source=str(p),
     )
+
+
+def shipped_truths() -> dict[str, Path]:
+    """Example truth files shipped in ``offline/sim/truths`` by name (file stem)."""
+    from importlib import resources
+
+    folder = Path(str(resources.files("offline.sim").joinpath("truths")))
+    return {p.stem: p for p in sorted(folder.glob("*.toml"))}
+
+
+def resolve_truth_path(name: str | Path) -> Path:
+    """A truth file path, or the shipped file of that name.
+
+    Raises
+    ------
+    TruthError
+        Neither a file nor a shipped name.
+    """
+    p = Path(name)
+    if p.exists():
+        return p
+    shipped = shipped_truths()
+    if str(name) in shipped:
+        return shipped[str(name)]
+    raise TruthError(f"{name}: no such truth file; give a path or one of {sorted(shipped)}")

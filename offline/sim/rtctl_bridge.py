@@ -1,0 +1,64 @@
+"""The rtctl controller as a pluggable controller of the closed-loop harness.
+
+Kept apart from :mod:`offline.sim.experiments` so the harness runs (with the optimizer's
+controllers) where no tables have been built.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable
+
+from ..rover.scenario import Scenario
+
+__all__ = ["RtctlUnavailable", "rtctl_factory", "shipped_tables"]
+
+
+class RtctlUnavailable(RuntimeError):
+    """rtctl's controller or its tables cannot be loaded; the message says what to build or pass."""
+
+
+def shipped_tables() -> Path:
+    """The ``tables/`` folder of the repository (its ``index.json`` lists the shipped tables)."""
+    root = Path(str(resources.files("offline"))).parent
+    return root / "tables"
+
+
+def rtctl_factory(tables: str | None = None, config: str | None = None) -> Callable[[Scenario], Any]:
+    """A function ``scenario -> Controller`` on the given (default: shipped) tables and config.
+
+    The controller chooses among the tables by the failures the rover declares, so one set of
+    tables serves every scenario; the scenario's travel speed is the controller's target.
+
+    Raises
+    ------
+    RtctlUnavailable
+        No table index where expected, or rtctl's controller fails to load the tables.
+    """
+    from dataclasses import replace
+
+    try:
+        from rtctl.controller import Controller
+        from rtctl.hil import load_controller
+    except ImportError as exc:
+        raise RtctlUnavailable(f"rtctl's controller is not installed ({exc})") from None
+    path = Path(tables) if tables else shipped_tables()
+    index = path / "index.json" if path.is_dir() else path
+    if not index.exists():
+        raise RtctlUnavailable(f"{index}: no table index; build tables with 'offnominal tables build <scenario> --out "
+                               f"{path}' or pass --tables")
+    try:
+        base: Any = load_controller(str(index), config)
+    except Exception as exc:  # the table reader's and controller's own errors say what is wrong
+        raise RtctlUnavailable(f"rtctl could not load {index}: {exc}") from None
+
+    def make(sc: Scenario) -> Any:
+        cfg = base.config
+        if abs(cfg.drive.speed - sc.speed) > 1e-12:
+            cfg = replace(cfg, drive=replace(cfg.drive, speed=sc.speed))
+        ctl = Controller(base.tables, cfg)
+        ctl.name = "rtctl"
+        return ctl
+
+    return make

@@ -507,7 +507,8 @@ def diagnose(
             f"load, median load {float(np.median(getattr(obs, 'load', np.nan))):.4g}). No verdict is possible: check the "
             "units of the force columns (N expected; mN or kN give loads 1000x off) and that the parameter file "
             "is for this wheel and soil.")
-    scale = dispersion(obs, pred0)
+    # an adapter whose noise estimate already excludes slow structure (a drive) gives its own dispersion
+    scale = obs.dispersion(pred0) if hasattr(obs, "dispersion") else dispersion(obs, pred0)
     res0 = {ch: obs.measured[ch] - pred0[ch] for ch in chans}
     say("locating regions")
     regions: list[Region] = []

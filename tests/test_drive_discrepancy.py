@@ -181,3 +181,21 @@ def test_negative_control_raises_no_alarm(sc, nominal, tmp_path):
     v = diagnose_drives([f], sc, segment=6, candidates=_sub(), recalibrate=False, n_boot=500, seed=2)
     assert v.status == "agree", v.summary()
     assert v.missing_physics == []
+
+
+def test_face_pressure_force_on_a_submerged_disk():
+    """Fully submerged face (h = 2 r): the Rankine force is rho K_p times the first moment of the
+    disk about the surface (pi r^2 * r) plus 2 c sqrt(K_p) times its area; zero at zero sinkage;
+    monotone in the sinkage."""
+    from offline.fit.face_pressure import face_force
+
+    r, rho, phi, c = 0.058, 13030.0, math.radians(29.0), 1000.0
+    kp = math.tan(math.pi / 4 + phi / 2) ** 2
+    full = face_force(np.array([2 * r, 3 * r]), r, rho, 0.0, phi)
+    assert full[0] == pytest.approx(rho * kp * math.pi * r**3, rel=2e-3)
+    assert full[1] == pytest.approx(full[0])  # depth capped at the disk
+    coh = face_force(np.array([2 * r]), r, 0.0, c, phi)[0]
+    assert coh == pytest.approx(2 * c * math.sqrt(kp) * math.pi * r**2, rel=2e-3)
+    hs = np.linspace(0.0, 2 * r, 30)
+    f = face_force(hs, r, rho, c, phi)
+    assert f[0] == 0.0 and np.all(np.diff(f) > 0)

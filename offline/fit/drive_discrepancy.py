@@ -267,7 +267,10 @@ def _rows_from_ticks(d: DriveData, seg: _Segments, ticks: Mapping[str, NDArray[n
             if ch in POSE_CHANNELS:
                 continue
             v = ticks[ch][a + 1:b + 1]
-            out[j, c] = float(np.nanmean(v)) if np.isfinite(v).any() else np.nan
+            if body is not None and not np.all(np.isfinite(v)):
+                out[j, c] = np.nan  # a predicted segment with a lost tick is lost, never averaged over the gap
+            else:
+                out[j, c] = float(np.nanmean(v)) if np.isfinite(v).any() else np.nan
         if any(ch in POSE_CHANNELS for ch in channels):
             if body is None:
                 x0, y0, h0 = d.pose[a]
@@ -531,6 +534,7 @@ class DriveModel:
             sim.start(Commands(0.0, 0, tuple(d.rim_cmd[0]), tuple(d.steer_cmd[0])))  # type: ignore[arg-type]
 
             servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
+            failed = np.zeros(n, dtype=bool)
 
             def record(k: int) -> None:
                 m = sim.measure()
@@ -557,7 +561,15 @@ class DriveModel:
                     continue
                 sim.heading = float(hd[k])
                 steer_before = act.steer.copy()
-                _step(sim, d.period)
+                try:
+                    _step(sim, d.period)
+                except SimulationError:
+                    # no equilibrium (e.g. a wheel speed through zero with a slow servo): this tick
+                    # is lost and the plant restarts from the steady state of these commands
+                    failed[k] = True
+                    sim.start(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))  # type: ignore[arg-type]
+                    settled = False
+                    continue
                 sim.heading = float(hd[k])
                 record(k)
                 solved.append(k)
@@ -572,6 +584,11 @@ class DriveModel:
                 body[:, j] = np.interp(np.arange(n), solved, body[solved, j])
         except (SimulationError, ValueError):
             return ticks, body, False
+        if failed.mean() > 0.5:
+            return ticks, body, False
+        for v in ticks.values():
+            v[failed] = np.nan
+        body[failed] = np.nan
         return ticks, body, True
 
     def predict(self, obs: DriveRecording, ext: Extension | None = None) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:

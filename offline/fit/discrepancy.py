@@ -442,6 +442,7 @@ def diagnose(
     n_refit: int = 4,
     max_terms: int = 2,
     max_separations: int = 3,
+    max_tries: int = 2,
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
@@ -475,6 +476,9 @@ def diagnose(
         with a full refit per fold.
     max_terms : int
         At most this many candidates combined.
+    max_tries : int
+        The forward step tries at most this many significant candidates (by their own held-out
+        improvement) on top of the first explanation.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
     max_nfev : int
@@ -609,7 +613,7 @@ def diagnose(
             first = [by_key[k][0] for k in primary.keys]
             fam = {c.family or c.key for c in first}
             tries = [s for s in sig if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
-                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:2]
+                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:max_tries]
             best2 = None
             for s2 in tries:
                 c2 = by_key[s2.keys[0]][0]

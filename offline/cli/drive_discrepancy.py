@@ -39,7 +39,7 @@ def add_recording_arguments(d: argparse.ArgumentParser) -> None:
                    help="believed scenario (rover, parameter set, declared failures): TOML or shipped name "
                         "(default: %(default)s)")
     g.add_argument("--believed-truth", help="believed world as a truth TOML (slope, wheels, tether) if not flat and nominal")
-    g.add_argument("--segment", type=int, default=10, help="ticks per row (time segment), default %(default)s")
+    g.add_argument("--segment", type=int, default=5, help="ticks per row (time segment), default %(default)s")
 
 
 def run_recording(args: argparse.Namespace) -> int:

@@ -21,7 +21,7 @@ prediction is then local in time.
 
 Observations (:class:`DriveRecording`): rows are time segments
 --------------------------------------------------------------
-Rows are consecutive segments of ``segment`` ticks (default 10 ticks = 2 s at 5 Hz), located by
+Rows are consecutive segments of ``segment`` ticks (default 5 ticks = 1 s at 5 Hz: more rows give the held-out paired tests more power), located by
 the features ``time_s``, ``heading_deg`` (recorded) and ``steer_deg`` (mean commanded steer)
 (and ``drive`` with several recordings). Channels
 are segment means of the per-tick readings -- ``omega_<W>`` (encoder, rad/s), ``torque_<W>``
@@ -627,9 +627,9 @@ class DriveModel:
 
 def diagnose_drives(
     paths: Sequence[str | Path], scenario: Scenario, truth: Truth | None = None, actuators: ActuatorConfig | None = None,
-    sensors: SensorConfig | None = None, segment: int = 10, k_folds: int = 5, alpha: float = 0.01, n_boot: int = 2000,
+    sensors: SensorConfig | None = None, segment: int = 5, k_folds: int = 5, alpha: float = 0.01, n_boot: int = 2000,
     n_points: int = 2, max_nfev: int = 8, stride: int = 3, seed: int = 0, candidates: Sequence[Any] = DRIVE_CANDIDATES,
-    recalibrate: bool = True,
+    recalibrate: bool = True, max_tries: int = 3,
     progress: Callable[[str], None] | None = None,
 ) -> Verdict:
     """Locate, name and fit the missing physics of recorded drives (module notes) with the engine.
@@ -645,6 +645,9 @@ def diagnose_drives(
         :class:`ActuatorConfig`, :class:`SensorConfig`).
     segment : int
         Ticks per row.
+    max_tries : int
+        Candidates tried on top of the first explanation (a tether under a slope ranks third on its
+        own, behind the IMU tilt that mimics the slope's roll and pitch).
     candidates, recalibrate
         The library (default :data:`~offline.fit.drive_candidates.DRIVE_CANDIDATES`) and whether
         the soil recalibration joins it.
@@ -664,7 +667,7 @@ def diagnose_drives(
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = DriveRecording.build(drives, model, segment)
     return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
-                    n_points=n_points, max_nfev=max_nfev, seed=seed, progress=progress)
+                    n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress)
 
 
 def accepted_extension(v: Verdict) -> Extension:

@@ -20,7 +20,8 @@ Pipeline (:func:`diagnose`)
    of 45 is accepted when those rows carry it. Among significant candidates:
 
    * the best is the one with the largest ``D``; those not separable from it on held-out
-     rows (Vuong's paired test, ``V < 2``) are reported with it as **indistinguishable**,
+     rows (Vuong's paired test ``V < 2`` and at least 75 % of its ``D``) are reported with it
+     as **indistinguishable**,
      each with the probe experiment (e.g. vary the load) where their predictions differ most;
    * when a change of the model's own parameters is the best or indistinguishable from it,
      the verdict is **parameters off** and the recalibrated parameter file is written;
@@ -28,7 +29,9 @@ Pipeline (:func:`diagnose`)
      null at ``alpha`` (Bonferroni over the tries).
 5. **Check what is left.** The final model's residuals are located again; if significant
    regions remain the verdict is **partly explained** (and the regions are shown); if the
-   best explanation removes less than half of the held-out excess chi-square, the verdict
+   residuals still exceed the measurement noise over the whole range (chi-square in noise
+   units, per channel at ``alpha``), it is **partly explained** too; if the best
+   explanation removes less than half of the held-out excess chi-square, the verdict
    is **unexplained** (the best candidate is shown as absorbing part, not as the answer).
 
 Verdicts: ``agree``, ``explained``, ``parameters_off``, ``partly_explained``, ``unexplained``.
@@ -198,6 +201,10 @@ class Verdict:
         (rows x channels) that the explanation removes.
     recalibrated : ParameterSet or None
         The recalibrated parameters when the explanation changes the model's own parameters.
+    misfit_after : list of (channel, chi2, rows, p)
+        Channels whose residuals with the explanation still exceed the measurement noise
+        (chi-square in noise units, s = 1) at the family-wise level: a misfit spread over the
+        whole range that no single region shows.
     """
 
     status: str
@@ -221,6 +228,7 @@ class Verdict:
     recalibrated: ParameterSet | None
     criterion: str
     seconds: float
+    misfit_after: list[tuple[str, float, int, float]] = field(default_factory=list)
 
     @property
     def missing_physics(self) -> list[str]:
@@ -261,12 +269,15 @@ class Verdict:
             if self.parameters_off and self.recalibrated is not None:
                 lines.append("recalibration explains the data as well as any new term: see recalibrated.toml")
             if self.indistinguishable:
-                lines.append("indistinguishable on these data (held-out Vuong V < 2): "
+                lines.append("indistinguishable on these data (held-out Vuong V < 2, similar improvement): "
                              + ", ".join(s.label for s in self.indistinguishable))
                 lines += [f"  to separate: {s.describe()}" for s in self.separations]
         if self.regions_after:
             lines.append("regions still significant after the explanation:")
             lines += [f"  - {r.describe()}" for r in self.regions_after]
+        for ch, c2, n, p in self.misfit_after:
+            lines.append(f"residual misfit left over the whole range in {ch}: chi2 {c2:.0f} for {n} rows in noise units "
+                         f"(p = {p:.2g})")
         if self.failed_after:
             lines.append(f"the explained model still fails in {self.failed_after} rows")
         return "\n".join(lines)
@@ -293,6 +304,7 @@ class Verdict:
             "regions": [{"channel": r.channel, "bounds": r.bounds, "n": r.n, "mean_residual": r.mean, "stderr": r.stderr,
                          "unit": r.unit, "z": r.z, "p_value": r.p_value, "text": r.describe()} for r in self.regions],
             "regions_after": [r.describe() for r in self.regions_after],
+            "misfit_after": [{"channel": ch, "chi2_noise_units": c2, "rows": n, "p": p} for ch, c2, n, p in self.misfit_after],
             "missing_physics": self.missing_physics,
             "parameters_off": self.parameters_off,
             "chosen": sc(self.chosen) if self.chosen else None,
@@ -400,9 +412,10 @@ CRITERION = (
     "candidate (data = noise around the model) comes from a parametric bootstrap of {n_boot} draws in the candidate's "
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
-    "held-out rows (Vuong V < 2) are reported as indistinguishable; if one of them is a change of the model's own "
+    "held-out rows (Vuong V < 2 and at least {keep:.0f} % of its improvement) are reported as indistinguishable; if one of them is a change of the model's own "
     "parameters the verdict is 'parameters off'. A second term is added when its extra improvement exceeds the "
-    "1 - {alpha}/tries quantile of its null. Remaining regions make the verdict 'partly explained'; less than half of "
+    "1 - {alpha}/tries quantile of its null. Remaining regions, or residuals still above the measurement noise "
+    "(chi2 in noise units per channel, at {alpha}/channels), make the verdict 'partly explained'; less than half of "
     "the held-out excess chi2 explained makes it 'unexplained'. A run whose model fails on more than half of the rows "
     "is an error."
 )
@@ -443,6 +456,7 @@ def diagnose(
     max_terms: int = 2,
     max_separations: int = 3,
     max_tries: int = 2,
+    equal_fraction: float = 0.25,
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
@@ -481,6 +495,10 @@ def diagnose(
         improvement) on top of the first explanation.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
+    equal_fraction : float
+        A look-alike must also reach ``1 - equal_fraction`` of the best held-out improvement
+        (Vuong's t-type test alone is weak when one explanation misses a few held-out rows
+        badly).
     max_nfev : int
         Least-squares iterations per start (budget in iterations).
     seed : int
@@ -598,7 +616,8 @@ def diagnose(
     separations: list[Separation] = []
     if sig:
         best = sig[0]
-        equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0]
+        equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0
+                      and best.delta_cv - s.delta_cv <= equal_fraction * best.delta_cv]
         group = [best] + equivalent
         params_kind = [s for s in group if "parameters" in s.kinds]
         # "parameters off" when a change of the model's own parameters is as good as any term;
@@ -649,11 +668,12 @@ def diagnose(
             regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
                                     obs.units[ch], rng, **_locate_kw(obs))
     failed1 = int((~ok1).sum())
+    misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha) if chosen is not None else []
     if chosen is None:
         status = "agree" if not regions and failed0 == 0 else "unexplained"
     elif frac < 0.5:
         status = "unexplained"
-    elif regions_after or failed1:
+    elif regions_after or failed1 or misfit:
         status = "partly_explained"
     elif "parameters" in chosen.kinds and "term" not in chosen.kinds:
         status = "parameters_off"
@@ -669,9 +689,30 @@ def diagnose(
     recal = None
     if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
-    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha)
+    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, keep=100 * (1 - equal_fraction))
     return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
-                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0)
+                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit)
+
+
+def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: float) -> list[tuple[str, float, int, float]]:
+    """Channels whose residuals exceed the measurement noise: chi-square in noise units (s = 1)
+    against its distribution with ``rows - k / channels`` degrees of freedom, at ``alpha``
+    Bonferroni-split over the channels."""
+    from scipy import stats
+
+    out = []
+    nc = len(obs.channels)
+    for ch in obs.channels:
+        z = (obs.measured[ch] - pred[ch]) / obs.noise[ch]
+        z = z[np.isfinite(z)]
+        if z.size == 0:
+            continue
+        c2 = float(z @ z)
+        dof = max(z.size - k / nc, 1.0)
+        p = float(stats.chi2.sf(c2, dof))
+        if p < alpha / nc:
+            out.append((ch, c2, int(z.size), p))
+    return out
 
 
 def _locate_kw(obs: Any) -> dict[str, Any]:

@@ -2,7 +2,7 @@
 
 Run (one command; writes tests/bench/results_discrepancy.md)::
 
-    nice -n 10 python tests/bench/bench_discrepancy.py [--negatives 20] [--seeds 3]
+    nice -n 10 python tests/bench/bench_discrepancy.py [--negatives 20] [--negative-start 1000] [--seeds 3] [--out FILE]
 
 Cases: negative controls (the believed model plus noise, ``--negatives`` seeds), concealed
 effects made by the independent generators of ``tests/test_discrepancy.py`` (``--seeds``
@@ -41,13 +41,14 @@ def value(score, name):
 def named_set(v):
     if v.chosen is None:
         return "-"
-    names = " | ".join([v.chosen.label] + [s.label for s in v.indistinguishable])
+    names = " ≈ ".join([v.chosen.label] + [s.label for s in v.indistinguishable])
     return f"nothing named (best absorbs part: {v.chosen.label})" if v.status == "unexplained" else names
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--negatives", type=int, default=20)
+    ap.add_argument("--negative-start", type=int, default=1000, help="first negative-control seed")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--out", default=str(HERE / "results_discrepancy.md"))
     a = ap.parse_args()
@@ -72,7 +73,7 @@ def main() -> None:
 
     # negative controls
     for s in range(a.negatives):
-        seed = 1000 + s
+        seed = a.negative_start + s
         run(f"negative control seed {seed}", T.noisy(rec, T.believed(rec, params), seed), expect=lambda v: v.status == "agree")
     for s in range(a.seeds):
         seed = 2000 + s
@@ -130,7 +131,8 @@ def main() -> None:
     fa = sum(not r[7] for r in neg)
     eff = [r for r in rows if not r[0].startswith("negative") and r[7] is not None]
     lines = ["# Discrepancy tool benchmark (issue 10)", "",
-             f"Command: `nice -n 10 python tests/bench/bench_discrepancy.py --negatives {a.negatives} --seeds {a.seeds}`", "",
+             f"Command: `nice -n 10 python tests/bench/bench_discrepancy.py --negatives {a.negatives} "
+             f"--negative-start {a.negative_start} --seeds {a.seeds}`", "",
              f"- False alarms on negative controls: {fa} of {len(neg)} ({100 * fa / max(len(neg), 1):.0f} %; stated level: "
              "family-wise alpha = 0.01 for the library test plus 0.01 per channel for the region test)",
              f"- Effect cases handled as required: {sum(bool(r[7]) for r in eff)} of {len(eff)}",

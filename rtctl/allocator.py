@@ -13,7 +13,8 @@ model row. With the table's data at the operating point (all physical, contract 
     \\qquad z_{lo} \\le z \\le z_{hi}, \\qquad \\sigma^\\pm \\ge 0,
 
 where ``H_bar = S_x hess_lag S_x / c_f`` (the Hessian of the Lagrangian of (7.24)-(7.25),
-convexified by an eigenvalue floor and normalised by ``c_f``), ``g_bar = S_x grad_f / c_f``,
+normalised by ``c_f``, plus ``regularization * I``; an indefinite one is first convexified by
+an eigenvalue floor), ``g_bar = S_x grad_f / c_f``,
 ``Delta p`` the change of the parameters (speed, slope, cross slope, and the offsets of
 (7.26)-(7.27)) from the table's point, and ``s_g`` the layout's row scales. The model rows are
 soft with an exact L1 penalty (``rho_1`` larger than any multiplier of the normalised problem),
@@ -230,9 +231,15 @@ class QpAllocator:
         cf = max(float(np.abs(H).max()), float(np.abs(g).max()), 1e-12)
         H /= cf
         g /= cf
-        w, V = np.linalg.eigh(H)
-        H = (V * np.maximum(w, s.regularization)) @ V.T
-        H.flat[::nx + 1] += s.regularization
+        Hr = H.copy()
+        Hr.flat[::nx + 1] += s.regularization
+        try:  # convex (the usual case: (7.24) is a sum of squares): H + reg I is all we need
+            np.linalg.cholesky(Hr)
+            H = Hr
+        except np.linalg.LinAlgError:  # indefinite Lagrangian Hessian: floor the eigenvalues
+            w, V = np.linalg.eigh(H)
+            H = (V * np.maximum(w, s.regularization)) @ V.T
+            H.flat[::nx + 1] += s.regularization
         self._H = 0.5 * (H + H.T)
         self._g = g
         self._cf = cf

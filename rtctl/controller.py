@@ -18,9 +18,13 @@ Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
 Outer loop (section 7.2.4): the heading error and the cross-track error to a straight reference
 line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27); the QP turns them
 into wheel changes through the table's parameter Jacobian, which to first order *is* the table's
-steering controller (the re-solve with an offset minus the primitive). By default the gains put
-the table's verified trust radius of each offset at 5 deg of heading error and 5 cm of
-cross-track error (Table 7.2's +/-0.2 N m and +/-1 N where the table verified no radius).
+steering controller (the re-solve with an offset minus the primitive). By default the gains
+reach the offsets at which the table's steering controllers were computed (the table's
+``controller_offsets``; Table 7.2's +/-0.2 N m and +/-1 N if it does not say) at 5 deg of
+heading error and 5 cm of cross-track error. The offsets are clamped to the configured maxima;
+the other parameters (speed, slope, cross slope) to the table's verified trust radius. The
+trust region of the step is ``|dx*/dp|`` times those ranges (plus 10 % of each variable's
+scale), i.e. as far as the verified linear model moves the primitive.
 
 Slip correction: where the EKF's slip departs from the primitive's, the model is corrected
 rather than ignored. (a) Operating-point shift: the table is read at the speed ``v (1 - s0) /
@@ -45,6 +49,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -56,7 +61,7 @@ from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
 from .messages import FAILURE_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements
 
-__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of"]
+__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
 
 _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft soil
 _MAX_TILT = math.radians(45.0)
@@ -138,6 +143,14 @@ class _Index:
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
 
 
+def load_tables(index_path: str | Path) -> dict[str, Any]:
+    """Every table of a table index (``tables/index.json``), each checked against the hash the
+    index lists (:func:`rtctl.table.load_index`); raises :class:`rtctl.table.TableError`."""
+    from .table import load_index
+
+    return {name: info.load() for name, info in load_index(index_path).items()}
+
+
 @dataclass
 class _Prepared:
     """Everything the preparation phase leaves for the next feedback phase."""
@@ -148,6 +161,7 @@ class _Prepared:
     idx: _Index
     trust_dp: NDArray[np.float64]
     trust_box: NDArray[np.float64]
+    gains: tuple[float, float]
     crab_sensitivity: tuple[float, float]
     primitive_slip: float
     speed_factor: float
@@ -178,8 +192,6 @@ class Controller:
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = nominal[0] if nominal else next(iter(self.tables))
-        layouts = {t.layout.to_json() for t in self.tables.values()}
-        del layouts  # each table gets its own allocator (sparsity fixed per table)
         rs = config.drive.wheel_radius
         if not math.isfinite(rs):
             radii = {wheel_radius_of(t) for t in self.tables.values()}
@@ -189,6 +201,13 @@ class Controller:
             rs = radii.pop()
         self.wheel_radius = float(rs)
         self.reset()
+
+    @classmethod
+    def from_config(cls, config: ControllerConfig) -> "Controller":
+        """A controller on the tables of ``config.tables_index`` (``[tables] index`` in the TOML)."""
+        if not config.tables_index:
+            raise ControllerError("[tables] index is empty: give the path of the table index (tables/index.json)")
+        return cls(load_tables(config.tables_index), config)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -270,12 +289,16 @@ class Controller:
         if trust.shape != (lay.np_,):
             trust = np.full(lay.np_, np.inf)
         ix = self._index[name]
+        ol = cfg.outer_loop
+        trust = trust.copy()
+        trust[ix.mz], trust[ix.fy] = ol.max_mz_offset, ol.max_fy_offset  # the outer loop's own clamp
         varying = ix.varying
         dxdp = np.abs(np.asarray(tp.dx_dp, dtype=float))[:, varying]
         r = trust[varying]
         box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * alloc.sx
         box = np.where(np.any((dxdp > 0) & ~np.isfinite(r)[None, :], axis=1), np.inf, box)
-        self._prep = _Prepared(name, tp, alloc, ix, trust, box, self._crab_sensitivity(table, tp, ix),
+        gains = self._gains(table)
+        self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
                                self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
                                self.signatures[name])
 
@@ -373,7 +396,8 @@ class Controller:
         verdict = ""
         pose = getattr(m, "pose", None)
         if pose is not None:
-            if not self._pose_seen and all(_finite(getattr(pose, k, math.nan)) for k in ("t", "x", "y", "heading")) \
+            if not self._pose_seen and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6
+                                           for k in ("t", "x", "y", "heading")) \
                     and t - cfg.period <= pose.t <= t:
                 self.ekf.initialise_pose(pose)
                 verdict = "initial"
@@ -500,20 +524,24 @@ class Controller:
             else:
                 self._count(f"rejected_{attr}")
 
-    def _gains(self, prep: _Prepared) -> tuple[float, float]:
+    def _gains(self, table: Any) -> tuple[float, float]:
+        """Heading and cross-track gains: configured, or the table's steering-controller offsets
+        reached at 5 deg / 5 cm (module docstring)."""
         ol = self.config.outer_loop
         k_psi, k_y = ol.heading_gain, ol.crosstrack_gain
+        offs = table.meta.get("controller_offsets") or {}
+        mz, fy = offs.get("mz_offset_Nm"), offs.get("fy_offset_N")
+        mz = float(mz) if isinstance(mz, (int, float)) and math.isfinite(mz) and mz > 0 else 0.2
+        fy = float(fy) if isinstance(fy, (int, float)) and math.isfinite(fy) and fy > 0 else 1.0
         if math.isnan(k_psi):
-            r = float(prep.trust_dp[prep.idx.mz])
-            k_psi = (r if math.isfinite(r) else 0.2) / _REF_HEADING_ERROR
+            k_psi = mz / _REF_HEADING_ERROR
         if math.isnan(k_y):
-            r = float(prep.trust_dp[prep.idx.fy])
-            k_y = (r if math.isfinite(r) else 1.0) / _REF_CROSSTRACK_ERROR
+            k_y = fy / _REF_CROSSTRACK_ERROR
         return k_psi, k_y
 
     def _offsets(self, prep: _Prepared, e_psi: float, e_y: float, dt: float) -> tuple[float, float]:
         ol = self.config.outer_loop
-        k_psi, k_y = self._gains(prep)
+        k_psi, k_y = prep.gains
         mz_max, fy_max = ol.max_mz_offset, ol.max_fy_offset
         if ol.heading_integral > 0:
             self._int_psi = min(max(self._int_psi + dt * e_psi, -mz_max / ol.heading_integral), mz_max / ol.heading_integral)

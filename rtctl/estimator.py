@@ -31,8 +31,9 @@ Measurement: a pose fix ``(x, y, heading)`` with the heading residual wrapped (f
 re-predicts with the stored inputs); a fix older than the history is rejected with a counter.
 Fixes whose squared Mahalanobis distance exceeds the gate are rejected; a run of rejected fixes
 that agree with each other is a jump of the pose source and re-initialises the pose.
-The covariance is symmetrised after every step and repaired (eigenvalue floor) if it stops
-being positive definite; the repair is counted.
+The covariance is symmetrised after every step; after every update (where round-off can
+break it) it is checked by a Cholesky factorisation and repaired (eigenvalue floor) if it
+stopped being positive definite; the repair is counted.
 
 filterpy's ``predict_update`` is never called (it stores the wrong prior; STYLE.md point 4).
 """
@@ -60,6 +61,7 @@ _H = np.zeros((3, 6))
 _H[0, _IX] = _H[1, _IY] = _H[2, _IPSI] = 1.0
 _SLIP_LIMIT = 0.95  # |s| used in the motion model is clipped here (s -> 1 means no motion at all)
 _MISSING_GYRO_SIGMA = 0.05  # rad/s: yaw-rate uncertainty while the gyro is out
+_MAX_POSE = 1e6  # m (and s, rad): a pose field beyond this is garbage, not a place on a planet
 
 
 class EstimatorError(ValueError):
@@ -241,10 +243,13 @@ class SlipHeadingEKF:
         self.ekf.F = F
         self.ekf.Q = Q
         self.ekf.predict(u=np.array([dt, v_odo, r]))
-        self._keep_pd()
+        # F P F' + Q with Q >= 0 stays positive definite: symmetrise only (checked after updates)
+        P = self.ekf.P
+        self.ekf.P = 0.5 * (P + P.T)
 
     def predict(self, t: float, u: Odometry) -> None:
-        """Propagate to time ``t`` with the tick's odometry (``t`` after the filter's time)."""
+        """Propagate to time ``t`` with the tick's odometry (``t`` after the filter's time); a
+        step longer than ``config.max_gap`` is propagated as ``max_gap``."""
         dt = float(t) - self.t
         if not (math.isfinite(dt) and dt > 0):
             raise EstimatorError(f"predict to t = {t} from t = {self.t}: time must increase")
@@ -253,7 +258,9 @@ class SlipHeadingEKF:
         if not math.isfinite(u.yaw_rate):
             self.counters.gyro_missing += 1
         self._history[-1].u = u
-        self._transition(dt, u)
+        # a dropout longer than max_gap is propagated as max_gap: the inputs over it are unknown,
+        # and an unbounded dt would overflow the covariance (the controller counts the gap)
+        self._transition(min(dt, self.config.max_gap), u)
         if math.isfinite(u.v_odo):
             self._v_last = u.v_odo
         if math.isfinite(u.yaw_rate):
@@ -268,10 +275,11 @@ class SlipHeadingEKF:
         """Use a pose fix; returns what happened: ``accepted``, ``late``, ``too_old``, ``future``,
         ``gated``, ``reset`` or ``invalid``.
 
-        The fix must have finite fields; it is used at ``pose.t`` (see the module docstring).
+        The fix must have finite fields below 1e6 in magnitude (else ``invalid``); it is used at
+        ``pose.t`` (see the module docstring).
         """
         vals = (pose.t, pose.x, pose.y, pose.heading)
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) and abs(v) < _MAX_POSE for v in vals):
             return "invalid"
         if pose.t > self.t + 1e-9:
             self.counters.poses_future += 1

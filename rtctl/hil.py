@@ -108,7 +108,8 @@ class HilReport:
 
 def run_hil(factory: Callable[[], Any], *, measurements: Sequence[Measurements] | None = None, plant: Any = None,
             ticks: int | None = None, period: float = 0.2, deadline: float | None = None,
-            start_method: str = "spawn", startup_timeout: float = 60.0) -> HilReport:
+            start_method: str = "spawn", startup_timeout: float = 60.0,
+            until: Callable[[], bool] | None = None) -> HilReport:
     """Run the controller in its own process at the real clock.
 
     Parameters
@@ -127,6 +128,8 @@ def run_hil(factory: Callable[[], Any], *, measurements: Sequence[Measurements] 
         ``multiprocessing`` start method.
     startup_timeout : float
         Seconds allowed for the child to import and build the controller (a safety net only).
+    until : callable, optional
+        Checked after every tick; ``True`` ends the run early (e.g. the rover reached its goal).
 
     Raises
     ------
@@ -184,6 +187,8 @@ def run_hil(factory: Callable[[], Any], *, measurements: Sequence[Measurements] 
                     held = cmd
                 plant.advance(period)
             rep.ticks += 1
+            if until is not None and until():
+                break
         parent.send(None)
         proc.join(timeout=5.0)
         return rep

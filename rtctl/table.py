@@ -58,7 +58,7 @@ from numpy.typing import NDArray
 from .layout import WHEELS, LayoutError, NlpLayout
 
 __all__ = [
-    "SCHEMA", "SCHEMA_VERSION", "STATUS_NAMES", "CONTROLLER_NAMES", "POINT_FIELDS", "TableError", "TablePoint",
+    "SCHEMA", "SCHEMA_VERSION", "BIG", "STATUS_NAMES", "CONTROLLER_NAMES", "POINT_FIELDS", "TableError", "TablePoint",
     "Table", "TableInfo", "load_table", "load_index", "content_hash", "table_bytes", "field_shapes",
 ]
 
@@ -76,10 +76,13 @@ primitive, per unit offset."""
 POINT_FIELDS: tuple[str, ...] = (
     "x", "p", "g", "lbx", "ubx", "lbg", "ubg", "lam_x", "lam_g", "jac_g_x", "jac_g_p", "grad_f", "hess_lag",
     "dx_dp", "wrench", "wrench_jac", "slip", "slip_angle", "torque", "power", "controllers", "objective",
+    "trust_radius",
 )
 """Float fields stored per grid point (interpolated by :meth:`Table.at`)."""
 
 _STATUS_OPTIMAL = 0
+BIG = 1e30
+"""A missing bound (inf in the file) reads as +-BIG in :class:`TablePoint` (OSQP's ``OSQP_INFTY``)."""
 
 
 class TableError(ValueError):
@@ -99,7 +102,7 @@ def field_shapes(nx: int, np_: int, ng: int, n_wheels: int = len(WHEELS)) -> dic
         "lam_x": (nx,), "lam_g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, np_), "grad_f": (nx,),
         "hess_lag": (nx, nx), "dx_dp": (nx, np_), "wrench": (nw, 6), "wrench_jac": (nw, 6, 5), "slip": (nw,),
         "slip_angle": (nw,), "torque": (nw,), "power": (nw,), "controllers": (len(CONTROLLER_NAMES), nw, 2),
-        "objective": (),
+        "objective": (), "trust_radius": (np_,),
     }
 
 
@@ -117,7 +120,7 @@ def content_hash(header: Mapping[str, Any], arrays: Mapping[str, NDArray[Any]]) 
     h = hashlib.sha256()
     h.update(_canonical({k: v for k, v in header.items() if k != "content_hash"}))
     for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
+        a = np.asarray(arrays[name], order="C")
         h.update(f"\n{name}|{a.dtype.str}|{a.shape}\n".encode())
         h.update(a.tobytes())
     return h.hexdigest()
@@ -132,7 +135,7 @@ def table_bytes(header: Mapping[str, Any], arrays: Mapping[str, NDArray[Any]]) -
     head = dict(header)
     head["content_hash"] = content_hash(head, arrays)
     members = {"header": np.frombuffer(_canonical(head), dtype=np.uint8)}
-    members.update({k: np.ascontiguousarray(v) for k, v in arrays.items()})
+    members.update({k: np.asarray(v, order="C") for k, v in arrays.items()})
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
         for name in sorted(members):
@@ -177,14 +180,14 @@ class TablePoint:
     grad_f : (nx,)       gradient of the objective (7.24) as the NLP defines it (``meta["objective"]``)
     hess_lag : (nx, nx)  Hessian of the Lagrangian ``f + lam_g' g`` with IPOPT's multipliers
     lam_x, lam_g         IPOPT's multipliers for physical bounds/constraints
-    lbx, ubx, lbg, ubg   bounds of the scenario at this point
+    lbx, ubx, lbg, ubg   bounds of the scenario at this point (+-BIG = 1e30 where unbounded)
     active : dict        bool masks ``x_lower``, ``x_upper``, ``g_lower``, ``g_upper`` (nearest corner)
     dx_dp : (nx, np)     parametric sensitivity of the primitive from the KKT system
     wrench : (4, 6)      per wheel (Fx, Fy, Fz, Mx, My, Mz) [N, N m]
     wrench_jac : (4,6,5) d wrench / d (v_x, v_y, omega, h, h0)
     slip, slip_angle, torque, power : (4,)
     controllers : dict   ``{"Mz+": (4, 2), ...}``: per wheel (d rim speed [m/s], d steer [rad]) per N m / N
-    trust_radius : (np,) step in each parameter over which the first-order prediction held (table-wide)
+    trust_radius : (np,) step in each parameter over which the first-order prediction held (interpolated)
     feasible : bool      every corner that contributes is an optimal primitive (no fallback used)
     extrapolated : bool  corners without a primitive were dropped and the weights renormalised
     clamped : bool       the operating point was moved into the axes' range or to the nearest
@@ -239,10 +242,9 @@ class TablePoint:
         t = self._table
         return {k: v[self._corner] for k, v in t._active.items()}
 
-    @property
-    def trust_radius(self) -> NDArray[np.float64]:
-        """Per-parameter step (SI) over which the linearisation was verified (inf: not limited, NaN-free)."""
-        return self._table.trust_radius
+    trust_radius = property(lambda self: self._f("trust_radius"),
+                            doc="Per-parameter step (SI) over which the first-order prediction x + dx_dp dp was "
+                                "verified against NLP re-solves at the corners (0: the QP must not move it).")
 
     def __repr__(self) -> str:
         op = ", ".join(f"{k}={v:.4g}" for k, v in self.operating_point.items())
@@ -264,7 +266,7 @@ class Table:
     feasible : ndarray   bool, grid shape: an optimal primitive exists at the point
     status : ndarray     int8 codes into :data:`STATUS_NAMES`
     evidence : dict      flat grid index -> the optimizer's evidence for a point without a primitive
-    trust_radius : ndarray (np,)
+    trust_radius : ndarray (np,)  smallest per-point trust radius over the feasible points (0 where none)
     arrays : dict        raw per-point arrays (grid shape + field shape), NaN where no primitive
     """
 
@@ -295,8 +297,7 @@ class Table:
         self.feasible = self.status == _STATUS_OPTIMAL
         self.evidence = {int(k): v for k, v in header.get("evidence", {}).items()}
         tr = header.get("trust_radius", {})
-        self.trust_radius = np.array([tr.get(n, math.inf) if tr.get(n) is not None else math.inf
-                                      for n in self.layout.parameter_names], dtype=float)
+        self.trust_radius = np.array([tr[n] if tr.get(n) is not None else 0.0 for n in self.layout.parameter_names])
         self._prepare(shapes)
 
     # -------------------------------------------------------------- precomputation
@@ -305,6 +306,8 @@ class Table:
         cols, self._slices, pos = [], {}, 0
         for name in POINT_FIELDS:
             a = self.arrays[name].reshape(n, -1).astype(float)
+            if name in ("lbx", "ubx", "lbg", "ubg"):  # no bound: +-inf in the file, +-BIG for the QP
+                a[np.isposinf(a)], a[np.isneginf(a)] = BIG, -BIG
             cols.append(a)
             self._slices[name] = (pos, pos + a.shape[1], shapes[name])
             pos += a.shape[1]

@@ -36,6 +36,7 @@ K_TORQUE = 2.0  # N m per rad/s
 SLIP0 = 0.1
 SCALES = {"omega": 0.5, "beta": 0.3, "W": WEIGHT / 4, "h": RS / 4, "h0": RS / 4}
 CSCALES = {"force": WEIGHT, "moment": WEIGHT * ROCKER, "load": WEIGHT / 4, "torque": 0.5}
+TRUST = {"speed": 0.01, "slope": 0.1, "cross_slope": 0.1, "fy_offset": 1.0, "mz_offset": 0.2}
 SIDE = {"FR": -1.0, "FL": 1.0, "RR": -1.0, "RL": 1.0}
 FRONT = {"FR": 1.0, "FL": 1.0, "RR": -1.0, "RL": -1.0}
 
@@ -116,7 +117,10 @@ def point_fields(lay: NlpLayout, speed: float, slope: float, stuck: dict[str, fl
         j = lay.index("mz_offset" if name.startswith("Mz") else "fy_offset")
         ctrl[n, :, 0] = dxdp[io_idx, j] * RS
         ctrl[n, :, 1] = dxdp[ib_idx, j]
-    return {"x": x, "p": p, "g": np.zeros(ng), "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg, "lam_x": np.zeros(nx),
+    trust = np.zeros(npar)
+    for name, r in TRUST.items():
+        trust[lay.index(name)] = r
+    return {"trust_radius": trust, "x": x, "p": p, "g": np.zeros(ng), "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg, "lam_x": np.zeros(nx),
             "lam_g": np.zeros(ng), "jac_g_x": J, "jac_g_p": Jp, "grad_f": np.zeros(nx), "hess_lag": H, "dx_dp": dxdp,
             "wrench": wrench, "wrench_jac": wj, "slip": np.full(4, SLIP0), "slip_angle": x[ib_idx],
             "torque": np.zeros(4), "power": np.zeros(4), "controllers": ctrl, "objective": np.array(0.0)}
@@ -152,7 +156,7 @@ def write_table(folder: Path, name: str = "linear_nominal", stuck_wheel: str | N
               "scenario": {"failures": failures}, "family": family,
               "axis_order": list(axes), "axes": {k: {"values": v.tolist(), "unit": "SI"} for k, v in axes.items()},
               "layout": json.loads(lay.to_json()),
-              "trust_radius": {"speed": 0.01, "slope": 0.1, "cross_slope": 0.1, "fy_offset": 1.0, "mz_offset": 0.2},
+              "trust_radius": dict(TRUST),
               "evidence": {}}
     path = Path(folder) / f"{name}.npz"
     path.write_bytes(table_bytes(header, arrays))

@@ -135,11 +135,16 @@ def test_heading_wraps_across_pi():
     assert verdict == "accepted" and ekf.last_mahalanobis < 1e-6
 
 
-def test_pose_handling_counters():
-    cfg = ControllerConfig()
-    ekf = SlipHeadingEKF(cfg, RS)
-    for k in range(1, 21):
+def _driven(ticks: int) -> SlipHeadingEKF:
+    """A filter after ``ticks`` straight ticks at 3 cm/s odometry, no gyro rate."""
+    ekf = SlipHeadingEKF(ControllerConfig(), RS)
+    for k in range(1, ticks + 1):
         ekf.predict(k * DT, Odometry(0.03, 1e-6, 0.0))
+    return ekf
+
+
+def test_pose_handling_counters():
+    ekf = _driven(20)
     x = ekf.x
     assert ekf.update_pose(Pose(ekf.t + 1.0, x[0], x[1], x[2])) == "future"
     assert ekf.update_pose(Pose(ekf.t - 10.0, x[0], x[1], x[2])) == "too_old"
@@ -187,15 +192,16 @@ def test_late_pose_equals_pose_on_time():
 
 
 def test_late_pose_between_ticks_is_used_at_its_time():
-    cfg = ControllerConfig()
-    ekf = SlipHeadingEKF(cfg, RS)
-    for i in range(1, 11):
-        ekf.predict(i * DT, Odometry(0.03, 1e-6, 0.0))
+    """A fix taken between two past ticks, 2 cm to the left of where the filter had the rover
+    then: used late, it pulls the current estimate left (and not forward or back)."""
+    ekf = _driven(10)
+    t_fix = 5.5 * DT
     before = ekf.x
-    assert ekf.update_pose(Pose(1.5 * DT + 0.05, 0.0, 0.0, 0.0)) in ("late", "gated")
-    assert np.all(np.isfinite(ekf.x)) and ekf.t == pytest.approx(10 * DT)
-    assert not np.array_equal(before, ekf.x) or ekf.counters.poses_gated == 1
-
+    v = (1 - before[3]) * 0.03
+    assert ekf.update_pose(Pose(t_fix, v * t_fix, 0.02, 0.0)) == "late"
+    after = ekf.x
+    assert ekf.t == pytest.approx(10 * DT) and ekf.counters.poses_late_used == 1
+    assert after[1] - before[1] > 0.005 and abs(after[0] - before[0]) < 0.01
 
 def test_covariance_stays_symmetric_positive_definite():
     cfg = ControllerConfig()

@@ -89,8 +89,9 @@ def test_exact_at_grid_points_and_fields_are_physical_arrays(tmp_path):
     tp = t.at(slope=axes["slope"][1], speed=axes["speed"][0], steer_stuck=axes["steer_stuck"][2])
     np.testing.assert_array_equal(tp.x, arrays["x"][1, 0, 2])
     np.testing.assert_array_equal(tp.wrench, arrays["wrench"][1, 0, 2])
-    assert tp.trust_radius[t.layout.index("speed")] == 0.005
-    assert math.isinf(tp.trust_radius[t.layout.index("slope")])  # not verified: no limit claimed
+    np.testing.assert_array_equal(tp.trust_radius, arrays["trust_radius"][1, 0, 2])
+    assert t.trust_radius[t.layout.index("speed")] == 0.005
+    assert t.trust_radius[t.layout.index("slope")] == 0.0  # not verified: no step allowed
     assert set(tp.active) == {"x_lower", "x_upper", "g_lower", "g_upper"}
 
 

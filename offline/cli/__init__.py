@@ -18,6 +18,7 @@ bekker      Fit Bekker's p = k z^n to static plate tests.
 soil-flow   Draw the soil-flow phase map (Fig. 4.7) and one-at-a-time sweep (Fig. 4.6).
 tables      Build, inspect and verify lookup tables for the on-rover QP.
 drive       Closed-loop drive of the simulated rover (section 7.3), plots and MCAP recordings.
+replay      Replay a recording through rtctl bit for bit (or HIL style at 5 Hz); CSV export.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Simulator commands: ``drive`` (a closed-loop drive, or the section 7.3 experiments)."""
+"""Simulator commands: ``drive`` (a closed-loop drive, or the section 7.3 experiments) and ``replay``
+(a recording through rtctl, bit for bit; optionally hardware-in-the-loop style)."""
 
 from __future__ import annotations
 
@@ -39,6 +40,60 @@ def _metrics_table(rows: list[dict[str, Any]]) -> str:
                      f"{m['final_cross_track_cm']:.2f} | {m['max_abs_cross_track_cm']:.2f} | {m['mean_speed_cm_s']:.2f} | "
                      f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f} |")
     return "\n".join(lines)
+
+
+class _TracedPlant:
+    """The simulator seen by the HIL runner, keeping the truth and measurements of every tick."""
+
+    def __init__(self, sim: Any) -> None:
+        self.sim, self.truth, self.measurements = sim, [], []
+
+    def measure(self) -> Any:
+        m = self.sim.measure()
+        self.measurements.append(m)
+        self.truth.append(self.sim.truth_state())
+        return m
+
+    def apply(self, commands: Any) -> None:
+        self.sim.apply(commands)
+
+    def advance(self, seconds: float) -> None:
+        self.sim.advance(seconds)
+
+
+def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: dict[str, Any], rec_path: Path) -> Any:
+    """rtctl in its own process at the real 5 Hz clock driving the simulator (deadline misses counted)."""
+    import functools
+
+    from rtctl.hil import run_hil
+    from rtctl.recording import Recorder
+
+    from ..sim.experiments import DriveResult, _first_measurement, drive_metrics
+    from ..sim.rtctl_bridge import rtctl_controller
+
+    c0, _ = ctl.step(_first_measurement(sim))
+    sim.start(c0)
+    plant = _TracedPlant(sim)
+    x0 = 0.0
+    factory = functools.partial(rtctl_controller, args.tables, args.config, sim.scenario.speed)
+    max_ticks = int(math.ceil(3.0 * args.distance / sim.scenario.speed / 0.2)) + 1
+    rep = run_hil(factory, plant=plant, ticks=max_ticks, until=lambda: plant.truth[-1].x - x0 >= args.distance)
+    res = DriveResult(sim.scenario.name, f"{kind} (HIL)", plant.truth, [c for c in rep.commands if c is not None])
+    res.metrics = drive_metrics(plant.truth, sim.scenario.speed)
+    res.metrics["deadline_misses"] = float(rep.deadline_misses)
+    res.step_seconds = rep.step_times
+    st = rep.stats()["step"]
+    print(f"HIL {sim.scenario.name}: rtctl in its own process, {rep.ticks} ticks at 5 Hz, {rep.deadline_misses} deadline "
+          f"misses (200 ms), step median {1e6 * st['median_s']:.0f} us, max {1e6 * st['max_s']:.0f} us", flush=True)
+    if not args.no_record:
+        with Recorder(rec_path, {**meta, "hil": True, "deadline_misses": rep.deadline_misses}, truth=True) as rec:
+            for i, (m, ts) in enumerate(zip(plant.measurements, plant.truth)):
+                rec.measurements(m)
+                if i < len(rep.commands) and rep.commands[i] is not None:
+                    rec.commands(rep.commands[i])
+                    rec.timing(m.t, m.seq, rep.step_times[i], 0.2, missed=m.seq in rep.late_seqs)
+                rec.truth(m.t, ts)
+    return res
 
 
 def _cmd_drive(args: argparse.Namespace) -> int:
@@ -101,7 +156,9 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                     meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
                             "seed": args.seed, "dt": args.dt, "truth": truth.describe(), "truth_label": label,
                             "sensors": sensors.__dict__, "distance_m": args.distance}
-                    if args.no_record:
+                    if args.hil and kind == "rtctl":
+                        r = _hil_drive(args, sim, ctl, kind, meta, out / f"{sc.name}{tag}_{kind}.mcap")
+                    elif args.no_record:
                         r = run_drive(sim, ctl, distance=args.distance, name=kind)
                     else:
                         rec_path = out / f"{sc.name}{tag}_{kind.replace('+', '_')}.mcap"
@@ -128,8 +185,62 @@ def _cmd_drive(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    import functools
+
+    from rtctl.hil import HilError, load_controller, run_hil
+    from rtctl.recording import RecordingError, export_csv, read_recording
+    from rtctl.replay import ReplayError, compare_commands, replay, step_time_stats
+
+    from ..sim.rtctl_bridge import shipped_tables
+
+    try:
+        rec = read_recording(args.recording)
+    except RecordingError as exc:
+        return fail(str(exc))
+    if args.csv:
+        files = export_csv(args.recording, args.csv)
+        print("wrote " + ", ".join(str(f) for f in files))
+    tables = Path(args.tables) if args.tables else shipped_tables()
+    index = tables / "index.json" if tables.is_dir() else tables
+    if not index.exists():
+        return fail(f"{index}: no table index; pass --tables (the tables the recording was made with)")
+    factory = functools.partial(load_controller, str(index), args.config)
+    try:
+        if args.hil:
+            n = len(rec.measurements) if args.ticks is None else min(args.ticks, len(rec.measurements))
+            print(f"HIL: rtctl in its own process, {n} ticks at 5 Hz ({0.2 * n:.0f} s) ...", flush=True)
+            rep = run_hil(factory, measurements=rec.measurements[:n])
+            div = [d for i, c in enumerate(rep.commands) if (d := compare_commands(i, rec.commands[i], c)) is not None]
+            st = step_time_stats(rep.step_times)
+            print(f"{rep.ticks} ticks, {rep.deadline_misses} deadline misses (200 ms), step median "
+                  f"{1e6 * st['median_s']:.0f} us, p99 {1e6 * st['p99_s']:.0f} us; "
+                  + ("commands identical bit for bit" if not div else f"{len(div)} differ; first: {div[0]}"))
+            return 0 if not div else 1
+        r = replay(rec, factory())
+    except (ReplayError, HilError) as exc:
+        return fail(str(exc))
+    except Exception as exc:  # the table reader's and controller's errors say what is wrong
+        return fail(f"{index}: {exc}")
+    print(r.summary())
+    return 0 if r.identical else 1
+
+
 def register(sub: Any) -> None:
-    """Add ``drive`` to the ``offnominal`` parser."""
+    """Add ``drive`` and ``replay`` to the ``offnominal`` parser."""
+    rp = sub.add_parser(
+        "replay", help="replay an MCAP recording through rtctl and compare its commands bit for bit",
+        description="Feed a recording's measurements to a fresh rtctl controller (same tables and config as the "
+                    "recording) and report the first command that differs (time, wheel, field) and the step times; "
+                    "--hil runs the controller in its own process at the real 5 Hz clock and counts deadline misses.")
+    rp.add_argument("recording", help="an .mcap file written by offnominal drive (or a rover)")
+    rp.add_argument("--tables", help="table index or folder (default: the shipped tables)")
+    rp.add_argument("--config", help="rtctl controller config TOML (default: rtctl's defaults)")
+    rp.add_argument("--hil", action="store_true", help="controller in its own process over a pipe, real 5 Hz clock")
+    rp.add_argument("--ticks", type=int, help="with --hil: only the first N ticks")
+    rp.add_argument("--csv", metavar="DIR", help="also export every channel as CSV into DIR")
+    rp.set_defaults(func=_cmd_replay)
+
     dr = sub.add_parser(
         "drive", help="closed-loop drive of the simulated mini rover (failures, controllers, truth); section 7.3",
         description="Drive the simulated mini rover (Table 7.2) with a failure from a scenario file and one or "
@@ -155,5 +266,8 @@ def register(sub: Any) -> None:
     dr.add_argument("--pose-delay", type=float, help="pose latency, s (default 0)")
     dr.add_argument("--out", default="out/drive", help="output folder (default: %(default)s)")
     dr.add_argument("--no-record", action="store_true", help="skip the MCAP recordings")
+    dr.add_argument("--hil", action="store_true",
+                    help="run rtctl in its own process at the real 5 Hz clock (1.5 m takes 50 s); deadline misses "
+                         "are counted and a late command is replaced by the previous one")
     dr.add_argument("--quiet", action="store_true", help="no progress bar")
     dr.set_defaults(func=_cmd_drive)

@@ -16,7 +16,7 @@ _BUILD_EPILOG = """\
 Axes (SI inside; --grid takes display units): slope [deg], cross_slope [deg], speed [cm/s], and
 the failure's own parameter when the scenario has one: steer_stuck [deg] (a stuck steering
 wheel), rim_speed_cap_fraction [1] (a rim-speed cap, as a fraction of the travel speed),
-trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10; speed=2,3,4;
+trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10; speed=2,4;
 steer_stuck=-90:90:30; rim_speed_cap_fraction=0.25,0.5,0.75,1; trench_depth=20:35:5.
 
 Example: offnominal tables build my_failure.toml --grid "slope=0:20:5;speed=3" --jobs 2 --out tables/
@@ -80,7 +80,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"family: {fam['kind']} of {fam['wheel']} (axis {fam['axis']})" if fam else "family: none (single scenario)")
     for k, v in t.axes.items():
         a = h["axes"][k]
-        disp = [round(x / a["display_factor"], 6) for x in v]
+        disp = [round(float(x) / a["display_factor"], 6) for x in v]
         print(f"  axis {k:<24} [{a['display_unit']}] {disp}")
     counts = {s: int((t.status == i).sum()) for i, s in enumerate(STATUS_NAMES) if (t.status == i).any()}
     print(f"grid {t.shape} = {t.feasible.size} points: " + ", ".join(f"{k} {v}" for k, v in counts.items())

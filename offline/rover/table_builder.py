@@ -55,13 +55,10 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
-    "encode", "decode", "scenario_from_header", "linearisation_errors", "BIG",
+    "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point",
 ]
-
-BIG = 1e30
-"""Stand-in for an infinite bound inside the QP data (OSQP's ``OSQP_INFTY``); the file keeps inf."""
 
 AXES: dict[str, tuple[str, str, float]] = {
     "slope": ("rad", "deg", math.pi / 180),
@@ -79,11 +76,24 @@ FAMILY_KINDS = ("steer_stuck", "rim_speed_cap_fraction", "trench_depth")
 _DEFAULT_DISPLAY = {
     "slope": (0.0, 5.0, 10.0, 15.0, 20.0, 25.0),
     "cross_slope": (-10.0, 0.0, 10.0),
-    "speed": (2.0, 3.0, 4.0),
+    "speed": (2.0, 4.0),
     "steer_stuck": (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0),
     "rim_speed_cap_fraction": (0.25, 0.5, 0.75, 1.0),
     "trench_depth": (20.0, 25.0, 30.0, 35.0),
 }
+
+
+TABLE_SOLVER_BUDGETS = {"max_attempts": 4, "max_iterations": 400, "confirm_starts": 1, "confirm_rounds": 1}
+"""Search budgets of the optimizer inside a table build (iterations and attempts, deterministic).
+
+Smaller than :class:`~offline.rover.primitives.SolverOptions`' defaults: a grid point is
+warm-started from a solved neighbour, and one the search cannot solve is retried from every
+solved neighbour; the unsolved points dominate a build's time (measured: 1-4 s each against
+0.2-0.3 s for a solved one). A point left ``not_found`` can be examined with the full
+budgets by ``offnominal primitive``."""
+
+
+_LIN_PARAMS = ("speed", "slope", "cross_slope", "fy_offset", "mz_offset")
 
 
 class BuildError(ValueError):
@@ -265,7 +275,7 @@ def scenario_at(sc: Any, family: Mapping[str, Any] | None, point: Mapping[str, f
 
 
 def default_grid(sc: Any, family: Mapping[str, Any] | None) -> GridSpec:
-    """Default axes: slope 0-25 deg by 5, cross-slope -10/0/10 deg, speed 2/3/4 cm/s and the
+    """Default axes: slope 0-25 deg by 5, cross-slope -10/0/10 deg, speed 2/4 cm/s and the
     family axis (stuck angle -90..90 by 30 deg, cap fraction 0.25..1, trench depth 20..35 mm)."""
     names = ["slope", "cross_slope", "speed"] + ([family["axis"]] if family else [])
     return GridSpec(tuple((n, tuple(v * AXES[n][2] for v in _DEFAULT_DISPLAY[n])) for n in names))
@@ -351,6 +361,10 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
     elif isinstance(ref, str):
         sources["params_preset"] = ref
     sc = replace(sc, source=p.name)
+    if solver is None:
+        from .primitives import SolverOptions
+
+        solver = SolverOptions(**TABLE_SOLVER_BUDGETS)
     return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver)
 
 
@@ -520,8 +534,49 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             ctl[c, k] = (dx[lay.var("omega", wname)] * rs, dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
+    out["trust_radius"] = _point_trust_radius(spec, pb, sc, b, x_s, lam_x_s, lam_g_s, out["x"], out["dx_dp"])
     out["active_x"], out["active_g"] = act_x, act_g
     out["kkt_cond"] = np.float64(cond)
+    return out
+
+
+def _point_trust_radius(spec: TableSpec, pb: Any, sc: Any, b: Mapping[str, Any], x_s: NDArray[np.float64],
+                        lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                        dx_dp: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per parameter, the step over which the first-order prediction ``x + dx/dp dp`` stays within
+    ``trust_tolerance`` of the variable scales, from two warm re-solves at steps of 1/8 and 1/2
+    of the parameter's scale (both signs taken as the worse): the error's growth exponent k
+    (1: a kink, 2: smooth) between them gives ``r = d2 (tol / e2)^(1/k)``, capped at 4 scales.
+    Parameters that are not continuous (contact, pivot lock) get 0: the QP must not move them."""
+    lay = pb.layout
+    xsc = lay.variable_scale
+    tol = spec.build.trust_tolerance
+    out = np.zeros(lay.np_)
+    for name in _LIN_PARAMS:
+        j = lay.index(name)
+        sc_j = lay.parameters[j].scale
+        errs = []
+        for m in (0.125, 0.5):
+            e = 0.0
+            for sgn in (1.0, -1.0):
+                dp = sgn * m * sc_j
+                kw: dict[str, Any] = {name: getattr(sc, name) + dp}
+                if name == "speed":
+                    kw.update(_fam_follow(spec, sc, sc.speed + dp))
+                bb = pb.bounds(replace(sc, **kw))
+                r = pb.solve(bb, x_s, lam_x, lam_g)
+                e = max(e, float(np.max(np.abs(x + dx_dp[:, j] * dp - np.asarray(r["x"]) * xsc) / xsc))
+                        if r["success"] else math.inf)
+            errs.append(e)
+        d1, d2 = 0.125 * sc_j, 0.5 * sc_j
+        e1, e2 = errs
+        if not e1 <= tol:
+            out[j] = 0.0 if not math.isfinite(e1) else d1 * tol / e1  # at least linear growth below d1
+        elif not math.isfinite(e2):
+            out[j] = d1
+        else:
+            k = min(max(math.log(max(e2, 1e-300) / max(e1, 1e-300)) / math.log(4.0), 1.0), 2.0)
+            out[j] = min(d2 * (tol / max(e2, 1e-300)) ** (1.0 / k), 4.0 * sc_j)
     return out
 
 
@@ -546,6 +601,7 @@ def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> 
         lam_x = np.asarray(r.stats["lam_x"], dtype=float).ravel()
         lam_g = np.asarray(r.stats["lam_g"], dtype=float).ravel()
         rec["x_scaled"] = np.asarray(r.x, dtype=float)
+        rec["lam_x"], rec["lam_g"] = lam_x, lam_g
         rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g)
     return rec
 
@@ -573,35 +629,49 @@ def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
     return out
 
 
-def retry_point(spec: TableSpec, flat: int, starts: Sequence[tuple[int, NDArray[np.float64]]]) -> dict[str, Any]:
-    """Retry an unsolved point from its solved neighbours (fixed order); ``not_found`` if none solves it."""
-    tried = []
-    for nb, x0 in starts:
-        rec = _solve_point(spec, flat, x0)
-        tried.append(f"from neighbour {nb}: {rec['status']}")
-        if rec["status"] == "optimal":
-            rec["retried_from"] = nb
-            return rec
-        if rec["status"] == "infeasible":
-            return rec
-    rec = {"flat": flat, "status": "not_found", "iterations": 0,
-           "evidence": {"retries": tried or ["no solved neighbour to start from"]}}
-    return rec
+def retry_point(spec: TableSpec, flat: int, starts: Sequence[tuple[int, NDArray[np.float64], NDArray[np.float64],
+                                                                 NDArray[np.float64]]]) -> dict[str, Any]:
+    """Retry an unsolved point from each solved neighbour in turn (``(flat, x, lam_x, lam_g)``,
+    fixed order): one warm-started IPOPT run each, accepted only if it converges and passes the
+    optimizer's independent numeric check; ``not_found`` if none does."""
+    from . import primitives as P
+
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    pb = _problem(sc, spec.solver)
+    b = pb.bounds(sc)
+    tried, its = [], 0
+    for nb, x0, lx, lg in starts:
+        r = pb.solve(b, x0, lx, lg)
+        its += int(r["iterations"])
+        ok = bool(r["success"]) and P.check_solution(pb, sc, r["x"])[1]
+        tried.append(f"from neighbour {nb}: {r['status']}{'' if ok or not r['success'] else ' (failed the independent check)'}")
+        if ok:
+            x = np.asarray(r["x"], dtype=float)
+            return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "retried_from": nb,
+                    "x_scaled": x, "lam_x": np.asarray(r["lam_x"], dtype=float), "lam_g": np.asarray(r["lam_g"], dtype=float),
+                    "data": point_data(spec, sc, x, np.asarray(r["lam_x"], dtype=float), np.asarray(r["lam_g"], dtype=float))}
+    return {"flat": flat, "status": "not_found", "iterations": its,
+            "evidence": {"retries": tried or ["no solved neighbour to start from"]}}
 
 
 # ------------------------------------------------------------------------------ linearisation check
 def linearisation_errors(spec: TableSpec, flat: int, data: Mapping[str, Any], x_s: NDArray[np.float64],
                          params: Sequence[str] = ("speed", "slope", "cross_slope", "fy_offset", "mz_offset"),
-                         steps: Sequence[float] | None = None) -> dict[str, list[tuple[float, float]]]:
+                         steps: Sequence[float] | None = None,
+                         stop_above: float | None = None) -> dict[str, list[tuple[float, float]]]:
     """First-order prediction ``x + dx/dp dp`` against a re-solve of the NLP at ``p + dp``.
+
+    Steps ascend; a parameter's sequence stops at the first failed re-solve or, with
+    ``stop_above``, at the first error above it.
 
     Returns, per parameter, ``[(dp, error), ...]`` with the error the largest
     ``|x_pred - x_solved| / scale`` over the variables (NaN when the re-solve fails).
     """
+    from . import primitives as P
+
     pb = _problem(spec.scenario, spec.solver)
     lay = pb.layout
     sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
-    b = pb.bounds(sc)
     xsc = lay.variable_scale
     out: dict[str, list[tuple[float, float]]] = {}
     for name in params:
@@ -609,21 +679,17 @@ def linearisation_errors(spec: TableSpec, flat: int, data: Mapping[str, Any], x_
         res = []
         for m in (steps or spec.build.trust_steps):
             dp = m * lay.parameters[j].scale
-            if name in ("speed", "slope", "cross_slope"):
-                kw = {name: getattr(sc, name) + dp}
-                if name == "speed":
-                    kw.update(_fam_follow(spec, sc, sc.speed + dp))
-                b2 = pb.bounds(replace(sc, **kw))
-            else:
-                b2 = dict(b)
-                b2["p"] = np.asarray(b["p"], dtype=float).copy()
-                b2["p"][j] += dp
-            r = pb.solve(b2, x_s)
-            if not r["success"]:
+            kw: dict[str, Any] = {name: getattr(sc, name) + dp}
+            if name == "speed":
+                kw.update(_fam_follow(spec, sc, sc.speed + dp))
+            r = P.solve_primitive(replace(sc, **kw), spec.solver, x0=x_s)
+            if r.status != "optimal":
                 res.append((dp, math.nan))
-                continue
+                break
             pred = data["x"] + data["dx_dp"][:, j] * dp
-            res.append((dp, float(np.max(np.abs(pred - np.asarray(r["x"]) * xsc) / xsc))))
+            res.append((dp, float(np.max(np.abs(pred - np.asarray(r.x) * xsc) / xsc))))
+            if stop_above is not None and res[-1][1] > stop_above:
+                break
         out[name] = res
     return out
 
@@ -676,17 +742,19 @@ class _Checkpoint:
         for r in recs:
             if r["status"] == "optimal":
                 n = r["flat"]
-                r["x_scaled"] = arrays[f"{n}/x_scaled"]
-                r["data"] = {k.split("/", 1)[1]: arrays[k] for k in arrays if k.startswith(f"{n}/") and k != f"{n}/x_scaled"}
+                for k in ("x_scaled", "lam_x", "lam_g"):  # IPOPT's scaled solution
+                    r[k] = arrays.pop(f"{n}#{k}")
+                r["data"] = {k.split("/", 1)[1]: arrays[k] for k in arrays if k.startswith(f"{n}/")}
         return recs
 
     def save(self, kind: str, i: int, recs: list[dict[str, Any]]) -> None:
         arrays, meta = {}, []
         for r in recs:
-            m = {k: v for k, v in r.items() if k not in ("x_scaled", "data")}
+            m = {k: v for k, v in r.items() if k not in ("x_scaled", "lam_x", "lam_g", "data")}
             meta.append(m)
             if r["status"] == "optimal":
-                arrays[f"{r['flat']}/x_scaled"] = r["x_scaled"]
+                for k in ("x_scaled", "lam_x", "lam_g"):
+                    arrays[f"{r['flat']}#{k}"] = r[k]
                 for k, v in r["data"].items():
                     arrays[f"{r['flat']}/{k}"] = np.asarray(v)
         head = {"schema": SCHEMA + " checkpoint", "records": meta}
@@ -760,7 +828,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             if got is not None:
                 retried[f] = got[0]
                 continue
-            starts = [(nb, recs[nb]["x_scaled"]) for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"]
+            starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
+                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"]
             retry_tasks.append((retry_point, (spec, f, starts), f))
         if retry_tasks:
             bar.set_description(f"{spec.name} (retrying {len(retry_tasks)})")
@@ -778,7 +847,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         # trust radius from re-solves at a few feasible points (deterministic choice)
         feas = [f for f in sorted(recs) if recs[f]["status"] == "optimal"]
         picks = sorted(set(feas[int(round(q))] for q in np.linspace(0, len(feas) - 1, min(spec.build.trust_points, len(feas))))) if feas else []
-        lin_tasks = [(linearisation_errors, (spec, f, recs[f]["data"], recs[f]["x_scaled"]), f) for f in picks]
+        lin_tasks = [(linearisation_errors, (spec, f, recs[f]["data"], recs[f]["x_scaled"], _LIN_PARAMS, None,
+                                             spec.build.trust_tolerance), f) for f in picks]
         lin: dict[int, Any] = {}
         _run(lin_tasks, ex, lambda f, r: lin.__setitem__(f, r))
     finally:
@@ -838,11 +908,12 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]], lin: Mapping[
                 arrays[k][idx] = r["data"][k]
         else:
             evidence[str(f)] = r.get("evidence")
-    # trust radius: smallest verified radius over the checked points
+    # table-wide summary of the per-point trust radius (the smallest over the feasible points)
+    feas = arrays["status"] == 0
     tr: dict[str, float] = {}
-    for f, errs in sorted(lin.items()):
-        for name, r in _trust_radius(errs, spec.build.trust_tolerance).items():
-            tr[name] = min(tr.get(name, math.inf), r)
+    if feas.any():
+        for name in _LIN_PARAMS:
+            tr[name] = float(np.min(arrays["trust_radius"][feas][:, lay.index(name)]))
     axes = {k: {"values": list(v), "unit": AXES[k][0], "display_unit": AXES[k][1], "display_factor": AXES[k][2]}
             for k, v in spec.grid.axes}
     sc = spec.scenario
@@ -865,6 +936,8 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]], lin: Mapping[
         "build_options": encode(spec.build),
         "evidence": evidence,
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
+        "trust_radius_rule": (f"per point: first-order prediction within {spec.build.trust_tolerance} of the variable "
+                              "scales (field trust_radius); this entry: the smallest over the feasible points"),
         "linearisation_check": {str(f): {k: [[dp, (e if math.isfinite(e) else None)] for dp, e in v] for k, v in errs.items()}
                                 for f, errs in sorted(lin.items())},
         "grid_points": spec.grid.size,

@@ -172,16 +172,15 @@ class PidSteeringController:
         if m.pose is not None and all(math.isfinite(v) for v in (m.pose.t, m.pose.x, m.pose.y, m.pose.heading)):
             eyaw = math.atan2(math.sin(m.pose.heading), math.cos(m.pose.heading))
             ey = m.pose.y
-            dt = m.pose.t - self._t if math.isfinite(self._t) else 0.0
-            if dt > 0:
-                self._iyaw += eyaw * dt
-                self._iy += ey * dt
-                dyaw, dy = (eyaw - self._eyaw) / dt, (ey - self._ey) / dt
-            else:
-                dyaw = dy = 0.0
-            if math.isfinite(self._t) and dt <= 0:
-                pass  # stale or repeated pose: keep the offsets
-            else:
+            first = not math.isfinite(self._t)
+            dt = 0.0 if first else m.pose.t - self._t
+            if first or dt > 0:  # a stale or repeated pose keeps the offsets
+                if dt > 0:
+                    self._iyaw += eyaw * dt
+                    self._iy += ey * dt
+                    dyaw, dy = (eyaw - self._eyaw) / dt, (ey - self._ey) / dt
+                else:
+                    dyaw = dy = 0.0
                 self._t, self._eyaw, self._ey = m.pose.t, eyaw, ey
                 self._mz = -float(np.clip(g.kp_yaw * eyaw + g.ki_yaw * self._iyaw + g.kd_yaw * dyaw, -g.max_mz, g.max_mz))
                 self._fy = -float(np.clip(g.kp_y * ey + g.ki_y * self._iy + g.kd_y * dy, -g.max_fy, g.max_fy))

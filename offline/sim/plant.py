@@ -4,8 +4,10 @@ State and unknowns
 ------------------
 The rover moves in the plane of the terrain (world frame ``X`` along the initial heading,
 ``Y`` to its left). Its pose ``(X, Y, psi)`` is integrated from the body velocities
-``(u, v, r)`` (forward, left, yaw rate). Each step solves, by Newton's method on one
-C-compiled casadi function, 15 unknowns:
+``(u, v, r)`` (forward, left, yaw rate). Each step solves 15 unknowns by Newton's method
+with backtracking; each iteration evaluates the eight wheel states (the four wheels and their
+zero-slip twins) in one call of a C-compiled casadi function (wrench and its exact 6 x 5
+Jacobian per state) and assembles the residual and its Jacobian by the chain rule:
 
 * ``u, v, r`` from the planar equations of motion of the rigid body, implicit Euler
   (``m (u - u_prev)/dt - m r v = sum F_x``, ``m (v - v_prev)/dt + m r u = sum F_y``,
@@ -23,9 +25,9 @@ C-compiled casadi function, 15 unknowns:
   ``M_y + T = 0`` (no wheel inertia).
 
 Per-wheel forces come from the full model of :func:`offline.physics.terramechanics.wrench_core`
-(not the tables). Wheel radius per wheel, the soil parameters, slope, cross-slope, tether
-force, mass and yaw inertia are *inputs* of the compiled function, so the discrepancy tool
-re-simulates with other truths without recompiling.
+(not the tables). Wheel radius per wheel and the soil parameters are *inputs* of the compiled
+function, and slope, cross-slope, tether force, mass and yaw inertia enter the assembly, so
+the discrepancy tool re-simulates with other truths (:data:`PARAM_NAMES`) without recompiling.
 
 Statics derived here (not :class:`offline.rover.statics.FourWheelRocker`, whose sign
 conventions are under revision): wheel ``i`` sits at ``(x_i, y_i) = (+-l_r/2, -+w_r/2)``

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from ..rover.scenario import Scenario
 
-__all__ = ["RtctlUnavailable", "rtctl_factory", "shipped_tables"]
+__all__ = ["RtctlUnavailable", "rtctl_factory", "rtctl_controller", "shipped_tables"]
 
 
 class RtctlUnavailable(RuntimeError):
@@ -36,10 +36,18 @@ def rtctl_factory(tables: str | None = None, config: str | None = None) -> Calla
     RtctlUnavailable
         No table index where expected, or rtctl's controller fails to load the tables.
     """
-    from dataclasses import replace
+    base = _load(tables, config)
+    return lambda sc: _at_speed(base, sc.speed)
 
+
+def rtctl_controller(tables: str | None, config: str | None, speed: float) -> Any:
+    """rtctl's Controller on the tables at a target ``speed`` (m/s); picklable through
+    ``functools.partial`` as the factory of :func:`rtctl.hil.run_hil`'s controller process."""
+    return _at_speed(_load(tables, config), speed)
+
+
+def _load(tables: str | None, config: str | None) -> Any:
     try:
-        from rtctl.controller import Controller
         from rtctl.hil import load_controller
     except ImportError as exc:
         raise RtctlUnavailable(f"rtctl's controller is not installed ({exc})") from None
@@ -49,16 +57,19 @@ def rtctl_factory(tables: str | None = None, config: str | None = None) -> Calla
         raise RtctlUnavailable(f"{index}: no table index; build tables with 'offnominal tables build <scenario> --out "
                                f"{path}' or pass --tables")
     try:
-        base: Any = load_controller(str(index), config)
+        return load_controller(str(index), config)
     except Exception as exc:  # the table reader's and controller's own errors say what is wrong
         raise RtctlUnavailable(f"rtctl could not load {index}: {exc}") from None
 
-    def make(sc: Scenario) -> Any:
-        cfg = base.config
-        if abs(cfg.drive.speed - sc.speed) > 1e-12:
-            cfg = replace(cfg, drive=replace(cfg.drive, speed=sc.speed))
-        ctl = Controller(base.tables, cfg)
-        ctl.name = "rtctl"
-        return ctl
 
-    return make
+def _at_speed(base: Any, speed: float) -> Any:
+    from dataclasses import replace
+
+    from rtctl.controller import Controller
+
+    cfg = base.config
+    if abs(cfg.drive.speed - speed) > 1e-12:
+        cfg = replace(cfg, drive=replace(cfg.drive, speed=speed))
+    ctl = Controller(base.tables, cfg)
+    ctl.name = "rtctl"
+    return ctl

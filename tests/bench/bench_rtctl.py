@@ -2,9 +2,9 @@
 
 Run on demand (one command each; results go to ``tests/bench/results_rtctl_<part>.md``)::
 
-    python tests/bench/bench_rtctl.py timing   [--steps 10000]     # step time, EKF/QP shares, phases
+    python tests/bench/bench_rtctl.py timing   [--steps 10000] [--table FILE]   # step time, shares, phases
     python tests/bench/bench_rtctl.py import                       # cold import time and RSS
-    python tests/bench/bench_rtctl.py soak     [--steps 1000000]   # fuzzed input, zero invalid commands
+    python tests/bench/bench_rtctl.py soak     [--steps 1000000] [--seed N]   # fuzzed input, zero invalid commands
 
 Tables: the shipped ones (``tables/index.json``) when present, otherwise the synthetic
 linear-rover tables of ``tests/rtctl_synthetic.py`` (the results say which).
@@ -42,8 +42,17 @@ from rtctl.runner import Runner  # noqa: E402
 INDEX = ROOT / "tables" / "index.json"
 
 
+TABLE_FILE: Path | None = None
+
+
 def load_tables() -> tuple[dict, str]:
-    """Shipped tables if any, else synthetic ones; and a note saying which."""
+    """``--table FILE`` if given, else the shipped tables if any, else synthetic ones; and a note
+    saying which."""
+    if TABLE_FILE is not None:
+        from rtctl.table import load_table
+
+        t = load_table(TABLE_FILE)
+        return {t.name: t}, f"{TABLE_FILE.name} (built by the NLP; {t!r})"
     if INDEX.is_file():
         from rtctl.table import load_index
 
@@ -73,8 +82,11 @@ def _header(title: str, note: str) -> str:
             f"2 cores shared with other jobs (run under `nice`).\n\nTables: {note}.\n\n")
 
 
+CLOCK = time.perf_counter
+
+
 class _Timer:
-    """Wraps a bound method and accumulates its wall time per tick."""
+    """Wraps a bound method and accumulates its time (on :data:`CLOCK`) per tick."""
 
     def __init__(self, obj: object, name: str) -> None:
         self.obj, self.name, self.fn = obj, name, getattr(obj, name)
@@ -82,11 +94,11 @@ class _Timer:
         setattr(obj, name, self)
 
     def __call__(self, *a, **k):
-        t = time.perf_counter()
+        t = CLOCK()
         try:
             return self.fn(*a, **k)
         finally:
-            self.acc += time.perf_counter() - t
+            self.acc += CLOCK() - t
 
     def take(self) -> float:
         v, self.acc = self.acc, 0.0
@@ -94,6 +106,24 @@ class _Timer:
 
 
 def timing(steps: int) -> str:
+    """Both clocks: wall time (what a deadline sees, including preemption by the other jobs on
+    this shared machine) and this thread's CPU time (the controller's own cost)."""
+    global CLOCK
+    parts = []
+    for name, clock in (("thread CPU time (`time.thread_time`): the controller's own cost", time.thread_time),
+                        ("wall time (`time.perf_counter`): includes preemption on the shared machine", time.perf_counter)):
+        CLOCK = clock
+        parts.append(f"## {name}\n\n" + _timing(steps))
+    tables, note = load_tables()
+    return (_header("rtctl step timing", note)
+            + f"Command: `nice python tests/bench/bench_rtctl.py timing --steps {steps}"
+            + (f" --table {TABLE_FILE.relative_to(ROOT) if TABLE_FILE.is_absolute() else TABLE_FILE}" if TABLE_FILE else "")
+            + f"`. {steps} closed-loop ticks per clock (kinematic truth, noisy sensors, a pose every 1 s arriving 0.4 s "
+            "late; with several tables the RR steering is declared stuck in alternate blocks of 2000 ticks, so the "
+            "table switches).\n\n" + "\n".join(parts))
+
+
+def _timing(steps: int) -> str:
     tables, note = load_tables()
     from test_rtctl_controller import ROCKER, RS, TRACK
 
@@ -101,7 +131,7 @@ def timing(steps: int) -> str:
     ctl = Controller(tables, cfg)
     rng = np.random.default_rng(1)
     ekf_p, ekf_u = _Timer(ctl.ekf, "predict"), _Timer(ctl.ekf, "update_pose")
-    runner = Runner(ctl, period=cfg.period)
+    runner = Runner(ctl, period=cfg.period, clock=CLOCK)
     x, y, psi, slip = 0.0, -0.05, math.radians(5.0), 0.2
     rim, steer = np.full(4, 0.03 / 0.9), np.zeros(4)
     pending = []
@@ -119,7 +149,7 @@ def timing(steps: int) -> str:
         if k % 5 == 0:
             pending.append((k + 2, Pose(t, x + rng.normal(0, 0.005), y + rng.normal(0, 0.005), psi + rng.normal(0, 0.005))))
         pose = next((p for due, p in pending if due == k), None)
-        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 else ()
+        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
         m = Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
                          r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
         for name, a in ctl._allocators.items():  # time every allocator's solve and prepare
@@ -139,11 +169,7 @@ def timing(steps: int) -> str:
         return f"| {name} | {np.median(v):.0f} | {np.percentile(v, 99):.0f} | {v.max():.0f} | {v.mean():.0f} |"
 
     s = runner.stats.summary()
-    out = _header("rtctl step timing", note)
-    out += (f"Command: `nice python tests/bench/bench_rtctl.py timing --steps {steps}`. {steps} closed-loop ticks "
-            f"(kinematic truth, noisy sensors, a pose every 1 s arriving 0.4 s late; RR steering declared stuck in "
-            f"alternate blocks of 2000 ticks, so the table switches).\n\n")
-    out += "| phase (us) | median | p99 | max | mean |\n|---|---|---|---|---|\n"
+    out = "| phase (us) | median | p99 | max | mean |\n|---|---|---|---|---|\n"
     out += "\n".join([line("whole step (feedback + preparation)", total), line("feedback: measurement -> command", a[:, 0]),
                       line("  of which EKF (predict + pose update)", a[:, 2]), line("  of which QP solve (OSQP, warm)", a[:, 3]),
                       line("preparation: table + QP matrices + refactorisation", a[:, 1]),
@@ -159,15 +185,28 @@ def timing(steps: int) -> str:
     return out
 
 
+# peak resident set of this process in kB (VmHWM: per address space, so a fresh exec starts
+# from zero, unlike ru_maxrss, which Linux carries over from the forking parent)
+_HWM = "[l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM')][0]"
+
+
 def import_cost() -> str:
-    tables_code = (f"from rtctl.table import load_index; idx = load_index({str(INDEX)!r}); "
-                   "tabs = {k: v.load() for k, v in idx.items()}; "
-                   "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
-                   "c = Controller(tabs, ControllerConfig()); ") if INDEX.is_file() else ""
-    code = ("import time, resource; t0 = time.perf_counter(); import rtctl.controller, rtctl.table, rtctl.runner; "
+    if TABLE_FILE is not None:
+        tables_code = (f"from rtctl.table import load_table; t = load_table({str(TABLE_FILE.resolve())!r}); tabs = {{t.name: t}}; "
+                       "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
+                       "c = Controller(tabs, ControllerConfig()); ")
+        what = f"{TABLE_FILE.name}"
+    elif INDEX.is_file():
+        tables_code = (f"from rtctl.controller import load_tables; tabs = load_tables({str(INDEX)!r}); "
+                       "from rtctl.controller import Controller; from rtctl.config import ControllerConfig; "
+                       "c = Controller(tabs, ControllerConfig()); ")
+        what = "the shipped tables"
+    else:
+        tables_code, what = "", "no tables (none shipped yet): import only"
+    code = ("import time; t0 = time.perf_counter(); import rtctl.controller, rtctl.table, rtctl.runner; "
             "t1 = time.perf_counter(); " + tables_code + "t2 = time.perf_counter(); "
-            "print(t1 - t0, t2 - t1, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
-    base = "import time, resource; print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+            "print(t1 - t0, t2 - t1, " + _HWM + ")")
+    base = "print(" + _HWM + ")"
     runs = []
     for _ in range(5):
         t = time.perf_counter()
@@ -177,9 +216,10 @@ def import_cost() -> str:
         runs.append((float(imp), float(load), int(rss), wall))
     rss0 = int(subprocess.run([sys.executable, "-c", base], capture_output=True, text=True, check=True).stdout)
     a = np.array(runs)
-    out = _header("rtctl cold import and memory", "shipped tables" if INDEX.is_file() else "none shipped yet: import only")
-    out += ("Command: `python tests/bench/bench_rtctl.py import`. Five fresh processes each import "
-            "`rtctl.controller`, `rtctl.table`, `rtctl.runner`" + (" and load every shipped table and build a Controller" if tables_code else "")
+    out = _header("rtctl cold import and memory", what)
+    cmd = "python tests/bench/bench_rtctl.py import" + (f" --table {TABLE_FILE}" if TABLE_FILE else "")
+    out += (f"Command: `{cmd}`. Five fresh processes each import "
+            "`rtctl.controller`, `rtctl.table`, `rtctl.runner`" + (f" and load {what} and build a Controller" if tables_code else "")
             + ".\n\n| quantity | median | max |\n|---|---|---|\n")
     out += f"| import time (s) | {np.median(a[:, 0]):.3f} | {a[:, 0].max():.3f} |\n"
     out += f"| table load + Controller (s) | {np.median(a[:, 1]):.3f} | {a[:, 1].max():.3f} |\n"
@@ -199,7 +239,7 @@ def soak(steps: int, seed: int = 2026) -> str:
 
     om = 0.03 / (RS * 0.9)
     bad_values = np.array([np.nan, np.inf, -np.inf, 1e9, -1e9, 1e300, 0.0, -5.0, 50.0])
-    kinds = ["ok"] * 12 + ["dup", "back", "nan_t", "gap", "big_gap", "missing_wheel"]
+    kinds = ["ok"] * 12 + ["dup", "back", "nan_t", "gap", "big_gap", "missing_wheel", "leap"]
     fkinds = ["steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit", "bogus"]
     invalid = 0
     modes = {"qp": 0, "fallback": 0, "hold": 0}
@@ -215,6 +255,8 @@ def soak(steps: int, seed: int = 2026) -> str:
             t, seq = t + 0.6, seq + 3
         elif kind == "big_gap":
             t, seq = t + 5.0, seq + 25
+        elif kind == "leap":  # the rover clock jumps by a day
+            t, seq = t + 86400.0, seq + 1
         tt = math.nan if kind == "nan_t" else t
         w = om + rng.normal(0, 0.05, 4)
         s = rng.normal(0, 0.1, 4)
@@ -246,7 +288,7 @@ def soak(steps: int, seed: int = 2026) -> str:
     wall = time.perf_counter() - t0
     counters = dict(d.counters)
     out = _header("rtctl soak: fuzzed measurements", note)
-    out += (f"Command: `nice python tests/bench/bench_rtctl.py soak --steps {steps}` (seed {seed}). "
+    out += (f"Command: `nice python tests/bench/bench_rtctl.py soak --steps {steps} --seed {seed}`. "
             f"{steps} ticks in {wall:.0f} s ({1e6 * wall / steps:.0f} us per tick).\n\n"
             f"**Invalid commands: {invalid}** (finite, within |rim speed| <= {a.max_rim_speed} m/s, >= {a.min_rim_speed}, "
             f"|steer| <= {math.degrees(a.max_steer):.0f} deg).\n\nModes: {json.dumps(modes)}.\n\n"
@@ -259,7 +301,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("part", choices=["timing", "import", "soak"])
     ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--table", type=Path, default=None, help="one table file to use instead of tables/index.json")
+    ap.add_argument("--seed", type=int, default=2026, help="soak: seed of the fuzzer")
     a = ap.parse_args()
+    global TABLE_FILE
+    TABLE_FILE = a.table
     global _COMMIT_AT_START
     _COMMIT_AT_START = _commit()  # the code measured is the code at the start
     if a.part == "timing":
@@ -267,8 +313,9 @@ def main() -> None:
     elif a.part == "import":
         text = import_cost()
     else:
-        text = soak(a.steps or 1_000_000)
-    path = HERE / f"results_rtctl_{a.part}.md"
+        text = soak(a.steps or 1_000_000, a.seed)
+    suffix = ('_' + a.table.stem if a.table else '') + (f"_seed{a.seed}" if a.part == "soak" else "")
+    path = HERE / f"results_rtctl_{a.part}{suffix}.md"
     write_text(path, text)
     print(text)
     print(f"written {path.relative_to(ROOT)}")

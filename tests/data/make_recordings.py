@@ -14,10 +14,22 @@ controllers (``--controller ff+optfb``). The metadata records the controller, th
 sha256 of every table file, so a replay knows what it must be built from.
 
 ``--import-tables FILE ...`` first copies built tables (``offnominal tables build``) into
-``tests/data/tables`` and writes their index. The builder at tables commit 22463f9 writes
-+-inf for unbounded constraint rows, which its own reader refuses; those are written as
-+-1e30 (the builder's ``BIG``, what later builder versions write) with a new content hash,
-as the controller helper did for ``tests/data/rtctl_nominal_small.npz``.
+``tests/data/tables`` and writes their index. A table from a builder older than tables commit
+57f65c1 lacks the per-point ``trust_radius`` field: it gets the table-wide header values at
+every point (none: 0) and a new content hash, as the controller helper did for
+``tests/data/rtctl_nominal_small.npz``. The committed tables were built at tables commit
+22463f9 with::
+
+    offnominal tables build offline/scenarios/nominal.toml --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5"
+    offnominal tables build offline/scenarios/rr_steer_stuck_50.toml \
+        --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5;steer_stuck=-60,-50,-40"
+
+and, at tables commits 22463f9 and 57f65c1 respectively::
+
+    offnominal tables build offline/scenarios/rr_speed_cap_half.toml \
+        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;rim_speed_cap_fraction=0.4,0.5,0.6"
+    offnominal tables build offline/scenarios/rr_trench_clean.toml \
+        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;trench_depth=20,25,30"
 
 Regenerate them when a change to the controller is *meant* to change its commands; the
 replay test fails on any change that is not.
@@ -27,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import sys
 from pathlib import Path
 
@@ -43,16 +56,22 @@ def import_tables(paths: list[str], folder: Path) -> list[Path]:
     import numpy as np
 
     from offline.files import write_bytes
-    from offline.rover.table_builder import BIG, write_index
+    from offline.rover.table_builder import write_index
     from rtctl import table as T
+    from rtctl.layout import NlpLayout
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     for src in map(Path, paths):
         header, arrays = T._read(src)
-        for key in ("lbg", "ubg", "lbx", "ubx"):
-            a = np.asarray(arrays[key], dtype=float)
-            arrays[key] = np.where(np.isposinf(a), BIG, np.where(np.isneginf(a), -BIG, a))
+        if "trust_radius" not in arrays:
+            # per-point trust radius (tables commit 57f65c1, same schema version): the table-wide
+            # header values at every point (none: 0), as for tests/data/rtctl_nominal_small.npz
+            names = NlpLayout.from_json(json.dumps(header["layout"])).parameter_names
+            tr = header.get("trust_radius") or {}
+            shape = np.asarray(arrays["status"]).shape
+            vec = np.array([float(tr.get(n) or 0.0) for n in names])
+            arrays["trust_radius"] = np.broadcast_to(vec, (*shape, vec.size)).copy()
         header = {k: v for k, v in header.items() if k != "content_hash"}
         target = folder / src.name
         write_bytes(target, T.table_bytes(header, arrays))
@@ -70,8 +89,9 @@ def main(argv: list[str] | None = None) -> int:
 
     tables = HERE / "tables"
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--controller", default="rtctl" if (tables / "index.json").exists() else "ff+optfb",
-                    help="rtctl (tables in tests/data/tables) or one of none, ff, fb, ff+fb, ff+optfb")
+    ap.add_argument("--controller", default=None,
+                    help="rtctl (tables in tests/data/tables; the default when they exist) or one of none, ff, fb, "
+                         "ff+fb, ff+optfb (the default otherwise)")
     ap.add_argument("--ticks", type=int, default=25, help="5 Hz ticks per recording (default: %(default)s)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--import-tables", nargs="+", metavar="TABLE", help="built table files to copy into tests/data/tables")
@@ -79,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.import_tables:
         for t in import_tables(args.import_tables, tables):
             print(f"imported {t.relative_to(HERE.parent.parent)}")
+    if args.controller is None:
+        args.controller = "rtctl" if (tables / "index.json").exists() else "ff+optfb"
     factory = rtctl_factory(str(tables)) if args.controller == "rtctl" else None
     for name in SCENARIOS:
         sc = scenario_by_name(name)

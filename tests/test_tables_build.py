@@ -1,0 +1,165 @@
+"""Table builder on the real NLP: QP data in physical units, sensitivities, Jacobians,
+byte-identical files (local, Dask, resumed), retries, family interpolation, CLI.
+
+Small grids (2-4 points) so the module runs in well under a minute; the shipped tables and
+their timings are built by ``tests/bench/bench_tables.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from offline.cli import main
+from offline.rover.table_builder import (BuildError, BuildOptions, build_table, parse_grid, retry_point, scenario_at,
+                                         table_spec)
+from offline.rover.table_verify import check_interpolation, check_jacobians, spec_from_table
+from rtctl.table import TableError, load_table
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = ROOT / "tables" / "scenarios" / "nominal.toml"
+STUCK = ROOT / "tables" / "scenarios" / "rr_steer_stuck.toml"
+FAST = BuildOptions(trust_points=1, trust_steps=(0.0625, 0.125))
+
+
+@pytest.fixture(scope="module")
+def nominal(tmp_path_factory):
+    out = tmp_path_factory.mktemp("nominal")
+    spec = table_spec(NOMINAL, grid="slope=0,5;cross_slope=0;speed=2,4", build=FAST)
+    path, summary = build_table(spec, out, jobs=1, progress=False, keep_partial=True)
+    return spec, path, summary
+
+
+def test_every_point_is_a_kkt_point_in_physical_units(nominal):
+    """grad f + J' lam_g + lam_x = 0 and g within its bounds: the stored Jacobians, gradient
+    and multipliers are consistent after the unscaling (a wrong scale factor breaks this)."""
+    _, path, summary = nominal
+    t = load_table(path)
+    assert summary["statuses"] == {"optimal": 4}
+    for idx in np.ndindex(*t.shape):
+        a = {k: t.arrays[k][idx] for k in ("grad_f", "jac_g_x", "lam_g", "lam_x", "g", "lbg", "ubg")}
+        terms = np.abs(np.concatenate([a["grad_f"], a["jac_g_x"].T @ a["lam_g"], a["lam_x"]]))
+        stat = a["grad_f"] + a["jac_g_x"].T @ a["lam_g"] + a["lam_x"]
+        assert np.max(np.abs(stat)) <= 1e-6 * np.max(terms), idx
+        scale = t.layout.constraint_scale
+        assert np.all(a["g"] >= a["lbg"] - 1e-7 * scale) and np.all(a["g"] <= a["ubg"] + 1e-7 * scale)
+        # the Lagrangian Hessian is symmetric and the KKT system was well posed
+        h = t.arrays["hess_lag"][idx]
+        np.testing.assert_allclose(h, h.T, atol=1e-9 * np.max(np.abs(h)))
+        assert t.arrays["kkt_cond"][idx] < 1e12
+
+
+def test_sensitivity_matches_central_difference_of_resolves(nominal):
+    """dx*/dp (KKT system) against (x*(p + d) - x*(p - d)) / 2d from full NLP re-solves."""
+    from offline.rover import primitives as P
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    flat = 1  # slope 0, speed 4 cm/s
+    idx = np.unravel_index(flat, t.shape)
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    xsc = t.layout.variable_scale
+    x0 = t.arrays["x"][idx] / xsc
+    for name, d in (("slope", 1e-4), ("speed", 1e-4), ("mz_offset", 1e-3)):
+        rp = P.solve_primitive(replace(sc, **{name: getattr(sc, name) + d}), spec.solver, x0=x0)
+        rm = P.solve_primitive(replace(sc, **{name: getattr(sc, name) - d}), spec.solver, x0=x0)
+        assert rp.ok and rm.ok
+        fd = (rp.x - rm.x) * xsc / (2 * d)
+        col = t.arrays["dx_dp"][idx][:, t.layout.index(name)]
+        err = np.max(np.abs(fd - col) * d / xsc)  # in variable scales, for the step d
+        assert err < 1e-6, (name, err)
+
+
+def test_stored_jacobians_match_central_differences(nominal):
+    spec, path, _ = nominal
+    t = load_table(path)
+    errs = check_jacobians(t, spec_from_table(t), [0, 3])
+    assert all(v < 1e-5 for v in errs.values()), errs
+
+
+def test_same_bytes_with_dask_cluster_and_after_resume(nominal, tmp_path):
+    from distributed import LocalCluster
+
+    spec, path, _ = nominal
+    ref = path.read_bytes()
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        p2, _ = build_table(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    assert p2.read_bytes() == ref
+    # resume: a finished build's checkpoints minus one chain, and no table: same bytes again
+    part = path.parent / f".{spec.name}.partial"
+    res = tmp_path / "resume"
+    shutil.copytree(part, res / part.name)
+    chains = sorted((res / part.name).glob("chain_*.npz"))
+    assert len(chains) == 2
+    chains[1].unlink()
+    p3, s3 = build_table(spec, res, progress=False)
+    assert p3.read_bytes() == ref and not (res / part.name).exists()
+
+
+def test_partial_build_of_another_spec_is_refused(nominal, tmp_path):
+    spec, path, _ = nominal
+    shutil.copytree(path.parent / f".{spec.name}.partial", tmp_path / f".{spec.name}.partial")
+    other = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=2,4", build=FAST)
+    with pytest.raises(BuildError, match="partial build of a different spec"):
+        build_table(other, tmp_path, progress=False)
+
+
+def test_retry_from_a_neighbour_and_not_found_without_one(nominal):
+    spec, path, _ = nominal
+    t = load_table(path)
+    nb = 0
+    idx = np.unravel_index(nb, t.shape)
+    xs = t.arrays["x"][idx] / t.layout.variable_scale
+    lx = t.arrays["lam_x"][idx] * t.layout.variable_scale
+    lg = t.arrays["lam_g"][idx] * t.layout.constraint_scale
+    rec = retry_point(spec, 2, [(nb, xs, lx, lg)])  # slope 5 deg from slope 0
+    assert rec["status"] == "optimal" and rec["retried_from"] == nb
+    np.testing.assert_allclose(rec["data"]["x"], t.arrays["x"][np.unravel_index(2, t.shape)],
+                               atol=1e-6 * np.max(t.layout.variable_scale))
+    none = retry_point(spec, 2, [])
+    assert none["status"] == "not_found" and "no solved neighbour" in none["evidence"]["retries"][0]
+
+
+def test_family_axis_interpolates_an_untabulated_stuck_angle(tmp_path):
+    spec = table_spec(STUCK, grid="slope=0;cross_slope=0;speed=3;steer_stuck=-30,-10", build=FAST)
+    assert spec.family == {"axis": "steer_stuck", "wheel": "RR", "kind": "stuck steering angle"}
+    path, summary = build_table(spec, tmp_path, progress=False)
+    assert summary["statuses"] == {"optimal": 2}
+    t = load_table(path)
+    tp = t.at(steer_stuck=math.radians(-20.0))
+    assert tp.x[t.layout.var("beta", "RR")] == pytest.approx(math.radians(-20.0), abs=1e-12)
+    res = check_interpolation(t, spec_from_table(t), [(0, 0, 0, 0)])
+    assert res["no_direct_solution"] == 0
+    # measured 2026-11-22: 0.058 of the variable scales at -20 deg between corners at -30 and -10 deg
+    assert res["x_error_per_scale"] < 0.1, res
+
+
+def test_grid_parsing_errors():
+    spec = table_spec(NOMINAL, build=FAST)
+    assert spec.grid.shape == (6, 3, 2)
+    g = parse_grid("slope=0:10:5;speed=3", spec.grid)
+    assert g.values("slope") == pytest.approx(tuple(math.radians(v) for v in (0, 5, 10)))
+    for bad, msg in (("slop=0:5:5", "unknown axis"), ("steer_stuck=0", "has no 'steer_stuck' axis"),
+                     ("slope=5,0", "strictly increasing"), ("slope=0:5:0", "start:stop:step")):
+        with pytest.raises(BuildError, match=msg):
+            parse_grid(bad, spec.grid)
+
+
+def test_cli_info_and_refusal_of_a_corrupted_table(nominal, tmp_path, capsys):
+    _, path, _ = nominal
+    assert main(["tables", "info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "content hash" in out and "optimal 4" in out and "calibrated_grousered.toml" in out
+    bad = tmp_path / "bad.npz"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    assert main(["tables", "info", str(bad)]) == 2
+    assert "corrupted" in capsys.readouterr().err
+    with pytest.raises(TableError):
+        load_table(bad)

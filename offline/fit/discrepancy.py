@@ -455,6 +455,7 @@ def diagnose(
     n_refit: int = 4,
     max_terms: int = 2,
     max_separations: int = 3,
+    max_tries: int = 2,
     equal_fraction: float = 0.25,
     max_nfev: int = 25,
     seed: int = 0,
@@ -489,6 +490,9 @@ def diagnose(
         with a full refit per fold.
     max_terms : int
         At most this many candidates combined.
+    max_tries : int
+        The forward step tries at most this many significant candidates (by their own held-out
+        improvement) on top of the first explanation.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
     equal_fraction : float
@@ -525,12 +529,14 @@ def diagnose(
             f"load, median load {float(np.median(getattr(obs, 'load', np.nan))):.4g}). No verdict is possible: check the "
             "units of the force columns (N expected; mN or kN give loads 1000x off) and that the parameter file "
             "is for this wheel and soil.")
-    scale = dispersion(obs, pred0)
+    # an adapter whose noise estimate already excludes slow structure (a drive) gives its own dispersion
+    scale = obs.dispersion(pred0) if hasattr(obs, "dispersion") else dispersion(obs, pred0)
     res0 = {ch: obs.measured[ch] - pred0[ch] for ch in chans}
     say("locating regions")
     regions: list[Region] = []
     for ch in chans:
-        regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+        regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng,
+                          **_locate_kw(obs))
     folds = obs.folds(k_folds)
     z0 = normalised(obs, pred0, scale)
     base_rows = (z0**2).sum(axis=1)
@@ -626,7 +632,7 @@ def diagnose(
             first = [by_key[k][0] for k in primary.keys]
             fam = {c.family or c.key for c in first}
             tries = [s for s in sig if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
-                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:2]
+                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:max_tries]
             best2 = None
             for s2 in tries:
                 c2 = by_key[s2.keys[0]][0]
@@ -660,7 +666,7 @@ def diagnose(
     if chosen is not None:
         for ch in chans:
             regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
-                                    obs.units[ch], rng)
+                                    obs.units[ch], rng, **_locate_kw(obs))
     failed1 = int((~ok1).sum())
     misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha) if chosen is not None else []
     if chosen is None:
@@ -709,13 +715,20 @@ def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: 
     return out
 
 
+def _locate_kw(obs: Any) -> dict[str, Any]:
+    """Per-channel level and Monte-Carlo size of the region test: an observations adapter with
+    many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
+    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400)."""
+    return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+
+
 def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
     """Significant regions of the residuals of the model with ``ext``."""
     pred, ok = model.predict(obs, ext)
     out: list[Region] = []
     for ch in obs.channels:
         r = obs.measured[ch] - pred[ch]
-        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng)
+        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs))
     if not ok.all():
         out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
     return out

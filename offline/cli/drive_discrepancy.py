@@ -1,0 +1,106 @@
+"""Discrepancy on drive recordings: the recording path of ``offnominal discrepancy`` (issue 14).
+
+``offnominal discrepancy --recording DRIVE.mcap [more.mcap | folder ...]`` runs the same engine
+as on single-wheel trials (:func:`offline.fit.drive_discrepancy.diagnose_drives`) and writes the
+same report folder (report.md, PNGs, verdict.json) plus the drive plots and the accepted terms
+as a simulator truth file. Until the hook below is added to :mod:`offline.cli.discrepancy`,
+the same options are available as ``offnominal discrepancy-drive``.
+
+Hook (two lines in :mod:`offline.cli.discrepancy`)::
+
+    # in register(), after the existing arguments:
+    drive_discrepancy.add_recording_arguments(d)
+    # first line of cmd_discrepancy():
+    if args.recording: return drive_discrepancy.run_recording(args)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from .common import fail, load_scenario_or_fail
+
+__all__ = ["register", "add_recording_arguments", "run_recording"]
+
+DEFAULT_DRIVE_SCENARIO = "nominal"
+
+
+def add_recording_arguments(d: argparse.ArgumentParser) -> None:
+    """The options of the recording path (they share ``--params``, ``--out``, ``--seed``, ``--quiet``
+    with the trials path)."""
+    g = d.add_argument_group("drive recordings (issue 14)")
+    g.add_argument("--recording", nargs="+", metavar="MCAP_OR_FOLDER",
+                   help="recorded drive(s) (MCAP from 'offnominal drive' or a rover), or folders of them; "
+                        "switches the command to drive recordings")
+    g.add_argument("--scenario", default=DEFAULT_DRIVE_SCENARIO,
+                   help="believed scenario (rover, parameter set, declared failures): TOML or shipped name "
+                        "(default: %(default)s)")
+    g.add_argument("--believed-truth", help="believed world as a truth TOML (slope, wheels, tether) if not flat and nominal")
+    g.add_argument("--segment", type=int, default=5, help="ticks per row (time segment), default %(default)s")
+
+
+def run_recording(args: argparse.Namespace) -> int:
+    """Diagnose drive recordings and write the report folder."""
+    from dataclasses import replace
+
+    from ..files import OutputError, check_output_dir
+    from ..fit.drive_candidates import DriveCandidateError
+    from ..fit.drive_discrepancy import DriveDataError, diagnose_drives, write_drive_report
+    from ..physics.params import ParameterError, load_toml
+    from ..sim.truth import Truth, TruthError, load_truth
+
+    t0 = time.perf_counter()
+    try:
+        check_output_dir(args.out, inputs=[*args.recording, args.params, args.believed_truth],
+                         names=["report.md", "verdict.json", "accepted_truth.toml", "recalibrated.toml"])
+    except OutputError as exc:
+        return fail(str(exc))
+    sc = load_scenario_or_fail(args.scenario)
+    if sc is None:
+        return 2
+    params_file = ""
+    if args.params:
+        try:
+            loaded = load_toml(args.params)
+        except (ParameterError, OSError) as exc:
+            return fail(f"{args.params}: {exc}")
+        if "parameter_set" not in loaded:
+            return fail(f"{args.params}: no [soil], [wheel] and [tuning] sections (a full parameter file is needed)")
+        sc = replace(sc, params=loaded["parameter_set"])
+        params_file = Path(args.params).name
+    try:
+        truth = (load_truth(args.believed_truth, sc.rover, sc.params) if args.believed_truth
+                 else Truth.nominal(sc.params, sc.rover))
+    except TruthError as exc:
+        return fail(str(exc))
+    if args.segment < 2:
+        return fail(f"--segment {args.segment}: at least 2 ticks per segment")
+    say = None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True))
+    try:
+        v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say)
+    except (DriveDataError, DriveCandidateError) as exc:
+        return fail(str(exc))
+    except ValueError as exc:  # the engine's DiscrepancyError (too few rows, model fails on most rows)
+        return fail(str(exc))
+    out = write_drive_report(v, args.out, params_file or getattr(sc.params, "name", ""))
+    print(v.summary())
+    print(f"wrote {out / 'report.md'}, {out / 'verdict.json'} and plots  ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add ``discrepancy-drive`` (the recording path of ``discrepancy`` until the hook is added)."""
+    d = sub.add_parser("discrepancy-drive",
+                       help="discrepancy on drive recordings: locate, name the missing physics, show the fit improve",
+                       description="Re-simulate recorded drives with the recorded commands, locate where and in which "
+                                   "channel they depart from the believed simulator, fit the rover-level candidate "
+                                   "library and write a report folder (report.md, PNGs, verdict.json, accepted_truth.toml).")
+    d.add_argument("--params", help="believed parameter TOML (default: the scenario's parameter set)")
+    d.add_argument("--out", default="out/discrepancy", help="report folder (default: %(default)s)")
+    d.add_argument("--seed", type=int, default=0, help="seed of the randomisation tests")
+    d.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_recording_arguments(d)
+    d.set_defaults(func=lambda a: run_recording(a) if a.recording else fail("give --recording DRIVE.mcap (or a folder)"))

@@ -1,0 +1,261 @@
+"""Rover-level candidate physics for the discrepancy engine (issue 14), with physical parameters and bounds.
+
+The engine (:func:`offline.fit.discrepancy.diagnose`) fits :class:`~offline.fit.candidates.Candidate`
+objects whose ``build(theta, params)`` returns an :class:`~offline.fit.candidates.Extension`.
+The rover-level terms travel in that same extension type: soil changes in ``Extension.soil``
+(the fields of :class:`~offline.physics.params.Soil`, SI) and every other rover term in
+``Extension.options`` under the keys of :data:`ROVER_KEYS` (namespace ``"rover."``), so two
+candidates merge with :meth:`Extension.merge` as single-wheel ones do, and the single-wheel
+model never sees them. :func:`rover_terms` reads them back (unknown ``rover.`` keys are an error).
+
+Each term maps onto an input the simulator already takes, so an accepted term *is* a truth
+file (:func:`truth_from_terms`, :func:`write_truth_toml`) that
+:func:`offline.sim.truth.load_truth` reads and the table builder can take as its scenario's
+slope / cross-slope / soil:
+
+===================  ===================================================  =========================
+candidate            physics                                              simulator input
+===================  ===================================================  =========================
+terrain_slope        terrain inclined (along and across the pose frame)   ``slope``, ``cross_slope``
+imu_tilt             IMU mounted tilted (readings only, no force)         sensor ``tilt_offset``
+wheel_radius_<W>     one wheel worn / mis-measured                        ``wheels.<W>.radius_mm``
+steer_offset_<W>     one wheel points elsewhere than its encoder says     ``wheels.<W>.steer_offset_deg``
+tether               tether / drawbar pull along the rover's -x           ``tether_force_N``
+servo_lag            wheel-speed servo slower than believed               actuator ``wheel_lag``
+torque_saturation    drive torque saturates lower than believed           actuator ``torque_limit``
+gyro_scale           gyro scale-factor error (readings only)              (measurement chain)
+soil_stiffness       soil stiffer / softer than believed (k)              ``soil_stiffness_scale``
+wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
+recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
+===================  ===================================================  =========================
+
+Not in the library (the planar plant has no such input): hub or body contact with the soil,
+sinkage beyond the soil model (an "extra sinkage" acts here like a softer soil).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..files import write_text
+from ..physics.params import ParameterSet
+from ..sim.actuators import ActuatorConfig
+from ..sim.truth import WHEELS, Truth
+from .candidates import Candidate, Extension
+
+__all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "RoverTerms", "rover_terms", "recalibration_candidate",
+           "truth_from_terms", "write_truth_toml", "DriveCandidateError"]
+
+ROVER_KEYS = (
+    "rover.slope", "rover.cross_slope", "rover.imu_roll", "rover.imu_pitch", "rover.tether", "rover.wheel_lag",
+    "rover.torque_limit", "rover.gyro_scale", "rover.radius_scale_all",
+    *(f"rover.radius_scale.{w}" for w in WHEELS), *(f"rover.steer_offset.{w}" for w in WHEELS),
+)
+"""Keys of ``Extension.options`` that carry rover-level terms (SI: rad, N, s, N m, relative)."""
+
+MEASUREMENT_KEYS = ("rover.imu_roll", "rover.imu_pitch", "rover.gyro_scale")
+"""Terms acting on the readings only (no re-simulation needed)."""
+
+
+class DriveCandidateError(ValueError):
+    """An extension carries an unknown rover term or a value the simulator cannot take."""
+
+
+class RoverTerms(dict):  # type: ignore[type-arg]
+    """Rover terms of one extension: ``{key: value}`` over :data:`ROVER_KEYS` (absent = no change)."""
+
+    def physics_key(self) -> tuple[tuple[str, float], ...]:
+        """The terms that need a re-simulation (all but :data:`MEASUREMENT_KEYS`), sorted."""
+        return tuple(sorted((k, float(v)) for k, v in self.items() if k not in MEASUREMENT_KEYS))
+
+
+def rover_terms(ext: Extension | None) -> RoverTerms:
+    """The rover terms an extension carries (``Extension.options`` keys starting ``rover.``).
+
+    Raises
+    ------
+    DriveCandidateError
+        An unknown ``rover.`` key, a non-finite value, or model options the rover plant does
+        not take (the drive model re-simulates the plant; wheel-level options do not apply).
+    """
+    out = RoverTerms()
+    if ext is None:
+        return out
+    for k, v in ext.options.items():
+        if not k.startswith("rover."):
+            raise DriveCandidateError(f"extension option {k!r} is not a rover term; the drive model takes only "
+                                      f"{list(ROVER_KEYS)} and soil fields")
+        if k not in ROVER_KEYS:
+            raise DriveCandidateError(f"unknown rover term {k!r}; known: {list(ROVER_KEYS)}")
+        if not math.isfinite(float(v)):
+            raise DriveCandidateError(f"rover term {k} = {v!r} is not finite")
+        out[k] = float(v)
+    for name in ("wheel", "tuning"):
+        if getattr(ext, name):
+            raise DriveCandidateError(f"extension changes {name} fields {dict(getattr(ext, name))}; the drive model "
+                                      "takes per-wheel radii as rover terms and no contact-tuning changes")
+    return out
+
+
+def _opt(**kw: float) -> Extension:
+    return Extension(options={f"rover.{k.replace('__', '.')}": float(v) for k, v in kw.items()})
+
+
+_D = math.pi / 180.0
+
+
+def _wheel_candidates() -> list[Candidate]:
+    out = []
+    for w in WHEELS:
+        out.append(Candidate(
+            f"wheel_radius_{w}", f"the {w} wheel's radius differs from the believed one (wear, a flat, mis-measured)",
+            (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
+            (lambda t, p, w=w: Extension(options={f"rover.radius_scale.{w}": 1.0 + float(t[0])})),
+            (f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body"), family=f"radius_{w}"))
+    for w in WHEELS:
+        out.append(Candidate(
+            f"steer_offset_{w}", f"the {w} wheel points elsewhere than its steering encoder says (true = encoder + offset)",
+            (("offset", "deg", -10.0, 10.0, 0.0, _D),),
+            (lambda t, p, w=w: Extension(options={f"rover.steer_offset.{w}": float(t[0])})),
+            (f"torque_{w}", "yaw_rate", "dheading", "dy_body"), family=f"steer_{w}"))
+    return out
+
+
+DRIVE_CANDIDATES: tuple[Candidate, ...] = (
+    Candidate("terrain_slope", "the terrain is inclined: slope along and across the pose frame's x axis "
+              "(gravity pulls the rover and tilts the IMU; the tilt turns with the heading)",
+              (("slope", "deg", -15.0, 15.0, 0.0, _D), ("cross_slope", "deg", -15.0, 15.0, 0.0, _D)),
+              lambda t, p: _opt(slope=t[0], cross_slope=t[1]),
+              ("roll", "pitch", "torque_FR", "torque_FL", "torque_RR", "torque_RL", "dy_body"), family="slope"),
+    Candidate("imu_tilt", "the IMU is mounted tilted: roll and pitch readings offset, no force on the rover",
+              (("roll", "deg", -15.0, 15.0, 0.0, _D), ("pitch", "deg", -15.0, 15.0, 0.0, _D)),
+              lambda t, p: _opt(imu_roll=t[0], imu_pitch=t[1]), ("roll", "pitch"), family="imu"),
+    *_wheel_candidates(),
+    Candidate("tether", "a tether or drawbar pulls the rover backward along its own -x axis (positive: pulls back)",
+              (("force", "N", -10.0, 10.0, 0.0, 1.0),),
+              lambda t, p: _opt(tether=t[0]), ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body")),
+    Candidate("servo_lag", "the wheel-speed servos lag more than believed (first-order time constant)",
+              (("time_constant", "s", 0.0, 2.0, 0.3, 1.0),),
+              lambda t, p: _opt(wheel_lag=t[0]), ("omega_FR", "omega_FL", "omega_RR", "omega_RL"),
+              starts=((1.0,),)),
+    Candidate("torque_saturation", "the drive motors saturate at a lower torque than believed (the wheel slows)",
+              (("torque_limit", "N m", 0.02, 1.5, 0.5, 1.0),),
+              lambda t, p: _opt(torque_limit=t[0]), ("omega_FR", "omega_FL", "omega_RR", "omega_RL"),
+              starts=((0.1,), (0.2,)), threshold=True),
+    Candidate("gyro_scale", "gyro scale-factor error: the yaw rate reads (1 + g) times the true rate",
+              (("scale_error", "%", -30.0, 30.0, 0.0, 1e-2),),
+              lambda t, p: _opt(gyro_scale=t[0]), ("yaw_rate",)),
+    # --- parameters the believed model already has ("parameters off")
+    Candidate("soil_stiffness", "the soil is stiffer or softer than believed: Bekker modulus k (eq. 5.6) scaled",
+              (("k_scale", "-", 0.2, 5.0, 1.0, 1.0),),
+              lambda t, p: Extension(soil={"k": p.soil.k * float(t[0])}),
+              ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), kind="parameters", family="soil"),
+    Candidate("wheel_radius_all", "every wheel's radius is off by the same fraction (the believed wheel radius)",
+              (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
+              lambda t, p: _opt(radius_scale_all=1.0 + float(t[0])), kind="parameters", family="radius_all"),
+)
+"""The rover-level library (module table)."""
+
+
+def recalibration_candidate(params: ParameterSet) -> Candidate:
+    """The soil recalibration: k (as a scale), n0, c, phi and K refitted together, starting at the
+    believed values ("parameters off" when it explains the drive as well as any term)."""
+    s = params.soil
+    specs = (("k_scale", "-", 0.2, 5.0, 1.0, 1.0), ("n0", "-", 0.3, 2.0, float(np.clip(s.n0, 0.3, 2.0)), 1.0),
+             ("c", "kPa", 0.0, 10.0, float(np.clip(s.cohesion / 1e3, 0.0, 10.0)), 1e3),
+             ("phi", "deg", 15.0, 50.0, float(np.clip(math.degrees(s.friction_angle), 15.0, 50.0)), _D),
+             ("K", "mm", 1.0, 100.0, float(np.clip(s.shear_modulus * 1e3, 1.0, 100.0)), 1e-3))
+
+    def build(t: NDArray[np.float64], p: ParameterSet) -> Extension:
+        return Extension(soil={"k": p.soil.k * float(t[0]), "n0": float(t[1]), "cohesion": float(t[2]),
+                               "friction_angle": float(t[3]), "shear_modulus": float(t[4])})
+
+    return Candidate("recalibration", "the believed soil parameters are off: k, n0, c, phi, K refitted "
+                     "(eqs. 5.6, 5.10)", specs, build,
+                     ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body", "dy_body"),
+                     kind="parameters", family="recalibration")
+
+
+def truth_from_terms(params: ParameterSet, base: Truth, ext: Extension) -> tuple[Truth, ActuatorConfig | None, dict[str, float]]:
+    """The simulator's view of an extension: a truth, actuator overrides and measurement terms.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        The believed parameter set (soil changes of ``ext`` are applied to it).
+    base : Truth
+        The believed world (flat, nominal wheels) the terms are added to.
+    ext : Extension
+
+    Returns
+    -------
+    truth : Truth
+    actuator_changes : dict or None
+        ``{"wheel_lag": s, "torque_limit": N m}`` entries to replace in the believed
+        :class:`~offline.sim.actuators.ActuatorConfig` (None when unchanged).
+    measurement : dict
+        ``imu_roll``, ``imu_pitch`` (rad), ``gyro_scale`` (relative).
+    """
+    t = rover_terms(ext)
+    ps = params if not ext.soil else replace(params, soil=replace(params.soil, **ext.soil))
+    r_all = t.get("rover.radius_scale_all", 1.0)
+    radius = tuple(base.wheel_radius[i] * r_all * t.get(f"rover.radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS))
+    offset = tuple(base.steer_offset[i] + t.get(f"rover.steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS))
+    if min(radius) <= ps.wheel.grouser_height:
+        raise DriveCandidateError(f"wheel radii {radius} m do not exceed the grouser height")
+    truth = replace(base, params=ps, wheel_radius=radius, steer_offset=offset,
+                    slope=base.slope + t.get("rover.slope", 0.0), cross_slope=base.cross_slope + t.get("rover.cross_slope", 0.0),
+                    tether_force=base.tether_force + t.get("rover.tether", 0.0))
+    act = {k: t[f"rover.{k}"] for k in ("wheel_lag", "torque_limit") if f"rover.{k}" in t}
+    meas = {"imu_roll": t.get("rover.imu_roll", 0.0), "imu_pitch": t.get("rover.imu_pitch", 0.0),
+            "gyro_scale": t.get("rover.gyro_scale", 0.0)}
+    return truth, (act or None), meas  # type: ignore[return-value]
+
+
+def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
+                     actuator: Mapping[str, float] | None, header: Mapping[str, Any]) -> Path:
+    """Write the accepted terms as a truth file :func:`offline.sim.truth.load_truth` reads.
+
+    Only what differs from the believed world is written. Terms the truth format has no key
+    for (IMU tilt, gyro scale, servo lag, torque limit) go to a ``[sensors_and_actuators]``
+    comment block with their values, since they belong to the sensor and actuator
+    configuration, not to the world. ``header`` lines become comments (fitted values,
+    standard errors, held-out improvement).
+    """
+    lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
+             "# (offline.sim.truth.load_truth reads it; the simulator and the table builder take it)"]
+    lines += [f"# {k}: {v}" for k, v in header.items()]
+    lines += ["", "[truth]", f'params = "{params_file}"']
+    kb, kt = believed.params.soil.k, truth.params.soil.k
+    if abs(kt / kb - 1.0) > 1e-12:
+        lines.append(f"soil_stiffness_scale = {kt / kb:.6g}")
+    for key, a, b in (("slope_deg", truth.slope, believed.slope), ("cross_slope_deg", truth.cross_slope, believed.cross_slope)):
+        if a != b:
+            lines.append(f"{key} = {math.degrees(a):.6g}")
+    if truth.tether_force != believed.tether_force:
+        lines.append(f"tether_force_N = {truth.tether_force:.6g}")
+    other = {f: (getattr(truth.params.soil, f), getattr(believed.params.soil, f))
+             for f in ("n0", "cohesion", "friction_angle", "shear_modulus") if getattr(truth.params.soil, f) != getattr(believed.params.soil, f)}
+    if other:
+        lines.append("# soil fields refitted (not keys of the truth format; put them in the parameter file's [soil]):")
+        lines += [f"#   {f} = {a:.6g} (believed {b:.6g}, SI)" for f, (a, b) in other.items()]
+    for i, w in enumerate(WHEELS):
+        wl = []
+        if truth.wheel_radius[i] != believed.wheel_radius[i]:
+            wl.append(f"radius_mm = {1e3 * truth.wheel_radius[i]:.6g}")
+        if truth.steer_offset[i] != believed.steer_offset[i]:
+            wl.append(f"steer_offset_deg = {math.degrees(truth.steer_offset[i]):.6g}")
+        if wl:
+            lines += ["", f"[wheels.{w}]", *wl]
+    extra = {k: v for k, v in measurement.items() if v}
+    extra.update(actuator or {})
+    if extra:
+        lines += ["", "# sensors and actuators (SensorConfig / ActuatorConfig, SI), not part of the truth format:"]
+        lines += [f"#   {k} = {v:.6g}" for k, v in extra.items()]
+    return write_text(path, "\n".join(lines) + "\n")

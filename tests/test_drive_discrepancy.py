@@ -118,7 +118,7 @@ def test_bad_recordings_are_named(tmp_path):
     (tmp_path / "empty_dir").mkdir()
     with pytest.raises(DriveDataError, match="no .mcap"):
         load_drives([tmp_path / "empty_dir"])
-    rc, _out, err = run(["discrepancy-drive", "--recording", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o")])
+    rc, _out, err = run(["discrepancy", "--recording", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o")])
     assert rc == 2 and "no such recording" in err
 
 

@@ -1,15 +1,15 @@
 """Command line: ``offnominal <command>``.
 
-One module per subject registers its commands (:mod:`.fit`, :mod:`.discrepancy`, :mod:`.rover`,
-:mod:`.physics`);
+One module per subject registers its commands (:mod:`.fit`, :mod:`.discrepancy` (trials and drive
+recordings), :mod:`.rover`, :mod:`.physics`, :mod:`.tables`, :mod:`.sim`);
 this module only builds the parser and dispatches.
 
 Commands
 --------
 validate    Table 5.5 / Fig. 5.6 validation on single-wheel trials (the default main job).
 calibrate   Fit the model to single-wheel trials and write a TOML parameter file.
-discrepancy Locate model-data mismatch, name the missing physics, show the fit improve.
-discrepancy-drive  The same on drive recordings (MCAP), until folded into 'discrepancy --recording'.
+discrepancy Locate model-data mismatch, name the missing physics, show the fit improve
+            (single-wheel trials, or drive recordings with --recording).
 primitive   Solve a driving scenario (failures, trenching, slope) for a steady primitive.
 slope-sweep Fig. 7.12: slip and power against slope.
 envelope    Steepest feasible slope and the slope where slip crosses a limit.
@@ -27,12 +27,12 @@ import argparse
 import sys
 from typing import Sequence
 
-from . import discrepancy, drive_discrepancy, fit, physics, rover, sim, tables
+from . import discrepancy, fit, physics, rover, sim, tables
 from .common import DEFAULT_PARAMS
 
 __all__ = ["main", "build_parser", "DEFAULT_PARAMS"]
 
-COMMAND_MODULES = (fit, discrepancy, drive_discrepancy, rover, physics, tables, sim)
+COMMAND_MODULES = (fit, discrepancy, rover, physics, tables, sim)
 """Modules whose ``register(sub)`` adds commands, in help order."""
 
 

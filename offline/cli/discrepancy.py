@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from . import drive_discrepancy
 from .common import DEFAULT_PARAMS, fail, parameter_set_or_fail, shipped, trials_or_fail
 
 __all__ = ["register"]
@@ -18,7 +19,10 @@ REPORT_FILES = ("report.md", "verdict.json", "residual_map.png", "measured_vs_pr
 
 
 def cmd_discrepancy(args: argparse.Namespace) -> int:
-    """Run :func:`offline.fit.discrepancy.diagnose` on a trials file and write the report folder."""
+    """Run :func:`offline.fit.discrepancy.diagnose` on a trials file (or, with ``--recording``, on
+    drive recordings: :func:`offline.cli.drive_discrepancy.run_recording`) and write the report folder."""
+    if args.recording:
+        return drive_discrepancy.run_recording(args)
     from tqdm import tqdm
 
     from ..files import OutputError, check_output_dir
@@ -85,4 +89,5 @@ def register(sub: Any) -> None:
     d.add_argument("--bootstrap", type=int, default=2000, help="null draws of the bootstrap (default: %(default)s)")
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the region test")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
+    drive_discrepancy.add_recording_arguments(d)
     d.set_defaults(func=cmd_discrepancy)

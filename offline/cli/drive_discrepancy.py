@@ -3,15 +3,8 @@
 ``offnominal discrepancy --recording DRIVE.mcap [more.mcap | folder ...]`` runs the same engine
 as on single-wheel trials (:func:`offline.fit.drive_discrepancy.diagnose_drives`) and writes the
 same report folder (report.md, PNGs, verdict.json) plus the drive plots and the accepted terms
-as a simulator truth file. Until the hook below is added to :mod:`offline.cli.discrepancy`,
-the same options are available as ``offnominal discrepancy-drive``.
-
-Hook (two lines in :mod:`offline.cli.discrepancy`)::
-
-    # in register(), after the existing arguments:
-    drive_discrepancy.add_recording_arguments(d)
-    # first line of cmd_discrepancy():
-    if args.recording: return drive_discrepancy.run_recording(args)
+as a simulator truth file. :mod:`offline.cli.discrepancy` adds these options to its parser and
+hands over to :func:`run_recording` when ``--recording`` is given.
 """
 
 from __future__ import annotations
@@ -19,11 +12,10 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
 
 from .common import fail, load_scenario_or_fail
 
-__all__ = ["register", "add_recording_arguments", "run_recording"]
+__all__ = ["add_recording_arguments", "run_recording"]
 
 DEFAULT_DRIVE_SCENARIO = "nominal"
 
@@ -90,17 +82,3 @@ def run_recording(args: argparse.Namespace) -> int:
     print(f"wrote {out / 'report.md'}, {out / 'verdict.json'} and plots  ({time.perf_counter() - t0:.1f} s)")
     return 0
 
-
-def register(sub: Any) -> None:
-    """Add ``discrepancy-drive`` (the recording path of ``discrepancy`` until the hook is added)."""
-    d = sub.add_parser("discrepancy-drive",
-                       help="discrepancy on drive recordings: locate, name the missing physics, show the fit improve",
-                       description="Re-simulate recorded drives with the recorded commands, locate where and in which "
-                                   "channel they depart from the believed simulator, fit the rover-level candidate "
-                                   "library and write a report folder (report.md, PNGs, verdict.json, accepted_truth.toml).")
-    d.add_argument("--params", help="believed parameter TOML (default: the scenario's parameter set)")
-    d.add_argument("--out", default="out/discrepancy", help="report folder (default: %(default)s)")
-    d.add_argument("--seed", type=int, default=0, help="seed of the randomisation tests")
-    d.add_argument("--quiet", action="store_true", help="no progress lines")
-    add_recording_arguments(d)
-    d.set_defaults(func=lambda a: run_recording(a) if a.recording else fail("give --recording DRIVE.mcap (or a folder)"))

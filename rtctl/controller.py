@@ -396,8 +396,8 @@ class Controller:
         verdict = ""
         pose = getattr(m, "pose", None)
         if pose is not None:
-            if not self._pose_seen and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6
-                                           for k in ("t", "x", "y", "heading")) \
+            if not self._pose_seen and _finite(getattr(pose, "t", math.nan)) \
+                    and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6 for k in ("x", "y", "heading")) \
                     and t - cfg.period <= pose.t <= t:
                 self.ekf.initialise_pose(pose)
                 verdict = "initial"

@@ -202,3 +202,17 @@ def replace_rover(**kw):
     from dataclasses import replace as _replace
 
     return _replace(ROVER_MINI_T72, name="big_rover", source="test", **kw)
+
+
+@pytest.mark.parametrize("key", ["nominal_flat_mean_slip", "stuck50_flat_mean_slip", "speedcap_flat_mean_slip",
+                                 "speedcap_flat_max_slip", "trench_depth"])
+def test_chapter7_reference_numbers(key):
+    """The dissertation's chapter-7 numbers (one table, offline.rover.reference): ours within the
+    stated tolerance, or inside the stated band with the reason it is not matched."""
+    from offline.rover.reference import CHAPTER7, QUICK, compare, compute
+
+    assert key in QUICK
+    ref = next(r for r in CHAPTER7 if r.key == key)
+    assert ref.matched or ref.why
+    ok, why = compare(ref, compute(key))
+    assert ok, why

@@ -17,12 +17,7 @@ __all__ = ["register"]
 
 
 def cmd_primitive(args: argparse.Namespace) -> int:
-    from ..rover.primitives import (
-        DISSERTATION_CH7,
-        lowest_speed_cap,
-        solve_primitive,
-        steering_controllers,
-    )
+    from ..rover.primitives import lowest_speed_cap, solve_primitive, steering_controllers
 
     sc = load_scenario_or_fail(args.scenario)
     if sc is None:
@@ -34,7 +29,10 @@ def cmd_primitive(args: argparse.Namespace) -> int:
         sc = replace(sc, params=ps)
     r = solve_primitive(sc)
     print(f"scenario {sc.name}: {sc.description}")
-    print(f"status: {r.status}  ({r.stats['seconds']:.2f} s, {r.stats['iterations']} IPOPT iterations)")
+    print(f"slope {math.degrees(sc.slope):.1f} deg, cross slope {math.degrees(sc.cross_slope):.1f} deg, "
+          f"speed {sc.speed * 100:.2f} cm/s")
+    print(f"status: {r.status}  ({r.stats['n_attempts']} IPOPT runs, {r.stats['iterations']} iterations, "
+          f"{r.stats['seconds']:.2f} s)")
     print("  " + "\n  ".join(r.stats["attempts"]))
     print(r.table())
     print(f"independent numeric check: {'passed' if r.check_passed else 'FAILED'}; largest residuals: "
@@ -44,19 +42,19 @@ def cmd_primitive(args: argparse.Namespace) -> int:
         print(f"trench: {t.shape}, depth {t.d * 1e3:.1f} mm, flat width {t.p * 1e3:.1f} mm, rim-side pile {t.h_R2 * 1e3:.1f} mm")
     if r.evidence:
         print("evidence: " + "; ".join(f"{k}: {v}" for k, v in r.evidence.items()))
-    if sc.name in DISSERTATION_CH7:
-        print(f"dissertation: {DISSERTATION_CH7[sc.name]}")
     for k, f in sc.failures.items():
         if args.lowest_cap and (f.rim_speed_max < math.inf):
             cap, _ = lowest_speed_cap(sc, k)
-            print(f"lowest reachable rim-speed cap on {k}: {cap * 100:.2f} cm/s (dissertation: 1.5 cm/s for RR)")
+            print(f"lowest rim-speed cap on {k} verified to solve: {cap * 100:.2f} cm/s "
+                  "(see `offnominal chapter7` for the dissertation's 1.5 cm/s)")
     if args.controllers and r.ok:
         ctl = steering_controllers(sc, r)
         for name, gains in ctl.items():
             unit = "N m" if name.startswith("Mz") else "N"
             print(f"steering controller {name} (per {unit}): " + ", ".join(
                 f"{k} d(rim) {g[0] * 100:+.3f} cm/s, d(steer) {math.degrees(g[1]):+.2f} deg" for k, g in gains.items()))
-    return 0 if r.ok else 1
+    # exit codes: 0 optimal, 1 infeasible (a verdict), 3 not found within the budget, 4 solver failure
+    return {"optimal": 0, "infeasible": 1, "not_found": 3, "solver_failure": 4}[r.status]
 
 
 def cmd_slope_sweep(args: argparse.Namespace) -> int:
@@ -111,8 +109,10 @@ def cmd_slope_sweep(args: argparse.Namespace) -> int:
     fig.tight_layout()
     fig.savefig(out / "slope_sweep.png", dpi=110)
     plt.close(fig)
-    print("dissertation (Fig. 7.12): nominal 15 % slip flat, feasible to 24 deg, 50 % slip at 12.5 deg; stuck steer "
-          "40 % mean flat, 50 % at 2.5 deg; speed-limited 69 % mean / 76 % max flat")
+    from ..rover.reference import CHAPTER7
+
+    print("dissertation (Fig. 7.12): " + "; ".join(f"{r.quantity} {r.value:g} {r.unit}" for r in CHAPTER7
+                                                   if "slip" in r.key or "slope" in r.key))
     print(f"wrote {out / 'slope_sweep.csv'} and {out / 'slope_sweep.png'}")
     return 0
 
@@ -131,50 +131,36 @@ def cmd_envelope(args: argparse.Namespace) -> int:
 
 
 def cmd_chapter7(args: argparse.Namespace) -> int:
-    """Reproduce the chapter-7 results side by side with the dissertation's numbers."""
+    """The chapter-7 reference table (:mod:`offline.rover.reference`) beside our numbers."""
     import csv
 
-    from ..rover.primitives import envelope, lowest_speed_cap, solve_primitive
+    from ..files import check_output_dir, write_text
+    from ..rover.reference import CHAPTER7, QUICK, compare, compute
 
+    out = check_output_dir(args.out, names=["chapter7.csv"])
     t0 = time.perf_counter()
-    rows: list[tuple[str, str, str, str]] = []
+    rows = []
+    refs = [r for r in CHAPTER7 if not args.quick or r.key in QUICK]
+    print(f"{'quantity':<66} {'dissertation':>14} {'ours':>10}  verdict")
+    failed = 0
+    for ref in refs:
+        ours = compute(ref.key, step_deg=args.step_deg) if not args.table_only else math.nan
+        ok, why = compare(ref, ours)
+        failed += (not ok) and not args.table_only
+        shown = f"{ours:.2f}" if math.isfinite(ours) else "-"
+        print(f"{ref.quantity:<66} {ref.value:>9g} {ref.unit:<4} {shown:>10}  "
+              + ("(table only)" if args.table_only else ("ok: " if ok else "CHECK: ") + why) + f"  [{ref.source}]",
+              flush=True)
+        rows.append([ref.key, ref.quantity, ref.value, ref.unit, shown, ref.tolerance, ref.matched, ok, ref.why, ref.source])
+    import io
 
-    def add(what: str, ours: str, theirs: str, note: str = "") -> None:
-        rows.append((what, ours, theirs, note))
-        print(f"{what:<46} ours: {ours:<28} dissertation: {theirs:<18} {note}", flush=True)
-
-    sc = {n: load_scenario_or_fail(n) for n in ("nominal", "rr_speed_cap_half", "rr_steer_stuck_50",
-                                                 "rr_trench_clean", "rr_trench_clean_mu01")}
-    if any(v is None for v in sc.values()):
-        return 2
-    r = solve_primitive(sc["rr_trench_clean"])
-    t = r.trench
-    add("clean-sided trench, RR, depth >= b/2 (mu = 0.5)", f"{r.status}, depth {t.d * 100:.2f} cm" if r.ok else r.status,
-        "2.6 cm predicted", f"RR {r.wheels['RR'].rim_speed * 100:.1f} cm/s at {math.degrees(r.wheels['RR'].steer):.0f} deg"
-        if r.ok else "")
-    r = solve_primitive(sc["rr_trench_clean_mu01"])
-    add("clean-sided trench with mu = 0.1 (published code)", r.status, "(not studied)", r.evidence.get("most_violated_constraint", ""))
-    for name, key in (("nominal", "nominal"), ("speed cap v/2 on RR", "rr_speed_cap_half"), ("RR steer stuck at 50 deg", "rr_steer_stuck_50")):
-        e = envelope(sc[key], 0.5, step_deg=args.step_deg, max_deg=30.0)
-        flat = e["sweep"][0]
-        theirs = {"nominal": ("15 %", "-", "24 deg", "12.5 deg"), "rr_speed_cap_half": ("69 %", "76 %", "-", "none (> 50 % flat)"),
-                  "rr_steer_stuck_50": ("40 %", "-", "-", "2.5 deg")}[key]
-        if flat.ok:
-            add(f"{name}: mean slip of unaffected wheels, flat", f"{flat.mean_slip() * 100:.1f} %", theirs[0])
-            add(f"{name}: max slip, flat", f"{flat.max_slip() * 100:.1f} %", theirs[1])
-        add(f"{name}: steepest feasible slope", f"{e['steepest_slope_deg']:.1f} deg", theirs[2])
-        cross = e["slip_limit_slope_deg"]
-        add(f"{name}: slope where mean slip reaches 50 %", f"{cross:.1f} deg" if math.isfinite(cross) else "n/a", theirs[3])
-    cap, _ = lowest_speed_cap(sc["rr_speed_cap_half"], "RR")
-    add("lowest reachable rim-speed cap on RR", f"{cap * 100:.2f} cm/s", "1.5 cm/s", "(theirs: hand continuation)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "chapter7.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["quantity", "ours", "dissertation", "note"])
-        w.writerows(rows)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["key", "quantity", "dissertation", "unit", "ours", "tolerance", "matched", "rule_passed", "why", "source"])
+    w.writerows(rows)
+    write_text(out / "chapter7.csv", buf.getvalue())
     print(f"wrote {out / 'chapter7.csv'}  ({time.perf_counter() - t0:.0f} s)")
-    return 0
+    return 1 if failed else 0
 
 
 def register(sub: Any) -> None:
@@ -210,4 +196,6 @@ def register(sub: Any) -> None:
                                     "printed beside the dissertation's numbers and written to CSV.")
     c7.add_argument("--out", default="out/chapter7", help="output folder (default: %(default)s)")
     c7.add_argument("--step-deg", type=float, default=2.5, help="slope step of the envelopes (default: %(default)s)")
+    c7.add_argument("--quick", action="store_true", help="only the numbers computed by single solves (seconds)")
+    c7.add_argument("--table-only", action="store_true", help="print the reference table without solving")
     c7.set_defaults(func=cmd_chapter7)

@@ -563,7 +563,8 @@ def _point_check(pb: SteadyStateProblem, x: NDArray[np.float64], b: dict[str, ND
     for j in pb.layout.rows("trench"):
         if not b["lbg"][j] - pb.options.feasibility_tol <= g[j] <= b["ubg"][j] + pb.options.feasibility_tol:
             return False, worst
-    inside = bool(np.all(x >= b["lbx"] - 1e-12) and np.all(x <= b["ubx"] + 1e-12))
+    tol = pb.options.feasibility_tol * (1 + np.abs(x))  # IPOPT relaxes bounds by ~1e-8 relative
+    inside = bool(np.all(x >= b["lbx"] - tol) and np.all(x <= b["ubx"] + tol))
     return inside and worst <= pb.options.check_rtol, worst
 
 
@@ -630,9 +631,10 @@ class _Search:
         self.iterations += iterations
 
     def solve(self, b: dict[str, Any], x0: NDArray[np.float64], label: str | None = None,
-              rounds: int | None = None) -> dict[str, Any]:
-        """IPOPT from ``x0``; a run that stops at ``max_iter`` on a feasible point (or making
-        progress) is continued from its end point up to ``rounds`` more times."""
+              rounds: int | None = None, longer: bool = False) -> dict[str, Any]:
+        """IPOPT from ``x0``; a run that stops at ``max_iter`` on a feasible point is continued
+        from its end point up to ``rounds`` more times (a feasible point is never thrown away);
+        with ``longer`` every run that stops at ``max_iter`` is continued."""
         if self.spent():
             raise _BudgetSpent
         rounds = self.o.continue_rounds if rounds is None else rounds
@@ -641,7 +643,7 @@ class _Search:
         self.iterations += r["iterations"]
         n = 0
         while (not r["success"] and r["status"] == "Maximum_Iterations_Exceeded" and n < rounds
-               and np.isfinite(r["x"]).all() and not self.spent()):
+               and (r["feasible"] or longer) and np.isfinite(r["x"]).all() and not self.spent()):
             r2 = self.pb.solve(b, r["x"])
             self.attempts += 1
             self.iterations += r2["iterations"]
@@ -683,10 +685,13 @@ def _nominal_search(pb: SteadyStateProblem, sc: Scenario, srch: _Search) -> tupl
     if t >= 1.0:
         return last, 1.0, (xs, gs, b1)
     partial = (xs, gs, _interpolate(b0, b1, x0, g0, t))
-    for name, start in _jumps(pb, nom, xs, seed=srch.o.seed):
-        r = srch.solve(b1, start, f"nominal: {name}")
-        if r["success"]:
-            return r, 1.0, (r["x"], r["g"], b1)
+    try:
+        for name, start in _jumps(pb, nom, xs, seed=srch.o.seed):
+            r = srch.solve(b1, start, f"nominal: {name}")
+            if r["success"]:
+                return r, 1.0, (r["x"], r["g"], b1)
+    except _BudgetSpent:
+        srch.log.append("nominal: budget spent")
     return None, t, partial
 
 
@@ -704,6 +709,8 @@ def _continue(pb: SteadyStateProblem, srch: _Search, b0: dict[str, Any], b1: dic
                 xs, gs, t, last = r["x"], r["g"], t_try, r
             else:
                 step /= 2
+    except _BudgetSpent:
+        srch.log.append(f"{label}: budget spent")
     finally:
         srch.log.append(f"{label} in {n} steps: reached t = {t:.3f}")
     return xs, gs, t, last
@@ -950,7 +957,7 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
         starts += [(f"confirmation: {n}", x) for n, x in _restarts(pb, sc, options.confirm_starts, options.seed + 7919, 0.6)]
         try:
             for name, x in starts:
-                if consider(conf.solve(b1, x, name, rounds=options.confirm_rounds)):
+                if consider(conf.solve(b1, x, name, rounds=options.confirm_rounds, longer=True)):
                     break
             confirmed = best is None
         except _BudgetSpent:

@@ -1,0 +1,173 @@
+"""Failure kinds as objects, deterministic verdicts, skid starts, statuses and evidence."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from offline.physics.params import load_toml
+from offline.rover.failures import (
+    KINDS,
+    FailureKind,
+    Locked,
+    Raised,
+    RimSpeedCap,
+    SolutionView,
+    SteerRange,
+    StuckSteering,
+    TorqueLimit,
+    TrenchGoal,
+    Unpowered,
+    WheelBounds,
+)
+from offline.rover.primitives import STATUSES, get_problem, mirror_scenario, solve_primitive
+from offline.rover.scenario import WheelFailure, example_scenarios, load_scenario
+
+SHIPPED = {p.stem: p for p in example_scenarios()}
+CALIBRATED = Path(__file__).resolve().parents[1] / "offline" / "data" / "calibrated_grousered.toml"
+
+
+def _bounds() -> WheelBounds:
+    return WheelBounds(lo={"omega": 0.0, "beta": -1.5, "W": 0.0, "h": 0.002, "h0": 0.002},
+                       hi={"omega": 5.0, "beta": 1.5, "W": 20.0, "h": 0.1, "h0": 0.1}, rim_radius=0.06, speed=0.03)
+
+
+@pytest.mark.parametrize("kind, var, lo, hi, torque, contact", [
+    (StuckSteering(0.3), "beta", 0.3, 0.3, (-math.inf, math.inf), 1.0),
+    (SteerRange(-0.5, 0.0), "beta", -0.5, 0.0, (-math.inf, math.inf), 1.0),
+    (RimSpeedCap(0.015), "omega", 0.0, 0.25, (-math.inf, math.inf), 1.0),
+    (Locked(), "omega", 0.0, 0.0, (-math.inf, math.inf), 1.0),
+    (Unpowered(), "omega", 0.0, 5.0, (0.0, 0.0), 1.0),
+    (TorqueLimit(0.03), "omega", 0.0, 5.0, (-0.03, 0.03), 1.0),
+    (Raised(), "W", 0.0, 0.0, (-math.inf, math.inf), 0.0),
+])
+def test_each_kind_sets_its_own_bounds(kind, var, lo, hi, torque, contact):
+    b = _bounds()
+    kind.apply(b)
+    assert b.lo[var] == pytest.approx(lo) and b.hi[var] == pytest.approx(hi)
+    assert b.torque == torque and b.contact == contact
+
+
+def test_kinds_mirror_and_check():
+    assert StuckSteering(0.3).mirror() == StuckSteering(-0.3)
+    assert SteerRange(-0.5, 0.1).mirror() == SteerRange(-0.1, 0.5)
+    assert RimSpeedCap(0.01).mirror() == RimSpeedCap(0.01)
+    assert TrenchGoal("RR", True, 0.02).mirror().wheel == "RL"
+    s = SolutionView(omega=0.5, beta=0.2, load=5.0, sinkage=0.01, torque=-0.05, rim_radius=0.06, speed=0.03)
+    assert RimSpeedCap(0.02).check(s)["rim speed"][0] == pytest.approx(0.01)
+    assert TorqueLimit(0.03).check(s)["torque"][0] == pytest.approx(0.02)
+    assert "0.0500 N m" in TorqueLimit(0.03).evidence(s)  # the torque reached, not the bound
+    assert StuckSteering(0.2).check(s)["steer"][0] == pytest.approx(0.0)
+    wf = WheelFailure(steer_stuck=0.3, rim_speed_max=0.01)
+    assert WheelFailure.from_kinds(wf.kinds()) == wf
+    assert wf.mirror().steer_stuck == -0.3
+    assert {type(k) for k in WheelFailure(locked=True, steer_min=-0.2).kinds()} == {Locked, SteerRange}
+    assert all(k.TOML_KEYS for k in KINDS)
+
+
+@dataclass(frozen=True)
+class MinRimSpeed(FailureKind):
+    """A kind written only here (the recipe): the wheel must turn at least this fast."""
+
+    floor: float
+    TOML_KEYS: ClassVar[tuple[str, ...]] = ("rim_speed_min_m_s",)
+
+    def apply(self, b: WheelBounds) -> None:
+        b.lo["omega"] = max(b.lo["omega"], self.floor / b.rim_radius)
+
+    def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
+        return {"rim speed floor": (max(self.floor - s.rim_speed, 0.0), s.speed)}
+
+
+def test_a_new_failure_kind_is_one_object():
+    base = load_scenario(SHIPPED["nominal"])
+    sc = replace(base, name="FR at least 1.5 v", failures={"FR": WheelFailure(extra=(MinRimSpeed(1.5 * base.speed),))})
+    r = solve_primitive(sc)
+    assert r.status == "optimal" and r.check_passed
+    assert r.wheels["FR"].rim_speed >= 1.5 * base.speed - 1e-9
+    assert "rim speed floor FR" in r.residuals
+    assert r.wheels["FR"].slip > 0.3  # forced to spin
+
+
+def _busy(n: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def test_same_verdict_and_iterations_idle_and_under_cpu_load():
+    cal = load_toml(CALIBRATED)["parameter_set"]
+    scs = [replace(load_scenario(SHIPPED["nominal"]), params=cal, slope=math.radians(-10.0), name="calibrated -10 deg"),
+           load_scenario(SHIPPED["fr_raised"])]
+    idle = [solve_primitive(sc) for sc in scs]
+    procs = _busy(3)
+    try:
+        loaded = [solve_primitive(sc) for sc in scs]
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+    for a, b in zip(idle, loaded):
+        assert a.status == b.status
+        assert a.stats["iterations"] == b.stats["iterations"] and a.stats["n_attempts"] == b.stats["n_attempts"]
+        np.testing.assert_array_equal(a.x, b.x)
+
+
+def test_calibrated_parameters_drive_down_a_10_degree_slope():
+    """Downhill the wheels brake (skid); the automatic start covers skid."""
+    cal = load_toml(CALIBRATED)["parameter_set"]
+    sc = replace(load_scenario(SHIPPED["nominal"]), params=cal, slope=math.radians(-10.0))
+    r = solve_primitive(sc)
+    assert r.status == "optimal" and r.check_passed, (r.status, r.evidence, r.stats["attempts"])
+    fx = sum(w.wrench[0] * math.cos(w.steer) - w.wrench[1] * math.sin(w.steer) for w in r.wheels.values())
+    assert fx == pytest.approx(sc.rover.weight * math.sin(sc.slope), rel=1e-6)  # (7.32): net braking force
+
+
+def test_40_degree_slope_is_infeasible_with_checked_evidence():
+    sc = replace(load_scenario(SHIPPED["nominal"]), slope=math.radians(40.0))
+    r = solve_primitive(sc)
+    assert r.status in ("infeasible", "not_found") and r.status in STATUSES
+    if r.status == "infeasible":
+        assert r.evidence["furthest_point_checked"]
+        assert "steepest slope reached" in r.evidence["closest"]
+
+
+def test_raised_wheel_sinkage_is_zero_everywhere_and_mirror_is_exact():
+    sc = load_scenario(SHIPPED["fr_raised"])
+    a, b = solve_primitive(sc), solve_primitive(mirror_scenario(sc))
+    assert a.ok and b.ok
+    assert a.wheels["FR"].sinkage == 0.0 and a.wheels["FR"].load == 0.0
+    mirror = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+    for k, w in a.wheels.items():
+        m = b.wheels[mirror[k]]
+        assert m.rim_speed == pytest.approx(w.rim_speed, rel=1e-6, abs=1e-9)
+        assert m.steer == pytest.approx(-w.steer, abs=1e-6)
+
+
+def test_cross_slope_pushes_the_wheels_uphill_and_mirrors():
+    base = load_scenario(SHIPPED["nominal"])
+    sc = replace(base, cross_slope=math.radians(10.0))
+    r, m = solve_primitive(sc), solve_primitive(mirror_scenario(sc))
+    assert r.ok and r.check_passed and m.ok
+    fy = sum(w.wrench[0] * math.sin(w.steer) + w.wrench[1] * math.cos(w.steer) for w in r.wheels.values())
+    W = sc.rover.weight
+    assert fy == pytest.approx(W * math.sin(sc.cross_slope), rel=1e-6)  # lateral soil force holds the rover
+    assert sum(w.load for w in r.wheels.values()) == pytest.approx(W * math.cos(sc.cross_slope), rel=1e-9)
+    assert r.wheels["FR"].load > r.wheels["FL"].load  # the downhill (right) side carries more
+    assert m.wheels["FL"].load == pytest.approx(r.wheels["FR"].load, rel=1e-6)
+
+
+def test_layout_names_every_row_and_bounds_use_it():
+    sc = load_scenario(SHIPPED["rr_torque_limited"])
+    pb = get_problem(sc.params, sc.rover, sc.exit_angle, None)
+    b = pb.bounds(sc)
+    L = pb.layout
+    j = L.index("wheel torque RR")
+    assert b["ubg"][j] * L.constraint_scale[j] == pytest.approx(0.03)
+    assert b["p"][L.index("cross_slope")] == 0.0
+    assert pb.symbols["g"].shape[0] == L.ng and pb.symbols["x"].shape[0] == L.nx

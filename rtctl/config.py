@@ -297,6 +297,9 @@ class ControllerConfig:
         long and counts it (``[timing] max_gap``).
     tables_index : str
         Path of the table index (``[tables] index``), relative to the config file; '' if none.
+    default_table : str
+        Table used when no table matches the declared failures (``[tables] default``, e.g. a
+        trench table, whose goal is not a failure); '': the table built without failures.
     """
 
     actuators: Actuators = field(default_factory=Actuators)
@@ -308,6 +311,7 @@ class ControllerConfig:
     period: float = 0.2
     max_gap: float = 1.0
     tables_index: str = ""
+    default_table: str = ""
 
     @classmethod
     def from_toml(cls, path: str | Path) -> "ControllerConfig":
@@ -346,11 +350,15 @@ class ControllerConfig:
         if kw["max_gap"] < kw["period"]:
             raise ConfigError(f"{source}: [timing] max_gap = {kw['max_gap']} is shorter than period = {kw['period']}")
         tables = data.get("tables", {})
-        _only(tables, {"index"}, "tables", source)
+        _only(tables, {"index", "default"}, "tables", source)
         idx = tables.get("index", "")
         if not isinstance(idx, str):
             raise ConfigError(f"{source}: [tables] index must be a path string, got {idx!r}")
         kw["tables_index"] = idx
+        default = tables.get("default", "")
+        if not isinstance(default, str):
+            raise ConfigError(f"{source}: [tables] default must be a table name (string), got {default!r}")
+        kw["default_table"] = default
         act = kw["actuators"]
         if act.min_rim_speed >= act.max_rim_speed:
             raise ConfigError(f"{source}: [actuators] min_rim_speed = {act.min_rim_speed} must be < max_rim_speed = {act.max_rim_speed}")
@@ -453,6 +461,7 @@ period = 0.2
 max_gap = 1.0
 
 [tables]
-index = ""
+index = ""                  # path of tables/index.json, relative to this file
+default = ""                # table when no declared failure matches ('' = the one without failures)
 """
 """Every key with its default value (a valid config file)."""

@@ -176,8 +176,10 @@ class Controller:
     ----------
     tables : Table or mapping name -> Table
         Loaded tables (:func:`rtctl.table.load_table`), all for the same rover. The table whose
-        scenario's failures equal the declared ones is used; otherwise the one with no failure
-        (nominal), with the declared failures imposed as QP constraints.
+        scenario's failures equal the declared ones is used; otherwise ``config.default_table``
+        or the one built without failures (``nominal`` first), with the declared failures imposed
+        as QP constraints. A table with no feasible point cannot be interpolated: the last good
+        preparation is kept and ``table_errors`` counts it.
     config : ControllerConfig
     """
 
@@ -191,7 +193,12 @@ class Controller:
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         nominal = [k for k, s in self.signatures.items() if not s]
-        self.default_table = nominal[0] if nominal else next(iter(self.tables))
+        self.default_table = "nominal" if "nominal" in nominal else (nominal[0] if nominal else next(iter(self.tables)))
+        if config.default_table:
+            if config.default_table not in self.tables:
+                raise ControllerError(f"[tables] default = {config.default_table!r} is not one of the tables "
+                                      f"{sorted(self.tables)}")
+            self.default_table = config.default_table
         rs = config.drive.wheel_radius
         if not math.isfinite(rs):
             radii = {wheel_radius_of(t) for t in self.tables.values()}
@@ -396,8 +403,8 @@ class Controller:
         verdict = ""
         pose = getattr(m, "pose", None)
         if pose is not None:
-            if not self._pose_seen and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6
-                                           for k in ("t", "x", "y", "heading")) \
+            if not self._pose_seen and _finite(getattr(pose, "t", math.nan)) \
+                    and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6 for k in ("x", "y", "heading")) \
                     and t - cfg.period <= pose.t <= t:
                 self.ekf.initialise_pose(pose)
                 verdict = "initial"
@@ -634,12 +641,13 @@ class Controller:
             a = rim[i] if math.isfinite(rim[i]) else prev_rim[i]
             b = steer[i] if math.isfinite(steer[i]) else prev_steer[i]
             w = WHEELS[i]
-            if (w, "locked") in self._failures:
-                a = 0.0
             da, db = act.max_rim_accel * dt * (1 + 1e-9), act.max_steer_rate * dt * (1 + 1e-9)
-            if (w, "steer_stuck") not in self._failures:
+            if (w, "steer_stuck") not in self._failures:  # a stuck actuator is commanded where it is
                 b = min(max(b, prev_steer[i] - db), prev_steer[i] + db)
-            a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
+            if (w, "locked") in self._failures:  # a locked wheel is commanded to stop at once
+                a = 0.0
+            else:
+                a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
         return tuple(out_r), tuple(out_s)

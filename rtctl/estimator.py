@@ -61,7 +61,7 @@ _H = np.zeros((3, 6))
 _H[0, _IX] = _H[1, _IY] = _H[2, _IPSI] = 1.0
 _SLIP_LIMIT = 0.95  # |s| used in the motion model is clipped here (s -> 1 means no motion at all)
 _MISSING_GYRO_SIGMA = 0.05  # rad/s: yaw-rate uncertainty while the gyro is out
-_MAX_POSE = 1e6  # m (and s, rad): a pose field beyond this is garbage, not a place on a planet
+_MAX_POSE = 1e6  # m, rad: a position or heading beyond this is garbage, not a place on a planet
 
 
 class EstimatorError(ValueError):
@@ -275,11 +275,13 @@ class SlipHeadingEKF:
         """Use a pose fix; returns what happened: ``accepted``, ``late``, ``too_old``, ``future``,
         ``gated``, ``reset`` or ``invalid``.
 
-        The fix must have finite fields below 1e6 in magnitude (else ``invalid``); it is used at
+        The fix must have finite fields, and position and heading below 1e6 in magnitude (else
+        ``invalid``; the time stamp may be any finite rover clock value); it is used at
         ``pose.t`` (see the module docstring).
         """
         vals = (pose.t, pose.x, pose.y, pose.heading)
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) and abs(v) < _MAX_POSE for v in vals):
+        if not (all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
+                and all(abs(v) < _MAX_POSE for v in vals[1:])):
             return "invalid"
         if pose.t > self.t + 1e-9:
             self.counters.poses_future += 1

@@ -149,9 +149,19 @@ def test_pose_handling_counters():
     assert ekf.update_pose(Pose(ekf.t + 1.0, x[0], x[1], x[2])) == "future"
     assert ekf.update_pose(Pose(ekf.t - 10.0, x[0], x[1], x[2])) == "too_old"
     assert ekf.update_pose(Pose(ekf.t, math.nan, x[1], x[2])) == "invalid"
+    assert ekf.update_pose(Pose(ekf.t, 3e6, x[1], x[2])) == "invalid"
     assert ekf.update_pose(Pose(ekf.t, x[0] + 5.0, x[1], x[2])) == "gated"
     c = ekf.counters
     assert (c.poses_future, c.poses_too_old, c.poses_gated, c.poses_accepted) == (1, 1, 1, 0)
+
+
+def test_pose_on_a_clock_beyond_a_million_seconds():
+    """A rover clock past 1e6 s (11.6 days) is a clock, not garbage: its fixes are used."""
+    ekf = SlipHeadingEKF(ControllerConfig(), RS)
+    ekf.reset(2e9)
+    ekf.predict(2e9 + DT, Odometry(0.03, 1e-6, 0.0))
+    x = ekf.x
+    assert ekf.update_pose(Pose(2e9 + DT, x[0] + 0.005, x[1], x[2])) == "accepted"
 
 
 def test_pose_jump_reinitialises_after_consistent_rejections():

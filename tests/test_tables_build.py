@@ -24,7 +24,7 @@ from rtctl.table import TableError, load_table
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = ROOT / "tables" / "scenarios" / "nominal.toml"
 STUCK = ROOT / "tables" / "scenarios" / "rr_steer_stuck.toml"
-FAST = BuildOptions(trust_points=1, trust_steps=(0.0625, 0.125))
+FAST = BuildOptions(trust_steps=(0.0625, 0.125))
 
 
 @pytest.fixture(scope="module")
@@ -163,3 +163,11 @@ def test_cli_info_and_refusal_of_a_corrupted_table(nominal, tmp_path, capsys):
     assert "corrupted" in capsys.readouterr().err
     with pytest.raises(TableError):
         load_table(bad)
+
+
+def test_cli_verify_reports_all_three_checks(nominal, capsys):
+    _, path, _ = nominal
+    assert main(["tables", "verify", str(path), "--points", "1"]) == 0
+    out = capsys.readouterr().out
+    for part in ("Jacobians vs central differences", "Linearisation", "Interpolation at cell midpoints", "PASSED"):
+        assert part in out

@@ -8,6 +8,8 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .common import fail
 
 __all__ = ["register"]
@@ -20,22 +22,47 @@ trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10;
 steer_stuck=-90:90:30; rim_speed_cap_fraction=0.25,0.5,0.75,1; trench_depth=20:35:5.
 
 Example: offnominal tables build my_failure.toml --grid "slope=0:20:5;speed=3" --jobs 2 --out tables/
+A folder may hold grids.toml with [grids] <file stem> = "<grid>" per table (used when --grid is not given).
 An interrupted build resumes from <out>/.<name>.partial/ when run again with the same options.
 """
 
 
+def _folder_grids(folder: Path) -> dict[str, str]:
+    """``[grids]`` of ``<folder>/grids.toml``: scenario file stem -> --grid text."""
+    import tomllib
+
+    from ..rover.table_builder import BuildError
+
+    p = folder / "grids.toml"
+    if not p.is_file():
+        return {}
+    try:
+        d = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise BuildError(f"{p}: not valid TOML ({exc})") from None
+    g = d.get("grids", {})
+    bad = [k for k, v in g.items() if not isinstance(v, str) or not (folder / f"{k}.toml").is_file()]
+    if bad or set(d) - {"grids"}:
+        raise BuildError(f"{p}: [grids] maps a scenario file stem to a grid string; bad entries {bad or sorted(set(d) - {'grids'})}")
+    return dict(g)
+
+
 def cmd_build(args: argparse.Namespace) -> int:
     from ..files import OutputError
-    from ..rover.table_builder import BuildError, build_table, table_spec, write_index
+    from ..rover.table_builder import BuildError, build_tables, table_spec, write_index
 
     src = Path(args.scenario)
-    files = sorted(src.glob("*.toml")) if src.is_dir() else [src]
+    files = sorted(f for f in src.glob("*.toml") if f.name != "grids.toml") if src.is_dir() else [src]
     if not files:
         return fail(f"{src}: no scenario files (*.toml) in this folder")
     if args.jobs < 1:
         return fail(f"--jobs {args.jobs}: must be >= 1")
     try:
-        specs = [table_spec(f, args.grid if len(files) == 1 or args.grid_all else None, args.family) for f in files]
+        grids = _folder_grids(src) if src.is_dir() else {}
+        specs = []
+        for f in files:
+            g = args.grid if (len(files) == 1 or args.grid_all) and args.grid else grids.get(f.stem)
+            specs.append(table_spec(f, g, args.family))
     except BuildError as exc:
         return fail(str(exc))
     names = [s.name for s in specs]
@@ -44,17 +71,18 @@ def cmd_build(args: argparse.Namespace) -> int:
                     "give each [scenario] name a distinct value")
     built = []
     t_all = time.perf_counter()
-    for spec, f in zip(specs, files):
-        t0 = time.perf_counter()
-        try:
-            path, summ = build_table(spec, args.out, jobs=args.jobs, scheduler=args.scheduler,
-                                     progress=not args.quiet, keep_partial=args.keep_partial, inputs=files)
-        except (BuildError, OutputError) as exc:
-            return fail(str(exc))
+
+    def done(path: Path, summ: dict) -> None:
         built.append(path)
         st = ", ".join(f"{k} {v}" for k, v in summ["statuses"].items())
         print(f"{path}: {summ['grid_points']} points {summ['shape']}, {st}; feasible {summ['feasible_fraction']:.0%}; "
-              f"{summ['bytes'] / 1e6:.2f} MB; {time.perf_counter() - t0:.1f} s")
+              f"{summ['bytes'] / 1e6:.2f} MB")
+
+    try:
+        build_tables(specs, args.out, jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
+                     keep_partial=args.keep_partial, inputs=files, on_done=done)
+    except (BuildError, OutputError) as exc:
+        return fail(str(exc))
     if not args.no_index:
         ip = write_index(args.out, built)
         print(f"index: {ip}")
@@ -89,10 +117,14 @@ def cmd_info(args: argparse.Namespace) -> int:
         f = h["axes"][k]["display_factor"]
         print(f"  feasible {k}: " + (f"{rng[0] / f:.4g} .. {rng[1] / f:.4g} {h['axes'][k]['display_unit']}" if rng else "none"))
     tr = h.get("trust_radius", {})
-    print("trust radius (SI): " + ", ".join(f"{k} {v:.3g}" if v is not None else f"{k} -" for k, v in tr.items()))
+    print("trust radius (SI), smallest over the feasible points: "
+          + ", ".join(f"{k} {v:.3g}" if v is not None else f"{k} -" for k, v in tr.items()))
+    if t.feasible.any():
+        med = np.median(t.arrays["trust_radius"][t.feasible], axis=0)
+        print("trust radius (SI), median: " + ", ".join(f"{k} {med[t.layout.index(k)]:.3g}" for k in tr))
     ev = h.get("evidence", {})
     for flat in list(ev)[: args.evidence]:
-        idx = tuple(int(i) for i in __import__("numpy").unravel_index(int(flat), t.shape))
+        idx = tuple(int(i) for i in np.unravel_index(int(flat), t.shape))
         op = {k: round(v / h["axes"][k]["display_factor"], 4) for k, v in t.grid_point(idx).items()}
         print(f"  {t.status_at(idx)} at {op}: {json.dumps(ev[flat])[:300]}")
     if len(ev) > args.evidence:

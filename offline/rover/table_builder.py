@@ -55,7 +55,7 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point",
 ]
@@ -83,7 +83,10 @@ _DEFAULT_DISPLAY = {
 }
 
 
-TABLE_SOLVER_BUDGETS = {"max_attempts": 4, "max_iterations": 400, "confirm_starts": 1, "confirm_rounds": 1}
+MAX_RETRY_NEIGHBOURS = 3
+"""An unsolved point is retried from at most this many solved neighbours (in axis order)."""
+
+TABLE_SOLVER_BUDGETS = {"max_attempts": 3, "max_iterations": 300, "confirm_starts": 1, "confirm_rounds": 1}
 """Search budgets of the optimizer inside a table build (iterations and attempts, deterministic).
 
 Smaller than :class:`~offline.rover.primitives.SolverOptions`' defaults: a grid point is
@@ -289,21 +292,21 @@ class BuildOptions:
     ----------
     mz_offset, fy_offset : float
         Offsets (N m, N) of the section 7.2.4 controller re-solves (7.26)-(7.27).
-    trust_points : int
-        Feasible grid points at which the linearisation is checked to size the trust radius.
     trust_tolerance : float
         Largest error of the first-order prediction, as a fraction of each variable's scale
         (layout), inside the trust radius.
+    trust_step : float
+        Step of the per-point re-solve that sizes the trust radius, in parameter scales.
     trust_steps : tuple
-        Steps tried per parameter, as multiples of the parameter's layout scale.
+        Steps of ``offnominal tables verify``'s linearisation check, in parameter scales.
     active_tol : float
         Multiplier magnitude (scaled problem) above which a bound or inequality is active.
     """
 
     mz_offset: float = 0.2
     fy_offset: float = 1.0
-    trust_points: int = 3
     trust_tolerance: float = 0.02
+    trust_step: float = 0.5
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
 
@@ -544,39 +547,30 @@ def _point_trust_radius(spec: TableSpec, pb: Any, sc: Any, b: Mapping[str, Any],
                         lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
                         dx_dp: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per parameter, the step over which the first-order prediction ``x + dx/dp dp`` stays within
-    ``trust_tolerance`` of the variable scales, from two warm re-solves at steps of 1/8 and 1/2
-    of the parameter's scale (both signs taken as the worse): the error's growth exponent k
-    (1: a kink, 2: smooth) between them gives ``r = d2 (tol / e2)^(1/k)``, capped at 4 scales.
-    Parameters that are not continuous (contact, pivot lock) get 0: the QP must not move them."""
+    ``trust_tolerance`` (of the variable scales) of the NLP's solution.
+
+    One warm re-solve per parameter at ``d = trust_step`` x the parameter's scale gives the
+    error ``e``; with an error growing like ``d^k``, ``1 <= k <= 2`` (1 at a kink of the model,
+    2 where it is smooth), the radius is ``d (tol/e)^(1/2)`` if ``e <= tol`` and ``d tol/e``
+    otherwise, which is the smaller of the two growth laws in each case, capped at ``2 d``. A
+    failed re-solve gives 0. Parameters that are not continuous (contact, pivot lock) get 0: the
+    QP must not move them.
+    """
     lay = pb.layout
     xsc = lay.variable_scale
     tol = spec.build.trust_tolerance
     out = np.zeros(lay.np_)
     for name in _LIN_PARAMS:
         j = lay.index(name)
-        sc_j = lay.parameters[j].scale
-        errs = []
-        for m in (0.125, 0.5):
-            e = 0.0
-            for sgn in (1.0, -1.0):
-                dp = sgn * m * sc_j
-                kw: dict[str, Any] = {name: getattr(sc, name) + dp}
-                if name == "speed":
-                    kw.update(_fam_follow(spec, sc, sc.speed + dp))
-                bb = pb.bounds(replace(sc, **kw))
-                r = pb.solve(bb, x_s, lam_x, lam_g)
-                e = max(e, float(np.max(np.abs(x + dx_dp[:, j] * dp - np.asarray(r["x"]) * xsc) / xsc))
-                        if r["success"] else math.inf)
-            errs.append(e)
-        d1, d2 = 0.125 * sc_j, 0.5 * sc_j
-        e1, e2 = errs
-        if not e1 <= tol:
-            out[j] = 0.0 if not math.isfinite(e1) else d1 * tol / e1  # at least linear growth below d1
-        elif not math.isfinite(e2):
-            out[j] = d1
-        else:
-            k = min(max(math.log(max(e2, 1e-300) / max(e1, 1e-300)) / math.log(4.0), 1.0), 2.0)
-            out[j] = min(d2 * (tol / max(e2, 1e-300)) ** (1.0 / k), 4.0 * sc_j)
+        d = spec.build.trust_step * lay.parameters[j].scale
+        kw: dict[str, Any] = {name: getattr(sc, name) + d}
+        if name == "speed":
+            kw.update(_fam_follow(spec, sc, sc.speed + d))
+        r = pb.solve(pb.bounds(replace(sc, **kw)), x_s, lam_x, lam_g)
+        if not r["success"]:
+            continue
+        e = float(np.max(np.abs(x + dx_dp[:, j] * d - np.asarray(r["x"]) * xsc) / xsc))
+        out[j] = 2 * d if e <= tol / 4 else (d * math.sqrt(tol / e) if e <= tol else d * tol / e)
     return out
 
 
@@ -789,13 +783,37 @@ def _run(tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]], ex: cf.Ex
         done(futs[fut], fut.result())
 
 
+def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
+                 progress: bool = True, keep_partial: bool = False, inputs: Sequence[str | Path] = (),
+                 on_done: Callable[[Path, dict[str, Any]], None] | None = None) -> list[tuple[Path, dict[str, Any]]]:
+    """Build several tables with one pool of workers (each worker builds an NLP once and keeps it
+    for every table that shares it); see :func:`build_table`."""
+    for spec in specs:  # every output checked before any work
+        check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+    ex, client = _executor(jobs, scheduler)
+    out = []
+    try:
+        for spec in specs:
+            res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex)
+            out.append(res)
+            if on_done is not None:
+                on_done(*res)
+    finally:
+        if client is not None:
+            client.close()
+        elif ex is not None:
+            ex.shutdown()
+    return out
+
+
 def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                 progress: bool = True, keep_partial: bool = False,
-                inputs: Sequence[str | Path] = ()) -> tuple[Path, dict[str, Any]]:
+                inputs: Sequence[str | Path] = (), executor: cf.Executor | None = None) -> tuple[Path, dict[str, Any]]:
     """Build (or resume) one table and write ``<out_dir>/<name>.npz`` atomically.
 
-    Returns the path and a summary (grid points, statuses, feasible fraction, file size,
-    retries, trust radius). Finished chains are checkpointed; a rerun resumes.
+    Runs on ``executor`` if given, else on ``jobs`` local processes or the Dask scheduler at
+    ``scheduler``. Returns the path and a summary (grid points, statuses, feasible fraction,
+    file size, retries, trust radius). Finished chains are checkpointed; a rerun resumes.
     """
     from tqdm import tqdm
 
@@ -812,7 +830,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             todo.append((solve_chain, (spec, c), i))
     bar = tqdm(total=spec.grid.size, initial=len(recs), desc=f"{spec.name}", unit="pt", disable=not progress,
                leave=True, dynamic_ncols=True)
-    ex, client = _executor(jobs, scheduler)
+    ex, client = (executor, None) if executor is not None else _executor(jobs, scheduler)
     try:
         def chain_done(i: int, res: list[dict[str, Any]]) -> None:
             ck.save("chain", i, res)
@@ -829,7 +847,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 retried[f] = got[0]
                 continue
             starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
-                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"]
+                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"][:MAX_RETRY_NEIGHBOURS]
             retry_tasks.append((retry_point, (spec, f, starts), f))
         if retry_tasks:
             bar.set_description(f"{spec.name} (retrying {len(retry_tasks)})")
@@ -844,20 +862,14 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
-        # trust radius from re-solves at a few feasible points (deterministic choice)
-        feas = [f for f in sorted(recs) if recs[f]["status"] == "optimal"]
-        picks = sorted(set(feas[int(round(q))] for q in np.linspace(0, len(feas) - 1, min(spec.build.trust_points, len(feas))))) if feas else []
-        lin_tasks = [(linearisation_errors, (spec, f, recs[f]["data"], recs[f]["x_scaled"], _LIN_PARAMS, None,
-                                             spec.build.trust_tolerance), f) for f in picks]
-        lin: dict[int, Any] = {}
-        _run(lin_tasks, ex, lambda f, r: lin.__setitem__(f, r))
     finally:
         bar.close()
-        if client is not None:
-            client.close()
-        elif ex is not None:
-            ex.shutdown()
-    header, arrays = _assemble(spec, recs, lin)
+        if executor is None:
+            if client is not None:
+                client.close()
+            elif ex is not None:
+                ex.shutdown()
+    header, arrays = _assemble(spec, recs)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -880,7 +892,7 @@ def _library_version() -> str:
         return "unknown"
 
 
-def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]], lin: Mapping[int, Any]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     pb = _problem(spec.scenario, spec.solver)
     lay: NlpLayout = pb.layout
     shapes = field_shapes(lay.nx, lay.np_, lay.ng, len(lay.wheels))
@@ -938,8 +950,6 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]], lin: Mapping[
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point: first-order prediction within {spec.build.trust_tolerance} of the variable "
                               "scales (field trust_radius); this entry: the smallest over the feasible points"),
-        "linearisation_check": {str(f): {k: [[dp, (e if math.isfinite(e) else None)] for dp, e in v] for k, v in errs.items()}
-                                for f, errs in sorted(lin.items())},
         "grid_points": spec.grid.size,
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }

@@ -245,6 +245,8 @@ def soak(steps: int, seed: int = 2026) -> str:
     modes = {"qp": 0, "fallback": 0, "hold": 0}
     t, seq = 0.0, 0
     t0 = time.perf_counter()
+    est = (0.0, 0.0, 0.0)
+    nonfinite_state = 0
     for k in range(steps):
         kind = kinds[rng.integers(len(kinds))]
         if kind in ("ok", "missing_wheel"):
@@ -268,8 +270,9 @@ def soak(steps: int, seed: int = 2026) -> str:
         pitch = rng.normal(0.05, 0.01) if rng.random() > 0.05 else bad_values[rng.integers(len(bad_values))]
         pose = None
         u = rng.random()
-        if u < 0.2:
-            pose = Pose(t - 0.2 * rng.integers(0, 4), rng.normal(0.006 * k, 0.05), rng.normal(0, 0.05), rng.normal(0, 0.05))
+        if u < 0.2:  # near the controller's own estimate: accepted, late, gated or too old
+            pose = Pose(t - 0.2 * rng.integers(0, 4), est[0] + rng.normal(0, 0.01), est[1] + rng.normal(0, 0.01),
+                        est[2] + rng.normal(0, 0.01))
         elif u < 0.22:
             pose = Pose(t, 5.0 + rng.normal(0, 1), -3.0, 2.0)  # a jump
         elif u < 0.23:
@@ -285,13 +288,18 @@ def soak(steps: int, seed: int = 2026) -> str:
         ok = cmd.is_valid(a.max_rim_speed, a.max_steer) and min(cmd.rim_speed) >= a.min_rim_speed
         invalid += not ok
         modes[d.mode] += 1
+        if all(math.isfinite(v) for v in d.state):
+            est = d.state
+        else:
+            nonfinite_state += 1
     wall = time.perf_counter() - t0
     counters = dict(d.counters)
     out = _header("rtctl soak: fuzzed measurements", note)
     out += (f"Command: `nice python tests/bench/bench_rtctl.py soak --steps {steps} --seed {seed}`. "
             f"{steps} ticks in {wall:.0f} s ({1e6 * wall / steps:.0f} us per tick).\n\n"
             f"**Invalid commands: {invalid}** (finite, within |rim speed| <= {a.max_rim_speed} m/s, >= {a.min_rim_speed}, "
-            f"|steer| <= {math.degrees(a.max_steer):.0f} deg).\n\nModes: {json.dumps(modes)}.\n\n"
+            f"|steer| <= {math.degrees(a.max_steer):.0f} deg). Ticks with a non-finite EKF state: {nonfinite_state}.\n\n"
+            f"Modes: {json.dumps(modes)}.\n\n"
             "Counters at the end:\n\n| counter | count |\n|---|---|\n")
     out += "\n".join(f"| {k} | {v} |" for k, v in sorted(counters.items())) + "\n"
     return out

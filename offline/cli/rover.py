@@ -168,7 +168,9 @@ def register(sub: Any) -> None:
     pr = sub.add_parser("primitive", help="solve a driving scenario (failures, trenching, slope) for a steady primitive",
                         description="Solve the steady-state NLP (7.25) for a scenario TOML (or the name of a shipped "
                                     "example) from the automatic start; print wheel speeds, angles, loads, sinkages, "
-                                    "slips, torques, power, the independent check and, if infeasible, the evidence.")
+                                    "slips, torques, power, the independent check and, if infeasible, the evidence. Budgets count "
+                                    "IPOPT iterations and attempts (same verdict on any machine load). Exit code: 0 "
+                                    "optimal, 1 infeasible, 3 not found within the budget, 4 solver failure.")
     pr.add_argument("scenario", help="scenario TOML path, or a shipped example name (e.g. rr_steer_stuck_50)")
     pr.add_argument("--params", help="parameter TOML replacing the scenario's (e.g. offline/data/calibrated_grousered.toml)")
     pr.add_argument("--controllers", action="store_true", help="also the steering controllers of section 7.2.4")

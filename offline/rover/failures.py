@@ -137,9 +137,14 @@ class FailureKind:
         """What the furthest feasible point reached shows about this constraint."""
         return ""
 
-    def start(self) -> dict[str, float]:
-        """Start-point hints for this wheel (variable name -> value)."""
+    def start(self, b: WheelBounds) -> dict[str, float]:
+        """Start-point hints for this wheel (variable name -> physical value), given its bounds."""
         return {}
+
+    def tightened(self) -> "FailureKind | None":
+        """A stricter version whose every solution also satisfies this kind (a lower cap),
+        or ``None``. A solution of the tightened scenario is a feasible start for this one."""
+        return None
 
     def describe(self) -> str:
         """Short human-readable description."""
@@ -213,7 +218,7 @@ class StuckSteering(FailureKind):
         """Steer angle reached."""
         return f"steer reached {math.degrees(s.beta):.1f} deg (stuck at {math.degrees(self.angle):.1f} deg)"
 
-    def start(self) -> dict[str, float]:
+    def start(self, b: WheelBounds) -> dict[str, float]:
         """Start at the stuck angle."""
         return {"beta": self.angle}
 
@@ -239,6 +244,16 @@ class RimSpeedCap(FailureKind):
     def apply(self, b: WheelBounds) -> None:
         """Upper bound on omega."""
         b.hi["omega"] = min(b.hi["omega"], self.cap / b.rim_radius)
+
+    def start(self, b: WheelBounds) -> dict[str, float]:
+        """Start well below the cap (the wheel skidding, others slipping more): a solution
+        for a lower cap satisfies this one, and the nominal primitive may sit across the
+        zero-slip kink from it."""
+        return {"omega": 0.5 * self.cap / b.rim_radius}
+
+    def tightened(self) -> "RimSpeedCap":
+        """Half the cap."""
+        return RimSpeedCap(0.5 * self.cap)
 
     def check(self, s: SolutionView) -> dict[str, tuple[float, float]]:
         """Rim speed above the cap, m/s."""
@@ -278,7 +293,7 @@ class Locked(FailureKind):
         """Lowest rim speed reached at a feasible point."""
         return f"lowest rim speed reached at a feasible point {s.rim_speed * 100:.2f} cm/s (locked: 0)"
 
-    def start(self) -> dict[str, float]:
+    def start(self, b: WheelBounds) -> dict[str, float]:
         """Start at rest."""
         return {"omega": 0.0}
 
@@ -375,6 +390,10 @@ class TorqueLimit(FailureKind):
     def evidence(self, s: SolutionView) -> str:
         """Smallest |torque| reached at a feasible point."""
         return f"smallest |torque| reached at a feasible point {abs(s.torque):.4f} N m (limit {self.limit:.4f} N m)"
+
+    def tightened(self) -> "TorqueLimit":
+        """Half the limit."""
+        return TorqueLimit(0.5 * self.limit)
 
     def describe(self) -> str:
         """Limit in N m."""

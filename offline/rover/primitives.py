@@ -132,8 +132,8 @@ class SolverOptions:
 
     tol: float = 1e-9
     max_iter: int = 150
-    max_attempts: int = 40
-    max_iterations: int = 3000
+    max_attempts: int = 100
+    max_iterations: int = 4000
     continue_rounds: int = 2
     confirm: bool = True
     confirm_starts: int = 4
@@ -639,6 +639,12 @@ class _Search:
             raise _BudgetSpent
         rounds = self.o.continue_rounds if rounds is None else rounds
         r = self.pb.solve(b, x0)
+        if not r["success"]:
+            # a start that already satisfies every constraint is kept, whatever IPOPT does next
+            xc = np.clip(np.asarray(x0, dtype=float), b["lbx"], b["ubx"])
+            gc = np.asarray(self.pb.eval_g(xc, b["p"])[0]).ravel()
+            if np.isfinite(gc).all() and self.pb.violation(b, xc, gc) <= self.o.feasibility_tol:
+                r["start_feasible"] = (xc, gc)
         self.attempts += 1
         self.iterations += r["iterations"]
         n = 0
@@ -791,8 +797,9 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
     om0 = sc.speed / (pb.rs * 0.85)
     for k, f in sc.failures.items():
         hints: dict[str, float] = {}
+        wb = pb.wheel_bounds(sc, k)
         for kind in f.kinds():
-            hints.update(kind.start())
+            hints.update(kind.start(wb))
         if "beta" in hints:
             betas = [0.0] * n
             betas[WHEELS.index(k)], betas[WHEELS.index(_MIRROR[k])] = hints["beta"], -hints["beta"]
@@ -802,6 +809,8 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
                 oms = [sc.speed / (pb.rs * (1 - fast))] * n
                 oms[WHEELS.index(k)] = hints["omega"]
                 out.append((f"{k} at {hints['omega']:.2f} rad/s, others at slip {fast:.1f}", oms, [0.0] * n))
+                if "beta" in hints:
+                    out[-1][2][WHEELS.index(k)] = hints["beta"]
     if sc.trench is not None:
         k = sc.trench.wheel
         i, j = WHEELS.index(k), WHEELS.index(_MIRROR[k])
@@ -893,6 +902,8 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
             return True
         if r["feasible"] and feasible_target is None:
             feasible_target = r
+        elif "start_feasible" in r and feasible_target is None:
+            feasible_target = {"x": r["start_feasible"][0], "g": r["start_feasible"][1]}
         return False
 
     def run_starts(starts: Sequence[tuple[str, NDArray[np.float64]]], suffix: str = "") -> bool:
@@ -943,6 +954,21 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     except _BudgetSpent:
         srch.log.append(f"main search budget spent ({srch.attempts} attempts, {srch.iterations} iterations"
                         + (", wall-clock safety net" if srch.time_limit_hit else "") + ")")
+    if (best is None and feasible_target is None and x0 is None and _mirror_depth(sc) == 0
+            and not sc.name.endswith(" (tightened)") and not srch.time_limit_hit):
+        tight = _tightened(sc)
+        if tight is not None:
+            # a solution with stricter failures (a lower cap) satisfies this scenario's constraints
+            tr = solve_primitive(tight, replace(options, confirm=False))
+            srch.charge(tr.stats["n_attempts"], tr.stats["iterations"])
+            srch.log.append(f"tightened scenario ({'; '.join(k.describe() for f in tight.failures.values() for k in f.kinds())}):"
+                            f" {tr.status}")
+            if tr.ok:
+                tsr = _Search(pb, sc, options, 1 + options.continue_rounds, (1 + options.continue_rounds) * options.max_iter,
+                              t_start)
+                consider(tsr.solve(b1, tr.x, "from the tightened scenario's solution"))
+                srch.charge(tsr.attempts, tsr.iterations)
+                srch.log.extend(tsr.log)
     if best is None and feasible_target is not None and not srch.time_limit_hit:
         # a feasible point of the target is never thrown away: polish it with a fresh budget
         pol = _Search(pb, sc, options, 1 + options.confirm_rounds, options.confirm_rounds * options.max_iter, t_start)
@@ -975,10 +1001,10 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
             evidence["check"] = "IPOPT converged but the independent numeric check failed"
     else:
         evidence = _evidence(pb, sc, b1, furthest, srch.last_fail, feasible_target)
-        if furthest is not None:
-            x = furthest[0]
-        elif feasible_target is not None:
+        if feasible_target is not None:
             x = feasible_target["x"]
+        elif furthest is not None:
+            x = furthest[0]
         else:
             x = pb.nominal_guess(sc)
         residuals, passed = check_solution(pb, sc, x)
@@ -1015,6 +1041,19 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     if best is not None:
         stats.update(lam_x=best["lam_x"], lam_g=best["lam_g"], ipopt_status=best["status"])
     return PrimitiveResult(sc, status, wheels, power, float(f), residuals, passed, trench, evidence, stats, x)
+
+
+def _tightened(sc: Scenario) -> Scenario | None:
+    """The scenario with every failure kind that can be tightened tightened, or ``None``."""
+    fails, changed = {}, False
+    for k, f in sc.failures.items():
+        kinds = []
+        for kind in f.kinds():
+            t = kind.tightened()
+            changed = changed or t is not None
+            kinds.append(t if t is not None else kind)
+        fails[k] = WheelFailure.from_kinds(kinds)
+    return replace(sc, failures=fails, name=f"{sc.name} (tightened)") if changed else None
 
 
 def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest: tuple[Any, ...] | None,

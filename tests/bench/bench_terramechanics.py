@@ -135,7 +135,9 @@ def main(argv: list[str] | None = None) -> int:
 
     head = (f"# Physics-core benchmarks\n\nWritten by `python tests/bench/bench_terramechanics.py` on "
             f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; {platform.machine()}, Python {platform.python_version()}, "
-            f"numpy {np.__version__}, pinned to one core; best of {rep} runs.\n\n")
+            f"numpy {np.__version__}, pinned to one core; best of {rep} runs; load average at the end "
+            f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (speed rows are only comparable on a quiet machine; "
+            f"the cold-build CPU seconds are not affected by load).\n\n")
     table = "| measurement | result | target | |\n|---|---|---|---|\n" + "\n".join(f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows)
     text = head + table + "\n"
     write_text(args.out, text)

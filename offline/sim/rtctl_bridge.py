@@ -20,9 +20,14 @@ class RtctlUnavailable(RuntimeError):
 
 
 def shipped_tables() -> Path:
-    """The ``tables/`` folder of the repository (its ``index.json`` lists the shipped tables)."""
-    root = Path(str(resources.files("offline"))).parent
-    return root / "tables"
+    """The shipped tables: the data package ``offnominal_tables`` (the repository's ``tables/``,
+    installed with the package), else the ``tables/`` folder beside ``offline/`` in a checkout."""
+    try:
+        import offnominal_tables
+
+        return offnominal_tables.folder()
+    except ImportError:
+        return Path(str(resources.files("offline"))).parent / "tables"
 
 
 def rtctl_factory(tables: str | None = None, config: str | None = None) -> Callable[[Scenario], Any]:

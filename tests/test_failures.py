@@ -28,7 +28,7 @@ from offline.rover.failures import (
     WheelBounds,
 )
 from offline.rover.primitives import STATUSES, SolverOptions, get_problem, mirror_scenario, solve_primitive
-from offline.rover.scenario import WheelFailure, example_scenarios, load_scenario
+from offline.rover.scenario import ScenarioError, WheelFailure, example_scenarios, load_scenario
 
 SHIPPED = {p.stem: p for p in example_scenarios()}
 CALIBRATED = Path(__file__).resolve().parents[1] / "offline" / "data" / "calibrated_grousered.toml"
@@ -184,3 +184,11 @@ def test_layout_names_every_row_and_bounds_use_it():
     assert b["ubg"][j] * L.constraint_scale[j] == pytest.approx(0.03)
     assert b["p"][L.index("cross_slope")] == 0.0
     assert pb.symbols["g"].shape[0] == L.ng and pb.symbols["x"].shape[0] == L.nx
+
+
+def test_trench_given_as_a_number_is_a_clear_error(tmp_path):
+    """``trench = 5`` (a number where the [trench] table belongs) names the key and the expected form."""
+    f = tmp_path / "t5.toml"
+    f.write_text('trench = 5\n[scenario]\nname = "t5"\nspeed_m_s = 0.03\n')
+    with pytest.raises(ScenarioError, match=r"trench = 5: the trench goal is a table"):
+        load_scenario(f)

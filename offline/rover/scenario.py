@@ -350,6 +350,9 @@ def load_scenario(path: str | Path) -> Scenario:
     trench = None
     if "trench" in data:
         t = data["trench"]
+        if not isinstance(t, dict):
+            raise ScenarioError(f"{p}: trench = {t!r}: the trench goal is a table, e.g. [trench] wheel = \"RR\", "
+                                "clean_side = true, min_depth_m = 0.02")
         bad = sorted(set(t) - set(_TRENCH_KEYS))
         if bad:
             raise ScenarioError(f"{p}: [trench] unknown key(s) {bad}; known: {sorted(_TRENCH_KEYS)}")

@@ -261,6 +261,11 @@ class Candidate:
         A parameter places where the effect switches on (a clearance, a saturation): the
         one-step held-out score would inherit its placement from the held-out rows, so the
         candidate is scored with a full refit per fold.
+    null : tuple of float or None
+        Parameter values (reported units) at which the term is absent, i.e. the believed model
+        (0 for an offset, 1 for a scale). With it the engine can test whether the data determine
+        the term at all (its fitted values against these, Wald test) and starts the forward
+        step's score test there; None: no such point inside the box (a clearance, a lag).
     """
 
     key: str
@@ -272,6 +277,7 @@ class Candidate:
     kind: str = "term"
     starts: tuple[tuple[float, ...], ...] = ()
     threshold: bool = False
+    null: tuple[float, ...] | None = None
 
     @property
     def k(self) -> int:

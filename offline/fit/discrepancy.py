@@ -34,7 +34,15 @@ Pipeline (:func:`diagnose`)
    explanation removes less than half of the held-out excess chi-square, the verdict
    is **unexplained** (the best candidate is shown as absorbing part, not as the answer).
 
-Verdicts: ``agree``, ``explained``, ``parameters_off``, ``partly_explained``, ``unexplained``.
+6. **Identifiable?** (adapters that set ``withhold_lookalikes``, e.g. drive recordings) When
+   look-alikes with other terms fit the held-out rows equally, or a term of the explanation is
+   not determined by the data (its fitted parameters not distinguishable from its absence in
+   the joint fit, :func:`undetermined_terms`), the verdict is **ambiguous**: nothing is named,
+   the explanations that fit equally are listed with the experiment that would separate them
+   (``observations.identification_advice()``). The single-wheel adapter keeps naming the best
+   of an indistinguishable set (with its separating probe), as its tests expect.
+
+Verdicts: ``agree``, ``explained``, ``parameters_off``, ``partly_explained``, ``ambiguous``, ``unexplained``.
 
 The engine is generic over observations (:class:`~offline.fit.observations.Observations`)
 and models (anything with ``predict(observations, extension)``); the single-wheel testbed
@@ -66,6 +74,7 @@ from .significance import (
     dispersion,
     fit,
     held_out,
+    linear_held_out,
     locate,
     normalised,
     refit_held_out,
@@ -85,11 +94,12 @@ __all__ = [
     "Separation",
     "Verdict",
     "diagnose",
+    "undetermined_terms",
     "predict_recording",
     "VERDICTS",
 ]
 
-VERDICTS = ("agree", "explained", "parameters_off", "partly_explained", "unexplained")
+VERDICTS = ("agree", "explained", "parameters_off", "partly_explained", "ambiguous", "unexplained")
 """The possible verdicts (module docstring)."""
 
 
@@ -122,6 +132,8 @@ class CandidateScore:
         Model evaluations spent.
     refit : bool
         The held-out score is from full refits per fold (otherwise the one-step screening score).
+    covariance : ndarray or None
+        Covariance of ``values`` (reported units) from the in-sample fit.
     """
 
     keys: tuple[str, ...]
@@ -141,6 +153,7 @@ class CandidateScore:
     rows_cv: NDArray[np.float64] = field(repr=False)
     nfev: int = 0
     refit: bool = False
+    covariance: NDArray[np.float64] | None = field(default=None, repr=False)
 
     @property
     def label(self) -> str:
@@ -205,6 +218,9 @@ class Verdict:
         Channels whose residuals with the explanation still exceed the measurement noise
         (chi-square in noise units, s = 1) at the family-wise level: a misfit spread over the
         whole range that no single region shows.
+    ambiguity : str
+        For ``ambiguous``: why no explanation can be named from these data (look-alikes that fit
+        equally, terms the data do not determine) and which experiment would separate them.
     """
 
     status: str
@@ -229,18 +245,26 @@ class Verdict:
     criterion: str
     seconds: float
     misfit_after: list[tuple[str, float, int, float]] = field(default_factory=list)
+    ambiguity: str = ""
 
     @property
     def missing_physics(self) -> list[str]:
-        """Keys of the accepted explanation (empty: nothing named). For ``unexplained`` nothing is named."""
-        if self.chosen is None or self.status == "unexplained":
+        """Keys of the accepted explanation (empty: nothing named). For ``unexplained`` and
+        ``ambiguous`` nothing is named (``chosen`` is then only the best-scoring of the set)."""
+        if self.chosen is None or self.status in ("unexplained", "ambiguous"):
             return []
         return list(self.chosen.keys)
 
     @property
+    def explanations(self) -> list[CandidateScore]:
+        """``chosen`` and its look-alikes (for ``ambiguous``: the explanations that fit equally)."""
+        return ([self.chosen] if self.chosen is not None else []) + list(self.indistinguishable)
+
+    @property
     def parameters_off(self) -> bool:
         """True when the accepted explanation is (or includes) a change of the model's own parameters."""
-        return self.chosen is not None and self.status != "unexplained" and "parameters" in self.chosen.kinds
+        return (self.chosen is not None and self.status not in ("unexplained", "ambiguous")
+                and "parameters" in self.chosen.kinds)
 
     def summary(self) -> str:
         """Plain-text verdict."""
@@ -257,6 +281,12 @@ class Verdict:
             lines.append("model and data agree within noise: no candidate and no region is significant")
         elif c is None:
             lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
+        elif self.status == "ambiguous":
+            lines.append(f"NOT IDENTIFIABLE from these data, nothing named: these {len(self.explanations)} explanations fit equally")
+            lines += [f"  - {s.label}: {s.parameters_text()} (held-out chi2 {s.chi2_cv:.1f})" for s in self.explanations]
+            lines.append(f"why: {self.ambiguity}")
+            lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {c.chi2_cv:.1f} (best-scoring)")
+            lines += [f"  to separate: {s.describe()}" for s in self.separations]
         else:
             head = {"explained": "missing physics", "parameters_off": "the model's own parameters are off",
                     "partly_explained": "partly explained by", "unexplained": "UNEXPLAINED; the best candidate only absorbs part"}[self.status]
@@ -307,6 +337,8 @@ class Verdict:
             "misfit_after": [{"channel": ch, "chi2_noise_units": c2, "rows": n, "p": p} for ch, c2, n, p in self.misfit_after],
             "missing_physics": self.missing_physics,
             "parameters_off": self.parameters_off,
+            "ambiguity": ({"reason": self.ambiguity, "explanations": [s.label for s in self.explanations]}
+                          if self.status == "ambiguous" else None),
             "chosen": sc(self.chosen) if self.chosen else None,
             "indistinguishable": [sc(s) for s in self.indistinguishable],
             "separating_experiments": [s.describe() for s in self.separations],
@@ -413,10 +445,13 @@ CRITERION = (
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
     "held-out rows (Vuong V < 2 and at least {keep:.0f} % of its improvement) are reported as indistinguishable; if one of them is a change of the model's own "
-    "parameters the verdict is 'parameters off'. A second term is added when its extra improvement exceeds the "
-    "1 - {alpha}/tries quantile of its null. Remaining regions, or residuals still above the measurement noise "
+    "parameters the verdict is 'parameters off'. If the first leaves regions or a misfit, every other term is screened "
+    "on top of it by a linearised held-out score test, the best {tries} are fitted jointly with it, and a second term is "
+    "added when its extra improvement exceeds the 1 - {alpha} quantile of the maximum of the screened terms' nulls. Remaining regions, or residuals still above the measurement noise "
     "(chi2 in noise units per channel, at {alpha}/channels), make the verdict 'partly explained'; less than half of "
-    "the held-out excess chi2 explained makes it 'unexplained'. A run whose model fails on more than half of the rows "
+    "the held-out excess chi2 explained makes it 'unexplained'. For recordings whose adapter withholds look-alikes (drives), "
+    "look-alikes with other terms, or a term whose fitted parameters the joint fit cannot tell from the term's absence "
+    "(Wald test at 95 %), make it 'ambiguous': nothing is named and the explanations that fit equally are listed. A run whose model fails on more than half of the rows "
     "is an error."
 )
 
@@ -430,9 +465,22 @@ def _ext_of(cands: Sequence[Candidate], x: NDArray[np.float64], params: Any) -> 
     return e
 
 
+def _conditional_rows(resid_fn: Callable[[Sequence[Candidate]], Callable[[NDArray[np.float64]], NDArray[np.float64]]],
+                      first: Sequence[Candidate], x1: NDArray[np.float64], jac1: NDArray[np.float64], c: Candidate,
+                      folds: NDArray[np.int_], nc: int) -> NDArray[np.float64]:
+    """Held-out chi-square per row of ``first`` (fitted at ``x1``, Jacobian ``jac1``) plus ``c`` at
+    its believed value (``c.null``, else its start), linearised in all parameters
+    (:func:`~offline.fit.significance.linear_held_out`): ``1 + c.k`` model evaluations."""
+    xc = np.array(c.null if c.null is not None else [q[4] for q in c.params], dtype=float)
+    r = resid_fn([*first, c])
+    z = r(np.concatenate([x1, xc]))
+    jc = _fd_jac(lambda t: r(np.concatenate([x1, t])), xc, c.lower, c.upper, r0=z)
+    return linear_held_out(z.reshape(-1, nc), np.hstack([jac1, jc]), folds)
+
+
 def _fd_jac(resid: Callable[[NDArray[np.float64]], NDArray[np.float64]], x: NDArray[np.float64],
-            lower: NDArray[np.float64], upper: NDArray[np.float64]) -> NDArray[np.float64]:
-    r0 = resid(x)
+            lower: NDArray[np.float64], upper: NDArray[np.float64], r0: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    r0 = resid(x) if r0 is None else r0
     J = np.empty((r0.size, x.size))
     for i in range(x.size):
         h = 1e-3 * (upper[i] - lower[i])
@@ -491,8 +539,10 @@ def diagnose(
     max_terms : int
         At most this many candidates combined.
     max_tries : int
-        The forward step tries at most this many significant candidates (by their own held-out
-        improvement) on top of the first explanation.
+        The forward step tries at most this many significant candidates on top of the first
+        explanation, ranked by their score test on top of it (linearised held-out improvement
+        with every parameter free, :func:`~offline.fit.significance.linear_held_out`), not by
+        their own improvement alone.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
     equal_fraction : float
@@ -569,7 +619,7 @@ def diagnose(
                            tuple(q[0] for c in cands for q in c.params), tuple(q[1] for c in cands for q in c.params),
                            tuple(float(v) for v in f.x), tuple(float(e) for e in f.std_errors), sum(c.k for c in cands),
                            f.chi2, float(rows.sum()), chi2_base - float(rows.sum()), math.nan, math.nan, False, rows,
-                           f.nfev + k_folds)
+                           f.nfev + k_folds, covariance=f.covariance)
         return s, f
 
     singles: list[CandidateScore] = []
@@ -625,14 +675,29 @@ def diagnose(
         primary = min(params_kind, key=lambda s: (s.keys[0] == RECALIBRATION_KEY, s.k)) if params_kind else best
         equivalent = [s for s in group if s is not primary]
         chosen = primary
-        # separating experiments
-        # forward step: one more term on top, when the first leaves significant regions
-        leftover = _regions_of(model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)
-        if max_terms > 1 and leftover:
+        # forward step: one more term on top of the first (its own test below keeps the false-alarm
+        # level; whether the first leaves significant regions is no gate: a second effect partly
+        # absorbed by the first may leave none at the region test's multiplicity-adjusted level)
+        if max_terms > 1:
             first = [by_key[k][0] for k in primary.keys]
             fam = {c.family or c.key for c in first}
-            tries = [s for s in sig if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
-                     and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")][:max_tries]
+            pool = [s for s in singles if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
+                    and not ("parameters" in primary.kinds and s.kinds[0] == "parameters")]
+            # rank the whole library by its score test on top of the first explanation, not by
+            # its own improvement: a term's improvement alone is partly the first effect's (a
+            # steering offset on the wrong front wheel absorbs some of a worn rear wheel) or
+            # cancelled by it (a masked second effect is not significant alone), so the marginal
+            # order puts look-alikes of the first effect ahead of the second effect. The extra
+            # improvement is then tested against the maximum of the pool's nulls (every term of
+            # the pool was a chance to find one)
+            say(f"screening {len(pool)} terms on top of {primary.label}")
+            j1 = fits[by_key[primary.keys[0]][2]].jac
+            cond = {s.keys[0]: _conditional_rows(resid_fn, first, np.array(primary.values), j1, by_key[s.keys[0]][0], folds, nc)
+                    for s in pool}
+            q_pool = float(np.quantile(null[[by_key[s.keys[0]][2] for s in pool]].max(axis=0), 1.0 - alpha)) if pool else math.inf
+            # joint fits only for terms whose screening gain reaches half the threshold (budget)
+            tries = [s for s in sorted(pool, key=lambda s: cond[s.keys[0]].sum())
+                     if primary.chi2_cv - cond[s.keys[0]].sum() > 0.5 * q_pool][:max_tries]
             best2 = None
             for s2 in tries:
                 c2 = by_key[s2.keys[0]][0]
@@ -646,13 +711,18 @@ def diagnose(
                     sc2 = _with(sc2, chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                                 nfev=sc2.nfev + nf, refit=True)
                 extra = primary.chi2_cv - sc2.chi2_cv
-                q = float(np.quantile(null[by_key[c2.key][2]], 1.0 - alpha / max(len(tries), 1)))
+                q = q_pool
                 sc2 = _with(sc2, significant=bool(extra > max(q, 0.0)))
                 scores.append(sc2)
                 if sc2.significant and (best2 is None or sc2.chi2_cv < best2.chi2_cv):
                     best2 = sc2
             if best2 is not None:
                 chosen = best2
+                # second terms the held-out rows cannot tell from the chosen one are look-alikes too
+                gain = primary.chi2_cv - best2.chi2_cv
+                equivalent += [s for s in scores[len(singles):] if s is not best2 and s.significant
+                               and vuong(best2.rows_cv, s.rows_cv) < 2.0
+                               and primary.chi2_cv - s.chi2_cv >= (1.0 - equal_fraction) * gain]
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]
         ext = _ext_of(cands, np.array(chosen.values), ps)
@@ -679,19 +749,88 @@ def diagnose(
         status = "parameters_off"
     else:
         status = "explained"
+    ambiguity = ""
+    if chosen is not None and status != "unexplained" and getattr(obs, "withhold_lookalikes", False):
+        ambiguity = _ambiguity(chosen, equivalent, by_key, obs)
+        if ambiguity:
+            status = "ambiguous"
     if equivalent and status != "unexplained":
         say("separating experiments")
         probes = obs.probes() if hasattr(obs, "probes") else []
         first = next(s for s in scores if s.keys == chosen.keys[:1]) if chosen is not None and len(chosen.keys) > 1 else chosen
         cache: dict[Any, Any] = {}
         for s in equivalent[:max_separations]:
-            separations.append(_separate(model, ps, by_key, first, s, probes, cache))
+            a = chosen if chosen is not None and len(s.keys) == len(chosen.keys) else first
+            separations.append(_separate(model, ps, by_key, a, s, probes, cache))
     recal = None
-    if chosen is not None and status != "unexplained" and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
+    if chosen is not None and status not in ("unexplained", "ambiguous") and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
-    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, keep=100 * (1 - equal_fraction))
+    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, keep=100 * (1 - equal_fraction),
+                            tries=max_tries)
     return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
-                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit)
+                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
+                   ambiguity)
+
+
+def _term_keys(s: CandidateScore) -> frozenset[str]:
+    return frozenset(k for k, kind in zip(s.keys, s.kinds) if kind == "term")
+
+
+def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float = 0.95) -> list[str]:
+    """Terms of an explanation the data do not determine: the fitted parameters of the term are
+    not distinguishable from the term's absence (``Candidate.null``) -- Wald statistic
+    ``d' C^-1 d`` of its parameter block (``d`` = fitted - null, ``C`` its block of the joint
+    covariance) below the ``level`` quantile of chi-square with the block's size -- or a
+    parameter is in a null direction of the Jacobian (no standard error). In a combination the
+    joint covariance carries the trade-off between the terms: two terms that explain the same
+    signal (a tether and a softer soil on a straight drive) each get a wide interval.
+    Candidates without a ``null`` and parameter groups (kind ``parameters``) are not tested.
+    """
+    from scipy import stats
+
+    out: list[str] = []
+    if s.covariance is None:
+        return out
+    i = 0
+    for key, kind in zip(s.keys, s.kinds):
+        c = by_key[key][0]
+        blk = slice(i, i + c.k)
+        i += c.k
+        if kind != "term" or c.null is None:
+            continue
+        se = np.array(s.std_errors[blk])
+        if not np.all(np.isfinite(se)):
+            out.append(f"{key} (a parameter not determined by the data)")
+            continue
+        d = np.array(s.values[blk]) - np.array(c.null, dtype=float)
+        C = s.covariance[blk, blk]
+        w = float(d @ np.linalg.pinv(C) @ d)
+        if w < stats.chi2.ppf(level, c.k):
+            out.append(f"{key} ({c.params[0][0]} = {s.values[blk.start]:.3g} ± {se[0]:.2g} {c.params[0][1]}: "
+                       f"not distinguishable from {c.null[0]:g}, Wald {w:.1f})")
+    return out
+
+
+def _ambiguity(chosen: CandidateScore, equivalent: Sequence[CandidateScore], by_key: dict[str, Any], obs: Any) -> str:
+    """Why the accepted explanation cannot be named from these data ('' when it can): look-alikes
+    with other terms that fit the held-out rows equally (Vuong V < 2, similar improvement), or a
+    term of the explanation that the data do not determine (:func:`undetermined_terms`)."""
+    reasons = []
+    def ref(s: CandidateScore) -> frozenset[str]:  # a single look-alike competes with the first term only
+        return _term_keys(chosen) if len(s.keys) == len(chosen.keys) else frozenset(
+            k for k, kind in zip(chosen.keys[:1], chosen.kinds[:1]) if kind == "term")
+
+    alts = [s for s in equivalent if _term_keys(s) and ref(s) and _term_keys(s) != ref(s)]
+    if alts:
+        reasons.append(f"{len(alts) + 1} explanations fit the held-out rows equally (Vuong V < 2): "
+                       + "; ".join(s.label for s in [chosen, *alts]))
+    und = undetermined_terms(chosen, by_key)
+    if und:
+        reasons.append("the data do not determine " + "; ".join(und))
+    if not reasons:
+        return ""
+    advice = obs.identification_advice() if hasattr(obs, "identification_advice") else "record an experiment that separates them"
+    return ". ".join(reasons) + ". " + advice
 
 
 def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: float) -> list[tuple[str, float, int, float]]:
@@ -720,18 +859,6 @@ def _locate_kw(obs: Any) -> dict[str, Any]:
     many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
     ``locate_perm``; the defaults are the single-wheel ones (0.01, 400)."""
     return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
-
-
-def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
-    """Significant regions of the residuals of the model with ``ext``."""
-    pred, ok = model.predict(obs, ext)
-    out: list[Region] = []
-    for ch in obs.channels:
-        r = obs.measured[ch] - pred[ch]
-        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs))
-    if not ok.all():
-        out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
-    return out
 
 
 def _with(s: CandidateScore, **kw: Any) -> CandidateScore:

@@ -117,13 +117,13 @@ def _wheel_candidates() -> list[Candidate]:
             f"wheel_radius_{w}", f"the {w} wheel's radius differs from the believed one (wear, a flat, mis-measured)",
             (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
             (lambda t, p, w=w: Extension(options={f"rover.radius_scale.{w}": 1.0 + float(t[0])})),
-            (f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body"), family=f"radius_{w}"))
+            (f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body"), family=f"radius_{w}", null=(0.0,)))
     for w in WHEELS:
         out.append(Candidate(
             f"steer_offset_{w}", f"the {w} wheel points elsewhere than its steering encoder says (true = encoder + offset)",
             (("offset", "deg", -10.0, 10.0, 0.0, _D),),
             (lambda t, p, w=w: Extension(options={f"rover.steer_offset.{w}": float(t[0])})),
-            (f"torque_{w}", "yaw_rate", "dheading", "dy_body"), family=f"steer_{w}"))
+            (f"torque_{w}", "yaw_rate", "dheading", "dy_body"), family=f"steer_{w}", null=(0.0,)))
     return out
 
 
@@ -132,14 +132,14 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
               "(gravity pulls the rover and tilts the IMU; the tilt turns with the heading)",
               (("slope", "deg", -15.0, 15.0, 0.0, _D), ("cross_slope", "deg", -15.0, 15.0, 0.0, _D)),
               lambda t, p: _opt(slope=t[0], cross_slope=t[1]),
-              ("roll", "pitch", "torque_FR", "torque_FL", "torque_RR", "torque_RL", "dy_body"), family="slope"),
+              ("roll", "pitch", "torque_FR", "torque_FL", "torque_RR", "torque_RL", "dy_body"), family="slope", null=(0.0, 0.0)),
     Candidate("imu_tilt", "the IMU is mounted tilted: roll and pitch readings offset, no force on the rover",
               (("roll", "deg", -15.0, 15.0, 0.0, _D), ("pitch", "deg", -15.0, 15.0, 0.0, _D)),
-              lambda t, p: _opt(imu_roll=t[0], imu_pitch=t[1]), ("roll", "pitch"), family="imu"),
+              lambda t, p: _opt(imu_roll=t[0], imu_pitch=t[1]), ("roll", "pitch"), family="imu", null=(0.0, 0.0)),
     *_wheel_candidates(),
     Candidate("tether", "a tether or drawbar pulls the rover backward along its own -x axis (positive: pulls back)",
               (("force", "N", -10.0, 10.0, 0.0, 1.0),),
-              lambda t, p: _opt(tether=t[0]), ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body")),
+              lambda t, p: _opt(tether=t[0]), ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), null=(0.0,)),
     Candidate("servo_lag", "the wheel-speed servos lag more than believed (first-order time constant)",
               (("time_constant", "s", 0.0, 2.0, 0.3, 1.0),),
               lambda t, p: _opt(wheel_lag=t[0]), ("omega_FR", "omega_FL", "omega_RR", "omega_RL"),
@@ -150,15 +150,15 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
               starts=((0.1,), (0.2,)), threshold=True),
     Candidate("gyro_scale", "gyro scale-factor error: the yaw rate reads (1 + g) times the true rate",
               (("scale_error", "%", -30.0, 30.0, 0.0, 1e-2),),
-              lambda t, p: _opt(gyro_scale=t[0]), ("yaw_rate",)),
+              lambda t, p: _opt(gyro_scale=t[0]), ("yaw_rate",), null=(0.0,)),
     # --- parameters the believed model already has ("parameters off")
     Candidate("soil_stiffness", "the soil is stiffer or softer than believed: Bekker modulus k (eq. 5.6) scaled",
               (("k_scale", "-", 0.2, 5.0, 1.0, 1.0),),
               lambda t, p: Extension(soil={"k": p.soil.k * float(t[0])}),
-              ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), kind="parameters", family="soil"),
+              ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), kind="parameters", family="soil", null=(1.0,)),
     Candidate("wheel_radius_all", "every wheel's radius is off by the same fraction (the believed wheel radius)",
               (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
-              lambda t, p: _opt(radius_scale_all=1.0 + float(t[0])), kind="parameters", family="radius_all"),
+              lambda t, p: _opt(radius_scale_all=1.0 + float(t[0])), kind="parameters", family="radius_all", null=(0.0,)),
 )
 """The rover-level library (module table)."""
 

@@ -290,6 +290,34 @@ def _rows_from_ticks(d: DriveData, seg: _Segments, ticks: Mapping[str, NDArray[n
     return out
 
 
+def _segment_correlation(series: Sequence[NDArray[np.float64]]) -> float:
+    """Lag-1 correlation of a channel's segment residuals, from their first differences so a slow
+    discrepancy (what the tool looks for) does not enter: for an MA(1) series with lag-1
+    correlation rho, the differences have lag-1 correlation ``r = (2 rho - 1) / (2 - 2 rho)``,
+    so ``rho = (1 + 2 r) / (2 + 2 r)`` (white: r = -1/2, rho = 0). Pooled over the drives.
+    Only a positive correlation shown by the data is kept: ``r`` must exceed -1/2 by two of its
+    standard errors (Bartlett, ``sqrt(0.5 / m)`` for m differences), so a short drive keeps
+    independent draws and a long one picks up a real correlation; a negative one (adjacent pose
+    increments share a fix: -1/2) is left at 0, which keeps the test conservative. Clipped to
+    [0, 0.49] (MA(1) range); 0 with fewer than 8 differences."""
+    num = den = 0.0
+    count = 0
+    for z in series:
+        dz = np.diff(z[np.isfinite(z)])
+        if dz.size < 3:
+            continue
+        dz = dz - dz.mean()
+        num += float(dz[1:] @ dz[:-1])
+        den += float(dz @ dz)
+        count += dz.size
+    if count < 8 or den <= 0.0:
+        return 0.0
+    r = float(np.clip(num / den, -0.999, 0.999))
+    if r < -0.5 + 2.0 * math.sqrt(0.5 / count):  # not above white noise by 2 standard errors (Bartlett)
+        return 0.0
+    return float(np.clip((1.0 + 2.0 * r) / (2.0 + 2.0 * r), 0.0, 0.49))
+
+
 @dataclass(frozen=True)
 class DriveRecording:
     """Drive recordings as engine observations (:class:`offline.fit.observations.Observations`).
@@ -311,6 +339,7 @@ class DriveRecording:
     heading_offset: float = 0.0
     units: Mapping[str, str] = field(default_factory=dict)
     scale_out: Mapping[str, float] = field(default_factory=dict)
+    segment_corr: Mapping[str, float] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.drive.size)
@@ -330,7 +359,7 @@ class DriveRecording:
             if len(s.bounds) < 2:
                 raise DriveDataError(f"{d.source}: {len(d.t)} ticks make {len(s.bounds)} segment(s) of {segment} ticks; "
                                      "record a longer drive or use shorter segments")
-        meas, noise, feats = [], [], []
+        meas, noise, feats, zs = [], [], [], []
         phis = []
         for k, (d, s) in enumerate(zip(drives, segs)):
             m = _rows_from_ticks(d, s, d.readings, None, chans)
@@ -339,7 +368,7 @@ class DriveRecording:
                 j, c = bad[0]
                 raise DriveDataError(f"{d.source}: no finite {chans[c]} reading in segment {j} (t = {d.t[s.bounds[j, 0]]:.1f}-"
                                      f"{d.t[s.bounds[j, 1]]:.1f} s); drop the channel's sensor or cut the drive")
-            ticks, _body, ok = model.simulate(d, None, 0.0)
+            ticks, body, ok = model.simulate(d, None, 0.0)
             if not ok:
                 raise DriveDataError(f"{d.source}: the believed simulator cannot re-simulate this drive (no equilibrium); "
                                      "check the scenario and parameter files are for this rover")
@@ -359,6 +388,7 @@ class DriveRecording:
                 nz[:, c] = max(sig, floor) / math.sqrt(segment) * math.sqrt((1 + phi) / (1 - phi))
             meas.append(m)
             noise.append(nz)
+            zs.append((m - _rows_from_ticks(d, s, ticks, body, chans)) / nz)
             mid = s.bounds.mean(axis=1).astype(int)
             hd = d.pose[:, 2]
             feats.append({"time_s": d.t[mid], "heading_deg": np.degrees([hd[a:b + 1].mean() for a, b in s.bounds]),
@@ -369,13 +399,92 @@ class DriveRecording:
         features = {f: np.concatenate([x[f] for x in feats]) for f in feats[0]}
         if len(drives) > 1:
             features["drive"] = drive.astype(float)
+        corr = {c: _segment_correlation([z[:, i] for z in zs]) for i, c in enumerate(chans)}
         src = (f"per tick: differencing estimator on the model's tick residuals; segment means of {segment} ticks with "
                f"the AR(1) long-run variance (lag-1 phi up to {max(phis, default=0):.2f}); pose increments sqrt(2) x the "
-               "fix noise from second differences of the fixes")
+               "fix noise from second differences of the fixes; segment-to-segment correlation (MA(1), from the "
+               "differences of the residuals) " + ", ".join(f"{c} {r:+.2f}" for c, r in corr.items() if abs(r) >= 0.1))
         return cls(drives, segs, drive, segi, tuple(chans), {c: M[:, i] for i, c in enumerate(chans)},
                    {c: N[:, i] for i, c in enumerate(chans)}, features, src,
                    ", ".join(d.source for d in drives),
-                   units={c: _UNITS[c][0] for c in chans}, scale_out={c: _UNITS[c][1] for c in chans})
+                   units={c: _UNITS[c][0] for c in chans}, scale_out={c: _UNITS[c][1] for c in chans},
+                   segment_corr=corr)
+
+    def null_draw(self, rng: np.random.Generator, n: int, n_boot: int) -> NDArray[np.float64]:
+        """Noise draws for the engine's significance test (:func:`offline.fit.significance.tangent_null`):
+        rows x channels flattened row-major, one column per draw, each channel of each drive a
+        unit-variance MA(1) series over its segments with the lag-1 correlation
+        :attr:`segment_corr` (``e_j = (w_j + theta w_{j-1}) / sqrt(1 + theta^2)``,
+        ``theta / (1 + theta^2) = rho``). Independent draws would treat adjacent segments as
+        independent; a correlation between them (pose increments share a fix, slow sensor
+        wander) would then make noise significant on a long drive."""
+        nc = len(self.channels)
+        if n != len(self) * nc:
+            raise ValueError(f"null_draw: {n} values asked, the observations have {len(self)} rows x {nc} channels")
+        out = np.empty((len(self), nc, n_boot))
+        for k in np.unique(self.drive):
+            rows = np.flatnonzero(self.drive == k)
+            rows = rows[np.argsort(self.segment[rows])]
+            for c, ch in enumerate(self.channels):
+                rho = float(np.clip(self.segment_corr.get(ch, 0.0), -0.49, 0.49))
+                theta = 0.0 if rho == 0.0 else (1.0 - math.sqrt(1.0 - 4.0 * rho * rho)) / (2.0 * rho)
+                w = rng.standard_normal((rows.size + 1, n_boot))
+                out[rows, c] = (w[1:] + theta * w[:-1]) / math.sqrt(1.0 + theta * theta)
+        return out.reshape(n, n_boot)
+
+    withhold_lookalikes: bool = True
+    """Look-alikes that fit equally make the verdict 'ambiguous' (nothing named): a drive can be
+    repeated with a manoeuvre that separates them (:meth:`identification_advice`)."""
+
+    def manoeuvres(self) -> dict[str, float]:
+        """Seconds of each manoeuvre the rover made, from the recorded motion (pose fixes; the
+        commands where there are none, since a declared stuck wheel's command is no manoeuvre):
+        ``turn`` (yaw rate beyond 3 deg/s), ``crab`` (travel direction more than 10 deg off the
+        heading, forward), ``reverse`` (travelling backward), ``straight`` (none of these), each
+        judged over 2 s windows (a 3 mm fix noise on a 6 mm step would make every tick a crab)."""
+        out = {"straight": 0.0, "turn": 0.0, "crab": 0.0, "reverse": 0.0}
+        for d in self.drives:
+            w = max(1, int(round(2.0 / d.period)))  # 2 s windows: pose-fix noise averages out
+            n = (len(d.t) - 1) // w
+            if n == 0:
+                continue
+            if np.all(np.isfinite(d.pose[:, :2])):
+                dp = d.pose[w:n * w + 1:w] - d.pose[0:n * w:w]
+                h = d.pose[0:n * w:w, 2] + 0.5 * dp[:, 2]
+                u = np.cos(h) * dp[:, 0] + np.sin(h) * dp[:, 1]
+                v = -np.sin(h) * dp[:, 0] + np.cos(h) * dp[:, 1]
+                moving = np.hypot(u, v) > 2e-3 * w * d.period
+                turn = np.abs(dp[:, 2]) / (w * d.period) > math.radians(3.0)
+                rev = moving & (u < 0) & ~turn
+                crab = moving & ~turn & ~rev & (np.abs(np.arctan2(v, u)) > math.radians(10.0))
+            else:
+                st, rim = d.steer_cmd[0:n * w:w], d.rim_cmd[0:n * w:w]
+                spread = st.max(axis=1) - st.min(axis=1)
+                turn = spread > math.radians(2.0)
+                rev = np.all(rim < 0.0, axis=1) & ~turn
+                crab = ~turn & ~rev & (np.abs(st.mean(axis=1)) > math.radians(10.0))
+            span = w * d.period
+            out["turn"] += span * float(turn.sum())
+            out["crab"] += span * float(crab.sum())
+            out["reverse"] += span * float(rev.sum())
+            out["straight"] += span * float((~turn & ~crab & ~rev).sum())
+        return out
+
+    def identification_advice(self) -> str:
+        """What to drive so that explanations which fit this recording equally can be told apart:
+        the calibration manoeuvres the recording lacks (a straight closed-loop drive cannot separate
+        a tether from a softer soil or a worn wheel, nor one front wheel's steering offset from the
+        other's), or a longer drive when it already has them all."""
+        have = self.manoeuvres()
+        wanted = {"turn": "a point turn or Ackermann turns both ways", "crab": "a crab (all wheels at one angle)",
+                  "reverse": "a reverse leg"}
+        need = [text for m, text in wanted.items() if have[m] < 2.0]
+        rec = ", ".join(f"{k} {v:.0f} s" for k, v in have.items())
+        if need:
+            return (f"Drive a calibration manoeuvre to separate them: this recording has {rec}; add {', '.join(need)} "
+                    "(offline.fit.drive_synthetic.calibration_drive is such a script)")
+        return (f"This recording already has every calibration manoeuvre ({rec}) but too few segments to separate them: "
+                "repeat the calibration drive (held-out drives) or drive it longer")
 
     @property
     def locate_alpha(self) -> float:
@@ -673,7 +782,7 @@ def diagnose_drives(
 def accepted_extension(v: Verdict) -> Extension:
     """The extension of the accepted explanation (no change for ``agree`` and ``unexplained``)."""
     c = v.chosen
-    if c is None or v.status in ("agree", "unexplained"):
+    if c is None or v.status in ("agree", "unexplained", "ambiguous"):
         return Extension()
     model: DriveModel = v.model
     lib = {x.key: x for x in [*DRIVE_CANDIDATES, model.recalibration()]}
@@ -714,7 +823,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     pngs = _drive_plots(v, out, ext)
     extra = ["", "## Drive plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
     truth_file = None
-    if v.chosen is not None and v.status not in ("agree", "unexplained"):
+    if v.chosen is not None and v.status not in ("agree", "unexplained", "ambiguous"):
         assert model.truth is not None
         truth, act, meas = truth_from_terms(model.params, model.truth, ext)
         header = {"verdict": v.status, "terms": v.chosen.label, "fitted": v.chosen.parameters_text(),

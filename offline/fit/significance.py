@@ -50,6 +50,7 @@ __all__ = [
     "fit",
     "held_out",
     "refit_held_out",
+    "linear_held_out",
     "tangent_null",
     "adjusted_p",
     "vuong",
@@ -218,6 +219,9 @@ class FitResult:
         d z / d x at ``x`` (rows * channels, k).
     nfev : int
         Model evaluations (budget in evaluations, never seconds).
+    covariance : ndarray or None
+        Gauss-Newton covariance of ``x`` (pseudo-inverse over the determined directions,
+        scaled like ``std_errors``).
     """
 
     x: NDArray[np.float64]
@@ -226,6 +230,7 @@ class FitResult:
     z: NDArray[np.float64]
     jac: NDArray[np.float64]
     nfev: int
+    covariance: NDArray[np.float64] | None = None
 
 
 def fit(
@@ -261,7 +266,7 @@ def fit(
     cov = (V[:, good] / w[good]) @ V[:, good].T
     det = np.abs(V[:, ~good]).max(axis=1) < 1e-3 if (~good).any() else np.ones(J.shape[1], dtype=bool)
     se[det] = np.sqrt(np.clip(np.diag(cov)[det] * s2, 0, None))
-    return FitResult(best.x, se, float(r @ r), r.reshape(-1, n_channels), J, nfev)
+    return FitResult(best.x, se, float(r @ r), r.reshape(-1, n_channels), J, nfev, cov * s2)
 
 
 def _row_index(rows: NDArray[np.int_], n_channels: int) -> NDArray[np.int_]:
@@ -296,6 +301,32 @@ def held_out(
         x = np.clip(fitted.x + dx, lower, upper)
         z = residual_at(x)
         out[te_rows] = (z[te_rows] ** 2).sum(axis=1)
+    return out
+
+
+def linear_held_out(
+    z: NDArray[np.float64], jac: NDArray[np.float64], folds: NDArray[np.int_], damping: float = 1e-3,
+) -> NDArray[np.float64]:
+    """Held-out chi-square of every row of a model linearised at one point (no model evaluation).
+
+    ``z`` are the normalised residuals (rows x channels) at the point and ``jac`` = d z / d x
+    (rows * channels, k). For each fold the step ``dx`` is the damped Gauss-Newton step on the
+    other folds (as in :func:`held_out`) and the held-out rows are predicted *linearly*,
+    ``z_te + J_te dx``. This is the score test of a term added on top of a fitted explanation
+    (forward selection): the term's own parameters start at their "no change" values, the
+    explanation's parameters may move with it, and the held-out rows judge the move.
+    """
+    nc = z.shape[1]
+    r = z.ravel()
+    out = np.empty(z.shape[0])
+    colnorm = np.sqrt((jac**2).sum(axis=0)) + 1e-300
+    for f in np.unique(folds):
+        tr = _row_index(np.flatnonzero(folds != f), nc)
+        te_rows = np.flatnonzero(folds == f)
+        te = _row_index(te_rows, nc)
+        Jt = jac[tr] / colnorm
+        dx = -np.linalg.solve(Jt.T @ Jt + damping * np.eye(jac.shape[1]), Jt.T @ r[tr]) / colnorm
+        out[te_rows] = ((r[te] + jac[te] @ dx).reshape(-1, nc) ** 2).sum(axis=1)
     return out
 
 

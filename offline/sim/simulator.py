@@ -38,7 +38,7 @@ from ..physics.terramechanics import ModelOptions
 from ..rover.scenario import Scenario
 from .actuators import ActuatorConfig, Actuators
 from .plant import DISTURBANCE_NAMES, GRAVITY, PlantModel, PlantSolution, SimulationError
-from .sensors import PoseSource, SensorConfig
+from .sensors import GyroBias, PoseSource, SensorConfig
 from .truth import Truth
 
 __all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "Disturbance",
@@ -148,7 +148,11 @@ class Disturbance(Protocol):
 
 @dataclass(frozen=True)
 class TruthState:
-    """What really happened at one instant (for recordings' truth channel and metrics)."""
+    """What really happened at one instant (for recordings' truth channel and metrics).
+
+    ``disturbance`` holds the external forces applied over the step that ended at ``t``
+    (``None`` without a hook); ``gyro_bias`` is the gyro's true yaw-rate bias now, rad/s.
+    """
 
     t: float
     x: float
@@ -166,6 +170,7 @@ class TruthState:
     motor_torque: tuple[float, ...]
     travelled: float
     disturbance: DisturbanceForces | None = None
+    gyro_bias: float = 0.0
 
     @property
     def v_x(self) -> float:
@@ -233,6 +238,7 @@ class RoverSimulator:
         self.dt = dt
         self.rng = np.random.default_rng(seed)
         self.pose_source = PoseSource(self.sensors, self.rng)
+        self.gyro_bias = GyroBias(self.sensors, seed)
         self.failures = declared_failures(scenario)
         self.t = 0.0
         self.seq = 0
@@ -360,6 +366,7 @@ class RoverSimulator:
         if self.sol is None:
             raise SimulationError("call start(first_commands) before stepping the simulator")
         self._disturb()
+        self.gyro_bias.advance(self.dt)
         self.act.advance(self.dt)
         self._solve(1.0 / self.dt)
         u, v, r = self.z[0], self.z[1], self.z[2]
@@ -395,7 +402,7 @@ class RoverSimulator:
         n = self.rng.standard_normal(4 + 4 + 1 + 2 + 4)
         omega = self.sol.omega + c.wheel_speed_noise * n[0:4]
         steer = self.act.steer + c.steer_noise * n[4:8]
-        gyro = self.z[2] + c.gyro_bias + c.gyro_noise * n[8]
+        gyro = self.z[2] + self.gyro_bias.value + c.gyro_noise * n[8]
         roll, pitch = self._tilt()
         roll += c.tilt_offset[0] + c.tilt_noise * n[9]
         pitch += c.tilt_offset[1] + c.tilt_noise * n[10]
@@ -420,7 +427,7 @@ class RoverSimulator:
         return TruthState(self.t, self.x, self.y, self.heading, float(self.z[0]), float(self.z[1]), float(self.z[2]),
                           tup(s.omega), tup(self.act.steer + np.asarray(self.truth.steer_offset)), tup(s.sinkage),
                           tup(s.wrench[:, 2]), tup(s.slip), tup(s.slip_angle), tup(self._motor(s)), self.travelled,
-                          self.applied)
+                          self.applied, self.gyro_bias.value)
 
     @property
     def mass(self) -> float:

@@ -24,7 +24,7 @@ SCEN = {p.stem: p for p in example_scenarios()}
 
 # sha256 (first 16 hex digits) of 2 s of measurements and truth, seed 5, primitive commands,
 # computed on this machine with the simulator of main at d372f6a, before the hook existed (the
-# later additions switched to their old behaviour: no gyro bias walk).
+# later additions switched to their old behaviour: no gyro bias walk, no wheel spin inertia).
 LEGACY_SENSORS = SensorConfig(gyro_bias_walk=0.0)
 BASELINE = {
     "nominal": "5b452fd783da9775",
@@ -51,7 +51,8 @@ def _scenario(name):
 def _hash_run(name, **kw):
     sc, prim = _scenario(name)
     cmd = _cmd(prim)
-    sim = RoverSimulator(sc, seed=5, sensors=LEGACY_SENSORS, **kw)
+    legacy = Truth.nominal(sc.params, sc.rover, wheel_inertia=0.0)
+    sim = RoverSimulator(sc, legacy, seed=5, sensors=LEGACY_SENSORS, **kw)
     sim.start(cmd)
     h = hashlib.sha256()
     for _ in range(10):

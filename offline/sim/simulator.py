@@ -250,6 +250,8 @@ class RoverSimulator:
         self.mode = np.ones(4)
         self.torque = np.zeros(4)
         self.newton_iterations = 0
+        self.contact = self.act.contact()
+        self.motor = np.zeros(4)
         if disturbance is not None and not callable(disturbance):
             raise DisturbanceError(f"disturbance must be a callable (t, TruthState) -> DisturbanceForces, got {disturbance!r}")
         self.disturbance = disturbance
@@ -260,7 +262,7 @@ class RoverSimulator:
     def _inputs(self, inv_dt: float) -> NDArray[np.float64]:
         steer = self.act.steer + np.asarray(self.truth.steer_offset)
         return np.concatenate([self.act.omega_servo, self.mode, self.torque, steer,
-                               self.z[:3], [self.heading, inv_dt]])
+                               self.z[:3], [self.heading, inv_dt], self.z[3:7], self.contact])
 
     def _solve(self, inv_dt: float) -> None:
         base_mode, base_torque = self.act.drive_modes()
@@ -268,7 +270,7 @@ class RoverSimulator:
         for _ in range(6):  # active set of the torque limits
             z, sol = self.plant.solve(self.z, self._inputs(inv_dt), self.q, self._d)
             self.newton_iterations += sol.iterations
-            motor = self._motor(sol)
+            motor = self._motor(sol, inv_dt)
             changed = False
             for i in range(4):
                 lim = self.act.torque_limit(i)
@@ -277,21 +279,26 @@ class RoverSimulator:
                 if self.mode[i] == 1 and abs(motor[i]) > lim * (1 + 1e-9):
                     self.mode[i], self.torque[i] = 0.0, math.copysign(lim, motor[i])
                     changed = True
-                elif self.mode[i] == 0 and abs(sol.omega[i]) > abs(self.act.omega_servo[i]) + 1e-12:
-                    self.mode[i], self.torque[i] = 1.0, 0.0  # the servo can hold its speed again
+                elif self.mode[i] == 0 and math.copysign(1.0, self.torque[i]) * (sol.omega[i] - self.act.omega_servo[i]) > 1e-12:
+                    self.mode[i], self.torque[i] = 1.0, 0.0  # the limit torque would overshoot: the servo holds its speed again
                     changed = True
             if not changed:
                 break
-        self.z, self.sol = z, sol
+        self.z, self.sol, self.motor = z, sol, motor
         # a wheel held at its torque limit turns at the speed the soil allows; the servo tracks it
         held = (self.mode == 0) & (base_mode == 1)
         self.act.omega_servo = np.where(held, sol.omega, self.act.omega_servo)
 
-    def _motor(self, sol: PlantSolution) -> NDArray[np.float64]:
-        """Motor torque per wheel: it balances the soil's axle moment and any hub drag."""
+    def _motor(self, sol: PlantSolution, inv_dt: float) -> NDArray[np.float64]:
+        """Motor torque per wheel over the step just solved: it balances the soil's axle moment,
+        any hub drag and the wheel's spin inertia, ``T = J (omega - omega_prev)/dt - M_y + tau_d``
+        (``self.z`` still holds the previous step's unknowns)."""
         motor = -sol.wrench[:, 4]
         if self._d is not None:
             motor = motor + self._d[11:15]
+        jw = self.truth.wheel_inertia
+        if jw * inv_dt != 0.0:
+            motor = motor + jw * inv_dt * (sol.omega - self.z[3:7])
         return motor
 
     def _disturb(self) -> NDArray[np.float64] | None:
@@ -309,7 +316,7 @@ class RoverSimulator:
         """Begin at the steady state of the first commands (the rover already driving them, as
         in section 7.3 where it drove 5 s before each run), at the origin, heading 0."""
         self.act.reset(commands.rim_speed, commands.steer_angle)
-        self.z = self.plant.initial_guess(self.scenario.speed, self.q)
+        self.z = self.plant.initial_guess(self.scenario.speed, self.q, self.contact)
         # quasi-static steady state, reached by continuation from straight driving (Newton from a
         # straight guess need not converge for a strongly steered primitive such as the trench)
         om_t, st_t = self.act.omega_servo.copy(), self.act.steer.copy()
@@ -408,7 +415,7 @@ class RoverSimulator:
         pitch += c.tilt_offset[1] + c.tilt_noise * n[10]
         torque = None
         if math.isfinite(c.torque_noise):
-            torque = tuple(float(x) for x in (self._motor(self.sol) + c.torque_noise * n[11:15]))
+            torque = tuple(float(x) for x in (self.motor + c.torque_noise * n[11:15]))
         fix = self.pose_source.deliver(self.t)
         pose = Pose(*fix) if fix is not None else None
         m = Measurements(t=self.t, seq=self.seq, wheel_speed=tuple(float(x) for x in omega),  # type: ignore[arg-type]
@@ -426,7 +433,7 @@ class RoverSimulator:
         tup = lambda a: tuple(float(x) for x in a)  # noqa: E731
         return TruthState(self.t, self.x, self.y, self.heading, float(self.z[0]), float(self.z[1]), float(self.z[2]),
                           tup(s.omega), tup(self.act.steer + np.asarray(self.truth.steer_offset)), tup(s.sinkage),
-                          tup(s.wrench[:, 2]), tup(s.slip), tup(s.slip_angle), tup(self._motor(s)), self.travelled,
+                          tup(s.wrench[:, 2]), tup(s.slip), tup(s.slip_angle), tup(self.motor), self.travelled,
                           self.applied, self.gyro_bias.value)
 
     @property

@@ -187,3 +187,17 @@ def test_two_raised_wheels_are_refused():
     sim = RoverSimulator(sc)
     assert list(sim.contact) == [1.0, 1.0, 1.0, 1.0]
     assert GRAVITY * sim.mass == pytest.approx(sim.weight)
+
+
+def test_truth_file_wheel_inertia(tmp_path):
+    from offline.sim.truth import TruthError, load_truth
+
+    sc = load_scenario(SCEN["nominal"])
+    f = tmp_path / "t.toml"
+    f.write_text("[truth]\nwheel_inertia_kg_m2 = 0.002\n")
+    assert load_truth(f, sc.rover).wheel_inertia == 0.002
+    f.write_text("[truth]\nslope_deg = 1.0\n")
+    assert load_truth(f, sc.rover).wheel_inertia == pytest.approx(0.1 * sc.params.wheel.radius**2)
+    f.write_text("[truth]\nwheel_inertia_kg_m2 = -1.0\n")
+    with pytest.raises(TruthError, match="wheel_inertia_kg_m2 = -1.0 outside"):
+        load_truth(f, sc.rover)

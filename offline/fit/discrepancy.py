@@ -772,8 +772,10 @@ def diagnose(
                    ambiguity)
 
 
-def _term_keys(s: CandidateScore) -> frozenset[str]:
-    return frozenset(k for k, kind in zip(s.keys, s.kinds) if kind == "term")
+def _signature(keys: Sequence[str], kinds: Sequence[str]) -> frozenset[str]:
+    """What an explanation claims: its new terms, and "parameters off" for any change of the model's
+    own parameters (a k scale and a full recalibration make the same claim)."""
+    return frozenset(k if kind == "term" else "(parameters off)" for k, kind in zip(keys, kinds))
 
 
 def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float = 0.95) -> list[str]:
@@ -813,14 +815,16 @@ def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float =
 
 def _ambiguity(chosen: CandidateScore, equivalent: Sequence[CandidateScore], by_key: dict[str, Any], obs: Any) -> str:
     """Why the accepted explanation cannot be named from these data ('' when it can): look-alikes
-    with other terms that fit the held-out rows equally (Vuong V < 2, similar improvement), or a
-    term of the explanation that the data do not determine (:func:`undetermined_terms`)."""
+    that claim other physics (other terms, or a new term against "parameters off") and fit the
+    held-out rows equally (Vuong V < 2, similar improvement), or a term of the explanation that
+    the data do not determine (:func:`undetermined_terms`)."""
     reasons = []
-    def ref(s: CandidateScore) -> frozenset[str]:  # a single look-alike competes with the first term only
-        return _term_keys(chosen) if len(s.keys) == len(chosen.keys) else frozenset(
-            k for k, kind in zip(chosen.keys[:1], chosen.kinds[:1]) if kind == "term")
 
-    alts = [s for s in equivalent if _term_keys(s) and ref(s) and _term_keys(s) != ref(s)]
+    def ref(s: CandidateScore) -> frozenset[str]:  # a single look-alike competes with the first term only
+        n = len(s.keys) if len(s.keys) < len(chosen.keys) else len(chosen.keys)
+        return _signature(chosen.keys[:n], chosen.kinds[:n])
+
+    alts = [s for s in equivalent if _signature(s.keys, s.kinds) != ref(s)]
     if alts:
         reasons.append(f"{len(alts) + 1} explanations fit the held-out rows equally (Vuong V < 2): "
                        + "; ".join(s.label for s in [chosen, *alts]))

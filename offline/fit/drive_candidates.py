@@ -27,16 +27,33 @@ gyro_scale           gyro scale-factor error (readings only)              (measu
 soil_stiffness       soil stiffer / softer than believed (k)              ``soil_stiffness_scale``
 wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
 recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
+
+hub_contact          hub / body face bulldozes soil once a wheel sinks     disturbance hook (C5):
+                     beyond a clearance (Rankine passive pressure on a     :class:`HubContact`
+                     face, a drag force against the wheel's travel and a
+                     torque against its spin)
 ===================  ===================================================  =========================
 
-Not in the library (the planar plant has no such input): hub or body contact with the soil,
-sinkage beyond the soil model (an "extra sinkage" acts here like a softer soil).
+Which of them the table builder takes (:mod:`offline.rover.table_builder` builds on a scenario:
+parameter file, failures, and the slope / cross-slope axes): ``terrain_slope`` (its axes),
+``soil_stiffness`` and ``recalibration`` (the parameter file's soil), ``wheel_radius_all`` (the
+parameter file's wheel radius) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every
+wheel). Not taken (not done): per-wheel radius and steering offset (the optimizer's rover has one
+wheel geometry and exact steering), ``tether`` (no external-force parameter in the steady-state
+problem), ``hub_contact`` (no disturbance term in the NLP) and ``servo_lag`` (a dynamic effect the
+steady-state tables have no place for). ``imu_tilt`` and ``gyro_scale`` act on the readings only and
+change no table.
+
+Hub contact travels as a :class:`~offline.sim.simulator.DisturbanceForces` hook
+(:func:`disturbance_from_terms`), which :class:`~offline.sim.simulator.RoverSimulator` takes; the
+truth file format has no key for it, so ``accepted_truth.toml`` carries it as a comment block
+with its parameters (``offnominal drive --truth`` does not apply it: not done).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -44,18 +61,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..files import write_text
-from ..physics.params import ParameterSet
+from ..physics.params import ParameterSet, Rover, Soil
 from ..sim.actuators import ActuatorConfig
+from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate, Extension
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "RoverTerms", "rover_terms", "recalibration_candidate",
-           "truth_from_terms", "write_truth_toml", "DriveCandidateError"]
+           "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
+           "TABLE_BUILDER_TAKES"]
 
 ROVER_KEYS = (
     "rover.slope", "rover.cross_slope", "rover.imu_roll", "rover.imu_pitch", "rover.tether", "rover.wheel_lag",
     "rover.torque_limit", "rover.gyro_scale", "rover.radius_scale_all",
     *(f"rover.radius_scale.{w}" for w in WHEELS), *(f"rover.steer_offset.{w}" for w in WHEELS),
+    "rover.hub_clearance", "rover.hub_face_width", "rover.hub_arm",
 )
 """Keys of ``Extension.options`` that carry rover-level terms (SI: rad, N, s, N m, relative)."""
 
@@ -110,6 +130,73 @@ def _opt(**kw: float) -> Extension:
 _D = math.pi / 180.0
 
 
+@dataclass(frozen=True)
+class HubContact:
+    """Hub or body contact with the soil: a face that bulldozes soil once a wheel sinks beyond a clearance.
+
+    For each wheel with sinkage ``h`` above the clearance ``h_c`` the submerged depth
+    ``e = h - h_c`` of a vertical face of width ``b`` meets Rankine passive earth pressure,
+    ``F = b (gamma K_p e^2 / 2 + 2 c sqrt(K_p) e)``, ``K_p = tan^2(45 deg + phi / 2)`` (soil unit
+    weight ``gamma``, cohesion ``c``, friction angle ``phi`` of the believed soil). ``F`` acts at
+    the wheel against the wheel's travel direction in the body frame (the contact moves with the
+    wheel), and, with lever ``arm`` about the axle, resists the wheel's spin (``T = F arm``, sign
+    of omega). Direction and sign are smoothed over 1 mm/s and 0.01 rad/s so the plant's Newton
+    solve stays smooth at rest. Evaluated once per plant step by the simulator's disturbance
+    hook (contract C5) with the sinkage of the last step.
+
+    Parameters
+    ----------
+    clearance : float
+        Sinkage at which the face touches the soil, m.
+    face_width : float
+        Width of the face, m.
+    arm : float
+        Lever of the drag about the wheel axle, m (0: the face does not turn with the wheel).
+    soil : Soil
+    rover : Rover
+        Wheel positions (rocker length, track width; order FR, FL, RR, RL).
+    """
+
+    clearance: float
+    face_width: float
+    arm: float
+    soil: Soil
+    rover: Rover
+
+    def __post_init__(self) -> None:
+        for name in ("clearance", "face_width", "arm"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise DriveCandidateError(f"HubContact.{name} must be finite and >= 0 (m), got {v!r}")
+
+    def force(self, sinkage: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Drag magnitude per wheel (N) at the sinkages (m)."""
+        e = np.maximum(np.asarray(sinkage, dtype=float) - self.clearance, 0.0)
+        kp = math.tan(math.pi / 4 + self.soil.friction_angle / 2) ** 2
+        return self.face_width * (0.5 * self.soil.unit_weight * kp * e * e + 2.0 * self.soil.cohesion * math.sqrt(kp) * e)
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The forces over the next step (contract C5)."""
+        f = self.force(np.array(s.sinkage))
+        lr, wr = self.rover.rocker_length, self.rover.track_width
+        xs, ys = np.array([lr, lr, -lr, -lr]) / 2, np.array([-wr, wr, -wr, wr]) / 2
+        vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
+        norm = np.sqrt(vx * vx + vy * vy + 1e-6)
+        om = np.array(s.omega)
+        torque = f * self.arm * om / np.sqrt(om * om + 1e-4)
+        return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
+                                 wheel_torque=tuple(float(x) for x in torque))
+
+
+def disturbance_from_terms(ext: Extension | None, params: ParameterSet, rover: Rover) -> HubContact | None:
+    """The simulator disturbance hook of an extension's hub-contact terms (None without them)."""
+    t = rover_terms(ext)
+    if "rover.hub_clearance" not in t:
+        return None
+    soil = replace(params.soil, **ext.soil) if ext is not None and ext.soil else params.soil
+    return HubContact(t["rover.hub_clearance"], t.get("rover.hub_face_width", 0.0), t.get("rover.hub_arm", 0.0), soil, rover)
+
+
 def _wheel_candidates() -> list[Candidate]:
     out = []
     for w in WHEELS:
@@ -148,6 +235,13 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
               (("torque_limit", "N m", 0.02, 1.5, 0.5, 1.0),),
               lambda t, p: _opt(torque_limit=t[0]), ("omega_FR", "omega_FL", "omega_RR", "omega_RL"),
               starts=((0.1,), (0.2,)), threshold=True),
+    Candidate("hub_contact", "hub or body contact: once a wheel sinks beyond a clearance, a face bulldozes soil "
+              "(Rankine passive pressure): a drag against the wheel's travel and a torque against its spin",
+              (("clearance", "mm", 0.0, 60.0, 4.0, 1e-3), ("face_width", "mm", 0.0, 150.0, 40.0, 1e-3),
+               ("arm", "mm", 0.0, 60.0, 20.0, 1e-3)),
+              lambda t, p: _opt(hub_clearance=t[0], hub_face_width=t[1], hub_arm=t[2]),
+              ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"),
+              starts=((10.0, 40.0, 20.0),), threshold=True),
     Candidate("gyro_scale", "gyro scale-factor error: the yaw rate reads (1 + g) times the true rate",
               (("scale_error", "%", -30.0, 30.0, 0.0, 1e-2),),
               lambda t, p: _opt(gyro_scale=t[0]), ("yaw_rate",), null=(0.0,)),
@@ -161,6 +255,23 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
               lambda t, p: _opt(radius_scale_all=1.0 + float(t[0])), kind="parameters", family="radius_all", null=(0.0,)),
 )
 """The rover-level library (module table)."""
+
+
+TABLE_BUILDER_TAKES: dict[str, str] = {
+    "terrain_slope": "yes: the slope / cross_slope axes of the table",
+    "soil_stiffness": "yes: the parameter file's soil k",
+    "recalibration": "yes: the parameter file's soil (recalibrated.toml)",
+    "wheel_radius_all": "yes: the parameter file's wheel radius",
+    "torque_saturation": "yes: a torque_limit_Nm failure on every wheel in the scenario file",
+    **{f"wheel_radius_{w}": "no (not done): the optimizer's rover has one wheel geometry" for w in WHEELS},
+    **{f"steer_offset_{w}": "no (not done): the optimizer's steering is exact" for w in WHEELS},
+    "tether": "no (not done): the steady-state problem has no external-force parameter",
+    "hub_contact": "no (not done): the steady-state problem has no disturbance term",
+    "servo_lag": "no: a dynamic effect; steady-state tables have no place for it",
+    "imu_tilt": "not applicable: acts on the readings only",
+    "gyro_scale": "not applicable: acts on the readings only",
+}
+"""Whether the table builder takes each candidate's fitted parameters (module notes)."""
 
 
 def recalibration_candidate(params: ParameterSet) -> Candidate:
@@ -219,13 +330,15 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: Extension) -> tuple
 
 
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
-                     actuator: Mapping[str, float] | None, header: Mapping[str, Any]) -> Path:
+                     actuator: Mapping[str, float] | None, header: Mapping[str, Any],
+                     disturbance: Mapping[str, float] | None = None) -> Path:
     """Write the accepted terms as a truth file :func:`offline.sim.truth.load_truth` reads.
 
     Only what differs from the believed world is written. Terms the truth format has no key
     for (IMU tilt, gyro scale, servo lag, torque limit) go to a ``[sensors_and_actuators]``
     comment block with their values, since they belong to the sensor and actuator
-    configuration, not to the world. ``header`` lines become comments (fitted values,
+    configuration, not to the world; ``disturbance`` (hub contact: clearance_m, face_width_m,
+    arm_m) goes to a comment block too. ``header`` lines become comments (fitted values,
     standard errors, held-out improvement).
     """
     lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
@@ -253,6 +366,11 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
             wl.append(f"steer_offset_deg = {math.degrees(truth.steer_offset[i]):.6g}")
         if wl:
             lines += ["", f"[wheels.{w}]", *wl]
+    hub = {k: v for k, v in (disturbance or {}).items()}
+    if hub:
+        lines += ["", "# hub contact (offline.fit.drive_candidates.HubContact, a simulator disturbance hook; not a key",
+                  "# of the truth format, so offnominal drive --truth does not apply it), SI:"]
+        lines += [f"#   {k} = {v:.6g}" for k, v in hub.items()]
     extra = {k: v for k, v in measurement.items() if v}
     extra.update(actuator or {})
     if extra:

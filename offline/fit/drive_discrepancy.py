@@ -74,7 +74,15 @@ from ..sim.simulator import RoverSimulator
 from ..sim.truth import WHEELS, Truth
 from .candidates import Extension
 from .discrepancy import Verdict, diagnose
-from .drive_candidates import DRIVE_CANDIDATES, recalibration_candidate, rover_terms, truth_from_terms, write_truth_toml
+from .drive_candidates import (
+    DRIVE_CANDIDATES,
+    TABLE_BUILDER_TAKES,
+    disturbance_from_terms,
+    recalibration_candidate,
+    rover_terms,
+    truth_from_terms,
+    write_truth_toml,
+)
 from .observations import FEATURE_LABELS, Probe
 from .significance import normalised
 
@@ -478,7 +486,7 @@ class DriveRecording:
         have = self.manoeuvres()
         wanted = {"turn": "a point turn or Ackermann turns both ways", "crab": "a crab (all wheels at one angle)",
                   "reverse": "a reverse leg"}
-        need = [text for m, text in wanted.items() if have[m] < 2.0]
+        need = [text for m, text in wanted.items() if have[m] < 1.0]
         rec = ", ".join(f"{k} {v:.0f} s" for k, v in have.items())
         if need:
             return (f"Drive a calibration manoeuvre to separate them: this recording has {rec}; add {', '.join(need)} "
@@ -629,6 +637,7 @@ class DriveModel:
         body = np.full((n, 3), np.nan)
         try:
             truth, act, _ = truth_from_terms(self.params, self.truth, ext)
+            hook = disturbance_from_terms(ext, self.params, self.scenario.rover)
         except ValueError:
             return ticks, body, False
         acfg = replace(self.actuators, **act) if act else self.actuators
@@ -637,7 +646,7 @@ class DriveModel:
                             tilt_offset=s.tilt_offset, torque_noise=0.0, pose_period=math.inf)
         self.simulations += 1
         try:
-            sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0)
+            sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0, disturbance=hook)
             hd = d.pose[:, 2] + heading_offset
             sim.heading = float(hd[0])
             sim.start(Commands(0.0, 0, tuple(d.rim_cmd[0]), tuple(d.steer_cmd[0])))  # type: ignore[arg-type]
@@ -829,18 +838,24 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         header = {"verdict": v.status, "terms": v.chosen.label, "fitted": v.chosen.parameters_text(),
                   "held_out_chi2": f"{v.chi2_cv_base:.1f} -> {v.chosen.chi2_cv:.1f}",
                   "recordings": obs.source}
+        hook = disturbance_from_terms(ext, model.params, model.scenario.rover)
+        dist = {"clearance_m": hook.clearance, "face_width_m": hook.face_width, "arm_m": hook.arm} if hook else None
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
-                                      meas, act, header)
+                                      meas, act, header, dist)
         extra += ["", "## Accepted terms as a simulator truth file", "",
                   f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` and the "
-                  "table builder's scenario take slope, cross-slope and soil from it)."]
+                  "table builder's scenario take slope, cross-slope and soil from it).", "",
+                  "Does the table builder take each accepted term?", ""]
+        extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
     md = (out / "report.md").read_text()
     write_text(out / "report.md", md + "\n".join(extra) + "\n")
     vj = json.loads((out / "verdict.json").read_text())
     vj["drive"] = {"recordings": [d.source for d in obs.drives], "segment_ticks": int(obs.segments[0].bounds[0, 1] - obs.segments[0].bounds[0, 0]),
                    "period_s": obs.drives[0].period, "heading_source": [d.heading_source for d in obs.drives],
                    "rover_terms": dict(rover_terms(ext)), "soil_changes": dict(ext.soil),
-                   "truth_file": truth_file.name if truth_file else None, "simulations": model.simulations}
+                   "truth_file": truth_file.name if truth_file else None, "simulations": model.simulations,
+                   "table_builder_takes": ({k: TABLE_BUILDER_TAKES.get(k, "not known") for k in v.chosen.keys}
+                                           if truth_file else {})}
     write_text(out / "verdict.json", json.dumps(vj, indent=2, default=float))
     return out
 

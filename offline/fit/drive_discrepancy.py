@@ -302,7 +302,8 @@ def _segment_correlation(series: Sequence[NDArray[np.float64]]) -> float:
     """Lag-1 correlation of a channel's segment residuals, from their first differences so a slow
     discrepancy (what the tool looks for) does not enter: for an MA(1) series with lag-1
     correlation rho, the differences have lag-1 correlation ``r = (2 rho - 1) / (2 - 2 rho)``,
-    so ``rho = (1 + 2 r) / (2 + 2 r)`` (white: r = -1/2, rho = 0). Pooled over the drives.
+    so ``rho = (1 + 2 r) / (2 + 2 r)`` (white: r = -1/2, rho = 0). Pooled over the drives;
+    differences beyond 4 robust sigmas (steps of the discrepancy itself) are set to zero.
     Only a positive correlation shown by the data is kept: ``r`` must exceed -1/2 by two of its
     standard errors (Bartlett, ``sqrt(0.5 / m)`` for m differences), so a short drive keeps
     independent draws and a long one picks up a real correlation; a negative one (adjacent pose
@@ -314,10 +315,16 @@ def _segment_correlation(series: Sequence[NDArray[np.float64]]) -> float:
         dz = np.diff(z[np.isfinite(z)])
         if dz.size < 3:
             continue
-        dz = dz - dz.mean()
+        dz = dz - np.median(dz)
+        s0 = 1.4826 * float(np.median(np.abs(dz)))
+        if s0 == 0.0:
+            continue
+        # a step of the discrepancy (a manoeuvre change) is one outlying difference: it would pull
+        # r from -1/2 towards 0 (rho towards 1/2), so differences beyond 4 robust sigmas are left out
+        dz = np.where(np.abs(dz) <= 4.0 * s0, dz, 0.0)
         num += float(dz[1:] @ dz[:-1])
         den += float(dz @ dz)
-        count += dz.size
+        count += int(np.count_nonzero(dz))
     if count < 8 or den <= 0.0:
         return 0.0
     r = float(np.clip(num / den, -0.999, 0.999))

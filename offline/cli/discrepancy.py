@@ -76,8 +76,9 @@ def register(sub: Any) -> None:
                     "candidate physics and a recalibration of the model's own parameters, accept by held-out improvement "
                     "against a bootstrap null (family-wise false-alarm level --alpha), and write a report folder "
                     "(report.md, PNGs, verdict.json; recalibrated.toml when the verdict is 'parameters off'). Verdicts: "
-                    "agree, explained, parameters off, partly explained, unexplained; explanations the data cannot tell "
-                    "apart are reported together with the experiment that would separate them.")
+                    "agree, explained, parameters off, partly explained, ambiguous (drives: explanations that fit "
+                    "equally, nothing named, with the manoeuvre that would separate them), unexplained; explanations the "
+                    "data cannot tell apart are reported together with the experiment that would separate them.")
     d.add_argument("--data", help="trials CSV in the single-wheel format (default: the shipped grousered trials)")
     d.add_argument("--params", help=f"parameter TOML (default: shipped {DEFAULT_PARAMS})")
     d.add_argument("--out", default="out/discrepancy", help="report folder (default: %(default)s)")

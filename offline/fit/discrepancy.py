@@ -375,6 +375,11 @@ class Verdict:
             padj = f"{s.p_adjusted:.3g}" if math.isfinite(s.p_adjusted) else "(extra term test)"
             md.append(f"| {s.label} | {'/'.join(s.kinds)} | {s.parameters_text()} | {s.chi2_cv:.1f} | {s.delta_cv:.1f} | "
                       f"{padj} | {'yes' if s.significant else ''} |")
+        if self.status == "ambiguous":
+            md += ["", f"## Not identifiable from this recording: {len(self.explanations)} explanations fit equally", "",
+                   "Nothing is named. These explanations fit the held-out rows equally (or a term is not determined):", ""]
+            md += [f"- `{s.label}`: {s.parameters_text()} (held-out chi2 {s.chi2_cv:.1f})" for s in self.explanations]
+            md += ["", self.ambiguity]
         md += ["", "## Decision criterion", "", self.criterion, ""]
         if self.regions_after:
             md += ["## Regions still significant after the explanation", ""] + [f"- {r.describe()}" for r in self.regions_after] + [""]
@@ -723,6 +728,24 @@ def diagnose(
                 equivalent += [s for s in scores[len(singles):] if s is not best2 and s.significant
                                and vuong(best2.rows_cv, s.rows_cv) < 2.0
                                and primary.chi2_cv - s.chi2_cv >= (1.0 - equal_fraction) * gain]
+                if getattr(obs, "withhold_lookalikes", False):
+                    # a look-alike of the first term is only a rival of the pair if it still fits
+                    # equally with the second term beside it: fit that pair, take the best-scoring
+                    # pair and keep the pairs the held-out rows cannot tell from it
+                    second = by_key[best2.keys[-1]][0]
+                    pairs = [best2] + [s for s in equivalent if len(s.keys) > 1]
+                    for s in [s for s in equivalent if len(s.keys) == 1]:
+                        c1 = by_key[s.keys[0]][0]
+                        if (c1.family or c1.key) == (second.family or second.key):
+                            continue
+                        say(f"trying look-alike {c1.key} + {second.key}")
+                        alt, _ = score([c1, second], [np.array([*s.values, *best2.values[primary.k:]])])
+                        alt = _with(alt, significant=True)
+                        scores.append(alt)
+                        pairs.append(alt)
+                    chosen = min(pairs, key=lambda s: s.chi2_cv)
+                    equivalent = [s for s in pairs if s is not chosen and vuong(chosen.rows_cv, s.rows_cv) < 2.0
+                                  and chi2_base - s.chi2_cv >= (1.0 - equal_fraction) * (chi2_base - chosen.chi2_cv)]
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]
         ext = _ext_of(cands, np.array(chosen.values), ps)

@@ -43,6 +43,18 @@ held-out score are contiguous blocks of time (held-out time segments), never int
 rows. On top of this, the engine's per-channel dispersion ``s >= 1`` absorbs any noise
 underestimate that affects the whole drive.
 
+Correlated null (:meth:`DriveRecording.null_draw`): the engine's bootstrap of the held-out
+improvement draws every channel of every drive as an MA(1) series over its segments, with the
+segment-to-segment correlation the data show (:func:`_segment_correlation`, from the differences
+of the believed model's residuals, kept only when positive and two standard errors above white
+noise): a long drive whose noise wanders from segment to segment does not make noise significant.
+
+Identifiability (``withhold_lookalikes``): explanations that claim other physics and fit the
+held-out segments equally, or a term the joint fit cannot tell from its absence, make the verdict
+``ambiguous`` -- nothing named, the explanations that fit equally listed, and
+:meth:`DriveRecording.identification_advice` says which manoeuvres (point turn, crab, reverse,
+from the recorded motion) the drive lacks or that a longer / repeated drive is needed.
+
 Bad input: ticks out of order or repeated, commands missing for a tick, irregular tick
 periods and non-finite headings are errors naming the file, the sequence number and the fix;
 a non-finite reading is left out of its segment mean (documented fallback), and a segment

@@ -450,7 +450,7 @@ CRITERION = (
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
     "held-out rows (Vuong V < 2 and at least {keep:.0f} % of its improvement) are reported as indistinguishable; if one of them is a change of the model's own "
-    "parameters the verdict is 'parameters off'. If the first leaves regions or a misfit, every other term is screened "
+    "parameters the verdict is 'parameters off'. If the first leaves regions (drives: always), every other term is screened "
     "on top of it by a linearised held-out score test, the best {tries} are fitted jointly with it, and a second term is "
     "added when its extra improvement exceeds the 1 - {alpha} quantile of the maximum of the screened terms' nulls. Remaining regions, or residuals still above the measurement noise "
     "(chi2 in noise units per channel, at {alpha}/channels), make the verdict 'partly explained'; less than half of "
@@ -513,6 +513,7 @@ def diagnose(
     max_nfev: int = 25,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    forward: str = "regions",
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -558,6 +559,10 @@ def diagnose(
         Least-squares iterations per start (budget in iterations).
     seed : int
         Seed of every random draw (bootstrap, region test, linearisation points).
+    forward : {"regions", "always"}
+        When the forward step looks for a second term: only when the first leaves significant
+        regions (the single-wheel default), or always (drives: a second effect partly absorbed
+        by the first may leave no region; the extra term's own test keeps the level).
 
     Raises
     ------
@@ -566,6 +571,8 @@ def diagnose(
         a wrong unit, a parameter file for another wheel): no verdict can be given.
     """
     t0 = time.perf_counter()
+    if forward not in ("regions", "always"):
+        raise ValueError(f"forward = {forward!r}: expected 'regions' or 'always'")
     say = progress or (lambda s: None)
     model = params if hasattr(params, "predict") else SingleWheelModel(params, options or ModelOptions())
     obs = (trials_or_recording if hasattr(trials_or_recording, "channels")
@@ -680,10 +687,13 @@ def diagnose(
         primary = min(params_kind, key=lambda s: (s.keys[0] == RECALIBRATION_KEY, s.k)) if params_kind else best
         equivalent = [s for s in group if s is not primary]
         chosen = primary
-        # forward step: one more term on top of the first (its own test below keeps the false-alarm
-        # level; whether the first leaves significant regions is no gate: a second effect partly
-        # absorbed by the first may leave none at the region test's multiplicity-adjusted level)
-        if max_terms > 1:
+        # forward step: one more term on top of the first, when the first leaves significant regions
+        # or (forward="always") in any case: its own test below keeps the false-alarm level, and a
+        # second effect partly absorbed by the first may leave no region at the region test's
+        # multiplicity-adjusted level
+        go = max_terms > 1 and (forward == "always" or bool(_regions_of(
+            model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)))
+        if go:
             first = [by_key[k][0] for k in primary.keys]
             fam = {c.family or c.key for c in first}
             pool = [s for s in singles if s.keys[0] not in primary.keys and (by_key[s.keys[0]][0].family or s.keys[0]) not in fam
@@ -886,6 +896,18 @@ def _locate_kw(obs: Any) -> dict[str, Any]:
     many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
     ``locate_perm``; the defaults are the single-wheel ones (0.01, 400)."""
     return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+
+
+def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
+    """Significant regions of the residuals of the model with ``ext``."""
+    pred, ok = model.predict(obs, ext)
+    out: list[Region] = []
+    for ch in obs.channels:
+        r = obs.measured[ch] - pred[ch]
+        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs))
+    if not ok.all():
+        out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
+    return out
 
 
 def _with(s: CandidateScore, **kw: Any) -> CandidateScore:

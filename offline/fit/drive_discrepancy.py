@@ -792,7 +792,8 @@ def diagnose_drives(
         Plant solved every ``stride`` ticks (:class:`DriveModel`).
     k_folds, alpha, n_boot, n_points, max_nfev, seed
         Passed to :func:`offline.fit.discrepancy.diagnose` (``max_nfev`` least-squares
-        iterations per start: budget in iterations).
+        iterations per start: budget in iterations); the forward step for a second term
+        always runs (``forward="always"``).
 
     Returns
     -------
@@ -804,7 +805,8 @@ def diagnose_drives(
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = DriveRecording.build(drives, model, segment)
     return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
-                    n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress)
+                    n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
+                    forward="always")
 
 
 def accepted_extension(v: Verdict) -> Extension:

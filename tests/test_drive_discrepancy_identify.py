@@ -31,24 +31,14 @@ from offline.fit.drive_discrepancy import DriveModel, DriveRecording, _segment_c
 from offline.fit.drive_synthetic import REALISTIC_SENSORS, record_drive
 from offline.fit.significance import held_out, linear_held_out
 from offline.fit.significance import FitResult
-from offline.rover.scenario import load_scenario
 from offline.sim.simulator import RoverSimulator, TruthState
 from offline.sim.truth import Truth
 from rtctl.messages import Commands
 from rtctl.recording import Recorder
 
-ROOT = Path(__file__).resolve().parents[1]
+from test_drive_discrepancy import nominal, sc  # noqa: F401  (the shared scenario fixtures)
+
 WHEEL_LIB = tuple(c for c in DRIVE_CANDIDATES if c.key.startswith(("wheel_radius_", "steer_offset_")) and c.key != "wheel_radius_all")
-
-
-@pytest.fixture(scope="module")
-def sc():
-    return load_scenario(ROOT / "offline/scenarios/nominal.toml")
-
-
-@pytest.fixture(scope="module")
-def nominal(sc):
-    return Truth.nominal(sc.params, sc.rover)
 
 
 @pytest.mark.parametrize("radius_wheel, steer_wheel, offset_deg", [(3, 0, -3.0), (2, 1, 3.0)], ids=["RL_radius+FR_steer",

@@ -25,7 +25,14 @@ import numpy as np
 import pytest
 
 from offline.fit.candidates import Extension
-from offline.fit.drive_candidates import DRIVE_CANDIDATES, DriveCandidateError, rover_terms, truth_from_terms, write_truth_toml
+from offline.fit.drive_candidates import (
+    DRIVE_CANDIDATES,
+    DriveCandidateError,
+    RoverExtension,
+    rover_terms,
+    truth_from_terms,
+    write_truth_toml,
+)
 from offline.fit.drive_discrepancy import (
     DriveDataError,
     DriveModel,
@@ -125,7 +132,7 @@ def test_bad_recordings_are_named(tmp_path):
 def test_accepted_terms_round_trip_through_a_truth_file(sc, nominal, tmp_path):
     """Terms -> truth file -> offline.sim.truth.load_truth gives the same world back."""
     lib = {c.key: c for c in DRIVE_CANDIDATES}
-    ext = Extension()
+    ext = RoverExtension()
     for key, theta in (("terrain_slope", [1.5, -3.5]), ("wheel_radius_RR", [-7.0]), ("steer_offset_FL", [2.5]),
                        ("tether", [1.8]), ("soil_stiffness", [0.7])):
         c = lib[key]
@@ -140,7 +147,11 @@ def test_accepted_terms_round_trip_through_a_truth_file(sc, nominal, tmp_path):
     assert back.tether_force == pytest.approx(1.8)
     assert back.params.soil.k == pytest.approx(0.7 * nominal.params.soil.k)
     with pytest.raises(DriveCandidateError, match="unknown rover term"):
-        rover_terms(Extension(options={"rover.wind": 1.0}))
+        RoverExtension(terms={"wind": 1.0})
+    with pytest.raises(DriveCandidateError, match="not finite"):
+        RoverExtension(terms={"tether": math.nan})
+    with pytest.raises(DriveCandidateError, match="takes a RoverExtension"):
+        rover_terms(Extension(tether_force=1.0))  # the single-wheel model's extension is not a drive term
 
 
 def _sub() -> list:

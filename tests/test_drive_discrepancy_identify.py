@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.fit.candidates import Extension
 from offline.fit.discrepancy import VERDICTS
 from offline.fit.drive_candidates import (
     DRIVE_CANDIDATES,
     TABLE_BUILDER_TAKES,
     HubContact,
+    RoverExtension,
     disturbance_from_terms,
     truth_from_terms,
     write_truth_toml,
@@ -168,7 +168,7 @@ def test_hub_contact_candidate_reaches_the_simulator(sc, nominal, tmp_path):
     np.testing.assert_allclose(free["torque_FR"], base["torque_FR"], rtol=0, atol=1e-12)
     hook = disturbance_from_terms(touch, sc.params, sc.rover)
     assert isinstance(hook, HubContact) and hook.clearance == pytest.approx(0.004)
-    assert disturbance_from_terms(Extension(), sc.params, sc.rover) is None
+    assert disturbance_from_terms(RoverExtension(), sc.params, sc.rover) is None
     tr, act, meas = truth_from_terms(sc.params, nominal, touch)
     p = write_truth_toml(tmp_path / "t.toml", "dissertation-ch7", tr, nominal, meas, act, {},
                          {"clearance_m": hook.clearance, "face_width_m": hook.face_width, "arm_m": hook.arm})

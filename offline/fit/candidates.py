@@ -247,7 +247,9 @@ class Candidate:
         ``(name, unit, lower, upper, start, to_si)``; ``to_si`` converts the reported unit
         to SI.
     build : callable
-        ``(theta (SI), ParameterSet) -> Extension``.
+        ``(theta (SI), ParameterSet) -> extension`` of the model's type: :class:`Extension` for
+        the single-wheel model, :class:`offline.fit.drive_candidates.RoverExtension` for drives
+        (anything with ``merge``; the engine starts from ``model.empty_extension()``).
     channels : tuple of str
         Channels the term acts on (for the report).
     family : str

@@ -461,8 +461,11 @@ CRITERION = (
 )
 
 
-def _ext_of(cands: Sequence[Candidate], x: NDArray[np.float64], params: Any) -> Extension:
-    e = Extension()
+def _ext_of(cands: Sequence[Candidate], x: NDArray[np.float64], params: Any, empty: Any) -> Any:
+    """The candidates' extensions at ``x`` (reported units) merged onto ``empty``, the model's
+    extension that changes nothing (``model.empty_extension()``; the single-wheel
+    :class:`Extension` by default)."""
+    e = empty
     i = 0
     for c in cands:
         e = e.merge(c.build(x[i:i + c.k] * c.to_si, params))
@@ -604,20 +607,21 @@ def diagnose(
     base_rows = (z0**2).sum(axis=1)
     chi2_base = float(base_rows.sum())
     ps = getattr(model, "params", None)
+    empty = model.empty_extension() if hasattr(model, "empty_extension") else Extension()
     library = list(candidates)
     if recalibrate and hasattr(model, "recalibration"):
         library.append(model.recalibration())
 
     def resid_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            pred, _ = model.predict(obs, _ext_of(cands, x, ps))
+            pred, _ = model.predict(obs, _ext_of(cands, x, ps, empty))
             return normalised(obs, pred, scale).ravel()
         return r
 
     def rows_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64], rows: NDArray[np.int_]) -> NDArray[np.float64]:
             sub = obs.subset(rows)
-            pred, _ = model.predict(sub, _ext_of(cands, x, ps))
+            pred, _ = model.predict(sub, _ext_of(cands, x, ps, empty))
             return normalised(sub, pred, scale)
         return r
 
@@ -692,7 +696,7 @@ def diagnose(
         # second effect partly absorbed by the first may leave no region at the region test's
         # multiplicity-adjusted level
         go = max_terms > 1 and (forward == "always" or bool(_regions_of(
-            model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps), rng)))
+            model, obs, _ext_of([by_key[k][0] for k in primary.keys], np.array(primary.values), ps, empty), rng)))
         if go:
             first = [by_key[k][0] for k in primary.keys]
             fam = {c.family or c.key for c in first}
@@ -758,12 +762,12 @@ def diagnose(
                                   and chi2_base - s.chi2_cv >= (1.0 - equal_fraction) * (chi2_base - chosen.chi2_cv)]
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]
-        ext = _ext_of(cands, np.array(chosen.values), ps)
+        ext = _ext_of(cands, np.array(chosen.values), ps, empty)
         pred1, ok1 = model.predict(obs, ext)
         excess0 = chi2_base - len(obs) * nc
         frac = min(1.0, 1.0 - (chosen.chi2_cv - len(obs) * nc) / excess0) if excess0 > 0 else 1.0
     else:
-        ext, pred1, ok1, frac = Extension(), pred0, ok0, 0.0
+        ext, pred1, ok1, frac = empty, pred0, ok0, 0.0
     res1 = {ch: obs.measured[ch] - pred1[ch] for ch in chans}
     regions_after: list[Region] = []
     if chosen is not None:
@@ -794,7 +798,7 @@ def diagnose(
         cache: dict[Any, Any] = {}
         for s in equivalent[:max_separations]:
             a = chosen if chosen is not None and len(s.keys) == len(chosen.keys) else first
-            separations.append(_separate(model, ps, by_key, a, s, probes, cache))
+            separations.append(_separate(model, ps, by_key, a, s, probes, cache, empty))
     recal = None
     if chosen is not None and status not in ("unexplained", "ambiguous") and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
@@ -898,7 +902,7 @@ def _locate_kw(obs: Any) -> dict[str, Any]:
     return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
 
 
-def _regions_of(model: Any, obs: Any, ext: Extension, rng: np.random.Generator) -> list[Region]:
+def _regions_of(model: Any, obs: Any, ext: Any, rng: np.random.Generator) -> list[Region]:
     """Significant regions of the residuals of the model with ``ext``."""
     pred, ok = model.predict(obs, ext)
     out: list[Region] = []
@@ -917,12 +921,12 @@ def _with(s: CandidateScore, **kw: Any) -> CandidateScore:
 
 
 def _separate(model: Any, ps: Any, by_key: dict[str, Any], a: CandidateScore, b: CandidateScore, probes: Sequence[Any],
-              cache: dict[Any, Any]) -> Separation:
+              cache: dict[Any, Any], empty: Any) -> Separation:
     """The probe where the two fitted explanations' predictions differ most, in noise units
     (``cache`` keeps the first explanation's probe predictions between calls)."""
     best = Separation(a.label, b.label, "", "", 0.0, "", 0.0)
-    ea = _ext_of([by_key[k][0] for k in a.keys], np.array(a.values), ps)
-    eb = _ext_of([by_key[k][0] for k in b.keys], np.array(b.values), ps)
+    ea = _ext_of([by_key[k][0] for k in a.keys], np.array(a.values), ps, empty)
+    eb = _ext_of([by_key[k][0] for k in b.keys], np.array(b.values), ps, empty)
     for j, pr in enumerate(probes):
         o = pr.observations
         if (a.label, j) not in cache:

@@ -1,12 +1,13 @@
 """Rover-level candidate physics for the discrepancy engine (issue 14), with physical parameters and bounds.
 
 The engine (:func:`offline.fit.discrepancy.diagnose`) fits :class:`~offline.fit.candidates.Candidate`
-objects whose ``build(theta, params)`` returns an :class:`~offline.fit.candidates.Extension`.
-The rover-level terms travel in that same extension type: soil changes in ``Extension.soil``
-(the fields of :class:`~offline.physics.params.Soil`, SI) and every other rover term in
-``Extension.options`` under the keys of :data:`ROVER_KEYS` (namespace ``"rover."``), so two
-candidates merge with :meth:`Extension.merge` as single-wheel ones do, and the single-wheel
-model never sees them. :func:`rover_terms` reads them back (unknown ``rover.`` keys are an error).
+objects whose ``build(theta, params)`` returns an extension the model takes; the drive model's
+extension type is :class:`RoverExtension` (the engine starts from ``model.empty_extension()``):
+soil changes in ``RoverExtension.soil`` (the fields of :class:`~offline.physics.params.Soil`, SI)
+and the rover terms in ``RoverExtension.terms`` over :data:`ROVER_KEYS`, checked when the
+extension is made (unknown key or non-finite value: :class:`DriveCandidateError`). Two candidates
+merge with :meth:`RoverExtension.merge`; the single-wheel model's
+:class:`~offline.fit.candidates.Extension` is not taken by the drive model, nor the reverse.
 
 Each term maps onto an input the simulator already takes, so an accepted term *is* a truth
 file (:func:`truth_from_terms`, :func:`write_truth_toml`) that
@@ -53,7 +54,7 @@ with its parameters (``offnominal drive --truth`` does not apply it: not done).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -65,21 +66,20 @@ from ..physics.params import ParameterSet, Rover, Soil
 from ..sim.actuators import ActuatorConfig
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
-from .candidates import Candidate, Extension
+from .candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
-           "TABLE_BUILDER_TAKES"]
+           "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
 
 ROVER_KEYS = (
-    "rover.slope", "rover.cross_slope", "rover.imu_roll", "rover.imu_pitch", "rover.tether", "rover.wheel_lag",
-    "rover.torque_limit", "rover.gyro_scale", "rover.radius_scale_all",
-    *(f"rover.radius_scale.{w}" for w in WHEELS), *(f"rover.steer_offset.{w}" for w in WHEELS),
-    "rover.hub_clearance", "rover.hub_face_width", "rover.hub_arm",
+    "slope", "cross_slope", "imu_roll", "imu_pitch", "tether", "wheel_lag", "torque_limit", "gyro_scale",
+    "radius_scale_all", *(f"radius_scale.{w}" for w in WHEELS), *(f"steer_offset.{w}" for w in WHEELS),
+    "hub_clearance", "hub_face_width", "hub_arm",
 )
-"""Keys of ``Extension.options`` that carry rover-level terms (SI: rad, N, s, N m, relative)."""
+"""Rover terms of :attr:`RoverExtension.terms` (SI: rad, N, s, N m, m, relative)."""
 
-MEASUREMENT_KEYS = ("rover.imu_roll", "rover.imu_pitch", "rover.gyro_scale")
+MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
 
 
@@ -95,36 +95,61 @@ class RoverTerms(dict):  # type: ignore[type-arg]
         return tuple(sorted((k, float(v)) for k, v in self.items() if k not in MEASUREMENT_KEYS))
 
 
-def rover_terms(ext: Extension | None) -> RoverTerms:
-    """The rover terms an extension carries (``Extension.options`` keys starting ``rover.``).
+@dataclass(frozen=True)
+class RoverExtension:
+    """What a rover-level candidate changes in the believed drive model. Defaults change nothing.
+
+    Attributes
+    ----------
+    soil : dict
+        Field replacements (SI) of the believed :class:`~offline.physics.params.Soil`.
+    terms : dict
+        Rover terms over :data:`ROVER_KEYS` (module table), SI.
 
     Raises
     ------
     DriveCandidateError
-        An unknown ``rover.`` key, a non-finite value, or model options the rover plant does
-        not take (the drive model re-simulates the plant; wheel-level options do not apply).
+        An unknown term or a non-finite value.
     """
-    out = RoverTerms()
+
+    soil: Mapping[str, float] = field(default_factory=dict)
+    terms: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for k, v in self.terms.items():
+            if k not in ROVER_KEYS:
+                raise DriveCandidateError(f"unknown rover term {k!r}; known: {list(ROVER_KEYS)}")
+            if not math.isfinite(float(v)):
+                raise DriveCandidateError(f"rover term {k} = {v!r} is not finite")
+        for k, v in self.soil.items():
+            if not math.isfinite(float(v)):
+                raise DriveCandidateError(f"soil field {k} = {v!r} is not finite")
+        object.__setattr__(self, "terms", {k: float(v) for k, v in self.terms.items()})
+        object.__setattr__(self, "soil", dict(self.soil))
+
+    def merge(self, other: "RoverExtension") -> "RoverExtension":
+        """Both extensions at once (the other's entries win)."""
+        return RoverExtension({**self.soil, **other.soil}, {**self.terms, **other.terms})
+
+
+def rover_terms(ext: RoverExtension | None) -> RoverTerms:
+    """The rover terms of an extension (empty for None).
+
+    Raises
+    ------
+    DriveCandidateError
+        ``ext`` is not a :class:`RoverExtension` (e.g. the single-wheel model's extension).
+    """
     if ext is None:
-        return out
-    for k, v in ext.options.items():
-        if not k.startswith("rover."):
-            raise DriveCandidateError(f"extension option {k!r} is not a rover term; the drive model takes only "
-                                      f"{list(ROVER_KEYS)} and soil fields")
-        if k not in ROVER_KEYS:
-            raise DriveCandidateError(f"unknown rover term {k!r}; known: {list(ROVER_KEYS)}")
-        if not math.isfinite(float(v)):
-            raise DriveCandidateError(f"rover term {k} = {v!r} is not finite")
-        out[k] = float(v)
-    for name in ("wheel", "tuning"):
-        if getattr(ext, name):
-            raise DriveCandidateError(f"extension changes {name} fields {dict(getattr(ext, name))}; the drive model "
-                                      "takes per-wheel radii as rover terms and no contact-tuning changes")
-    return out
+        return RoverTerms()
+    if not isinstance(ext, RoverExtension):
+        raise DriveCandidateError(f"the drive model takes a RoverExtension, got {type(ext).__name__}; rover terms are "
+                                  f"{list(ROVER_KEYS)} and soil fields")
+    return RoverTerms(ext.terms)
 
 
-def _opt(**kw: float) -> Extension:
-    return Extension(options={f"rover.{k.replace('__', '.')}": float(v) for k, v in kw.items()})
+def _opt(**kw: float) -> RoverExtension:
+    return RoverExtension(terms={k.replace("__", "."): float(v) for k, v in kw.items()})
 
 
 _D = math.pi / 180.0
@@ -188,13 +213,13 @@ class HubContact:
                                  wheel_torque=tuple(float(x) for x in torque))
 
 
-def disturbance_from_terms(ext: Extension | None, params: ParameterSet, rover: Rover) -> HubContact | None:
+def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rover: Rover) -> HubContact | None:
     """The simulator disturbance hook of an extension's hub-contact terms (None without them)."""
     t = rover_terms(ext)
-    if "rover.hub_clearance" not in t:
+    if "hub_clearance" not in t:
         return None
     soil = replace(params.soil, **ext.soil) if ext is not None and ext.soil else params.soil
-    return HubContact(t["rover.hub_clearance"], t.get("rover.hub_face_width", 0.0), t.get("rover.hub_arm", 0.0), soil, rover)
+    return HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover)
 
 
 def _wheel_candidates() -> list[Candidate]:
@@ -203,13 +228,13 @@ def _wheel_candidates() -> list[Candidate]:
         out.append(Candidate(
             f"wheel_radius_{w}", f"the {w} wheel's radius differs from the believed one (wear, a flat, mis-measured)",
             (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
-            (lambda t, p, w=w: Extension(options={f"rover.radius_scale.{w}": 1.0 + float(t[0])})),
+            (lambda t, p, w=w: RoverExtension(terms={f"radius_scale.{w}": 1.0 + float(t[0])})),
             (f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body"), family=f"radius_{w}", null=(0.0,)))
     for w in WHEELS:
         out.append(Candidate(
             f"steer_offset_{w}", f"the {w} wheel points elsewhere than its steering encoder says (true = encoder + offset)",
             (("offset", "deg", -10.0, 10.0, 0.0, _D),),
-            (lambda t, p, w=w: Extension(options={f"rover.steer_offset.{w}": float(t[0])})),
+            (lambda t, p, w=w: RoverExtension(terms={f"steer_offset.{w}": float(t[0])})),
             (f"torque_{w}", "yaw_rate", "dheading", "dy_body"), family=f"steer_{w}", null=(0.0,)))
     return out
 
@@ -248,7 +273,7 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
     # --- parameters the believed model already has ("parameters off")
     Candidate("soil_stiffness", "the soil is stiffer or softer than believed: Bekker modulus k (eq. 5.6) scaled",
               (("k_scale", "-", 0.2, 5.0, 1.0, 1.0),),
-              lambda t, p: Extension(soil={"k": p.soil.k * float(t[0])}),
+              lambda t, p: RoverExtension(soil={"k": p.soil.k * float(t[0])}),
               ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), kind="parameters", family="soil", null=(1.0,)),
     Candidate("wheel_radius_all", "every wheel's radius is off by the same fraction (the believed wheel radius)",
               (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
@@ -283,8 +308,8 @@ def recalibration_candidate(params: ParameterSet) -> Candidate:
              ("phi", "deg", 15.0, 50.0, float(np.clip(math.degrees(s.friction_angle), 15.0, 50.0)), _D),
              ("K", "mm", 1.0, 100.0, float(np.clip(s.shear_modulus * 1e3, 1.0, 100.0)), 1e-3))
 
-    def build(t: NDArray[np.float64], p: ParameterSet) -> Extension:
-        return Extension(soil={"k": p.soil.k * float(t[0]), "n0": float(t[1]), "cohesion": float(t[2]),
+    def build(t: NDArray[np.float64], p: ParameterSet) -> RoverExtension:
+        return RoverExtension(soil={"k": p.soil.k * float(t[0]), "n0": float(t[1]), "cohesion": float(t[2]),
                                "friction_angle": float(t[3]), "shear_modulus": float(t[4])})
 
     return Candidate("recalibration", "the believed soil parameters are off: k, n0, c, phi, K refitted "
@@ -293,7 +318,7 @@ def recalibration_candidate(params: ParameterSet) -> Candidate:
                      kind="parameters", family="recalibration")
 
 
-def truth_from_terms(params: ParameterSet, base: Truth, ext: Extension) -> tuple[Truth, ActuatorConfig | None, dict[str, float]]:
+def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> tuple[Truth, ActuatorConfig | None, dict[str, float]]:
     """The simulator's view of an extension: a truth, actuator overrides and measurement terms.
 
     Parameters
@@ -302,7 +327,7 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: Extension) -> tuple
         The believed parameter set (soil changes of ``ext`` are applied to it).
     base : Truth
         The believed world (flat, nominal wheels) the terms are added to.
-    ext : Extension
+    ext : RoverExtension
 
     Returns
     -------
@@ -315,17 +340,17 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: Extension) -> tuple
     """
     t = rover_terms(ext)
     ps = params if not ext.soil else replace(params, soil=replace(params.soil, **ext.soil))
-    r_all = t.get("rover.radius_scale_all", 1.0)
-    radius = tuple(base.wheel_radius[i] * r_all * t.get(f"rover.radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS))
-    offset = tuple(base.steer_offset[i] + t.get(f"rover.steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS))
+    r_all = t.get("radius_scale_all", 1.0)
+    radius = tuple(base.wheel_radius[i] * r_all * t.get(f"radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS))
+    offset = tuple(base.steer_offset[i] + t.get(f"steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS))
     if min(radius) <= ps.wheel.grouser_height:
         raise DriveCandidateError(f"wheel radii {radius} m do not exceed the grouser height")
     truth = replace(base, params=ps, wheel_radius=radius, steer_offset=offset,
-                    slope=base.slope + t.get("rover.slope", 0.0), cross_slope=base.cross_slope + t.get("rover.cross_slope", 0.0),
-                    tether_force=base.tether_force + t.get("rover.tether", 0.0))
-    act = {k: t[f"rover.{k}"] for k in ("wheel_lag", "torque_limit") if f"rover.{k}" in t}
-    meas = {"imu_roll": t.get("rover.imu_roll", 0.0), "imu_pitch": t.get("rover.imu_pitch", 0.0),
-            "gyro_scale": t.get("rover.gyro_scale", 0.0)}
+                    slope=base.slope + t.get("slope", 0.0), cross_slope=base.cross_slope + t.get("cross_slope", 0.0),
+                    tether_force=base.tether_force + t.get("tether", 0.0))
+    act = {k: t[k] for k in ("wheel_lag", "torque_limit") if k in t}
+    meas = {"imu_roll": t.get("imu_roll", 0.0), "imu_pitch": t.get("imu_pitch", 0.0),
+            "gyro_scale": t.get("gyro_scale", 0.0)}
     return truth, (act or None), meas  # type: ignore[return-value]
 
 

@@ -84,11 +84,11 @@ from ..sim.plant import SimulationError
 from ..sim.sensors import SensorConfig
 from ..sim.simulator import RoverSimulator
 from ..sim.truth import WHEELS, Truth
-from .candidates import Extension
 from .discrepancy import Verdict, diagnose
 from .drive_candidates import (
     DRIVE_CANDIDATES,
     TABLE_BUILDER_TAKES,
+    RoverExtension,
     disturbance_from_terms,
     recalibration_candidate,
     rover_terms,
@@ -620,14 +620,14 @@ class DriveModel:
         assert self.truth is not None
         return self.truth.params
 
-    def simulate(self, d: DriveData, ext: Extension | None, heading_offset: float
+    def simulate(self, d: DriveData, ext: RoverExtension | None, heading_offset: float
                  ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         """Re-simulate one drive (module notes): predicted tick readings, body velocities (n, 3), ok.
 
         Cached per drive, heading offset and the extension's physics (measurement-chain terms are
         applied afterwards, so they cost no re-simulation).
         """
-        ext = ext or Extension()
+        ext = ext or RoverExtension()
         terms = rover_terms(ext)
         key = (id(d), heading_offset, tuple(sorted(ext.soil.items())), terms.physics_key())
         hit = self._cache.get(key)
@@ -640,15 +640,15 @@ class DriveModel:
         if not ok:
             return ticks, body, False
         out = dict(ticks)
-        g = terms.get("rover.gyro_scale", 0.0)
+        g = terms.get("gyro_scale", 0.0)
         if g:
             b = self.sensors.gyro_bias  # type: ignore[union-attr]
             out["yaw_rate"] = (ticks["yaw_rate"] - b) * (1.0 + g) + b
-        out["roll"] = ticks["roll"] + terms.get("rover.imu_roll", 0.0)
-        out["pitch"] = ticks["pitch"] + terms.get("rover.imu_pitch", 0.0)
+        out["roll"] = ticks["roll"] + terms.get("imu_roll", 0.0)
+        out["pitch"] = ticks["pitch"] + terms.get("imu_pitch", 0.0)
         return out, body, True
 
-    def _run(self, d: DriveData, ext: Extension, heading_offset: float
+    def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         assert self.truth is not None and self.sensors is not None and self.actuators is not None
         n = len(d.t)
@@ -728,7 +728,7 @@ class DriveModel:
         body[failed] = np.nan
         return ticks, body, True
 
-    def predict(self, obs: DriveRecording, ext: Extension | None = None) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:
+    def predict(self, obs: DriveRecording, ext: RoverExtension | None = None) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:
         """Predicted channels of every row of ``obs`` (NaN and ``ok = False`` where the re-simulation fails)."""
         out = {c: np.full(len(obs), np.nan) for c in obs.channels}
         ok = np.zeros(len(obs), dtype=bool)
@@ -744,11 +744,15 @@ class DriveModel:
             ok[rows] = np.all(np.isfinite(table[obs.segment[rows]]), axis=1)
         return out, ok
 
+    def empty_extension(self) -> RoverExtension:
+        """The extension that changes nothing (the engine merges candidates onto it)."""
+        return RoverExtension()
+
     def recalibration(self) -> Any:
         """The soil recalibration candidate (:func:`offline.fit.drive_candidates.recalibration_candidate`)."""
         return recalibration_candidate(self.params)
 
-    def parameter_set(self, ext: Extension, note: str = "") -> ParameterSet:
+    def parameter_set(self, ext: RoverExtension, note: str = "") -> ParameterSet:
         """The believed parameter set with the extension's soil changes (for "parameters off")."""
         p = self.params
         soil = replace(p.soil, **ext.soil, name=f"{p.soil.name}_recalibrated", source="offline.fit.drive_discrepancy")
@@ -809,14 +813,14 @@ def diagnose_drives(
                     forward="always")
 
 
-def accepted_extension(v: Verdict) -> Extension:
+def accepted_extension(v: Verdict) -> RoverExtension:
     """The extension of the accepted explanation (no change for ``agree`` and ``unexplained``)."""
     c = v.chosen
     if c is None or v.status in ("agree", "unexplained", "ambiguous"):
-        return Extension()
+        return RoverExtension()
     model: DriveModel = v.model
     lib = {x.key: x for x in [*DRIVE_CANDIDATES, model.recalibration()]}
-    e, i = Extension(), 0
+    e, i = RoverExtension(), 0
     for k in c.keys:
         cand = lib[k]
         e = e.merge(cand.build(np.array(c.values[i:i + cand.k]) * cand.to_si, model.params))
@@ -881,7 +885,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     return out
 
 
-def _drive_plots(v: Verdict, out: Path, ext: Extension) -> list[Path]:
+def _drive_plots(v: Verdict, out: Path, ext: RoverExtension) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")

@@ -86,9 +86,9 @@ def cases(sc: Any, tr: Truth, tmp: Path) -> list[dict[str, Any]]:
 
 def _closed_loop(p: Path) -> Path:
     out = p.parent / "closed_loop"
-    subprocess.run([sys.executable, "-m", "offline.cli", "drive", "rr_steer_stuck_50", "--controllers", "ff", "--truth",
-                    "worn_rr_tether", "--distance", "0.9", "--out", str(out), "--quiet"], check=True, cwd=ROOT,
-                   capture_output=True)
+    subprocess.run([sys.executable, "-c", "import sys; from offline.cli import main; sys.exit(main(sys.argv[1:]))", "drive",
+                    "rr_steer_stuck_50", "--controllers", "ff", "--truth", "worn_rr_tether", "--distance", "0.9", "--out",
+                    str(out), "--quiet"], check=True, cwd=ROOT, capture_output=True)
     return out / "rr_steer_stuck_50_ff.mcap"
 
 

@@ -222,3 +222,30 @@ def test_linear_held_out_is_exact_for_a_linear_model():
     fr = FitResult(xf, np.zeros(k), float((z(xf) ** 2).sum()), z(xf), -J, 0)
     ref = held_out(fr, z, folds, np.full(k, -10.0), np.full(k, 10.0), damping=0.0)
     np.testing.assert_allclose(lin, ref, rtol=1e-9)
+
+
+def test_undetermined_terms_uses_the_joint_covariance():
+    """A term whose fitted parameters are within the 95 % Wald region of its absence is 'not
+    determined'; a well-determined term is not; with two collinear terms the joint covariance
+    (not the marginal errors of the single fits) decides; a parameter group ('parameters off')
+    and a candidate without a null are not tested; a NaN error counts as not determined."""
+    from offline.fit.discrepancy import CandidateScore, undetermined_terms
+
+    lib = {c.key: (c, None, i) for i, c in enumerate(DRIVE_CANDIDATES)}
+
+    def score(keys, values, cov):
+        kinds = tuple(lib[k][0].kind for k in keys)
+        se = tuple(float(math.sqrt(c)) if np.isfinite(c) else math.nan for c in np.diag(cov))
+        return CandidateScore(tuple(keys), ("",) * len(keys), kinds, ("x",) * len(values), ("-",) * len(values),
+                              tuple(values), se, len(values), 0.0, 0.0, 0.0, math.nan, math.nan, True,
+                              np.zeros(1), covariance=np.asarray(cov, dtype=float))
+
+    assert undetermined_terms(score(["tether"], [1.0], [[0.01]]), lib) == []
+    assert undetermined_terms(score(["tether"], [0.3], [[0.04]]), lib)[0].startswith("tether")
+    # radius well determined, tether along a collinear direction: 1.0 +- 0.8 jointly
+    cov = np.array([[0.3**2, 0.0], [0.0, 0.8**2]])
+    assert [u.split()[0] for u in undetermined_terms(score(["wheel_radius_RR", "tether"], [-6.0, 1.0], cov), lib)] == ["tether"]
+    assert undetermined_terms(score(["soil_stiffness"], [1.01], [[0.04]]), lib) == []  # parameters: not tested
+    assert undetermined_terms(score(["servo_lag"], [0.3], [[1.0]]), lib) == []  # no null point
+    nan = score(["tether"], [2.0], [[np.nan]])
+    assert "not determined" in undetermined_terms(nan, lib)[0]

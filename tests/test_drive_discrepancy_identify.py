@@ -228,7 +228,9 @@ def test_undetermined_terms_uses_the_joint_covariance():
     """A term whose fitted parameters are within the 95 % Wald region of its absence is 'not
     determined'; a well-determined term is not; with two collinear terms the joint covariance
     (not the marginal errors of the single fits) decides; a parameter group ('parameters off')
-    and a candidate without a null are not tested; a NaN error counts as not determined."""
+    and a candidate without a null get no Wald test, but any parameter whose 95 % interval is
+    wider than half its physical range (a flat profile, e.g. a recalibration absorbing a
+    steering offset) is 'not determined'; so is a parameter without a standard error."""
     from offline.fit.discrepancy import CandidateScore, undetermined_terms
 
     lib = {c.key: (c, None, i) for i, c in enumerate(DRIVE_CANDIDATES)}
@@ -245,7 +247,10 @@ def test_undetermined_terms_uses_the_joint_covariance():
     # radius well determined, tether along a collinear direction: 1.0 +- 0.8 jointly
     cov = np.array([[0.3**2, 0.0], [0.0, 0.8**2]])
     assert [u.split()[0] for u in undetermined_terms(score(["wheel_radius_RR", "tether"], [-6.0, 1.0], cov), lib)] == ["tether"]
-    assert undetermined_terms(score(["soil_stiffness"], [1.01], [[0.04]]), lib) == []  # parameters: not tested
-    assert undetermined_terms(score(["servo_lag"], [0.3], [[1.0]]), lib) == []  # no null point
+    assert undetermined_terms(score(["soil_stiffness"], [1.01], [[0.04]]), lib) == []  # parameters: no Wald test
+    assert undetermined_terms(score(["servo_lag"], [0.3], [[0.01]]), lib) == []  # no null point
+    # a flat profile: a 95 % interval wider than half the physical range (k scale 0.2-5)
+    flat = undetermined_terms(score(["soil_stiffness", "wheel_radius_RR"], [0.6, -6.8], np.diag([2.9**2, 1.3**2])), lib)
+    assert len(flat) == 1 and flat[0].startswith("soil_stiffness (k_scale")
     nan = score(["tether"], [2.0], [[np.nan]])
-    assert "not determined" in undetermined_terms(nan, lib)[0]
+    assert "no standard error" in undetermined_terms(nan, lib)[0]

@@ -37,7 +37,8 @@ Pipeline (:func:`diagnose`)
 6. **Identifiable?** (adapters that set ``withhold_lookalikes``, e.g. drive recordings) When
    look-alikes with other terms fit the held-out rows equally, or a term of the explanation is
    not determined by the data (its fitted parameters not distinguishable from its absence in
-   the joint fit, :func:`undetermined_terms`), the verdict is **ambiguous**: nothing is named,
+   the joint fit, or a parameter's interval wider than half its physical range: a flat profile,
+   :func:`undetermined_terms`), the verdict is **ambiguous**: nothing is named,
    the explanations that fit equally are listed with the experiment that would separate them
    (``observations.identification_advice()``). The single-wheel adapter keeps naming the best
    of an indistinguishable set (with its separating probe), as its tests expect.
@@ -456,7 +457,7 @@ CRITERION = (
     "(chi2 in noise units per channel, at {alpha}/channels), make the verdict 'partly explained'; less than half of "
     "the held-out excess chi2 explained makes it 'unexplained'. For recordings whose adapter withholds look-alikes (drives), "
     "look-alikes with other terms, or a term whose fitted parameters the joint fit cannot tell from the term's absence "
-    "(Wald test at 95 %), make it 'ambiguous': nothing is named and the explanations that fit equally are listed. A run whose model fails on more than half of the rows "
+    "(Wald test at 95 %) or whose 95 % interval is wider than half its physical range, make it 'ambiguous': nothing is named and the explanations that fit equally are listed. A run whose model fails on more than half of the rows "
     "is an error."
 )
 
@@ -816,36 +817,42 @@ def _signature(keys: Sequence[str], kinds: Sequence[str]) -> frozenset[str]:
 
 
 def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float = 0.95) -> list[str]:
-    """Terms of an explanation the data do not determine: the fitted parameters of the term are
-    not distinguishable from the term's absence (``Candidate.null``) -- Wald statistic
-    ``d' C^-1 d`` of its parameter block (``d`` = fitted - null, ``C`` its block of the joint
-    covariance) below the ``level`` quantile of chi-square with the block's size -- or a
-    parameter is in a null direction of the Jacobian (no standard error). In a combination the
-    joint covariance carries the trade-off between the terms: two terms that explain the same
-    signal (a tether and a softer soil on a straight drive) each get a wide interval.
-    Candidates without a ``null`` and parameter groups (kind ``parameters``) are not tested.
+    """Candidates of an explanation the data do not determine (the profile of the fit is flat).
+
+    Any candidate (new term or group of the model's own parameters) with a parameter whose
+    ``level`` interval (``2 z se``) is wider than half the parameter's physical range
+    (bounds), or that lies in a null direction of the Jacobian (no standard error); and a new
+    term whose fitted parameters are not distinguishable from the term's absence
+    (``Candidate.null``): Wald statistic ``d' C^-1 d`` of its parameter block (``d`` = fitted -
+    null, ``C`` its block of the joint covariance) below the ``level`` quantile of chi-square
+    with the block's size. In a combination the joint covariance carries the trade-off between
+    the candidates: two that explain the same signal (a tether and a softer soil on a straight
+    drive, a recalibration absorbing a steering offset) each get a wide interval.
     """
     from scipy import stats
 
     out: list[str] = []
     if s.covariance is None:
         return out
+    zq = float(stats.norm.ppf(0.5 + level / 2))
     i = 0
     for key, kind in zip(s.keys, s.kinds):
         c = by_key[key][0]
         blk = slice(i, i + c.k)
         i += c.k
+        se = np.array(s.std_errors[blk])
+        vals = s.values[blk]
+        wide = [f"{q[0]} = {v:.3g} ± {e:.2g} {q[1]}" if math.isfinite(e) else f"{q[0]} (no standard error)"
+                for q, v, e in zip(c.params, vals, se) if not math.isfinite(e) or 2 * zq * e > 0.5 * (q[3] - q[2])]
+        if wide:
+            out.append(f"{key} ({'; '.join(wide)}: {100 * level:.0f} % interval wider than half the physical range)")
+            continue
         if kind != "term" or c.null is None:
             continue
-        se = np.array(s.std_errors[blk])
-        if not np.all(np.isfinite(se)):
-            out.append(f"{key} (a parameter not determined by the data)")
-            continue
-        d = np.array(s.values[blk]) - np.array(c.null, dtype=float)
-        C = s.covariance[blk, blk]
-        w = float(d @ np.linalg.pinv(C) @ d)
+        d = np.array(vals) - np.array(c.null, dtype=float)
+        w = float(d @ np.linalg.pinv(s.covariance[blk, blk]) @ d)
         if w < stats.chi2.ppf(level, c.k):
-            out.append(f"{key} ({c.params[0][0]} = {s.values[blk.start]:.3g} ± {se[0]:.2g} {c.params[0][1]}: "
+            out.append(f"{key} ({c.params[0][0]} = {vals[0]:.3g} ± {se[0]:.2g} {c.params[0][1]}: "
                        f"not distinguishable from {c.null[0]:g}, Wald {w:.1f})")
     return out
 

@@ -13,7 +13,8 @@ recording and the believed nominal scenario, the full default library and the re
   arm 20 mm; nominal sinkage ~9 mm) in a 40 s calibration drive;
 * negative controls on long drives (120 s calibration drives, 3 seeds): no alarm expected.
 
-Run (one command; writes tests/bench/results_drive_identify.md and .json)::
+Run (one command; writes tests/bench/results_drive_identify.md and .json; a selection re-runs
+its cases and keeps the other rows, each row says its commit)::
 
     nice python tests/bench/bench_drive_identify.py            # every case
     nice python tests/bench/bench_drive_identify.py hub        # cases whose name contains 'hub'
@@ -98,6 +99,9 @@ def main(argv: list[str]) -> int:
     tr = Truth.nominal(sc.params, sc.rover)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     rows = []
+    old = ROOT / "tests/bench/results_drive_identify.json"
+    prev = json.loads(old.read_text()) if old.is_file() else {"rows": []}
+    kept = {r["case"]: {**r, "commit": r.get("commit", prev.get("commit", "?"))} for r in prev["rows"]}
     with tempfile.TemporaryDirectory() as tmp:
         for c in cases(sc, tr, Path(tmp)):
             if sel not in c["name"]:
@@ -122,11 +126,15 @@ def main(argv: list[str]) -> int:
                    "heldout_chi2": [v.chi2_cv_base, v.chosen.chi2_cv if v.chosen else v.chi2_cv_base],
                    "rows_x_channels": len(v.observations) * len(v.observations.channels),
                    "segment_corr": {k: round(x, 3) for k, x in v.observations.segment_corr.items() if x},
-                   "seconds": secs, "simulations": v.model.simulations}
+                   "seconds": secs, "simulations": v.model.simulations, "commit": commit}
             rows.append(row)
+            kept[row["case"]] = row
             print(json.dumps(row), flush=True)
+    order = [c["name"] for c in cases(sc, tr, ROOT)]
+    rows = [kept[n] for n in order if n in kept]  # a selection updates its rows, the others are kept
     md = ["# Drive discrepancy: right wheel, ambiguity, hub contact, long negative controls (issue 14)", "",
-          f"Commit `{commit}`; `nice python tests/bench/bench_drive_identify.py`; REALISTIC_SENSORS, believed model = "
+          f"Commits {', '.join(sorted({'`' + r.get('commit', '?') + '`' for r in rows}))} (per row in the .json); "
+          "`nice python tests/bench/bench_drive_identify.py [case]`; REALISTIC_SENSORS, believed model = "
           "nominal scenario, full default library + recalibration; run times on the shared 2-core machine under "
           "other helpers' load.", "",
           "| case | verdict | named | as expected? | best-scoring (parameters) | fit equally / look-alikes | held-out chi2 (rows x ch) | s | sims |",
@@ -139,9 +147,8 @@ def main(argv: list[str]) -> int:
     md += ["", "Ambiguity reasons:", ""] + [f"- {r['case']}: {r['ambiguity']}" for r in rows if r["ambiguity"]]
     md += ["", "Segment-to-segment correlation used by the null (MA(1), channels where non-zero):", ""]
     md += [f"- {r['case']}: {r['segment_corr'] or 'none (independent draws)'}" for r in rows]
-    if not sel:
-        write_text(ROOT / "tests/bench/results_drive_identify.md", "\n".join(md) + "\n")
-        write_text(ROOT / "tests/bench/results_drive_identify.json", json.dumps({"commit": commit, "rows": rows}, indent=2))
+    write_text(ROOT / "tests/bench/results_drive_identify.md", "\n".join(md) + "\n")
+    write_text(old, json.dumps({"rows": rows}, indent=2))
     print("\n".join(md))
     return 0
 

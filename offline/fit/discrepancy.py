@@ -283,7 +283,9 @@ class Verdict:
         elif c is None:
             lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
         elif self.status == "ambiguous":
-            lines.append(f"NOT IDENTIFIABLE from these data, nothing named: these {len(self.explanations)} explanations fit equally")
+            n = len(self.explanations)
+            lines.append("NOT IDENTIFIABLE from these data, nothing named: " + (
+                f"these {n} explanations fit equally" if n > 1 else "the best-scoring explanation is not determined"))
             lines += [f"  - {s.label}: {s.parameters_text()} (held-out chi2 {s.chi2_cv:.1f})" for s in self.explanations]
             lines.append(f"why: {self.ambiguity}")
             lines.append(f"held-out chi2: {self.chi2_cv_base:.1f} -> {c.chi2_cv:.1f} (best-scoring)")
@@ -377,8 +379,9 @@ class Verdict:
             md.append(f"| {s.label} | {'/'.join(s.kinds)} | {s.parameters_text()} | {s.chi2_cv:.1f} | {s.delta_cv:.1f} | "
                       f"{padj} | {'yes' if s.significant else ''} |")
         if self.status == "ambiguous":
-            md += ["", f"## Not identifiable from this recording: {len(self.explanations)} explanations fit equally", "",
-                   "Nothing is named. These explanations fit the held-out rows equally (or a term is not determined):", ""]
+            md += ["", "## Not identifiable from this recording", "",
+                   "Nothing is named. These explanations fit the held-out rows equally, or the best-scoring one has a term "
+                   "the data do not determine:", ""]
             md += [f"- `{s.label}`: {s.parameters_text()} (held-out chi2 {s.chi2_cv:.1f})" for s in self.explanations]
             md += ["", self.ambiguity]
         md += ["", "## Decision criterion", "", self.criterion, ""]

@@ -508,10 +508,10 @@ class DriveRecording:
         need = [text for m, text in wanted.items() if have[m] < 1.0]
         rec = ", ".join(f"{k} {v:.0f} s" for k, v in have.items())
         if need:
-            return (f"Drive a calibration manoeuvre to separate them: this recording has {rec}; add {', '.join(need)} "
-                    "(offline.fit.drive_synthetic.calibration_drive is such a script)")
-        return (f"This recording already has every calibration manoeuvre ({rec}) but too few segments to separate them: "
-                "repeat the calibration drive (held-out drives) or drive it longer")
+            return (f"Drive a calibration manoeuvre to separate or determine them: this recording has {rec}; add "
+                    f"{', '.join(need)} (offline.fit.drive_synthetic.calibration_drive is such a script)")
+        return (f"This recording already has every calibration manoeuvre ({rec}) but too few segments to separate or "
+                "determine them: repeat the calibration drive (held-out drives) or drive it longer")
 
     @property
     def locate_alpha(self) -> float:

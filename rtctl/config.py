@@ -76,7 +76,7 @@ class Actuators:
         Largest change of rim speed per second, m/s^2 (``max_rim_accel``).
     """
 
-    max_rim_speed: float = 0.15
+    max_rim_speed: float = 0.36
     min_rim_speed: float = 0.0
     max_steer: float = math.radians(90.0)
     max_steer_rate: float = math.radians(20.0)
@@ -403,7 +403,7 @@ def _section(klass: type, table: Any, sec: str, source: str) -> Any:
 DEFAULT_TOML = """\
 # rtctl controller configuration (SI; angles in degrees where the key ends in _deg)
 [actuators]
-max_rim_speed = 0.15        # m/s
+max_rim_speed = 0.36        # m/s (the optimizer's rim-speed bound: 12x 3 cm/s)
 min_rim_speed = 0.0         # m/s
 max_steer_deg = 90.0
 max_steer_rate_deg_s = 20.0

@@ -9,9 +9,11 @@ Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
 * **feedback** (:meth:`Controller.feedback`, on the new measurement): input checks, EKF predict
   and update, outer loop, the QP's vectors, one warm-started OSQP solve, command checks;
 * **preparation** (:meth:`Controller.prepare`, after the commands are out, for the next tick):
-  table choice from the declared failures, table interpolation at the operating point (measured
-  slope and cross slope, the travel speed shifted by the EKF's slip, the failure's own
-  parameter), the QP's matrix values and OSQP's refactorisation.
+  table choice from the declared failures and the operator's task (``Measurements.task``, e.g.
+  ``Task("trench", "RR", 0.02)``: the trench table of that wheel, read at that depth), table
+  interpolation at the operating point (measured slope and cross slope, the travel speed shifted
+  by the EKF's slip, the failure's or task's own parameter), the QP's matrix values and OSQP's
+  refactorisation.
 
 :meth:`Controller.step` is feedback then preparation.
 
@@ -59,7 +61,7 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
-from .messages import FAILURE_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements
+from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
 __all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
 
@@ -98,7 +100,8 @@ def _failure_kinds(f: Any) -> set[str]:
 
 
 def table_signature(table: Any) -> frozenset[tuple[str, str]]:
-    """The declared failures a table was built for: ``{(wheel, kind), ...}`` from its scenario."""
+    """The declared failures and task a table was built for: ``{(wheel, kind), ...}`` from its
+    scenario (a trench goal gives ``(wheel, "trench")``, the kind of :class:`rtctl.messages.Task`)."""
     sc = table.meta.get("scenario") or {}
     fails = sc.get("failures") or {}
     out = set()
@@ -106,6 +109,9 @@ def table_signature(table: Any) -> frozenset[tuple[str, str]]:
         for w, f in fails.items():
             if w in WHEELS and isinstance(f, dict):
                 out |= {(w, k) for k in _failure_kinds(f)}
+    trench = sc.get("trench")
+    if isinstance(trench, dict) and trench.get("wheel") in WHEELS:
+        out.add((trench["wheel"], "trench"))
     return frozenset(out)
 
 
@@ -167,6 +173,7 @@ class _Prepared:
     speed_factor: float
     operating_point: tuple[tuple[str, float], ...]
     signature: frozenset[tuple[str, str]]
+    flags: tuple[str, ...] = ()
 
 
 class Controller:
@@ -176,10 +183,14 @@ class Controller:
     ----------
     tables : Table or mapping name -> Table
         Loaded tables (:func:`rtctl.table.load_table`), all for the same rover. The table whose
-        scenario's failures equal the declared ones is used; otherwise ``config.default_table``
-        or the one built without failures (``nominal`` first), with the declared failures imposed
-        as QP constraints. A table with no feasible point cannot be interpolated: the last good
-        preparation is kept and ``table_errors`` counts it.
+        scenario's failures and task equal the declared failures and the measurement's
+        :class:`rtctl.messages.Task` (a trench goal) is used (several: ``config.default_table`` if
+        it is one of them, else the first by name); otherwise ``config.default_table`` or the one
+        built without failures (``nominal`` first), with the declared failures imposed as QP
+        constraints (a declared task without a table is flagged in the diagnostics). A table's
+        family axis is read at the declared value (stuck angle, rim-speed cap / speed, trench
+        depth), clamped into the axis and flagged when outside. A table with no feasible point
+        cannot be interpolated: the last good preparation is kept and ``table_errors`` counts it.
     config : ControllerConfig
     """
 
@@ -231,6 +242,8 @@ class Controller:
         self._int_psi = 0.0
         self._int_y = 0.0
         self._failures: dict[tuple[str, str], float] = {}
+        self._task: Task | None = None
+        self._tick_flags: list[str] = []
         self._steer_meas = [math.nan] * len(WHEELS)
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
@@ -246,17 +259,26 @@ class Controller:
         self._counters[name] = self._counters.get(name, 0) + n
 
     # ------------------------------------------------------------------ preparation phase
-    def _choose_table(self) -> str:
-        declared = frozenset(self._failures)
-        for name, sig in self.signatures.items():
-            if sig and sig == declared:
-                return name
-        return self.default_table
+    def _declared(self) -> frozenset[tuple[str, str]]:
+        """Declared failures and task as a table signature."""
+        task = {(self._task.wheel, self._task.kind)} if self._task is not None else set()
+        return frozenset(self._failures) | frozenset(task)
+
+    def _choose_table(self) -> tuple[str, list[str]]:
+        declared = self._declared()
+        matches = [name for name, sig in self.signatures.items() if sig and sig == declared]
+        flags = []
+        if matches:
+            return (self.config.default_table if self.config.default_table in matches else matches[0]), flags
+        if self._task is not None:
+            flags.append(f"no table for the declared task {self._task.kind} {self._task.wheel} with failures "
+                         f"{sorted(self._failures) or 'none'}: driving on table {self.default_table}")
+        return self.default_table, flags
 
     def prepare(self) -> None:
         """Preparation phase: choose and interpolate the table, load the QP's matrices."""
         cfg = self.config
-        name = self._choose_table()
+        name, flags = self._choose_table()
         table = self.tables[name]
         lay = table.layout
         speed = cfg.drive.speed
@@ -276,7 +298,7 @@ class Controller:
             elif axis == "speed":
                 op[axis] = speed * factor
             else:
-                op[axis] = self._family_value(table, axis, speed * factor, values)
+                op[axis] = self._family_value(table, axis, speed * factor, values, flags)
         try:
             tp = table.at(**op)
         except (ValueError, KeyError) as exc:  # the table reader's TableError: keep the last good preparation
@@ -307,24 +329,38 @@ class Controller:
         gains = self._gains(table)
         self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
                                self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
-                               self.signatures[name])
+                               self.signatures[name], tuple(flags))
 
-    def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64]) -> float:
+    def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64], flags: list[str]) -> float:
+        """The table's family axis at the declared value (clamped into the axis; flagged when
+        outside or when nothing declares it: read at the axis middle)."""
         fam = table.meta.get("family") or {}
         w = fam.get("wheel")
+        tname = getattr(table, "name", "?")
         mid = float(values[len(values) // 2])
-        if w not in WHEELS:
+        v = math.nan
+        if w in WHEELS:
+            i = WHEELS.index(w)
+            if axis == "steer_stuck":
+                v = self._steer_meas[i]
+                if not math.isfinite(v):
+                    v = self._failures.get((w, "steer_stuck"), math.nan)
+            elif axis == "rim_speed_cap_fraction":
+                cap = self._failures.get((w, "rim_speed_cap"), math.nan)
+                v = cap / speed if math.isfinite(cap) else math.nan
+            elif axis == "trench_depth" and self._task is not None and self._task.kind == "trench" \
+                    and self._task.wheel == w:
+                v = self._task.value
+        if not math.isfinite(v):
+            flags.append(f"table {tname}: nothing declares its {axis} axis; read at its middle {mid:.4g}")
             return mid
-        i = WHEELS.index(w)
-        if axis == "steer_stuck":
-            v = self._steer_meas[i]
-            if not math.isfinite(v):
-                v = self._failures.get((w, "steer_stuck"), math.nan)
-            return float(v) if math.isfinite(v) else mid
-        if axis == "rim_speed_cap_fraction":
-            cap = self._failures.get((w, "rim_speed_cap"), math.nan)
-            return cap / speed if math.isfinite(cap) else mid
-        return mid
+        lo, hi = float(values[0]), float(values[-1])
+        if not lo - 1e-12 <= v <= hi + 1e-12:
+            c = min(max(v, lo), hi)
+            flags.append(f"table {tname}: declared {axis} {v:.4g} outside the table's [{lo:.4g}, {hi:.4g}] "
+                         f"(SI): read at {c:.4g}")
+            return c
+        return float(v)
 
     def _primitive_slip(self, tp: Any, ix: _Index) -> float:
         """Rover-level slip of the primitive, by the EKF's own odometry definition."""
@@ -360,6 +396,7 @@ class Controller:
     def feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
         """Feedback phase: from the measurement to the commands (module docstring)."""
         cfg = self.config
+        self._tick_flags = []
         t, seq = getattr(m, "t", math.nan), getattr(m, "seq", -1)
         if not _finite(t) or isinstance(seq, bool) or not isinstance(seq, (int, np.integer)):
             self._count("rejected_bad_time_or_seq")
@@ -380,13 +417,22 @@ class Controller:
         if stale:
             self._count("stale_gaps")
             self._int_psi = self._int_y = 0.0
-        if self._last_t is None:
+        first = self._last_t is None
+        if first:
             self.ekf.reset(t - cfg.period, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
         self._last_t, self._last_seq = t, seq
-        # ---- declared failures
+        # ---- declared failures and task
         self._read_failures(getattr(m, "failures", ()))
+        self._read_task(getattr(m, "task", None))
         # ---- wheels
         om, st, valid = self._read_wheels(m)
+        if first and (self._prep is None or self._prep.signature != self._declared()):
+            # the first tick declares failures or a task the start-up preparation did not know:
+            # prepare on the right table now and take its primitive as the previous command (the
+            # rate limits start from it, not from the nominal primitive)
+            self.prepare()
+            if self._prep is not None:
+                self._prev_cmd = self._primitive_commands(self._prep.allocator.x0)
         rs = self.wheel_radius
         odo_ok = [v and (w, "locked") not in self._failures and (w, "unpowered") not in self._failures
                   and (w, "raised") not in self._failures for w, v in zip(WHEELS, valid)]
@@ -499,6 +545,22 @@ class Controller:
                 continue
             out[(f.wheel, f.kind)] = float(v)
         self._failures = out
+
+    def _read_task(self, task: Any) -> None:
+        """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m);
+        anything else is counted and ignored (no task)."""
+        if task is None:
+            self._task = None
+            return
+        ok = (isinstance(task, Task) and task.kind in TASK_KINDS and task.wheel in WHEELS
+              and isinstance(task.value, (int, float)) and not isinstance(task.value, bool)
+              and math.isfinite(task.value) and 0.0 < task.value < 0.5)
+        if not ok:
+            self._count("rejected_task")
+            self._tick_flags.append(f"task {task!r} rejected: expected Task('trench', wheel, depth in m, 0 < depth < 0.5)")
+            self._task = None
+            return
+        self._task = Task(task.kind, task.wheel, float(task.value))
 
     def _read_wheels(self, m: Any) -> tuple[list[float], list[float], list[bool]]:
         cfg = self.config
@@ -697,7 +759,7 @@ class Controller:
             heading_error=e_psi, crosstrack_error=e_y, mz_offset=mz, fy_offset=fy,
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
-            counters=tuple(sorted(counters.items())))
+            counters=tuple(sorted(counters.items())), flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
 
 
 def _finite(v: Any) -> bool:

@@ -149,6 +149,30 @@ class _Index:
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
 
 
+class _BoundedRows:
+    """A table point whose rows without bounds (``lbg = -inf``, ``ubg = +inf`` in the table, and
+    not a wheel-torque row, which a declared failure bounds) have zero value and Jacobian.
+
+    Such a row constrains nothing, so the QP is the same; but its Jacobian can be huge (the trench
+    flat width ``p`` of ch. 4 near the pointy/flat switch: 1.3e5 in the QP's scaled units against
+    <= 8 for every other row), and that ruins OSQP's conditioning (measured on the trench table:
+    the QP stops at its iteration budget on most ticks)."""
+
+    def __init__(self, tp: Any, keep: Any) -> None:
+        self._tp = tp
+        lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
+        free = (lbg <= -1e20) & (ubg >= 1e20)
+        free[[int(j) for j in keep if j >= 0]] = False
+        self._free = free if bool(free.any()) else None
+
+    def __getattr__(self, name: str) -> Any:
+        v = getattr(self._tp, name)
+        if self._free is not None and name in ("g", "jac_g_x", "jac_g_p"):
+            v = np.array(v, dtype=float)
+            v[self._free] = 0.0
+        return v
+
+
 def load_tables(index_path: str | Path) -> dict[str, Any]:
     """Every table of a table index (``tables/index.json``), each checked against the hash the
     index lists (:func:`rtctl.table.load_index`); raises :class:`rtctl.table.TableError`."""
@@ -309,7 +333,7 @@ class Controller:
         if alloc is None:
             alloc = self._allocators[name] = QpAllocator(lay, cfg.qp)
         try:
-            alloc.prepare(tp)
+            alloc.prepare(_BoundedRows(tp, self._index[name].torque))
         except AllocatorError as exc:
             self._count("table_point_refused")
             self._table_error = str(exc)

@@ -69,7 +69,8 @@ _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft 
 _MAX_TILT = math.radians(45.0)
 _TILT_TAU = 1.0  # s: low-pass time constant of the slope / cross-slope measurement
 _SPEED_SHIFT = (0.7, 1.5)  # bounds of the slip operating-point shift factor
-_SLIP_SIGMA_USE = 0.05  # use the slip / crab correction only when the EKF is this sure
+_SLIP_SIGMA_USE = 0.02  # use the slip / crab correction only when the EKF is this sure (0.05 acted on the
+# start-up transient of the trench drive, when the slip is still 2 sigma off)
 _CRAB_SIGMA_USE = math.radians(3.0)
 _REF_HEADING_ERROR = math.radians(5.0)
 _REF_CROSSTRACK_ERROR = 0.05
@@ -268,6 +269,7 @@ class Controller:
         self._failures: dict[tuple[str, str], float] = {}
         self._task: Task | None = None
         self._tick_flags: list[str] = []
+        self._crab_cmd = self._crab_used = 0.0
         self._steer_meas = [math.nan] * len(WHEELS)
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
@@ -386,12 +388,20 @@ class Controller:
             return c
         return float(v)
 
+    def _odometry_wheels(self) -> list[bool]:
+        """Wheels whose speed tells the travel speed: not locked, unpowered or raised, and not the
+        wheel digging a trench (it spins at several times the travel speed on purpose: in the
+        trench primitive of section 7.3.1 it would make the rover-level slip ~0.6, dominated by
+        that wheel, and the slip correction would chase it)."""
+        task = (self._task.wheel, self._task.kind) if self._task is not None else None
+        return [not any((w, k) in self._failures for k in ("locked", "unpowered", "raised")) and (w, "trench") != task
+                for w in WHEELS]
+
     def _primitive_slip(self, tp: Any, ix: _Index) -> float:
         """Rover-level slip of the primitive, by the EKF's own odometry definition."""
         x = tp.x
         om, be = x[ix.om].tolist(), x[ix.be].tolist()
-        ok = [(w, "locked") not in self._failures and (w, "unpowered") not in self._failures for w in WHEELS]
-        v_odo, _ = wheel_odometry(om, be, ok, self.wheel_radius, 1.0)
+        v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self.wheel_radius, 1.0)
         v = float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
@@ -458,8 +468,7 @@ class Controller:
             if self._prep is not None:
                 self._prev_cmd = self._primitive_commands(self._prep.allocator.x0)
         rs = self.wheel_radius
-        odo_ok = [v and (w, "locked") not in self._failures and (w, "unpowered") not in self._failures
-                  and (w, "raised") not in self._failures for w, v in zip(WHEELS, valid)]
+        odo_ok = [v and ok for v, ok in zip(valid, self._odometry_wheels())]
         v_odo, var = wheel_odometry(om, st, odo_ok, rs, cfg.noise.wheel_speed)
         if stale:
             v_odo, var = math.nan, math.inf
@@ -469,7 +478,8 @@ class Controller:
             r = math.nan
         self._read_tilt(m, dt)
         # ---- EKF
-        self.ekf.predict(t, Odometry(v_odo, var, float(r)))
+        self._crab_used = self._crab_cmd
+        self.ekf.predict(t, Odometry(v_odo, var, float(r), self._crab_cmd))
         verdict = ""
         pose = getattr(m, "pose", None)
         if pose is not None:
@@ -501,14 +511,16 @@ class Controller:
         # ---- slip correction (b): crab bias into the offsets
         P = self.ekf.P
         mz_bias = fy_bias = 0.0
+        dfy, dmz = prep.crab_sensitivity
+        # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
+        # rover balances an F_y offset by crabbing until the lateral resistance matches it. The
+        # EKF is told this crab (for the next step) and its crab state is the rest.
+        vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
+        crab_cmd = math.atan2(vy_wanted, cfg.drive.speed)
         if math.sqrt(P[4, 4]) < _CRAB_SIGMA_USE and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
             v_hat = (1.0 - min(max(float(x[3]), -0.5), 0.9)) * (v_odo if math.isfinite(v_odo) else cfg.drive.speed)
             vy = v_hat * math.tan(min(max(float(x[4]), -0.5), 0.5))
-            dfy, dmz = prep.crab_sensitivity
-            # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
-            # rover balances an F_y offset by crabbing until the lateral resistance matches it
-            vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
-            fy_bias, mz_bias = dfy * (vy - vy_wanted), dmz * (vy - vy_wanted)
+            fy_bias, mz_bias = dfy * vy, dmz * vy
         # ---- QP
         ix = prep.idx
         p = np.array(prep.point.p, dtype=float)
@@ -534,6 +546,7 @@ class Controller:
             self._count("invalid_commands_caught")
             return self._hold(t, seq, "command failed the final check")
         self._prev_cmd = (rim, steer)
+        self._crab_cmd = crab_cmd
         return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[ix.mz]),
                                float(p[ix.fy]), verdict)
 
@@ -746,6 +759,7 @@ class Controller:
                   res: Any) -> tuple[Commands, Diagnostics]:
         prep = self._prep
         dt = self.config.period
+        self._crab_cmd = 0.0  # the fallback drives the primitive, without offsets
         if prep is not None:
             lo_hi, _, _ = self._bounds(prep, dt)
             x = np.clip(prep.allocator.x0, lo_hi[0], lo_hi[1])  # primitive with the failures applied
@@ -783,7 +797,7 @@ class Controller:
             heading_error=e_psi, crosstrack_error=e_y, mz_offset=mz, fy_offset=fy,
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
-            counters=tuple(sorted(counters.items())), flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
+            counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
 
 
 def _finite(v: Any) -> bool:

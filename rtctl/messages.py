@@ -202,6 +202,9 @@ class Diagnostics:
         What happened to a pose fix at this tick (``''`` if none came).
     counters : tuple of (str, int)
         Cumulative counts of rejected or down-weighted inputs and of fallbacks, sorted by name.
+    crab_commanded : float
+        Crab angle the commands of the previous tick asked for, rad, given to the EKF's motion
+        model over this tick (:mod:`rtctl.estimator`): the rover's crab is ``state[4]`` plus it.
     flags : tuple of str
         Conditions of this tick the operator must know about, each a sentence: a declared task
         or failure value outside the table's axis (read at the nearest end), a task without a
@@ -227,6 +230,7 @@ class Diagnostics:
     state_sigma: tuple[float, ...]
     pose_verdict: str
     counters: tuple[tuple[str, int], ...]
+    crab_commanded: float = 0.0
     flags: tuple[str, ...] = ()
 
     def counter(self, name: str) -> int:

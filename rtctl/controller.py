@@ -315,18 +315,8 @@ class Controller:
         if prev is not None and prev.table == name and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
             s_hat = min(max(float(x[3]), -0.5), 0.9)
             factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])
-        op: dict[str, float] = {}
-        for axis, values in table.axes.items():
-            if axis == "slope":
-                op[axis] = self._slope
-            elif axis == "cross_slope":
-                op[axis] = self._cross
-            elif axis == "speed":
-                op[axis] = speed * factor
-            else:
-                op[axis] = self._family_value(table, axis, speed * factor, values, flags)
         try:
-            tp = table.at(**op)
+            tp, factor = self._reachable(table, speed, factor, flags)
         except (ValueError, KeyError) as exc:  # the table reader's TableError: keep the last good preparation
             self._count("table_errors")
             self._table_error = str(exc)
@@ -356,6 +346,60 @@ class Controller:
         self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
                                self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
                                self.signatures[name], tuple(flags))
+
+    def _operating_point(self, table: Any, v: float, flags: list[str]) -> dict[str, float]:
+        """The table's axes at table speed ``v``: filtered IMU slope and cross slope, the declared
+        family value."""
+        op: dict[str, float] = {}
+        for axis, values in table.axes.items():
+            if axis == "slope":
+                op[axis] = self._slope
+            elif axis == "cross_slope":
+                op[axis] = self._cross
+            elif axis == "speed":
+                op[axis] = v
+            else:
+                op[axis] = self._family_value(table, axis, v, values, flags)
+        return op
+
+    def _reachable(self, table: Any, speed: float, factor: float, flags: list[str]) -> tuple[Any, float]:
+        """The table point to drive and its speed factor (table speed / target speed).
+
+        The point at the target speed (times the slip correction) unless the grid point nearest
+        to it has no primitive (the target is then taken as unreachable: the interpolation would
+        lean on the other corners, e.g. flat-ground primitives on a 5 deg slope). Then, without the
+        slip correction, and with a rim-speed cap (whose fraction cap / speed is what decides
+        feasibility on this rate-independent soil) at lower travel speeds down to the table's
+        lowest, the fastest point interpolated between primitives is driven instead, and a flag
+        says so (``target unreachable: ...``); found nothing: flagged, the table's nearest driven."""
+        fl: list[str] = []
+        op = self._operating_point(table, speed * factor, fl)
+        tp = table.at(**op)
+        if _nearest_grid_feasible(table, op):
+            flags.extend(fl)
+            return tp, factor
+        cands = [speed] if factor != 1.0 else []
+        sp = table.axes.get("speed")
+        capped = "rim_speed_cap_fraction" in table.axes
+        if capped and sp is not None and len(sp) > 1:
+            top, lo = min(speed, speed * factor), float(sp[0])
+            cands += [top - (top - lo) * k / 10 for k in range(1, 11) if top > lo]
+        for v in cands:
+            fl2: list[str] = []
+            tp2 = table.at(**self._operating_point(table, v, fl2))
+            if tp2.status == "interpolated":
+                if v < speed * (1 - 1e-9):
+                    flags.append(f"target unreachable: table {getattr(table, 'name', '?')} has no primitive at "
+                                 f"{_describe(op)} ({tp.status}); driving at the reachable "
+                                 f"{100 * v:.2f} cm/s ({100 * (v / speed - 1):+.0f} % of the target)")
+                flags.extend(fl2)
+                return tp2, v / speed
+        if capped or tp.status == "nearest feasible grid point":
+            flags.append(f"target unreachable: table {getattr(table, 'name', '?')} has no primitive at "
+                         f"{_describe(op)} ({tp.status})"
+                         + (" nor at lower speeds" if capped else "") + "; driving the table's nearest")
+        flags.extend(fl)
+        return tp, factor
 
     def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64], flags: list[str]) -> float:
         """The table's family axis at the declared value (clamped into the axis; flagged when
@@ -798,6 +842,31 @@ class Controller:
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
             counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
+
+
+def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:
+    """Whether the table's grid point nearest to ``op`` (each axis clamped into its range) has a
+    primitive."""
+    idx = []
+    for axis in table.axis_order:
+        vals = np.asarray(table.axes[axis], dtype=float)
+        idx.append(int(np.argmin(np.abs(vals - op.get(axis, float(vals[0]))))))
+    return bool(np.asarray(table.feasible)[tuple(idx)])
+
+
+def _describe(op: Mapping[str, float]) -> str:
+    """An operating point in display units (deg, cm/s)."""
+    out = []
+    for k, v in sorted(op.items()):
+        if k in ("slope", "cross_slope", "steer_stuck"):
+            out.append(f"{k} {math.degrees(v):.1f} deg")
+        elif k == "speed":
+            out.append(f"speed {100 * v:.2f} cm/s")
+        elif k == "trench_depth":
+            out.append(f"trench depth {1e3 * v:.1f} mm")
+        else:
+            out.append(f"{k} {v:.3g}")
+    return ", ".join(out)
 
 
 def _finite(v: Any) -> bool:

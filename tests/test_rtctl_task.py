@@ -178,3 +178,26 @@ def test_unbounded_rows_dropped_give_the_same_qp(tables):
         sols.append(solve_with_qpsolvers(a.problem(), "clarabel")[:t.layout.nx])
     assert np.max(np.abs(sols[0] - sols[1])) < 1e-5
     assert its[1][0] and its[1][1] < 1000, its
+
+
+def test_unreachable_speed_cap_on_slope_is_flagged(tables):
+    """RR rim speed capped at 1.5 cm/s (half the target 3 cm/s) on a 5 deg uphill: the test
+    table (the simulator's model) has no primitive at fraction 0.5 there (fractions 0.4 and 0.5
+    not found / infeasible at 5 deg, 0.6 optimal). The controller says so and reads the table at
+    the fastest reachable speed, 2.5 cm/s (fraction 0.6); on flat ground it does not."""
+    from rtctl.messages import FailureDeclaration
+
+    cap = (FailureDeclaration("RR", "rim_speed_cap", 0.015),)
+    for pitch, unreachable in ((math.radians(5.0), True), (0.0, False)):
+        ctl = Controller(tables, ControllerConfig())
+        for k in range(40):  # the tilt filter (1 s) settles on the slope; no pose: no slip correction
+            m = replace(_m(k, failures=cap), pitch=pitch, pose=None)
+            c, d = ctl.step(m)
+            assert c.rim_speed[2] <= 0.015 + 1e-12
+        assert d.table == "rr_speed_cap_half"
+        flagged = [f for f in d.flags if f.startswith("target unreachable")]
+        assert bool(flagged) == unreachable, d.flags
+        if unreachable:
+            assert dict(d.operating_point)["speed"] == pytest.approx(0.025)
+            assert dict(d.operating_point)["rim_speed_cap_fraction"] == pytest.approx(0.6)
+            assert "2.50 cm/s (-17 % of the target)" in flagged[0]

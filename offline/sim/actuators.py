@@ -1,9 +1,20 @@
 """Actuator models: steering servos with rate and position limits, wheel-speed servos with a
-first-order lag and a torque limit, and the injected failures (stuck, capped, locked, unpowered).
+first-order lag and a torque limit, and the injected failures (stuck, capped, locked,
+unpowered, raised).
 
 The mini rover's Dynamixel servos close their own position and speed loops far faster than
 the 5 Hz controller (section 7.3); what the controller sees of them is a rate-limited
 steering angle, a lagging wheel speed, and a torque ceiling beyond which the wheel slows.
+
+Wheel-speed servo with wheel inertia: the lag acts on the speed *reference*
+(``omega_servo``, first order with ``wheel_lag``, exact exponential per step); the speed loop
+itself (closed inside the Dynamixel at kHz rates) is modelled as stiff: the wheel follows the
+reference exactly while the torque this takes, ``J (omega - omega_prev)/dt`` plus the soil's
+and any hub drag's torque, stays within the limit. Beyond it the motor gives its limit torque
+and the wheel's speed follows its spin dynamics (:mod:`offline.sim.plant`); the reference
+is then reset to the speed reached (no wind-up). So a free wheel's step response is the
+first-order lag while its acceleration torque is below the limit, and a ramp at
+``T_limit / J`` while not.
 """
 
 from __future__ import annotations
@@ -67,7 +78,7 @@ class Actuators:
     ----------
     config : ActuatorConfig
     failures : mapping of wheel name to WheelFailure
-        Injected failures (from the scenario file). ``raised`` is not simulated.
+        Injected failures (from the scenario file); at most one raised wheel.
     rs_nominal : float
         Shearing radius the rover software uses to turn a rim-speed command into a wheel
         speed (``omega = rim / r_s``): a worn wheel of the truth still gets this conversion.
@@ -85,9 +96,12 @@ class Actuators:
         for k, f in self.failures.items():
             if k not in WHEELS:
                 raise ActuatorError(f"failure on unknown wheel {k!r}; use one of {list(WHEELS)}")
-            if f.raised:
-                raise ActuatorError(f"{k}: a raised wheel (no ground contact) is not simulated by the planar plant; "
-                                    "drop the 'raised' key from the scenario to simulate the other failures")
+        if sum(bool(f.raised) for f in self.failures.values()) > 1:
+            raise ActuatorError("more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
+
+    def contact(self) -> NDArray[np.float64]:
+        """Ground contact per wheel: 1 on the ground, 0 raised."""
+        return np.array([0.0 if self.failure(i).raised else 1.0 for i in range(4)])
 
     def failure(self, i: int) -> WheelFailure:
         """The failure on wheel ``i`` (nominal when none)."""

@@ -20,9 +20,18 @@ Jacobian per state) and assembles the residual and its Jacobian by the chain rul
   (5.34) in the same solve;
 * ``log h0`` of each wheel's zero-slip sinkage under the same load (it fixes theta_m0 in
   skid, as in the optimizer);
-* ``omega`` of each wheel: the servo's speed (speed mode) or, for a wheel in torque mode
-  (unpowered: zero torque; torque-limited: the limit), from its axle balance
-  ``M_y + T = 0`` (no wheel inertia).
+* ``omega`` of each wheel: the servo's speed (speed mode: the motor supplies whatever torque
+  that takes, ``T = J (omega - omega_prev)/dt - M_y + tau_d``) or, for a wheel in torque mode
+  (unpowered: zero torque; torque-limited: the limit), from its spin dynamics, implicit Euler,
+  ``J (omega - omega_prev)/dt = T + M_y - tau_d`` (``M_y`` the soil's moment on the wheel,
+  ``tau_d`` a hub drag; ``J = 0`` or ``dt = inf``: the quasi-static axle balance). The wheel's
+  angular momentum change is left out of the rocker pitch balances (``J omega_dot`` is below
+  0.02 N m against rocker moments of several N m).
+* a raised wheel (no ground contact, stuck suspension) carries no load and no soil wrench;
+  the pivot is then locked, so the raised wheel's rocker takes the other rocker's angle and
+  the two rocker pitch balances become the whole rover's pitch balance (as in
+  :mod:`offline.rover.statics`); the raised wheel's sinkage unknowns are parked at the
+  grouser height.
 
 Per-wheel forces come from the full model of :func:`offline.physics.terramechanics.wrench_core`
 (not the tables). Wheel radius per wheel and the soil parameters are *inputs* of the compiled
@@ -51,7 +60,8 @@ from ..physics.backend import CASADI
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
 
-__all__ = ["SimulationError", "PlantModel", "PlantSolution", "N_UNKNOWNS", "INPUT_NAMES", "PARAM_NAMES", "GRAVITY", "default_yaw_inertia"]
+__all__ = ["SimulationError", "PlantModel", "PlantSolution", "N_UNKNOWNS", "INPUT_NAMES", "PARAM_NAMES", "GRAVITY", "default_yaw_inertia",
+           "DISTURBANCE_NAMES", "default_wheel_inertia", "WHEEL_MASS_ESTIMATE"]
 
 GRAVITY = 9.81
 """m/s^2; converts the rover weight of Table 7.2 into a mass."""
@@ -62,14 +72,23 @@ INPUT_NAMES = (
     tuple(f"omega_cmd_{k}" for k in WHEEL_POS_NAMES) + tuple(f"speed_mode_{k}" for k in WHEEL_POS_NAMES)
     + tuple(f"torque_{k}" for k in WHEEL_POS_NAMES) + tuple(f"steer_{k}" for k in WHEEL_POS_NAMES)
     + ("u_prev", "v_prev", "r_prev", "heading", "inv_dt")
+    + tuple(f"omega_prev_{k}" for k in WHEEL_POS_NAMES) + tuple(f"contact_{k}" for k in WHEEL_POS_NAMES)
 )
-"""Inputs of the compiled step function (SI)."""
+"""Inputs of a plant step (SI): commanded wheel speeds, drive modes and torques, true steer
+angles, the body velocities, heading and wheel speeds at the start of the step, ``1/dt`` (0:
+quasi-static), and ground contact per wheel (1 on the ground, 0 raised)."""
 PARAM_NAMES = (
     tuple(f"radius_{k}" for k in WHEEL_POS_NAMES)
     + ("k", "n0", "n1", "n2", "friction_angle", "unit_weight", "cohesion", "shear_modulus", "repose_angle")
-    + ("slope", "cross_slope", "tether_force", "mass", "yaw_inertia")
+    + ("slope", "cross_slope", "tether_force", "mass", "yaw_inertia", "wheel_inertia")
 )
-"""Truth parameters of the compiled step function (SI): per-wheel radius, soil, terrain, tether, body."""
+"""Truth parameters of a plant step (SI): per-wheel radius, soil, terrain, tether, body, and the
+spin inertia of a wheel about its axle."""
+DISTURBANCE_NAMES = (
+    ("body_force_x", "body_force_y", "body_moment_z") + tuple(f"wheel_force_x_{k}" for k in WHEEL_POS_NAMES)
+    + tuple(f"wheel_force_y_{k}" for k in WHEEL_POS_NAMES) + tuple(f"wheel_torque_{k}" for k in WHEEL_POS_NAMES)
+)
+"""External disturbance vector of :meth:`PlantModel.evaluate` (SI, rover body frame)."""
 _SOIL_FIELDS = ("k", "n0", "n1", "n2", "phi", "rho", "c", "K", "repose")
 
 
@@ -136,9 +155,17 @@ class PlantModel:
         one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
         return one.map(8)
 
-    def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]
+    def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
+                 d: NDArray[np.float64] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Residual (15,), Jacobian (15, 15), wrench (4, 6), slip (4,), slip angle (4,) at unknowns ``z``.
+
+        ``d`` (optional, :data:`DISTURBANCE_NAMES`, SI) holds external forces constant over the
+        step: a body force at the centre of mass (enters the planar balances like the tether),
+        a yaw moment, a body-frame force per wheel (added to that wheel's soil force, so it
+        enters the yaw, roll and rocker balances where the soil force does) and a torque per
+        wheel resisting its spin (axle balance ``M_y + T - tau_d = 0``). ``None`` skips these
+        terms altogether (bit-for-bit the undisturbed equations).
 
         The Jacobian is exact except for the rocker angle's dependence on the sinkages (a
         term of order ``h_r / l_r`` times the sinkage difference), so Newton converges to
@@ -148,6 +175,7 @@ class PlantModel:
         lr, hr, wr = ro.rocker_length, ro.pivot_height, ro.track_width
         hg = self.params.wheel.grouser_height
         mass, iz = q[16], q[17]
+        jw = q[18] if len(q) > 18 else 0.0
         weight = mass * GRAVITY
         slope, cross, tether = q[13], q[14], q[15]
         u, v, r = z[0], z[1], z[2]
@@ -155,6 +183,11 @@ class PlantModel:
         h, h0 = np.exp(z[7:11]), np.exp(z[11:15])
         cmd, mode, torque, steer = a[0:4], a[4:8], a[8:12], a[12:16]
         u0, v0, r0, psi, inv_dt = a[16], a[17], a[18], a[19], a[20]
+        omega0 = a[21:25] if len(a) > 21 else omega
+        raised = [i for i in range(4) if len(a) > 25 and a[25 + i] == 0.0]
+        if raised:  # park the raised wheel's sinkages (the wheel model must stay finite; its wrench is dropped)
+            h, h0 = h.copy(), h0.copy()
+            h[raised] = h0[raised] = hg
         rs = q[0:4] + hg
         c, s = np.cos(steer), np.sin(steer)
         vxr, vyr = u - r * _YS(wr), v + r * _XS(lr)
@@ -171,6 +204,11 @@ class PlantModel:
         else:
             W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
         JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
+        if raised:  # no ground contact: no soil wrench, slip undefined
+            idx = raised + [4 + i for i in raised]
+            W[:, idx] = 0.0
+            JW[idx] = 0.0
+            SL[0, raised] = BE[0, raised] = math.nan
         # d(vx, vy)/d(u, v, r) per wheel
         dv = np.zeros((4, 2, 3))
         dv[:, 0, 0], dv[:, 0, 1], dv[:, 0, 2] = c, s, -c * _YS(wr) + s * _XS(lr)
@@ -196,11 +234,18 @@ class PlantModel:
         R[:, 3, 3], R[:, 3, 4], R[:, 4, 3], R[:, 4, 4] = c, -s, s, c
         F = np.einsum("ijk,ik->ij", R, wheel)
         dF = np.einsum("ijk,ikz->ijz", R, dwheel)
+        if d is not None:
+            F[:, 0] += d[3:7]
+            F[:, 1] += d[7:11]
         xs, ys = _XS(lr), _YS(wr)
         # rocker geometry (x, z of wheel centres from the pivot)
         px, pz = np.empty(4), np.empty(4)
+        sps = [(h[2] - h[0]) / lr, (h[3] - h[1]) / lr]
+        if raised:  # pivot locked: the rocker of the raised wheel takes the other rocker's angle
+            side = raised[0] % 2
+            sps[side] = sps[1 - side]
         for fr, re in ((0, 2), (1, 3)):
-            sp = (h[re] - h[fr]) / lr
+            sp = sps[fr]
             cp = math.sqrt(max(1.0 - sp * sp, 0.0))
             px[fr], pz[fr] = lr / 2 * cp + hr * sp, lr / 2 * sp - hr * cp
             px[re], pz[re] = -lr / 2 * cp + hr * sp, -lr / 2 * sp - hr * cp
@@ -211,16 +256,22 @@ class PlantModel:
         res = np.empty(N_UNKNOWNS)
         J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
         res[0] = (F[:, 0].sum() + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
+        if d is not None:
+            res[0] += d[0] / weight
         J[0] = dF[:, 0].sum(0) / weight
         J[0, 0] -= mass * inv_dt / weight
         J[0, 1] += mass * r / weight
         J[0, 2] += mass * v / weight
         res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
+        if d is not None:
+            res[1] += d[1] / weight
         J[1] = dF[:, 1].sum(0) / weight
         J[1, 1] -= mass * inv_dt / weight
         J[1, 2] -= mass * u / weight
         J[1, 0] -= mass * r / weight
         res[2] = (np.sum(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
+        if d is not None:
+            res[2] += d[2] / M
         J[2] = (dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0]).sum(0) / M
         J[2, 2] -= iz * inv_dt / M
         res[3] = (F[:, 2].sum() - normal) / weight
@@ -233,17 +284,35 @@ class PlantModel:
         om_scale = ro.travel_speed / rs
         t_scale = weight / 4 * rs
         res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
+        if d is not None:
+            res[7:11] -= (1 - mode) * d[11:15] / t_scale
         J[7:11] = ((1 - mode) / t_scale)[:, None] * dwheel[:, 4]
         J[7 + _I4, 3 + _I4] += mode / om_scale
+        if jw * inv_dt != 0.0:  # spin inertia of a wheel in torque mode: J (omega - omega_prev) / dt
+            res[7:11] -= (1 - mode) * jw * inv_dt * (omega - omega0) / t_scale
+            J[7 + _I4, 3 + _I4] -= (1 - mode) * jw * inv_dt / t_scale
         res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
         J[11:15] = (dzero[:, 2] - dwheel[:, 2]) / (weight / 4)
+        if raised:
+            i = raised[0]
+            # one rigid frame (pivot locked): the whole rover's pitch balance, and the raised
+            # wheel's sinkages pinned at the parked value
+            res[5], J[5] = res[5] + res[6], J[5] + J[6]
+            res[6], J[6] = z[7 + i] - math.log(hg), 0.0
+            J[6, 7 + i] = 1.0
+            res[11 + i], J[11 + i] = z[11 + i] - math.log(hg), 0.0
+            J[11 + i, 11 + i] = 1.0
+            if mode[i] == 0.0 and jw * inv_dt == 0.0:  # free spinning without inertia: keep its speed
+                res[7 + i], J[7 + i] = (omega[i] - omega0[i]) / om_scale[i], 0.0
+                J[7 + i, 3 + i] = 1.0 / om_scale[i]
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
 
     MAX_NEWTON = 40
     TOL = 1e-8
 
-    def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], PlantSolution]:
-        """Newton's method with backtracking on ``||res||`` from ``z0``.
+    def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
+              d: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], PlantSolution]:
+        """Newton's method with backtracking on ``||res||`` from ``z0`` (``d``: see :meth:`evaluate`).
 
         Raises
         ------
@@ -251,7 +320,7 @@ class PlantModel:
             No equilibrium within :attr:`MAX_NEWTON` iterations (the message gives the residual).
         """
         z = np.array(z0, dtype=float)
-        res, J, w, sl, be = self.evaluate(z, a, q)
+        res, J, w, sl, be = self.evaluate(z, a, q, d)
         res = res.ravel()
         norm = float(np.max(np.abs(res)))
         it = 0
@@ -266,7 +335,7 @@ class PlantModel:
             lam = 1.0 if big < 1.0 else 1.0 / big
             for _ in range(30):
                 zt = z + lam * dz
-                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q)
+                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d)
                 rt = rt.ravel()
                 nt = float(np.max(np.abs(rt)))
                 if np.isfinite(nt) and (nt < (1 - 1e-4 * lam) * norm or nt <= self.TOL):
@@ -280,26 +349,32 @@ class PlantModel:
                 f"no equilibrium of the rover found (max scaled residual {norm:.3g} after {it} Newton iterations; "
                 f"body velocity u={z[0]:.4g} v={z[1]:.4g} r={z[2]:.4g}, sinkages {np.exp(z[7:11])}): the terrain or "
                 "commands are outside what the wheels can carry; reduce the slope or the step size")
-        sol = PlantSolution(float(z[0]), float(z[1]), float(z[2]), z[3:7].copy(), np.exp(z[7:11]), np.exp(z[11:15]),
-                            w.reshape(4, 6), sl.ravel(), be.ravel(), it, norm)
+        contact = np.asarray(a[25:29]) if len(a) > 25 else np.ones(4)
+        sol = PlantSolution(float(z[0]), float(z[1]), float(z[2]), z[3:7].copy(), np.exp(z[7:11]) * contact,
+                            np.exp(z[11:15]) * contact, w.reshape(4, 6), sl.ravel(), be.ravel(), it, norm)
         return z, sol
 
-    def initial_guess(self, speed: float, q: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Straight driving at ``speed``, equal loads, sinkages carried by those loads at zero slip."""
+    def initial_guess(self, speed: float, q: NDArray[np.float64], contact: NDArray[np.float64] | None = None
+                      ) -> NDArray[np.float64]:
+        """Straight driving at ``speed``, equal loads on the wheels in contact, sinkages carried
+        by those loads at zero slip (a raised wheel's sinkage parked at the grouser height)."""
         weight = q[16] * GRAVITY
         rs = self.rs_nominal
-        sol = self._wheel_model.sinkage_from_load(np.full(4, weight / 4), np.full(4, speed), np.zeros(4),
+        on = np.ones(4) if contact is None else np.asarray(contact, dtype=float)
+        sol = self._wheel_model.sinkage_from_load(np.full(4, weight / on.sum()), np.full(4, speed), np.zeros(4),
                                                   np.full(4, speed / rs))
         h = np.where(sol.converged, sol.h, rs / 5)
+        h = np.where(on == 0.0, self.params.wheel.grouser_height, h)
         return np.concatenate([[speed, 0.0, 0.0], np.full(4, speed / rs), np.log(h), np.log(h)])
 
     @staticmethod
     def param_vector(radius: tuple[float, float, float, float], soil: Any, slope: float, cross_slope: float,
-                     tether_force: float, mass: float, yaw_inertia: float) -> NDArray[np.float64]:
-        """Pack :data:`PARAM_NAMES` from SI values (``soil`` is a :class:`offline.physics.params.Soil`)."""
+                     tether_force: float, mass: float, yaw_inertia: float, wheel_inertia: float = 0.0) -> NDArray[np.float64]:
+        """Pack :data:`PARAM_NAMES` from SI values (``soil`` is a :class:`offline.physics.params.Soil`;
+        ``wheel_inertia`` 0: the wheels have no spin inertia, the quasi-static axle balance)."""
         return np.array([*radius, soil.k, soil.n0, soil.n1, soil.n2, soil.friction_angle, soil.unit_weight,
                          soil.cohesion, soil.shear_modulus, soil.repose_angle, slope, cross_slope, tether_force,
-                         mass, yaw_inertia], dtype=float)
+                         mass, yaw_inertia, wheel_inertia], dtype=float)
 
 
 class _DenseCall:
@@ -367,6 +442,19 @@ def _XS(lr: float) -> NDArray[np.float64]:
 
 def _YS(wr: float) -> NDArray[np.float64]:
     return np.array([-wr / 2, wr / 2, -wr / 2, wr / 2])
+
+
+WHEEL_MASS_ESTIMATE = 0.1
+"""kg: our estimate of one wheel's rotating mass (rim, grousers, hub). The dissertation gives
+neither the wheel's mass nor the drive motor's (Dynamixel XM-430) rotor inertia."""
+
+
+def default_wheel_inertia(params: ParameterSet) -> float:
+    """Spin inertia of a wheel about its axle, kg m^2: :data:`WHEEL_MASS_ESTIMATE` as a thin ring
+    at the rim radius, ``m r^2`` (about 3.3e-4 kg m^2 for the 57.5 mm wheel). An estimate: the
+    gear-reflected rotor inertia of the drive motor is unknown and not included (set
+    ``wheel_inertia_kg_m2`` in a truth file to study it)."""
+    return WHEEL_MASS_ESTIMATE * params.wheel.radius**2
 
 
 def default_yaw_inertia(rover: Rover) -> float:

@@ -16,7 +16,8 @@ File format (every key optional; units in the key names)
     cross_slope_deg = 0.0            # terrain rises to the rover's initial left (left side up positive)
     tether_force_N = 1.0             # pulls the rover backward along its own -x
     mass_kg = 3.5                    # default: rover weight / 9.81
-    yaw_inertia_kg_m2 = 0.06         # default: uniform plate over wheelbase x track
+    yaw_inertia_kg_m2 = 0.06         # default: uniform plate over wheelbase x track (our estimate)
+    wheel_inertia_kg_m2 = 3.3e-4     # spin inertia of each wheel; default: 0.1 kg ring at the rim (our estimate)
 
     [wheels.RR]
     radius_mm = 54.0                 # default: the parameter set's wheel radius
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
 from ..rover.scenario import PARAM_PRESETS
-from .plant import GRAVITY, PlantModel, default_yaw_inertia
+from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
 
@@ -64,7 +65,12 @@ class Truth:
     tether_force : float
         Backward pull along the rover's -x, N.
     mass, yaw_inertia : float
-        kg, kg m^2.
+        kg, kg m^2 (the yaw inertia default is our own estimate,
+        :func:`offline.sim.plant.default_yaw_inertia`: the dissertation gives none).
+    wheel_inertia : float
+        Spin inertia of each wheel about its axle, kg m^2 (0: quasi-static wheels, the axle
+        balance without inertia; :meth:`nominal` and :func:`load_truth` default to our estimate
+        :func:`offline.sim.plant.default_wheel_inertia`).
     """
 
     params: ParameterSet
@@ -75,6 +81,7 @@ class Truth:
     tether_force: float = 0.0
     mass: float = 0.0
     yaw_inertia: float = 0.0
+    wheel_inertia: float = 0.0
     source: str = ""
     notes: dict[str, Any] = field(default_factory=dict)
 
@@ -82,13 +89,13 @@ class Truth:
     def nominal(cls, params: ParameterSet, rover: Rover, **kw: Any) -> "Truth":
         """The world the tables believe in: the parameter set's wheel on every corner, flat ground."""
         base = cls(params=params, wheel_radius=(params.wheel.radius,) * 4, mass=rover.weight / GRAVITY,
-                   yaw_inertia=default_yaw_inertia(rover))
+                   yaw_inertia=default_yaw_inertia(rover), wheel_inertia=default_wheel_inertia(params))
         return replace(base, **kw)
 
     def vector(self) -> NDArray[np.float64]:
         """The parameter vector of :class:`offline.sim.plant.PlantModel` (:data:`PARAM_NAMES`)."""
         return PlantModel.param_vector(self.wheel_radius, self.params.soil, self.slope, self.cross_slope,
-                                       self.tether_force, self.mass, self.yaw_inertia)
+                                       self.tether_force, self.mass, self.yaw_inertia, self.wheel_inertia)
 
     def describe(self) -> dict[str, Any]:
         """Plain values (degrees, mm) for recordings and reports."""
@@ -98,14 +105,16 @@ class Truth:
             "steer_offset_deg": [math.degrees(o) for o in self.steer_offset],
             "slope_deg": math.degrees(self.slope), "cross_slope_deg": math.degrees(self.cross_slope),
             "tether_force_N": self.tether_force, "mass_kg": self.mass, "yaw_inertia_kg_m2": self.yaw_inertia,
+            "wheel_inertia_kg_m2": self.wheel_inertia,
             "source": Path(self.source).name if self.source else "",
         }
 
 
 _TRUTH_KEYS = {"params": str, "soil_stiffness_scale": float, "slope_deg": float, "cross_slope_deg": float,
-               "tether_force_N": float, "mass_kg": float, "yaw_inertia_kg_m2": float}
+               "tether_force_N": float, "mass_kg": float, "yaw_inertia_kg_m2": float, "wheel_inertia_kg_m2": float}
 _RANGES = {"soil_stiffness_scale": (0.05, 20.0), "slope_deg": (-40.0, 40.0), "cross_slope_deg": (-40.0, 40.0),
-           "tether_force_N": (-100.0, 100.0), "mass_kg": (0.01, 1e4), "yaw_inertia_kg_m2": (1e-6, 1e4)}
+           "tether_force_N": (-100.0, 100.0), "mass_kg": (0.01, 1e4), "yaw_inertia_kg_m2": (1e-6, 1e4),
+           "wheel_inertia_kg_m2": (0.0, 1e2)}
 _WHEEL_KEYS = {"radius_mm": (10.0, 2000.0), "steer_offset_deg": (-30.0, 30.0)}
 
 
@@ -186,7 +195,8 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         params=ps, wheel_radius=tuple(radius), steer_offset=tuple(offset),  # type: ignore[arg-type]
         slope=math.radians(vals.get("slope_deg", 0.0)), cross_slope=math.radians(vals.get("cross_slope_deg", 0.0)),
         tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
-        yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)), source=str(p),
+        yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)),
+        wheel_inertia=vals.get("wheel_inertia_kg_m2", default_wheel_inertia(ps)), source=str(p),
     )
 
 

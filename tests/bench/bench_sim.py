@@ -7,7 +7,9 @@ Run on demand, never in the test suite::
 Drives the section 7.3 scenarios 1.5 m at 3 cm/s (50 simulated seconds each) open loop
 (feed-forward primitive: commands constant) and closed loop (feed-forward + PID: commands
 change every 0.2 s, so the plant's Newton solve works every step), at the default step
-(0.1 s) and at 0.05 s. Primitives and steering controllers are solved before the clock
+(0.1 s) and at 0.05 s, with the simulator's defaults (wheel spin inertia, gyro bias walk);
+then the closed loop at 0.1 s once more with a disturbance hook (contract C5: a drawbar pull
+and hub drag varying with time, evaluated every step) to show the hook's cost. Primitives and steering controllers are solved before the clock
 starts; the plant's C compile is cached on disk (first run only). Writes
 ``tests/bench/results_sim.md``.
 """
@@ -27,10 +29,16 @@ import numpy as np
 
 from offline.files import write_text
 from offline.sim.experiments import build_controller, run_drive, scenario_by_name
-from offline.sim.simulator import RoverSimulator
+from offline.sim.simulator import DisturbanceForces, RoverSimulator, TruthState
 
 HERE = Path(__file__).resolve().parent
 TARGET = 20.0
+
+
+def _drag(t: float, s: TruthState) -> DisturbanceForces:
+    """A time-varying drawbar pull (0.5-1 N) and a hub drag on the rear right wheel (0.02 N m)."""
+    return DisturbanceForces(body_force=(-0.75 - 0.25 * np.sin(0.2 * t), 0.0),
+                             wheel_torque=(0.0, 0.0, 0.02 * np.sign(s.omega[2]), 0.0))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,24 +50,30 @@ def main(argv: list[str] | None = None) -> int:
     repeat = 1 if args.quick else 3
     distance = 0.5 if args.quick else 1.5
     rows = []
-    for name in ("rr_steer_stuck_50", "rr_speed_cap_half", "rr_trench_clean"):
+    load_start = os.getloadavg()[0]
+    cases = [(name, kind, dt, None) for name in ("rr_steer_stuck_50", "rr_speed_cap_half", "rr_trench_clean")
+             for kind in ("ff", "ff+optfb") for dt in (0.1, 0.05)]
+    cases.append(("rr_steer_stuck_50", "ff+optfb", 0.1, _drag))
+    controllers = {}
+    for name, kind, dt, hook in cases:
         sc = scenario_by_name(name)
-        for kind in ("ff", "ff+optfb"):
-            ctl = build_controller(kind, sc)
-            for dt in (0.1, 0.05):
-                rates, cpu_rates, iters = [], [], []
-                for _ in range(repeat):
-                    sim = RoverSimulator(sc, dt=dt, seed=0)
-                    t, c = time.perf_counter(), time.process_time()
-                    run_drive(sim, ctl, distance=distance)
-                    wall, cpu = time.perf_counter() - t, time.process_time() - c
-                    rates.append(sim.t / wall)
-                    cpu_rates.append(sim.t / cpu)
-                    iters.append(sim.newton_iterations / max(sim.steps, 1))
-                rate = max(rates)
-                rows.append((name, kind, dt, rate, statistics.median(rates), max(cpu_rates), float(np.mean(iters))))
-                print(f"{name:18s} {kind:9s} dt={dt:<5} {rate:6.1f} sim-s/wall-s (median {statistics.median(rates):.1f}), "
-                      f"{max(cpu_rates):6.1f} sim-s/CPU-s, {np.mean(iters):.2f} Newton iterations per step", flush=True)
+        if (name, kind) not in controllers:
+            controllers[name, kind] = build_controller(kind, sc)
+        ctl = controllers[name, kind]
+        rates, cpu_rates, iters = [], [], []
+        for _ in range(repeat):
+            sim = RoverSimulator(sc, dt=dt, seed=0, disturbance=hook)
+            t, c = time.perf_counter(), time.process_time()
+            run_drive(sim, ctl, distance=distance)
+            wall, cpu = time.perf_counter() - t, time.process_time() - c
+            rates.append(sim.t / wall)
+            cpu_rates.append(sim.t / cpu)
+            iters.append(sim.newton_iterations / max(sim.steps, 1))
+        rate = max(rates)
+        label = kind + (" + disturbance hook" if hook is not None else "")
+        rows.append((name, label, dt, rate, statistics.median(rates), max(cpu_rates), float(np.mean(iters))))
+        print(f"{name:18s} {label:9s} dt={dt:<5} {rate:6.1f} sim-s/wall-s (median {statistics.median(rates):.1f}), "
+              f"{max(cpu_rates):6.1f} sim-s/CPU-s, {np.mean(iters):.2f} Newton iterations per step", flush=True)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         "# Simulator benchmark",
@@ -69,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         f"(machine shared with other jobs); best of {repeat}, {distance} m drives at 3 cm/s.",
         "",
         f"Target: >= {TARGET:.0f} simulated seconds per wall second. The wall rate depends on what else runs on the "
-        f"machine (load average {os.getloadavg()[0]:.1f} at the end of this run on {os.cpu_count()} cores); the rate per "
+        f"machine (1-min load average {load_start:.1f} at the start and {os.getloadavg()[0]:.1f} at the end of this run "
+        f"on {os.cpu_count()} cores); the rate per "
         "CPU second of this process does not.",
         "",
         "| scenario | controller | step [s] | sim-s per wall-s (best) | median | sim-s per CPU-s (best) | Newton it./step | |",

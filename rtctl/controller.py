@@ -63,6 +63,8 @@ from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
 from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
+_Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
+
 __all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
 
 _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft soil
@@ -275,7 +277,7 @@ class Controller:
         self._prep: _Prepared | None = None
         self._table_error = ""
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
-        self._prev_cmd: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * len(WHEELS), (0.0,) * len(WHEELS))
+        self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
         if self._prep is None:
             raise ControllerError(f"no table could be prepared at the start ({self._table_error}); check the tables")
@@ -293,7 +295,7 @@ class Controller:
     def _choose_table(self) -> tuple[str, list[str]]:
         declared = self._declared()
         matches = [name for name, sig in self.signatures.items() if sig and sig == declared]
-        flags = []
+        flags: list[str] = []
         if matches:
             return (self.config.default_table if self.config.default_table in matches else matches[0]), flags
         if self._task is not None:
@@ -773,13 +775,14 @@ class Controller:
         steer = tuple(x[prep.idx.be].tolist())
         return rim, steer
 
-    def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[_Quad, _Quad]:
         rim, steer = self._commands_from_x(self._prep, x0)  # type: ignore[arg-type]
         act = self.config.actuators
-        return (tuple(min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim),
-                tuple(min(max(v, -act.max_steer), act.max_steer) for v in steer))
+        r = [min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim]
+        b = [min(max(v, -act.max_steer), act.max_steer) for v in steer]
+        return (r[0], r[1], r[2], r[3]), (b[0], b[1], b[2], b[3])
 
-    def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[_Quad, _Quad]:
         """Rate-limit from the previous command and clip into the actuator range; the result
         is always finite (a non-finite target holds the previous command)."""
         act = self.config.actuators
@@ -798,7 +801,7 @@ class Controller:
                 a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
-        return tuple(out_r), tuple(out_s)
+        return (out_r[0], out_r[1], out_r[2], out_r[3]), (out_s[0], out_s[1], out_s[2], out_s[3])
 
     def _valid(self, c: Commands) -> bool:
         act = self.config.actuators

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -143,10 +143,12 @@ def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: 
 class _Filter(ExtendedKalmanFilter):  # type: ignore[misc]
     """filterpy's EKF with the nonlinear motion model in :meth:`predict_x`."""
 
-    def predict_x(self, u: NDArray[np.float64] = 0) -> None:  # type: ignore[override]
+    x: NDArray[np.float64]  # the state (filterpy keeps it as an attribute; typed here for mypy)
+
+    def predict_x(self, u: Any = 0) -> None:  # type: ignore[override]
         """Eq. in the module docstring; ``u = (dt, v_odo, yaw_rate, crab_cmd)``."""
         dt, v_odo, r, a_cmd = u
-        x = self.x
+        x: NDArray[np.float64] = self.x
         s = min(max(x[_IS], -_SLIP_LIMIT), _SLIP_LIMIT)
         v = (1.0 - s) * v_odo
         c = x[_IPSI] + x[_IA] + a_cmd

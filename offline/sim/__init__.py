@@ -6,4 +6,7 @@
 :mod:`.rtctl_bridge` (rtctl as a controller of the harness).
 """
 
-__all__ = ["plant", "actuators", "sensors", "truth", "simulator", "experiments", "rtctl_bridge"]
+from .simulator import Disturbance, DisturbanceForces, TruthState
+
+__all__ = ["plant", "actuators", "sensors", "truth", "simulator", "experiments", "rtctl_bridge", "Disturbance",
+           "DisturbanceForces", "TruthState"]

@@ -51,7 +51,8 @@ from ..physics.backend import CASADI
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
 
-__all__ = ["SimulationError", "PlantModel", "PlantSolution", "N_UNKNOWNS", "INPUT_NAMES", "PARAM_NAMES", "GRAVITY", "default_yaw_inertia"]
+__all__ = ["SimulationError", "PlantModel", "PlantSolution", "N_UNKNOWNS", "INPUT_NAMES", "PARAM_NAMES", "GRAVITY", "default_yaw_inertia",
+           "DISTURBANCE_NAMES"]
 
 GRAVITY = 9.81
 """m/s^2; converts the rover weight of Table 7.2 into a mass."""
@@ -70,6 +71,11 @@ PARAM_NAMES = (
     + ("slope", "cross_slope", "tether_force", "mass", "yaw_inertia")
 )
 """Truth parameters of the compiled step function (SI): per-wheel radius, soil, terrain, tether, body."""
+DISTURBANCE_NAMES = (
+    ("body_force_x", "body_force_y", "body_moment_z") + tuple(f"wheel_force_x_{k}" for k in WHEEL_POS_NAMES)
+    + tuple(f"wheel_force_y_{k}" for k in WHEEL_POS_NAMES) + tuple(f"wheel_torque_{k}" for k in WHEEL_POS_NAMES)
+)
+"""External disturbance vector of :meth:`PlantModel.evaluate` (SI, rover body frame)."""
 _SOIL_FIELDS = ("k", "n0", "n1", "n2", "phi", "rho", "c", "K", "repose")
 
 
@@ -136,9 +142,17 @@ class PlantModel:
         one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
         return one.map(8)
 
-    def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]
+    def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
+                 d: NDArray[np.float64] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Residual (15,), Jacobian (15, 15), wrench (4, 6), slip (4,), slip angle (4,) at unknowns ``z``.
+
+        ``d`` (optional, :data:`DISTURBANCE_NAMES`, SI) holds external forces constant over the
+        step: a body force at the centre of mass (enters the planar balances like the tether),
+        a yaw moment, a body-frame force per wheel (added to that wheel's soil force, so it
+        enters the yaw, roll and rocker balances where the soil force does) and a torque per
+        wheel resisting its spin (axle balance ``M_y + T - tau_d = 0``). ``None`` skips these
+        terms altogether (bit-for-bit the undisturbed equations).
 
         The Jacobian is exact except for the rocker angle's dependence on the sinkages (a
         term of order ``h_r / l_r`` times the sinkage difference), so Newton converges to
@@ -196,6 +210,9 @@ class PlantModel:
         R[:, 3, 3], R[:, 3, 4], R[:, 4, 3], R[:, 4, 4] = c, -s, s, c
         F = np.einsum("ijk,ik->ij", R, wheel)
         dF = np.einsum("ijk,ikz->ijz", R, dwheel)
+        if d is not None:
+            F[:, 0] += d[3:7]
+            F[:, 1] += d[7:11]
         xs, ys = _XS(lr), _YS(wr)
         # rocker geometry (x, z of wheel centres from the pivot)
         px, pz = np.empty(4), np.empty(4)
@@ -211,16 +228,22 @@ class PlantModel:
         res = np.empty(N_UNKNOWNS)
         J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
         res[0] = (F[:, 0].sum() + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
+        if d is not None:
+            res[0] += d[0] / weight
         J[0] = dF[:, 0].sum(0) / weight
         J[0, 0] -= mass * inv_dt / weight
         J[0, 1] += mass * r / weight
         J[0, 2] += mass * v / weight
         res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
+        if d is not None:
+            res[1] += d[1] / weight
         J[1] = dF[:, 1].sum(0) / weight
         J[1, 1] -= mass * inv_dt / weight
         J[1, 2] -= mass * u / weight
         J[1, 0] -= mass * r / weight
         res[2] = (np.sum(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
+        if d is not None:
+            res[2] += d[2] / M
         J[2] = (dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0]).sum(0) / M
         J[2, 2] -= iz * inv_dt / M
         res[3] = (F[:, 2].sum() - normal) / weight
@@ -233,6 +256,8 @@ class PlantModel:
         om_scale = ro.travel_speed / rs
         t_scale = weight / 4 * rs
         res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
+        if d is not None:
+            res[7:11] -= (1 - mode) * d[11:15] / t_scale
         J[7:11] = ((1 - mode) / t_scale)[:, None] * dwheel[:, 4]
         J[7 + _I4, 3 + _I4] += mode / om_scale
         res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
@@ -242,8 +267,9 @@ class PlantModel:
     MAX_NEWTON = 40
     TOL = 1e-8
 
-    def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.float64], PlantSolution]:
-        """Newton's method with backtracking on ``||res||`` from ``z0``.
+    def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
+              d: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], PlantSolution]:
+        """Newton's method with backtracking on ``||res||`` from ``z0`` (``d``: see :meth:`evaluate`).
 
         Raises
         ------
@@ -251,7 +277,7 @@ class PlantModel:
             No equilibrium within :attr:`MAX_NEWTON` iterations (the message gives the residual).
         """
         z = np.array(z0, dtype=float)
-        res, J, w, sl, be = self.evaluate(z, a, q)
+        res, J, w, sl, be = self.evaluate(z, a, q, d)
         res = res.ravel()
         norm = float(np.max(np.abs(res)))
         it = 0
@@ -266,7 +292,7 @@ class PlantModel:
             lam = 1.0 if big < 1.0 else 1.0 / big
             for _ in range(30):
                 zt = z + lam * dz
-                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q)
+                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d)
                 rt = rt.ravel()
                 nt = float(np.max(np.abs(rt)))
                 if np.isfinite(nt) and (nt < (1 - 1e-4 * lam) * norm or nt <= self.TOL):

@@ -1,8 +1,11 @@
-"""Sensor models: wheel and steering encoders, gyro (bias and noise), IMU tilt, motor torque,
-and a pose source (visual odometry or a tracker) at its own rate, with delay, drift and dropouts.
+"""Sensor models: wheel and steering encoders, gyro (bias, bias random walk and noise), IMU tilt,
+motor torque, and a pose source (visual odometry or a tracker) at its own rate, with delay,
+drift and dropouts.
 
-All noise comes from one seeded :class:`numpy.random.Generator`, drawn in a fixed order each
-tick, so a run is reproducible bit for bit. The pose carries the time it was *taken*; it is
+All measurement noise comes from one seeded :class:`numpy.random.Generator`, drawn in a fixed
+order each tick, so a run is reproducible bit for bit. The gyro bias random walk draws from its
+own generator (seeded from the run's seed), advanced once per plant step, so switching it off
+leaves every other noise sequence unchanged. The pose carries the time it was *taken*; it is
 delivered ``delay`` seconds later (the controller must use it for the time it was taken).
 """
 
@@ -13,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SensorConfig", "SensorError", "PoseSource"]
+__all__ = ["SensorConfig", "SensorError", "PoseSource", "GyroBias", "GYRO_BIAS_WALK_ADIS16448"]
+
+GYRO_BIAS_WALK_ADIS16448 = 1.9393e-5
+"""Gyro bias random-walk density of a MEMS IMU, rad/s/sqrt(s) (= rad/s^2/sqrt(Hz)): the value
+published for the ADIS16448 of the EuRoC MAV dataset (``imu0/sensor.yaml``,
+``gyroscope_random_walk``; Burri et al., IJRR 2016), the usual reference value of the Kalibr IMU
+noise model. The dissertation does not name the mini rover's IMU; this is a typical
+industrial-grade MEMS gyro (consumer parts drift more, up to about 10x)."""
 
 
 class SensorError(ValueError):
@@ -31,7 +41,7 @@ class SensorConfig:
     steer_noise : float
         Steering encoder, rad (AX-18A resolution 0.29 deg ~ 0.005 rad).
     gyro_bias : float
-        Constant gyro yaw-rate bias, rad/s.
+        Gyro yaw-rate bias at the start of the run, rad/s.
     gyro_noise : float
         White gyro noise per sample, rad/s.
     tilt_noise : float
@@ -55,6 +65,11 @@ class SensorConfig:
         Probability that a fix is lost.
     pose_outage : tuple of 2 float
         ``(start, end)`` of a window with no fixes, s (``(inf, inf)``: none).
+    gyro_bias_walk : float
+        Density of the gyro bias random walk, rad/s/sqrt(s): over ``dt`` the bias moves by
+        ``gyro_bias_walk * sqrt(dt)`` times a standard normal draw (Kalibr's discrete model,
+        sigma_bgd = sigma_bg sqrt(dt)). Default :data:`GYRO_BIAS_WALK_ADIS16448`; 0 keeps
+        the bias constant.
     """
 
     wheel_speed_noise: float = 0.005
@@ -72,10 +87,11 @@ class SensorConfig:
     pose_heading_drift: float = 0.0
     pose_dropout: float = 0.0
     pose_outage: tuple[float, float] = (math.inf, math.inf)
+    gyro_bias_walk: float = GYRO_BIAS_WALK_ADIS16448
 
     def __post_init__(self) -> None:
         for name in ("wheel_speed_noise", "steer_noise", "gyro_noise", "tilt_noise", "pose_delay", "pose_noise_xy",
-                     "pose_noise_heading", "pose_drift", "pose_heading_drift"):
+                     "pose_noise_heading", "pose_drift", "pose_heading_drift", "gyro_bias_walk"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise SensorError(f"SensorConfig.{name} must be finite and >= 0, got {v!r}")
@@ -126,3 +142,26 @@ class PoseSource:
             return None
         self._pending = [p for p in self._pending if p[0] + self.config.pose_delay > t + 1e-9]
         return ready[-1]
+
+
+class GyroBias:
+    """The gyro's yaw-rate bias: a random walk (Brownian motion) from ``config.gyro_bias``.
+
+    Parameters
+    ----------
+    config : SensorConfig
+    seed : int
+        Seeds the walk's own generator (``numpy.random.SeedSequence([seed, 1])``), independent
+        of the measurement noise.
+    """
+
+    def __init__(self, config: SensorConfig, seed: int) -> None:
+        self.density = config.gyro_bias_walk
+        self.value = float(config.gyro_bias)
+        self._rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1]))
+
+    def advance(self, dt: float) -> float:
+        """Move the bias over ``dt`` seconds; returns the new bias, rad/s."""
+        if self.density > 0.0:
+            self.value += self.density * math.sqrt(dt) * float(self._rng.standard_normal())
+        return self.value

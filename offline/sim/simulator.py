@@ -14,6 +14,11 @@ A tick of a closed loop::
         cmd, _ = controller.step(m)
         sim.apply(cmd)
         sim.advance(0.2)
+
+External forces (a disturbance hook, contract C5): ``RoverSimulator(..., disturbance=f)`` with
+``f(t, truth_state) -> DisturbanceForces`` evaluated once at the start of every plant step
+(and once at ``start``); the forces are held over the step. ``None`` (the default) runs the
+undisturbed equations bit for bit.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,11 +37,12 @@ from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions
 from ..rover.scenario import Scenario
 from .actuators import ActuatorConfig, Actuators
-from .plant import GRAVITY, PlantModel, PlantSolution, SimulationError
-from .sensors import PoseSource, SensorConfig
+from .plant import DISTURBANCE_NAMES, GRAVITY, PlantModel, PlantSolution, SimulationError
+from .sensors import GyroBias, PoseSource, SensorConfig
 from .truth import Truth
 
-__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError"]
+__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "Disturbance",
+           "DisturbanceForces", "DisturbanceError", "DISTURBANCE_NAMES"]
 
 
 @functools.lru_cache(maxsize=8)
@@ -66,9 +72,87 @@ def declared_failures(sc: Scenario) -> tuple[FailureDeclaration, ...]:
     return tuple(out)
 
 
+class DisturbanceError(ValueError):
+    """A disturbance hook returned something the simulator cannot apply (wrong type, shape,
+    or a non-finite value); the message names the field and the time."""
+
+
+def _floats(name: str, v: Any, n: int | None) -> Any:
+    """``v`` as a float (``n is None``) or a tuple of ``n`` floats, finite, else DisturbanceError."""
+    try:
+        out = float(v) if n is None else tuple(float(x) for x in v)
+    except (TypeError, ValueError):
+        raise DisturbanceError(f"DisturbanceForces.{name} must be {'a number' if n is None else f'{n} numbers'}, "
+                               f"got {v!r}") from None
+    vals = (out,) if n is None else out
+    if n is not None and len(vals) != n:
+        raise DisturbanceError(f"DisturbanceForces.{name} must have {n} entries, got {len(vals)}: {v!r}")
+    if not all(math.isfinite(x) for x in vals):
+        raise DisturbanceError(f"DisturbanceForces.{name} must be finite (N, N m), got {v!r}")
+    return out
+
+
+@dataclass(frozen=True)
+class DisturbanceForces:
+    """External forces on the rover over one plant step (SI; rover body frame: x forward, y left).
+
+    Attributes
+    ----------
+    body_force : (float, float)
+        Force at the centre of mass, N (enters the planar balances like the truth's tether;
+        ``(-k, 0)`` is a drawbar pull ``k`` backwards).
+    body_moment_z : float
+        Yaw moment about the centre of mass, N m (positive turns left).
+    wheel_force : 4 x (fx, fy)
+        Extra force at each wheel (order FR, FL, RR, RL), N. It adds to that wheel's soil force:
+        it acts at the wheel's plan position (a yaw moment about the centre of mass) and enters
+        the roll and rocker-pitch balances where the soil force does; it exerts no torque on
+        the wheel's spin (use ``wheel_torque`` for that).
+    wheel_torque : 4 float
+        Extra torque resisting each wheel's spin, N m (hub drag; positive opposes positive
+        omega): a speed-servoed wheel's motor supplies it, a torque-mode wheel
+        (unpowered or at its torque limit) is slowed by it.
+    """
+
+    body_force: tuple[float, float] = (0.0, 0.0)
+    body_moment_z: float = 0.0
+    wheel_force: tuple[tuple[float, float], ...] = ((0.0, 0.0),) * 4
+    wheel_torque: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "body_force", _floats("body_force", self.body_force, 2))
+        object.__setattr__(self, "body_moment_z", _floats("body_moment_z", self.body_moment_z, None))
+        wf = self.wheel_force
+        if isinstance(wf, (str, bytes)) or not hasattr(wf, "__len__") or len(wf) != 4:
+            raise DisturbanceError(f"DisturbanceForces.wheel_force must be 4 pairs (fx, fy) in the order FR, FL, RR, RL, "
+                                   f"got {wf!r}")
+        object.__setattr__(self, "wheel_force", tuple(_floats(f"wheel_force[{i}]", w, 2) for i, w in enumerate(wf)))
+        object.__setattr__(self, "wheel_torque", _floats("wheel_torque", self.wheel_torque, 4))
+
+    def vector(self) -> NDArray[np.float64]:
+        """The plant's disturbance vector (:data:`offline.sim.plant.DISTURBANCE_NAMES`)."""
+        wf = self.wheel_force
+        return np.array([*self.body_force, self.body_moment_z, *(f[0] for f in wf), *(f[1] for f in wf),
+                         *self.wheel_torque], dtype=float)
+
+
+class Disturbance(Protocol):
+    """A disturbance hook: called once at the start of each plant step with the time and the
+    true state then, it returns the forces held over the step. It must be deterministic (it may
+    keep its own seeded random generator)."""
+
+    def __call__(self, t: float, s: "TruthState") -> DisturbanceForces:
+        """Forces to apply over the step that starts at ``t`` in state ``s``."""
+        ...
+
+
 @dataclass(frozen=True)
 class TruthState:
-    """What really happened at one instant (for recordings' truth channel and metrics)."""
+    """What really happened at one instant (for recordings' truth channel and metrics).
+
+    ``disturbance`` holds the external forces applied over the step that ended at ``t``
+    (``None`` without a hook); ``gyro_bias`` is the gyro's true yaw-rate bias now, rad/s.
+    """
 
     t: float
     x: float
@@ -85,10 +169,33 @@ class TruthState:
     slip_angle: tuple[float, ...]
     motor_torque: tuple[float, ...]
     travelled: float
+    disturbance: DisturbanceForces | None = None
+    gyro_bias: float = 0.0
+
+    @property
+    def v_x(self) -> float:
+        """Forward body velocity, m/s (same as ``u``)."""
+        return self.u
+
+    @property
+    def v_y(self) -> float:
+        """Leftward body velocity, m/s (same as ``v``)."""
+        return self.v
+
+    @property
+    def h(self) -> tuple[float, ...]:
+        """Per-wheel sinkage, m (same as ``sinkage``)."""
+        return self.sinkage
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain JSON-able values."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+        """Plain JSON-able values (the disturbance as a nested mapping, or ``None``)."""
+        out: dict[str, Any] = {}
+        for k, v in self.__dict__.items():
+            if isinstance(v, DisturbanceForces):
+                v = {"body_force": list(v.body_force), "body_moment_z": v.body_moment_z,
+                     "wheel_force": [list(f) for f in v.wheel_force], "wheel_torque": list(v.wheel_torque)}
+            out[k] = list(v) if isinstance(v, tuple) else v
+        return out
 
 
 class RoverSimulator:
@@ -106,10 +213,19 @@ class RoverSimulator:
         Fixed plant step, s (the 5 Hz control period should be a multiple).
     seed : int
         Seeds every noise source.
+    disturbance : Disturbance, optional
+        External forces (contract C5): called once at the start of each step, held over it;
+        ``None`` runs the undisturbed equations bit for bit.
+
+    Notes
+    -----
+    The yaw inertia of the truth is our own estimate (:func:`offline.sim.plant.default_yaw_inertia`;
+    the dissertation gives none).
     """
 
     def __init__(self, scenario: Scenario, truth: Truth | None = None, actuators: ActuatorConfig | None = None,
-                 sensors: SensorConfig | None = None, dt: float = 0.1, seed: int = 0, compiled: bool = True) -> None:
+                 sensors: SensorConfig | None = None, dt: float = 0.1, seed: int = 0, compiled: bool = True,
+                 disturbance: Disturbance | None = None) -> None:
         if not (math.isfinite(dt) and 1e-4 <= dt <= 1.0):
             raise ValueError(f"dt must be in [1e-4, 1] s, got {dt!r}")
         self.scenario = scenario
@@ -122,6 +238,7 @@ class RoverSimulator:
         self.dt = dt
         self.rng = np.random.default_rng(seed)
         self.pose_source = PoseSource(self.sensors, self.rng)
+        self.gyro_bias = GyroBias(self.sensors, seed)
         self.failures = declared_failures(scenario)
         self.t = 0.0
         self.seq = 0
@@ -133,6 +250,11 @@ class RoverSimulator:
         self.mode = np.ones(4)
         self.torque = np.zeros(4)
         self.newton_iterations = 0
+        if disturbance is not None and not callable(disturbance):
+            raise DisturbanceError(f"disturbance must be a callable (t, TruthState) -> DisturbanceForces, got {disturbance!r}")
+        self.disturbance = disturbance
+        self.applied: DisturbanceForces | None = None  # forces held over the current (last) step
+        self._d: NDArray[np.float64] | None = None
 
     # ------------------------------------------------------------------ plant
     def _inputs(self, inv_dt: float) -> NDArray[np.float64]:
@@ -144,9 +266,9 @@ class RoverSimulator:
         base_mode, base_torque = self.act.drive_modes()
         self.mode, self.torque = base_mode.copy(), base_torque.copy()
         for _ in range(6):  # active set of the torque limits
-            z, sol = self.plant.solve(self.z, self._inputs(inv_dt), self.q)
+            z, sol = self.plant.solve(self.z, self._inputs(inv_dt), self.q, self._d)
             self.newton_iterations += sol.iterations
-            motor = -sol.wrench[:, 4]
+            motor = self._motor(sol)
             changed = False
             for i in range(4):
                 lim = self.act.torque_limit(i)
@@ -164,6 +286,24 @@ class RoverSimulator:
         # a wheel held at its torque limit turns at the speed the soil allows; the servo tracks it
         held = (self.mode == 0) & (base_mode == 1)
         self.act.omega_servo = np.where(held, sol.omega, self.act.omega_servo)
+
+    def _motor(self, sol: PlantSolution) -> NDArray[np.float64]:
+        """Motor torque per wheel: it balances the soil's axle moment and any hub drag."""
+        motor = -sol.wrench[:, 4]
+        if self._d is not None:
+            motor = motor + self._d[11:15]
+        return motor
+
+    def _disturb(self) -> NDArray[np.float64] | None:
+        """Evaluate the disturbance hook at the current time and state (held over the next step)."""
+        if self.disturbance is None:
+            return None
+        f = self.disturbance(self.t, self.truth_state())
+        if not isinstance(f, DisturbanceForces):
+            raise DisturbanceError(f"t={self.t:.6g} s: the disturbance hook returned {type(f).__name__}, "
+                                   "expected DisturbanceForces")
+        self.applied, self._d = f, f.vector()
+        return self._d
 
     def start(self, commands: Commands) -> None:
         """Begin at the steady state of the first commands (the rover already driving them, as
@@ -190,7 +330,32 @@ class RoverSimulator:
                     raise
             if solved and lam >= 1.0:
                 break
+        if self.disturbance is not None:
+            self._start_disturbed()
         self.pose_source.take(self.t, self.x, self.y, self.heading, self.travelled)
+
+    def _start_disturbed(self) -> None:
+        """The quasi-static state under the disturbance at t = 0, by continuation in its size
+        from the undisturbed steady state."""
+        full = self._disturb()
+        if full is None:
+            return
+        lam, step = 0.0, 1.0
+        while lam < 1.0:
+            trial = min(1.0, lam + step)
+            self._d = trial * full
+            z_keep, om_keep = self.z.copy(), self.act.omega_servo.copy()
+            try:
+                self._solve(0.0)
+                lam = trial
+                step *= 2.0
+            except SimulationError:
+                self.z, self.act.omega_servo = z_keep, om_keep
+                step *= 0.5
+                if step < 1.0 / 256:
+                    raise SimulationError(f"no steady state under the disturbance at t=0 ({self.applied}); "
+                                          f"reached {lam:.3g} of it") from None
+        self._d = full
 
     def apply(self, commands: Commands) -> None:
         """Latch commands (clipped to actuator limits by the servos; NaN ignored)."""
@@ -200,6 +365,8 @@ class RoverSimulator:
         """Advance one fixed step ``dt``."""
         if self.sol is None:
             raise SimulationError("call start(first_commands) before stepping the simulator")
+        self._disturb()
+        self.gyro_bias.advance(self.dt)
         self.act.advance(self.dt)
         self._solve(1.0 / self.dt)
         u, v, r = self.z[0], self.z[1], self.z[2]
@@ -235,13 +402,13 @@ class RoverSimulator:
         n = self.rng.standard_normal(4 + 4 + 1 + 2 + 4)
         omega = self.sol.omega + c.wheel_speed_noise * n[0:4]
         steer = self.act.steer + c.steer_noise * n[4:8]
-        gyro = self.z[2] + c.gyro_bias + c.gyro_noise * n[8]
+        gyro = self.z[2] + self.gyro_bias.value + c.gyro_noise * n[8]
         roll, pitch = self._tilt()
         roll += c.tilt_offset[0] + c.tilt_noise * n[9]
         pitch += c.tilt_offset[1] + c.tilt_noise * n[10]
         torque = None
         if math.isfinite(c.torque_noise):
-            torque = tuple(float(x) for x in (-self.sol.wrench[:, 4] + c.torque_noise * n[11:15]))
+            torque = tuple(float(x) for x in (self._motor(self.sol) + c.torque_noise * n[11:15]))
         fix = self.pose_source.deliver(self.t)
         pose = Pose(*fix) if fix is not None else None
         m = Measurements(t=self.t, seq=self.seq, wheel_speed=tuple(float(x) for x in omega),  # type: ignore[arg-type]
@@ -259,7 +426,8 @@ class RoverSimulator:
         tup = lambda a: tuple(float(x) for x in a)  # noqa: E731
         return TruthState(self.t, self.x, self.y, self.heading, float(self.z[0]), float(self.z[1]), float(self.z[2]),
                           tup(s.omega), tup(self.act.steer + np.asarray(self.truth.steer_offset)), tup(s.sinkage),
-                          tup(s.wrench[:, 2]), tup(s.slip), tup(s.slip_angle), tup(-s.wrench[:, 4]), self.travelled)
+                          tup(s.wrench[:, 2]), tup(s.slip), tup(s.slip_angle), tup(self._motor(s)), self.travelled,
+                          self.applied, self.gyro_bias.value)
 
     @property
     def mass(self) -> float:

@@ -330,8 +330,8 @@ class HubDrag(_Hooked):
     supplies on top of the soil's moment."""
 
     wheel: str = "RR"
-    coulomb: float = 0.01
-    per_sinkage: float = 6.0
+    coulomb: float = 0.005
+    per_sinkage: float = 3.0
     name: str = "hub_drag"
     physics: str = "drag torque on one wheel's spin rising with its sinkage"
 

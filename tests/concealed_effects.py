@@ -208,7 +208,8 @@ class TerrainPlane(_Hooked):
         # the candidate's plant: gX = -W sin(slope), gY = -W cos(slope) sin(cross)
         slope = math.asin(-gx / self.weight)
         cross = math.asin(-gy / (self.weight * math.cos(slope)))
-        return {"terrain_slope": {"slope": math.degrees(slope), "cross_slope": math.degrees(cross)}}
+        # a component that is zero by construction is not scored relatively
+        return {"terrain_slope": {k: math.degrees(a) for k, a in (("slope", slope), ("cross_slope", cross)) if abs(a) > 1e-9}}
 
 
 @dataclass

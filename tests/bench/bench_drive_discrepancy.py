@@ -144,7 +144,7 @@ def judge(v: Any, expect: dict[str, dict[str, float]], in_library: bool) -> dict
             if key not in named:
                 continue
             for name, truth in pars.items():
-                if name in vals:
+                if name in vals and truth != 0.0:
                     errs[f"{key}.{name}"] = {"fitted": vals[name], "truth": truth, "rel_error": abs(vals[name] - truth) / abs(truth)}
     return {"ok": bool(ok), "param_errors": errs}
 
@@ -218,8 +218,9 @@ def main(argv: list[str]) -> int:
         return 2
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
-    rows = []
+    rows: list[dict[str, Any]] = []
     outdir = ROOT / "out/bench_drive_discrepancy"
+    jpath = ROOT / "tests/bench/results_drive_discrepancy.json"
     for name, make, inl, seed in groups[group]:
         if sel not in name:
             continue
@@ -228,23 +229,27 @@ def main(argv: list[str]) -> int:
         row["group"] = group
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
-    if sel:
-        return 0
-    jpath = ROOT / "tests/bench/results_drive_discrepancy.json"
+        if not sel:  # after every case, so a long run loses nothing
+            _save(jpath, group, rows, commit, load0, list(groups))
+    if not sel:
+        print((ROOT / "tests/bench/results_drive_discrepancy.md").read_text())
+    return 0
+
+
+def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load0: str, order: list[str]) -> None:
+    """Replace ``group``'s rows of the results file with ``rows`` and rewrite the table."""
     data: dict[str, Any] = {"rows": [], "groups": {}}
     if jpath.exists():
         old = json.loads(jpath.read_text())
         if "groups" in old:
             data = old
     data["rows"] = [r for r in data["rows"] if r.get("group") != group] + rows
-    order = list(groups)
     data["rows"].sort(key=lambda r: order.index(r["group"]))
     data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                             "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg())}
+                             "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+                             "cases": len(rows)}
     write_text(jpath, json.dumps(data, indent=2, default=float))
     write_text(ROOT / "tests/bench/results_drive_discrepancy.md", _md(data))
-    print(_md(data))
-    return 0
 
 
 if __name__ == "__main__":

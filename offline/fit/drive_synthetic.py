@@ -8,6 +8,14 @@ soil) and realistic sensor noise, and writes an MCAP recording with
 :class:`rtctl.recording.Recorder` -- the same files a rover writes. The tool under test is
 told nothing of the truth: the truth is only in the ``/sim/truth`` channel and the
 metadata, which :mod:`offline.fit.drive_discrepancy` never reads.
+
+A truth set through :class:`~offline.sim.truth.Truth` fields goes through the same plant
+inputs the tool's candidates set (:func:`offline.fit.drive_candidates.truth_from_terms`): a
+drive made that way tests parameter recovery, not discovery. :func:`record_drive` therefore
+also takes a disturbance hook (contract C5), an actuator path and a sensor path, through
+which ``tests/concealed_effects.py`` conceals effects with code independent of the
+candidates (a cable to a fixed anchor, a terrain plane given by its normal, a misaligned
+steering encoder, hub drag, a soft patch, an undulation, a gyro bias step).
 """
 
 from __future__ import annotations

@@ -152,7 +152,7 @@ class Effect:
 class _Hooked(Effect):
     """An effect with a force hook; keeps the sum of the applied forces for :meth:`applied_mean`."""
 
-    def __init__(self) -> None:
+    def __post_init__(self) -> None:
         self._sum = np.zeros(3)
         self._n = 0
 
@@ -191,7 +191,7 @@ class TerrainPlane(_Hooked):
     physics: str = "gravity on a plane given by its normal (inclination, fall-line azimuth); IMU tilt from the normal"
 
     def __post_init__(self) -> None:
-        _Hooked.__init__(self)
+        super().__post_init__()
         a, z = self.inclination, self.fall_azimuth
         self.normal = np.array([math.sin(a) * math.cos(z), math.sin(a) * math.sin(z), math.cos(a)])
 
@@ -229,7 +229,7 @@ class TetherToAnchor(_Hooked):
     physics: str = "spring-reel cable to a fixed world anchor (pose-dependent direction and tension, yaw moment)"
 
     def __post_init__(self) -> None:
-        _Hooked.__init__(self)
+        super().__post_init__()
         self.length0 = math.hypot(self.anchor[0] - self.attach[0], self.anchor[1] - self.attach[1])
 
     def forces(self, t: float, s: Any) -> Any:
@@ -336,9 +336,6 @@ class HubDrag(_Hooked):
     name: str = "hub_drag"
     physics: str = "drag torque on one wheel's spin rising with its sinkage"
 
-    def __post_init__(self) -> None:
-        _Hooked.__init__(self)
-
     def forces(self, t: float, s: Any) -> Any:
         i = WHEELS.index(self.wheel)
         tq = [0.0] * 4
@@ -357,9 +354,6 @@ class SoftPatch(_Hooked):
     force: float = 0.8
     name: str = "soft_patch"
     physics: str = "a band of loose soil for part of the drive: resisting force on each wheel inside it"
-
-    def __post_init__(self) -> None:
-        _Hooked.__init__(self)
 
     def forces(self, t: float, s: Any) -> Any:
         c, sn = math.cos(s.heading), math.sin(s.heading)
@@ -386,9 +380,6 @@ class Undulation(_Hooked):
     weight: float = 34.3
     name: str = "undulation"
     physics: str = "sinusoidal terrain undulation along X (gravity and IMU tilt from the local normal)"
-
-    def __post_init__(self) -> None:
-        _Hooked.__init__(self)
 
     def _normal(self, X: float) -> np.ndarray:
         dz = self.amplitude * 2 * math.pi / self.wavelength * math.cos(2 * math.pi * X / self.wavelength)

@@ -32,6 +32,7 @@ from concealed_effects import (
     SteeringEncoderMisaligned,
     TerrainPlane,
     TetherToAnchor,
+    Undulation,
     gravity_and_tilt,
     record_concealed,
 )
@@ -227,5 +228,18 @@ def test_hub_drag_is_not_given_a_confident_name(sc, tmp_path):
     has a torque on one wheel's spin with no force on the rover, so an honest verdict is
     unexplained or partly explained -- never 'explained' by a worn wheel or a soil change."""
     f = record_concealed(tmp_path / "hub.mcap", sc, HubDrag("RR"), seed=4, duration=DURATION)
+    v = _diagnose(f, sc, 1)
+    assert v.status in ("unexplained", "partly_explained"), v.summary()
+
+
+@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the engine's per-channel dispersion s (pitch ~10, roll ~4) "
+                   "absorbs a misfit spread over the whole drive and the verdict is 'agree'; the lack-of-fit test runs "
+                   "only after an explanation is chosen")
+def test_terrain_undulation_is_not_called_agreement(sc, tmp_path):
+    """Terrain height 3 mm sin(2 pi X / 0.3 m): the IMU pitch swings by +-3.6 deg (about 20 times
+    its noise) and gravity pushes and pulls the rover along the path. No candidate has this form
+    (the mean slope is near zero), so the honest verdict is unexplained or partly explained --
+    and never 'agree'."""
+    f = record_concealed(tmp_path / "und.mcap", sc, Undulation(), seed=4, duration=DURATION)
     v = _diagnose(f, sc, 1)
     assert v.status in ("unexplained", "partly_explained"), v.summary()

@@ -41,7 +41,6 @@ from offline.fit.drive_discrepancy import diagnose_drives
 from offline.fit.drive_synthetic import record_drive
 from offline.rover.scenario import load_scenario
 from offline.sim.sensors import SensorConfig
-from offline.sim.simulator import RoverSimulator
 from offline.sim.truth import Truth
 from rtctl.recording import read_recording
 
@@ -52,14 +51,13 @@ QUIET = SensorConfig(wheel_speed_noise=0, steer_noise=0, gyro_noise=0, tilt_nois
 DURATION = 24.0
 
 
+SC = load_scenario(ROOT / "offline/scenarios/nominal.toml")
+NOMINAL = Truth.nominal(SC.params, SC.rover)
+
+
 @pytest.fixture(scope="module")
 def sc():
-    return load_scenario(ROOT / "offline/scenarios/nominal.toml")
-
-
-@pytest.fixture(scope="module")
-def nominal(sc):
-    return Truth.nominal(sc.params, sc.rover)
+    return SC
 
 
 def _diagnose(path, sc, seed):
@@ -95,13 +93,13 @@ def test_terrain_normal_gravity_and_tilt_match_the_plants_slope_formula():
         assert math.hypot(fx, fy) == pytest.approx(w * math.sin(a), rel=1e-12)
 
 
-def test_terrain_plane_drive_equals_the_plants_cross_slope_drive(sc, nominal, tmp_path):
+def test_terrain_plane_drive_equals_the_plants_cross_slope_drive(sc, tmp_path):
     """A noise-free drive on TerrainPlane(3.5 deg, fall line to the right) through the hook and
     the sensor path reproduces the plant's own 3.5 deg cross slope: torques within 1 mN m (the
     hook cannot lower the normal load by cos 3.5 deg: 0.19 %), yaw rate within 1e-4 rad/s, IMU
     within 1e-5 rad, pose within 0.1 mm. So the generator is the right physics, not a look-alike
     tuned to the candidate."""
-    a = record_drive(tmp_path / "plant.mcap", sc, replace(nominal, cross_slope=math.radians(3.5)), seed=0, duration=12.0,
+    a = record_drive(tmp_path / "plant.mcap", sc, replace(NOMINAL, cross_slope=math.radians(3.5)), seed=0, duration=12.0,
                      sensors=QUIET)
     b = record_concealed(tmp_path / "plane.mcap", sc, TerrainPlane(math.radians(3.5), math.radians(-90.0)), seed=0,
                          duration=12.0, sensors=QUIET)
@@ -136,12 +134,12 @@ def test_tether_to_anchor_force_and_moment():
     assert -t.forces(0.0, S).body_force[0] == pytest.approx(2.0 + 0.5 * 1.0)
 
 
-def test_hub_drag_reaches_the_recorded_motor_torque(sc, nominal, tmp_path):
+def test_hub_drag_reaches_the_recorded_motor_torque(sc, tmp_path):
     """The hook's hub drag shows in the RR motor torque, and only there, by exactly the torque the
     simulator records as applied; that torque opposes the spin (negative while reversing) and is
     coulomb + k h of the sinkage at the start of the step (median within 1 % of the tick's h)."""
     hd = HubDrag("RR", coulomb=0.005, per_sinkage=3.0)
-    a = record_drive(tmp_path / "n.mcap", sc, nominal, seed=0, duration=6.0, sensors=QUIET)
+    a = record_drive(tmp_path / "n.mcap", sc, NOMINAL, seed=0, duration=6.0, sensors=QUIET)
     b = record_concealed(tmp_path / "h.mcap", sc, hd, seed=0, duration=6.0, sensors=QUIET)
     d = _readings(b) - _readings(a)
     tr = read_recording(b).truth

@@ -9,9 +9,11 @@ Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
 * **feedback** (:meth:`Controller.feedback`, on the new measurement): input checks, EKF predict
   and update, outer loop, the QP's vectors, one warm-started OSQP solve, command checks;
 * **preparation** (:meth:`Controller.prepare`, after the commands are out, for the next tick):
-  table choice from the declared failures, table interpolation at the operating point (measured
-  slope and cross slope, the travel speed shifted by the EKF's slip, the failure's own
-  parameter), the QP's matrix values and OSQP's refactorisation.
+  table choice from the declared failures and the operator's task (``Measurements.task``, e.g.
+  ``Task("trench", "RR", 0.02)``: the trench table of that wheel, read at that depth), table
+  interpolation at the operating point (measured slope and cross slope, the travel speed shifted
+  by the EKF's slip, the failure's or task's own parameter), the QP's matrix values and OSQP's
+  refactorisation.
 
 :meth:`Controller.step` is feedback then preparation.
 
@@ -59,7 +61,9 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
-from .messages import FAILURE_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements
+from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
+
+_Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
 
 __all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
 
@@ -67,7 +71,8 @@ _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft 
 _MAX_TILT = math.radians(45.0)
 _TILT_TAU = 1.0  # s: low-pass time constant of the slope / cross-slope measurement
 _SPEED_SHIFT = (0.7, 1.5)  # bounds of the slip operating-point shift factor
-_SLIP_SIGMA_USE = 0.05  # use the slip / crab correction only when the EKF is this sure
+_SLIP_SIGMA_USE = 0.02  # use the slip / crab correction only when the EKF is this sure (0.05 acted on the
+# start-up transient of the trench drive, when the slip is still 2 sigma off)
 _CRAB_SIGMA_USE = math.radians(3.0)
 _REF_HEADING_ERROR = math.radians(5.0)
 _REF_CROSSTRACK_ERROR = 0.05
@@ -98,7 +103,8 @@ def _failure_kinds(f: Any) -> set[str]:
 
 
 def table_signature(table: Any) -> frozenset[tuple[str, str]]:
-    """The declared failures a table was built for: ``{(wheel, kind), ...}`` from its scenario."""
+    """The declared failures and task a table was built for: ``{(wheel, kind), ...}`` from its
+    scenario (a trench goal gives ``(wheel, "trench")``, the kind of :class:`rtctl.messages.Task`)."""
     sc = table.meta.get("scenario") or {}
     fails = sc.get("failures") or {}
     out = set()
@@ -106,6 +112,9 @@ def table_signature(table: Any) -> frozenset[tuple[str, str]]:
         for w, f in fails.items():
             if w in WHEELS and isinstance(f, dict):
                 out |= {(w, k) for k in _failure_kinds(f)}
+    trench = sc.get("trench")
+    if isinstance(trench, dict) and trench.get("wheel") in WHEELS:
+        out.add((trench["wheel"], "trench"))
     return frozenset(out)
 
 
@@ -143,6 +152,30 @@ class _Index:
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
 
 
+class _BoundedRows:
+    """A table point whose rows without bounds (``lbg = -inf``, ``ubg = +inf`` in the table, and
+    not a wheel-torque row, which a declared failure bounds) have zero value and Jacobian.
+
+    Such a row constrains nothing, so the QP is the same; but its Jacobian can be huge (the trench
+    flat width ``p`` of ch. 4 near the pointy/flat switch: 1.3e5 in the QP's scaled units against
+    <= 8 for every other row), and that ruins OSQP's conditioning (measured on the trench table:
+    the QP stops at its iteration budget on most ticks)."""
+
+    def __init__(self, tp: Any, keep: Any) -> None:
+        self._tp = tp
+        lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
+        free = (lbg <= -1e20) & (ubg >= 1e20)
+        free[[int(j) for j in keep if j >= 0]] = False
+        self._free = free if bool(free.any()) else None
+
+    def __getattr__(self, name: str) -> Any:
+        v = getattr(self._tp, name)
+        if self._free is not None and name in ("g", "jac_g_x", "jac_g_p"):
+            v = np.array(v, dtype=float)
+            v[self._free] = 0.0
+        return v
+
+
 def load_tables(index_path: str | Path) -> dict[str, Any]:
     """Every table of a table index (``tables/index.json``), each checked against the hash the
     index lists (:func:`rtctl.table.load_index`); raises :class:`rtctl.table.TableError`."""
@@ -167,6 +200,7 @@ class _Prepared:
     speed_factor: float
     operating_point: tuple[tuple[str, float], ...]
     signature: frozenset[tuple[str, str]]
+    flags: tuple[str, ...] = ()
 
 
 class Controller:
@@ -176,10 +210,14 @@ class Controller:
     ----------
     tables : Table or mapping name -> Table
         Loaded tables (:func:`rtctl.table.load_table`), all for the same rover. The table whose
-        scenario's failures equal the declared ones is used; otherwise ``config.default_table``
-        or the one built without failures (``nominal`` first), with the declared failures imposed
-        as QP constraints. A table with no feasible point cannot be interpolated: the last good
-        preparation is kept and ``table_errors`` counts it.
+        scenario's failures and task equal the declared failures and the measurement's
+        :class:`rtctl.messages.Task` (a trench goal) is used (several: ``config.default_table`` if
+        it is one of them, else the first by name); otherwise ``config.default_table`` or the one
+        built without failures (``nominal`` first), with the declared failures imposed as QP
+        constraints (a declared task without a table is flagged in the diagnostics). A table's
+        family axis is read at the declared value (stuck angle, rim-speed cap / speed, trench
+        depth), clamped into the axis and flagged when outside. A table with no feasible point
+        cannot be interpolated: the last good preparation is kept and ``table_errors`` counts it.
     config : ControllerConfig
     """
 
@@ -231,12 +269,15 @@ class Controller:
         self._int_psi = 0.0
         self._int_y = 0.0
         self._failures: dict[tuple[str, str], float] = {}
+        self._task: Task | None = None
+        self._tick_flags: list[str] = []
+        self._crab_cmd = self._crab_used = 0.0
         self._steer_meas = [math.nan] * len(WHEELS)
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
         self._table_error = ""
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
-        self._prev_cmd: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * len(WHEELS), (0.0,) * len(WHEELS))
+        self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
         if self._prep is None:
             raise ControllerError(f"no table could be prepared at the start ({self._table_error}); check the tables")
@@ -246,17 +287,26 @@ class Controller:
         self._counters[name] = self._counters.get(name, 0) + n
 
     # ------------------------------------------------------------------ preparation phase
-    def _choose_table(self) -> str:
-        declared = frozenset(self._failures)
-        for name, sig in self.signatures.items():
-            if sig and sig == declared:
-                return name
-        return self.default_table
+    def _declared(self) -> frozenset[tuple[str, str]]:
+        """Declared failures and task as a table signature."""
+        task = {(self._task.wheel, self._task.kind)} if self._task is not None else set()
+        return frozenset(self._failures) | frozenset(task)
+
+    def _choose_table(self) -> tuple[str, list[str]]:
+        declared = self._declared()
+        matches = [name for name, sig in self.signatures.items() if sig and sig == declared]
+        flags: list[str] = []
+        if matches:
+            return (self.config.default_table if self.config.default_table in matches else matches[0]), flags
+        if self._task is not None:
+            flags.append(f"no table for the declared task {self._task.kind} {self._task.wheel} with failures "
+                         f"{sorted(self._failures) or 'none'}: driving on table {self.default_table}")
+        return self.default_table, flags
 
     def prepare(self) -> None:
         """Preparation phase: choose and interpolate the table, load the QP's matrices."""
         cfg = self.config
-        name = self._choose_table()
+        name, flags = self._choose_table()
         table = self.tables[name]
         lay = table.layout
         speed = cfg.drive.speed
@@ -264,21 +314,16 @@ class Controller:
         x = self.ekf.x
         P = self.ekf.P
         prev = self._prep
-        if prev is not None and prev.table == name and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
+        # the slip correction shifts the table speed; on a table of a rim-speed cap that would also
+        # move the cap fraction (cap / speed) to another primitive (measured: a shift to 0.7 on the
+        # shipped tables in the chapter-7 world took the fraction from 0.5 to 0.71 and the rover
+        # turned 24 deg off its line); there the speed is left to the cap
+        if prev is not None and prev.table == name and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE \
+                and "rim_speed_cap_fraction" not in table.axes:
             s_hat = min(max(float(x[3]), -0.5), 0.9)
             factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])
-        op: dict[str, float] = {}
-        for axis, values in table.axes.items():
-            if axis == "slope":
-                op[axis] = self._slope
-            elif axis == "cross_slope":
-                op[axis] = self._cross
-            elif axis == "speed":
-                op[axis] = speed * factor
-            else:
-                op[axis] = self._family_value(table, axis, speed * factor, values)
         try:
-            tp = table.at(**op)
+            tp, factor = self._reachable(table, speed, factor, flags)
         except (ValueError, KeyError) as exc:  # the table reader's TableError: keep the last good preparation
             self._count("table_errors")
             self._table_error = str(exc)
@@ -287,7 +332,7 @@ class Controller:
         if alloc is None:
             alloc = self._allocators[name] = QpAllocator(lay, cfg.qp)
         try:
-            alloc.prepare(tp)
+            alloc.prepare(_BoundedRows(tp, self._index[name].torque))
         except AllocatorError as exc:
             self._count("table_point_refused")
             self._table_error = str(exc)
@@ -307,31 +352,107 @@ class Controller:
         gains = self._gains(table)
         self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
                                self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
-                               self.signatures[name])
+                               self.signatures[name], tuple(flags))
 
-    def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64]) -> float:
+    def _operating_point(self, table: Any, v: float, flags: list[str]) -> dict[str, float]:
+        """The table's axes at table speed ``v``: filtered IMU slope and cross slope, the declared
+        family value."""
+        op: dict[str, float] = {}
+        for axis, values in table.axes.items():
+            if axis == "slope":
+                op[axis] = self._slope
+            elif axis == "cross_slope":
+                op[axis] = self._cross
+            elif axis == "speed":
+                op[axis] = v
+            else:
+                op[axis] = self._family_value(table, axis, v, values, flags)
+        return op
+
+    def _reachable(self, table: Any, speed: float, factor: float, flags: list[str]) -> tuple[Any, float]:
+        """The table point to drive and its speed factor (table speed / target speed).
+
+        The point at the target speed (times the slip correction) unless the grid point nearest
+        to it has no primitive (the target is then taken as unreachable: the interpolation would
+        lean on the other corners, e.g. flat-ground primitives on a 5 deg slope). Then, without the
+        slip correction, and with a rim-speed cap (whose fraction cap / speed is what decides
+        feasibility on this rate-independent soil) at lower travel speeds down to the table's
+        lowest, the fastest point interpolated between primitives is driven instead, and a flag
+        says so (``target unreachable: ...``); found nothing: flagged, the table's nearest driven."""
+        fl: list[str] = []
+        op = self._operating_point(table, speed * factor, fl)
+        tp = table.at(**op)
+        if _nearest_grid_feasible(table, op):
+            flags.extend(fl)
+            return tp, factor
+        cands = [speed] if factor != 1.0 else []
+        sp = table.axes.get("speed")
+        capped = "rim_speed_cap_fraction" in table.axes
+        if capped and sp is not None and len(sp) > 1:
+            top, lo = min(speed, speed * factor), float(sp[0])
+            cands += [top - (top - lo) * k / 10 for k in range(1, 11) if top > lo]
+        for v in cands:
+            fl2: list[str] = []
+            tp2 = table.at(**self._operating_point(table, v, fl2))
+            if tp2.status == "interpolated":
+                if v < speed * (1 - 1e-9):
+                    flags.append(f"target unreachable: table {getattr(table, 'name', '?')} has no primitive at "
+                                 f"{_describe(op)} ({tp.status}); driving at the reachable "
+                                 f"{100 * v:.2f} cm/s ({100 * (v / speed - 1):+.0f} % of the target)")
+                flags.extend(fl2)
+                return tp2, v / speed
+        if capped or tp.status == "nearest feasible grid point":
+            flags.append(f"target unreachable: table {getattr(table, 'name', '?')} has no primitive at "
+                         f"{_describe(op)} ({tp.status})"
+                         + (" nor at lower speeds" if capped else "") + "; driving the table's nearest")
+        flags.extend(fl)
+        return tp, factor
+
+    def _family_value(self, table: Any, axis: str, speed: float, values: NDArray[np.float64], flags: list[str]) -> float:
+        """The table's family axis at the declared value (clamped into the axis; flagged when
+        outside or when nothing declares it: read at the axis middle)."""
         fam = table.meta.get("family") or {}
         w = fam.get("wheel")
+        tname = getattr(table, "name", "?")
         mid = float(values[len(values) // 2])
-        if w not in WHEELS:
+        v = math.nan
+        if w in WHEELS:
+            i = WHEELS.index(w)
+            if axis == "steer_stuck":
+                v = self._steer_meas[i]
+                if not math.isfinite(v):
+                    v = self._failures.get((w, "steer_stuck"), math.nan)
+            elif axis == "rim_speed_cap_fraction":
+                cap = self._failures.get((w, "rim_speed_cap"), math.nan)
+                v = cap / speed if math.isfinite(cap) else math.nan
+            elif axis == "trench_depth" and self._task is not None and self._task.kind == "trench" \
+                    and self._task.wheel == w:
+                v = self._task.value
+        if not math.isfinite(v):
+            flags.append(f"table {tname}: nothing declares its {axis} axis; read at its middle {mid:.4g}")
             return mid
-        i = WHEELS.index(w)
-        if axis == "steer_stuck":
-            v = self._steer_meas[i]
-            if not math.isfinite(v):
-                v = self._failures.get((w, "steer_stuck"), math.nan)
-            return float(v) if math.isfinite(v) else mid
-        if axis == "rim_speed_cap_fraction":
-            cap = self._failures.get((w, "rim_speed_cap"), math.nan)
-            return cap / speed if math.isfinite(cap) else mid
-        return mid
+        lo, hi = float(values[0]), float(values[-1])
+        if not lo - 1e-12 <= v <= hi + 1e-12:
+            c = min(max(v, lo), hi)
+            flags.append(f"table {tname}: declared {axis} {v:.4g} outside the table's [{lo:.4g}, {hi:.4g}] "
+                         f"(SI): read at {c:.4g}")
+            return c
+        return float(v)
+
+    def _odometry_wheels(self) -> list[bool]:
+        """Wheels whose speed tells the travel speed: not locked, unpowered or raised, and not the
+        wheel digging a trench (it spins at several times the travel speed on purpose: in the
+        trench primitive of section 7.3.1 it would make the rover-level slip ~0.6, dominated by
+        that wheel, and the slip correction would chase it)."""
+        task = (self._task.wheel, self._task.kind) if self._task is not None else None
+        return [not any((w, k) in self._failures for k in ("locked", "unpowered", "raised")) and (w, "trench") != task
+                for w in WHEELS]
 
     def _primitive_slip(self, tp: Any, ix: _Index) -> float:
         """Rover-level slip of the primitive, by the EKF's own odometry definition."""
         x = tp.x
         om, be = x[ix.om].tolist(), x[ix.be].tolist()
-        ok = [(w, "locked") not in self._failures and (w, "unpowered") not in self._failures for w in WHEELS]
-        v_odo, _ = wheel_odometry(om, be, ok, self.wheel_radius, 1.0)
+        v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self.wheel_radius, 1.0)
         v = float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
@@ -360,6 +481,7 @@ class Controller:
     def feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
         """Feedback phase: from the measurement to the commands (module docstring)."""
         cfg = self.config
+        self._tick_flags = []
         t, seq = getattr(m, "t", math.nan), getattr(m, "seq", -1)
         if not _finite(t) or isinstance(seq, bool) or not isinstance(seq, (int, np.integer)):
             self._count("rejected_bad_time_or_seq")
@@ -380,16 +502,24 @@ class Controller:
         if stale:
             self._count("stale_gaps")
             self._int_psi = self._int_y = 0.0
-        if self._last_t is None:
+        first = self._last_t is None
+        if first:
             self.ekf.reset(t - cfg.period, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
         self._last_t, self._last_seq = t, seq
-        # ---- declared failures
+        # ---- declared failures and task
         self._read_failures(getattr(m, "failures", ()))
+        self._read_task(getattr(m, "task", None))
         # ---- wheels
         om, st, valid = self._read_wheels(m)
+        if first and (self._prep is None or self._prep.signature != self._declared()):
+            # the first tick declares failures or a task the start-up preparation did not know:
+            # prepare on the right table now and take its primitive as the previous command (the
+            # rate limits start from it, not from the nominal primitive)
+            self.prepare()
+            if self._prep is not None:
+                self._prev_cmd = self._primitive_commands(self._prep.allocator.x0)
         rs = self.wheel_radius
-        odo_ok = [v and (w, "locked") not in self._failures and (w, "unpowered") not in self._failures
-                  and (w, "raised") not in self._failures for w, v in zip(WHEELS, valid)]
+        odo_ok = [v and ok for v, ok in zip(valid, self._odometry_wheels())]
         v_odo, var = wheel_odometry(om, st, odo_ok, rs, cfg.noise.wheel_speed)
         if stale:
             v_odo, var = math.nan, math.inf
@@ -399,7 +529,8 @@ class Controller:
             r = math.nan
         self._read_tilt(m, dt)
         # ---- EKF
-        self.ekf.predict(t, Odometry(v_odo, var, float(r)))
+        self._crab_used = self._crab_cmd
+        self.ekf.predict(t, Odometry(v_odo, var, float(r), self._crab_cmd))
         verdict = ""
         pose = getattr(m, "pose", None)
         if pose is not None:
@@ -431,14 +562,16 @@ class Controller:
         # ---- slip correction (b): crab bias into the offsets
         P = self.ekf.P
         mz_bias = fy_bias = 0.0
+        dfy, dmz = prep.crab_sensitivity
+        # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
+        # rover balances an F_y offset by crabbing until the lateral resistance matches it. The
+        # EKF is told this crab (for the next step) and its crab state is the rest.
+        vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
+        crab_cmd = math.atan2(vy_wanted, cfg.drive.speed)
         if math.sqrt(P[4, 4]) < _CRAB_SIGMA_USE and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE:
             v_hat = (1.0 - min(max(float(x[3]), -0.5), 0.9)) * (v_odo if math.isfinite(v_odo) else cfg.drive.speed)
             vy = v_hat * math.tan(min(max(float(x[4]), -0.5), 0.5))
-            dfy, dmz = prep.crab_sensitivity
-            # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
-            # rover balances an F_y offset by crabbing until the lateral resistance matches it
-            vy_wanted = -fy / dfy if dfy < -1e-9 else 0.0
-            fy_bias, mz_bias = dfy * (vy - vy_wanted), dmz * (vy - vy_wanted)
+            fy_bias, mz_bias = dfy * vy, dmz * vy
         # ---- QP
         ix = prep.idx
         p = np.array(prep.point.p, dtype=float)
@@ -464,6 +597,7 @@ class Controller:
             self._count("invalid_commands_caught")
             return self._hold(t, seq, "command failed the final check")
         self._prev_cmd = (rim, steer)
+        self._crab_cmd = crab_cmd
         return cmd, self._diag(t, seq, "qp", "", res, e_psi, e_y, float(p[ix.mz]),
                                float(p[ix.fy]), verdict)
 
@@ -499,6 +633,22 @@ class Controller:
                 continue
             out[(f.wheel, f.kind)] = float(v)
         self._failures = out
+
+    def _read_task(self, task: Any) -> None:
+        """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m);
+        anything else is counted and ignored (no task)."""
+        if task is None:
+            self._task = None
+            return
+        ok = (isinstance(task, Task) and task.kind in TASK_KINDS and task.wheel in WHEELS
+              and isinstance(task.value, (int, float)) and not isinstance(task.value, bool)
+              and math.isfinite(task.value) and 0.0 < task.value < 0.5)
+        if not ok:
+            self._count("rejected_task")
+            self._tick_flags.append(f"task {task!r} rejected: expected Task('trench', wheel, depth in m, 0 < depth < 0.5)")
+            self._task = None
+            return
+        self._task = Task(task.kind, task.wheel, float(task.value))
 
     def _read_wheels(self, m: Any) -> tuple[list[float], list[float], list[bool]]:
         cfg = self.config
@@ -625,13 +775,14 @@ class Controller:
         steer = tuple(x[prep.idx.be].tolist())
         return rim, steer
 
-    def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[_Quad, _Quad]:
         rim, steer = self._commands_from_x(self._prep, x0)  # type: ignore[arg-type]
         act = self.config.actuators
-        return (tuple(min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim),
-                tuple(min(max(v, -act.max_steer), act.max_steer) for v in steer))
+        r = [min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim]
+        b = [min(max(v, -act.max_steer), act.max_steer) for v in steer]
+        return (r[0], r[1], r[2], r[3]), (b[0], b[1], b[2], b[3])
 
-    def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[_Quad, _Quad]:
         """Rate-limit from the previous command and clip into the actuator range; the result
         is always finite (a non-finite target holds the previous command)."""
         act = self.config.actuators
@@ -650,7 +801,7 @@ class Controller:
                 a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
-        return tuple(out_r), tuple(out_s)
+        return (out_r[0], out_r[1], out_r[2], out_r[3]), (out_s[0], out_s[1], out_s[2], out_s[3])
 
     def _valid(self, c: Commands) -> bool:
         act = self.config.actuators
@@ -660,6 +811,7 @@ class Controller:
                   res: Any) -> tuple[Commands, Diagnostics]:
         prep = self._prep
         dt = self.config.period
+        self._crab_cmd = 0.0  # the fallback drives the primitive, without offsets
         if prep is not None:
             lo_hi, _, _ = self._bounds(prep, dt)
             x = np.clip(prep.allocator.x0, lo_hi[0], lo_hi[1])  # primitive with the failures applied
@@ -697,7 +849,32 @@ class Controller:
             heading_error=e_psi, crosstrack_error=e_y, mz_offset=mz, fy_offset=fy,
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
-            counters=tuple(sorted(counters.items())))
+            counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
+
+
+def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:
+    """Whether the table's grid point nearest to ``op`` (each axis clamped into its range) has a
+    primitive."""
+    idx = []
+    for axis in table.axis_order:
+        vals = np.asarray(table.axes[axis], dtype=float)
+        idx.append(int(np.argmin(np.abs(vals - op.get(axis, float(vals[0]))))))
+    return bool(np.asarray(table.feasible)[tuple(idx)])
+
+
+def _describe(op: Mapping[str, float]) -> str:
+    """An operating point in display units (deg, cm/s)."""
+    out = []
+    for k, v in sorted(op.items()):
+        if k in ("slope", "cross_slope", "steer_stuck"):
+            out.append(f"{k} {math.degrees(v):.1f} deg")
+        elif k == "speed":
+            out.append(f"speed {100 * v:.2f} cm/s")
+        elif k == "trench_depth":
+            out.append(f"trench depth {1e3 * v:.1f} mm")
+        else:
+            out.append(f"{k} {v:.3g}")
+    return ", ".join(out)
 
 
 def _finite(v: Any) -> bool:

@@ -16,11 +16,17 @@ Motion model (wheel odometry and yaw rate as inputs, per tick of length dt):
 .. math::
 
     v &= (1 - s)\\,v_{odo}, \\qquad
-    x^+ = x + dt\\,v\\cos(\\psi + \\alpha), \\qquad y^+ = y + dt\\,v\\sin(\\psi + \\alpha),\\\\
+    x^+ = x + dt\\,v\\cos(\\psi + \\alpha + \\alpha_c), \\qquad y^+ = y + dt\\,v\\sin(\\psi + \\alpha + \\alpha_c),\\\\
     \\psi^+ &= \\psi + dt\\,(r_{gyro} - b), \\qquad s^+ = s,\\ \\alpha^+ = \\alpha,\\ b^+ = b,
 
 with the encoder and gyro noise mapped into the process noise through the input Jacobians, plus
-random walks on slip, crab and bias. The wheel-odometry speed is the least-squares travel speed
+random walks on slip, crab and bias. ``alpha_c`` is the crab the controller's own commands ask
+for (an input, :attr:`Odometry.crab_cmd`: a lateral-force offset of eq. (7.27) makes the rover
+crab until the soil's lateral resistance balances it), so the state ``crab`` is the rest: the
+disturbance. Without it the commanded crab -- up to 4 deg within a tick after a sparse pose fix
+moves the outer loop, measured in the simulator -- is model error no random walk of plausible
+size covers. Its relative error ``crab_cmd_rel`` (the lateral resistance is a linearisation on
+the believed soil) enters the process noise. The wheel-odometry speed is the least-squares travel speed
 of the valid driven wheels: a wheel steered by beta and rolling at omega without slip moves the
 rover at ``r_s omega / cos(beta)`` (eqs. (7.6)-(7.7) with zero lateral rover speed), so
 ``v_odo = sum(c_i r_s omega_i) / sum(c_i^2)`` with ``c_i = cos(beta_i)``.
@@ -42,7 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -106,11 +112,14 @@ class Odometry:
         Variance of ``v_odo``, (m/s)^2.
     yaw_rate : float
         Gyro yaw rate, rad/s (nan: gyro reading rejected).
+    crab_cmd : float
+        Crab angle the commands active over the step ask for, rad (module docstring; 0: none).
     """
 
     v_odo: float
     var: float
     yaw_rate: float
+    crab_cmd: float = 0.0
 
 
 def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: Sequence[bool], wheel_radius: float,
@@ -134,13 +143,15 @@ def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: 
 class _Filter(ExtendedKalmanFilter):  # type: ignore[misc]
     """filterpy's EKF with the nonlinear motion model in :meth:`predict_x`."""
 
-    def predict_x(self, u: NDArray[np.float64] = 0) -> None:  # type: ignore[override]
-        """Eq. in the module docstring; ``u = (dt, v_odo, yaw_rate)``."""
-        dt, v_odo, r = u
-        x = self.x
+    x: NDArray[np.float64]  # the state (filterpy keeps it as an attribute; typed here for mypy)
+
+    def predict_x(self, u: Any = 0) -> None:  # type: ignore[override]
+        """Eq. in the module docstring; ``u = (dt, v_odo, yaw_rate, crab_cmd)``."""
+        dt, v_odo, r, a_cmd = u
+        x: NDArray[np.float64] = self.x
         s = min(max(x[_IS], -_SLIP_LIMIT), _SLIP_LIMIT)
         v = (1.0 - s) * v_odo
-        c = x[_IPSI] + x[_IA]
+        c = x[_IPSI] + x[_IA] + a_cmd
         x = x.copy()
         x[_IX] += dt * v * math.cos(c)
         x[_IY] += dt * v * math.sin(c)
@@ -223,7 +234,8 @@ class SlipHeadingEKF:
         if not math.isfinite(r):
             r, var_r = self._r_last + x[_IB], _MISSING_GYRO_SIGMA ** 2
         v = (1.0 - s) * v_odo
-        c = x[_IPSI] + x[_IA]
+        a_cmd = u.crab_cmd if math.isfinite(u.crab_cmd) else 0.0
+        c = x[_IPSI] + x[_IA] + a_cmd
         cc, sc = math.cos(c), math.sin(c)
         F = np.eye(6)
         F[_IX, _IPSI] = F[_IX, _IA] = -dt * v * sc
@@ -234,6 +246,8 @@ class SlipHeadingEKF:
         gv = np.zeros(6)
         gv[_IX], gv[_IY] = dt * (1 - s) * cc, dt * (1 - s) * sc
         Q = np.outer(gv, gv) * var_v
+        ga = F[:, _IA] - np.eye(6)[:, _IA]  # d x+ / d crab_cmd (the same as d x+ / d crab)
+        Q += np.outer(ga, ga) * (n.crab_cmd_rel * a_cmd) ** 2
         Q[_IPSI, _IPSI] += dt * dt * var_r
         Q[_IX, _IX] += dt * n.position_walk ** 2
         Q[_IY, _IY] += dt * n.position_walk ** 2
@@ -242,7 +256,7 @@ class SlipHeadingEKF:
         Q[_IB, _IB] += dt * n.gyro_bias_walk ** 2
         self.ekf.F = F
         self.ekf.Q = Q
-        self.ekf.predict(u=np.array([dt, v_odo, r]))
+        self.ekf.predict(u=np.array([dt, v_odo, r, a_cmd]))
         # F P F' + Q with Q >= 0 stays positive definite: symmetrise only (checked after updates)
         P = self.ekf.P
         self.ekf.P = 0.5 * (P + P.T)

@@ -144,7 +144,7 @@ def run_hil(factory: Callable[[], Any], *, measurements: Sequence[Measurements] 
     if measurements is not None:
         n = min(n, len(measurements))
     deadline = period if deadline is None else deadline
-    ctx = mp.get_context(start_method)
+    ctx: Any = mp.get_context(start_method)  # typeshed's BaseContext lacks Process
     parent, child = ctx.Pipe(duplex=True)
     proc = ctx.Process(target=_serve, args=(child, factory), daemon=True, name="rtctl-controller")
     proc.start()

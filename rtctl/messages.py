@@ -17,10 +17,13 @@ from typing import Literal
 
 from .layout import WHEELS
 
-__all__ = ["WHEELS", "FAILURE_KINDS", "MODES", "FailureDeclaration", "Pose", "Measurements", "Commands", "Diagnostics"]
+__all__ = ["WHEELS", "FAILURE_KINDS", "TASK_KINDS", "MODES", "FailureDeclaration", "Task", "Pose", "Measurements",
+           "Commands", "Diagnostics"]
 
 FAILURE_KINDS: tuple[str, ...] = ("steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit")
 """Failure kinds a rover can declare (see :class:`FailureDeclaration`)."""
+TASK_KINDS: tuple[str, ...] = ("trench",)
+"""Driving tasks an operator can give besides driving the line (see :class:`Task`)."""
 MODES: tuple[str, ...] = ("qp", "fallback", "hold")
 """What produced a tick's commands: the QP; the safe fallback (the interpolated primitive,
 rate-limited) after a failed, infeasible or refused QP; or the previous commands held because
@@ -46,6 +49,33 @@ class FailureDeclaration:
 
     wheel: str
     kind: Literal["steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit"]
+    value: float = math.nan
+
+
+@dataclass(frozen=True)
+class Task:
+    """The driving task the operator (or the rover's sequence engine) has set, besides
+    following the line: what the rover should *do*, where :class:`FailureDeclaration` says
+    what is *broken*. It comes with every measurement, so a recording carries it and the
+    task may start or end mid-drive.
+
+    Attributes
+    ----------
+    kind : str
+        ``trench``: dig a clean-sided trench with ``wheel`` (section 7.2.5, eqs. (7.28)-(7.29)).
+    wheel : str
+        One of ``FR``, ``FL``, ``RR``, ``RL``.
+    value : float
+        Kind-specific value: for ``trench`` the target trench depth below the surface, m.
+
+    Examples
+    --------
+    >>> Task("trench", "RR", 0.02)   # a 20 mm deep trench with the rear-right wheel
+    Task(kind='trench', wheel='RR', value=0.02)
+    """
+
+    kind: Literal["trench"]
+    wheel: str
     value: float = math.nan
 
 
@@ -87,6 +117,8 @@ class Measurements:
         A pose fix, if one arrived at this tick.
     failures : tuple of FailureDeclaration
         The failures declared by the rover's fault management.
+    task : Task or None
+        The operator's driving task (a trench to dig), None: just drive the line.
     """
 
     t: float
@@ -99,6 +131,7 @@ class Measurements:
     motor_torque: tuple[float, float, float, float] | None = None
     pose: Pose | None = None
     failures: tuple[FailureDeclaration, ...] = field(default_factory=tuple)
+    task: Task | None = None
 
 
 @dataclass(frozen=True)
@@ -169,6 +202,13 @@ class Diagnostics:
         What happened to a pose fix at this tick (``''`` if none came).
     counters : tuple of (str, int)
         Cumulative counts of rejected or down-weighted inputs and of fallbacks, sorted by name.
+    crab_commanded : float
+        Crab angle the commands of the previous tick asked for, rad, given to the EKF's motion
+        model over this tick (:mod:`rtctl.estimator`): the rover's crab is ``state[4]`` plus it.
+    flags : tuple of str
+        Conditions of this tick the operator must know about, each a sentence: a declared task
+        or failure value outside the table's axis (read at the nearest end), a task without a
+        table, a target the table's primitives cannot reach. Empty when none.
     """
 
     t: float
@@ -190,6 +230,8 @@ class Diagnostics:
     state_sigma: tuple[float, ...]
     pose_verdict: str
     counters: tuple[tuple[str, int], ...]
+    crab_commanded: float = 0.0
+    flags: tuple[str, ...] = ()
 
     def counter(self, name: str) -> int:
         """A counter's value (0 if it never counted)."""

@@ -42,12 +42,16 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .messages import Commands, FailureDeclaration, Measurements, Pose
+from .messages import Commands, FailureDeclaration, Measurements, Pose, Task
 
 __all__ = ["RecordingError", "Recorder", "Recording", "read_recording", "export_csv", "TOPICS", "FORMAT_VERSION",
-           "to_jsonable"]
+           "READABLE_VERSIONS", "to_jsonable"]
 
-FORMAT_VERSION = "1"
+FORMAT_VERSION = "2"
+"""Written by this recorder. 2 added the measurements' ``task`` (the operator's driving task)."""
+READABLE_VERSIONS = ("1", "2")
+"""Versions this reader reads: a version-1 recording predates tasks, so its measurements are read
+with ``task = None`` (what its controller saw: version 1 had no way to declare one)."""
 TOPICS = {
     "measurements": "/rtctl/measurements",
     "commands": "/rtctl/commands",
@@ -70,6 +74,8 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
                 "t": _NUM, "x": _NUM, "y": _NUM, "heading": _NUM}}]},
             "failures": {"type": "array", "items": {"type": "object", "properties": {
                 "wheel": {"type": "string"}, "kind": {"type": "string"}, "value": _NUM}}},
+            "task": {"oneOf": [{"type": "null"}, {"type": "object", "properties": {
+                "kind": {"type": "string"}, "wheel": {"type": "string"}, "value": _NUM}}]},
         },
         "required": ["t", "seq", "wheel_speed", "steer_angle", "yaw_rate"],
     },
@@ -147,6 +153,7 @@ def measurements_from_json(d: Mapping[str, Any]) -> Measurements:
     """Rebuild a :class:`Measurements` from its recorded JSON object."""
     pose = d.get("pose")
     mt = d.get("motor_torque")
+    task = d.get("task")
     return Measurements(
         t=_num_in(d["t"]), seq=int(d["seq"]), wheel_speed=_tuple4(d["wheel_speed"], "wheel_speed"),
         steer_angle=_tuple4(d["steer_angle"], "steer_angle"), yaw_rate=_num_in(d["yaw_rate"]),
@@ -156,6 +163,7 @@ def measurements_from_json(d: Mapping[str, Any]) -> Measurements:
                                             _num_in(pose["heading"])),
         failures=tuple(FailureDeclaration(f["wheel"], f["kind"], _num_in(f.get("value", "NaN")))
                        for f in d.get("failures", [])),
+        task=None if task is None else Task(task["kind"], task["wheel"], _num_in(task.get("value", "NaN"))),
     )
 
 
@@ -335,9 +343,9 @@ def read_recording(path: str | Path) -> Recording:
                     raise RecordingError(f"{p}: message {message.sequence} on {channel.topic} does not decode ({exc})") from None
     except McapError as exc:
         raise RecordingError(f"{p}: not a readable MCAP file ({exc})") from None
-    if rec.metadata.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+    if rec.metadata.get("format_version", FORMAT_VERSION) not in READABLE_VERSIONS:
         raise RecordingError(f"{p}: recording format {rec.metadata.get('format_version')!r}, this reader reads "
-                             f"{FORMAT_VERSION!r}; re-record or convert it")
+                             f"{', '.join(READABLE_VERSIONS)}; re-record it with this version's recorder")
     return rec
 
 

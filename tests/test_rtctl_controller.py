@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rtctl.config import ControllerConfig
+from rtctl.config import ControllerConfig, Noise
 from rtctl.controller import Controller, ControllerError, table_signature, wheel_radius_of
 from rtctl.messages import MODES, Commands, FailureDeclaration, Measurements, Pose
 from rtctl_synthetic import ROCKER, RS, TRACK, synthetic_tables
@@ -70,6 +70,21 @@ def test_heading_and_crosstrack_errors_turn_the_right_way(tables):
     assert d.fy_offset > 0 and all(s > 0 for s in cmd.steer_angle)
 
 
+KINEMATIC_NOISE = Noise(wheel_speed=0.02, steer=0.005, gyro=0.002, pose_xy=0.005, pose_heading=0.005)
+"""The sensors of :func:`_closed_loop`'s kinematic truth (the filter is told them)."""
+
+
+def _kin_config() -> ControllerConfig:
+    """The controller for :func:`_closed_loop`'s world: its sensors, and the proportional outer
+    loop only. That world has no yaw-moment mismatch to integrate away, and its crab (half the
+    mean steering angle) is nothing like the table's lateral resistance, so the integral
+    (default since issue 13, for the simulator's force-based world) overshoots there: y from
+    -6 cm to +2.6 cm at 80 s with the default integrals, -0.3 cm without."""
+    from rtctl.config import OuterLoop
+
+    return ControllerConfig(noise=KINEMATIC_NOISE, outer_loop=OuterLoop(heading_integral=0.0, crosstrack_integral=0.0))
+
+
 def _closed_loop(tables, cfg, steps=400, seed=0, slip=0.2, psi0=math.radians(6.0), y0=-0.06):
     """Kinematic truth driven by the commands: differential rim speed and front/rear steering
     (four-wheel-steer kinematics, wheelbase = rocker length) turn the rover, mean steering makes
@@ -104,7 +119,7 @@ def _closed_loop(tables, cfg, steps=400, seed=0, slip=0.2, psi0=math.radians(6.0
 
 
 def test_closed_loop_removes_heading_and_crosstrack_error(tables):
-    log = _closed_loop(tables, ControllerConfig())
+    log = _closed_loop(tables, _kin_config())
     x, y, psi, d = log[-1]
     assert abs(math.degrees(psi)) < 1.0 and abs(y) < 0.01, (math.degrees(psi), y)
     assert x > 1.5  # it kept driving (80 s at ~2.4 cm/s)
@@ -115,8 +130,8 @@ def test_closed_loop_removes_heading_and_crosstrack_error(tables):
 
 
 def test_deterministic_bit_for_bit_and_reset(tables):
-    a = _closed_loop(tables, ControllerConfig(), steps=60, seed=3)
-    b = _closed_loop(tables, ControllerConfig(), steps=60, seed=3)
+    a = _closed_loop(tables, _kin_config(), steps=60, seed=3)
+    b = _closed_loop(tables, _kin_config(), steps=60, seed=3)
     assert [e[3] for e in a] == [e[3] for e in b]
     c = Controller(tables, ControllerConfig())
     seq = [meas(k, pose=Pose(0.2 * k, 0.0, 0.01, 0.02) if k == 3 else None) for k in range(10)]
@@ -279,7 +294,7 @@ def test_property_commands_always_valid_under_bad_input(tables, ticks):
 
 def record_qps(tables, n_min: int = 1000) -> list:
     """QPs the controller solved in closed loop: two starts, a stuck RR wheel, locked/capped wheels."""
-    cfg = ControllerConfig()
+    cfg = _kin_config()
     rec = []
 
     class Recording(Controller):
@@ -287,7 +302,8 @@ def record_qps(tables, n_min: int = 1000) -> list:
             out = super().step(m)
             q = self.last_qp()
             if q is not None and out[1].mode == "qp":
-                rec.append(q)
+                first = not rec or rec[-1][2] != out[1].table
+                rec.append((*q, out[1].table if not first else out[1].table + " (first)"))
             return out
 
     import test_rtctl_controller as me
@@ -314,21 +330,29 @@ def record_qps(tables, n_min: int = 1000) -> list:
 
 def test_osqp_matches_clarabel_on_1000_recorded_qps(tables):
     """OSQP's warm-started answer (eps 1e-6) against clarabel (interior point) through
-    qpsolvers.solve_qp on every recorded QP: step within 1e-3 of the variable scales, objective
-    within 1e-5 relative (measured: 1.2e-4 and 1.9e-6)."""
+    qpsolvers.solve_qp on every recorded QP: step within 3e-3 of the variable scales, objective
+    within 1e-5 relative; the first QP on a newly chosen table (warm start from the other table's
+    answer) within 1e-2. Measured (issue 13 defaults): 4.6e-3 on such a first QP (OSQP at eps
+    1e-8 agrees with clarabel there to 8e-6: OSQP's stopping accuracy), <= 9.4e-4 on every
+    other (1.2e-4 with the issue-12 defaults); objective <= 3.2e-6."""
     pytest.importorskip("clarabel")
     from rtctl.allocator import solve_with_qpsolvers
 
     rec = record_qps(tables)
     assert len(rec) >= 1000
     worst_z = worst_f = 0.0
-    for pr, z in rec:
+    worst_first = 0.0
+    for pr, z, table in rec:
         zc = solve_with_qpsolvers(pr, "clarabel")
         assert zc is not None
         nx = 20
-        worst_z = max(worst_z, float(np.abs(zc[:nx] - z[:nx]).max()))
+        err = float(np.abs(zc[:nx] - z[:nx]).max())
+        if table.endswith("(first)"):
+            worst_first = max(worst_first, err)
+        else:
+            worst_z = max(worst_z, err)
         P = pr.P.toarray()
         P = P + np.triu(P, 1).T
         f = lambda v: 0.5 * v @ P @ v + pr.q @ v  # noqa: E731
         worst_f = max(worst_f, abs(f(z) - f(zc)) / max(1.0, abs(f(zc))))
-    assert worst_z < 1e-3 and worst_f < 1e-5, (worst_z, worst_f)
+    assert worst_z < 1e-3 and worst_first < 1e-2 and worst_f < 1e-5, (worst_z, worst_first, worst_f)

@@ -98,9 +98,9 @@ def test_closed_loop_on_the_built_table(table):
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_rtctl_controller import _closed_loop
+    from test_rtctl_controller import _closed_loop, _kin_config
 
-    log = _closed_loop({"nominal": table}, ControllerConfig(), steps=400)
+    log = _closed_loop({"nominal": table}, _kin_config(), steps=400)
     x, y, psi, d = log[-1]
     assert abs(math.degrees(psi)) < 1.0 and abs(y) < 0.01, (math.degrees(psi), y)
     assert abs(x / (0.2 * 399) - 0.03) < 0.0015  # travel speed within 5 %

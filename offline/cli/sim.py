@@ -46,10 +46,15 @@ class _TracedPlant:
     """The simulator seen by the HIL runner, keeping the truth and measurements of every tick."""
 
     def __init__(self, sim: Any) -> None:
+        from ..sim.experiments import declared_task
+
         self.sim, self.truth, self.measurements = sim, [], []
+        self.task = declared_task(sim.scenario)
 
     def measure(self) -> Any:
-        m = self.sim.measure()
+        from ..sim.experiments import with_task
+
+        m = with_task(self.sim.measure(), self.task)
         self.measurements.append(m)
         self.truth.append(self.sim.truth_state())
         return m
@@ -68,7 +73,7 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
     from rtctl.hil import run_hil
     from rtctl.recording import Recorder
 
-    from ..sim.experiments import DriveResult, _first_measurement, drive_metrics
+    from ..sim.experiments import DriveResult, _first_measurement, drive_metrics, trench_metrics
     from ..sim.rtctl_bridge import rtctl_controller
 
     c0, _ = ctl.step(_first_measurement(sim))
@@ -80,6 +85,7 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
     rep = run_hil(factory, plant=plant, ticks=max_ticks, until=lambda: plant.truth[-1].x - x0 >= args.distance)
     res = DriveResult(sim.scenario.name, f"{kind} (HIL)", plant.truth, [c for c in rep.commands if c is not None])
     res.metrics = drive_metrics(plant.truth, sim.scenario.speed)
+    res.metrics.update(trench_metrics(plant.truth, sim.scenario, sim.truth.params))
     res.metrics["deadline_misses"] = float(rep.deadline_misses)
     res.step_seconds = rep.step_times
     st = rep.stats()["step"]

@@ -8,6 +8,14 @@ soil) and realistic sensor noise, and writes an MCAP recording with
 :class:`rtctl.recording.Recorder` -- the same files a rover writes. The tool under test is
 told nothing of the truth: the truth is only in the ``/sim/truth`` channel and the
 metadata, which :mod:`offline.fit.drive_discrepancy` never reads.
+
+A truth set through :class:`~offline.sim.truth.Truth` fields goes through the same plant
+inputs the tool's candidates set (:func:`offline.fit.drive_candidates.truth_from_terms`): a
+drive made that way tests parameter recovery, not discovery. :func:`record_drive` therefore
+also takes a disturbance hook (contract C5), an actuator path and a sensor path, through
+which ``tests/concealed_effects.py`` conceals effects with code independent of the
+candidates (a cable to a fixed anchor, a terrain plane given by its normal, a misaligned
+steering encoder, hub drag, a soft patch, an undulation, a gyro bias step).
 """
 
 from __future__ import annotations
@@ -15,18 +23,26 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
-from rtctl.messages import Commands
+from rtctl.messages import Commands, Measurements
 from rtctl.recording import Recorder
 
 from ..rover.scenario import Scenario
 from ..sim.actuators import ActuatorConfig
 from ..sim.sensors import SensorConfig
-from ..sim.simulator import RoverSimulator
+from ..sim.simulator import RoverSimulator, TruthState
 from ..sim.truth import Truth
 
-__all__ = ["DriveSegment", "CALIBRATION_SEGMENTS", "calibration_drive", "record_drive", "REALISTIC_SENSORS"]
+__all__ = ["DriveSegment", "CALIBRATION_SEGMENTS", "calibration_drive", "record_drive", "REALISTIC_SENSORS",
+           "ActuatorPath", "SensorPath"]
+
+ActuatorPath = Callable[[Commands], Commands]
+"""What the actuators really receive for the recorded commands (e.g. a misaligned steering
+encoder: the servo turns to commanded + offset while the recording keeps the commands)."""
+SensorPath = Callable[[Measurements, TruthState], Measurements]
+"""What the rover's sensors really report, from the simulator's readings and the true state
+(e.g. an IMU on undulating terrain, a gyro whose bias steps)."""
 
 REALISTIC_SENSORS = SensorConfig(wheel_speed_noise=0.01, steer_noise=0.003, gyro_bias=0.002, gyro_noise=0.002,
                                  tilt_noise=0.003, torque_noise=0.02, pose_period=0.2, pose_noise_xy=0.003,
@@ -99,27 +115,41 @@ def calibration_drive(duration: float | None = None, segments: tuple[DriveSegmen
 
 def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = None, seed: int = 0,
                  duration: float | None = None, sensors: SensorConfig = REALISTIC_SENSORS,
-                 actuators: ActuatorConfig | None = None, period: float = 0.2, sim_dt: float = 0.1) -> Path:
+                 actuators: ActuatorConfig | None = None, period: float = 0.2, sim_dt: float = 0.1,
+                 disturbance: Any = None, actuator_path: ActuatorPath | None = None,
+                 sensor_path: SensorPath | None = None) -> Path:
     """Drive the calibration script on the truth simulator and write an MCAP recording.
 
     The truth state goes to the ``/sim/truth`` channel (for plots and metrics only); the
     metadata names the scenario and the seed, never the truth parameters.
+
+    Concealed effects that the truth's parameters cannot express enter through three optional
+    paths, so a test can generate them with code independent of the tool's candidates:
+    ``disturbance`` (the simulator's disturbance hook, contract C5: extra forces and hub
+    torques, evaluated by the simulator once per step), ``actuator_path`` (the commands the
+    actuators really receive; the recording keeps the commanded ones) and ``sensor_path``
+    (the readings the recording keeps, from the simulator's readings and the true state).
     """
     d, at = calibration_drive(duration)
-    sim = RoverSimulator(scenario, truth, actuators=actuators, sensors=sensors, dt=sim_dt, seed=seed)
+    kw = {} if disturbance is None else {"disturbance": disturbance}
+    sim = RoverSimulator(scenario, truth, actuators=actuators, sensors=sensors, dt=sim_dt, seed=seed, **kw)
+    to_act: ActuatorPath = actuator_path or (lambda c: c)
     rim, steer = at(0.0)
-    sim.start(Commands(0.0, 0, rim, steer))  # type: ignore[arg-type]
+    sim.start(to_act(Commands(0.0, 0, rim, steer)))  # type: ignore[arg-type]
     n = int(round(d / period))
     with Recorder(path, {"scenario": scenario.name, "seed": seed, "script": "calibration_drive",
                          "period_s": period}, truth=True) as rec:
         for k in range(n + 1):
             m = sim.measure()
+            ts = sim.truth_state()
+            if sensor_path is not None:
+                m = sensor_path(m, ts)
             rim, steer = at(m.t)
             c = Commands(m.t, m.seq, rim, steer)  # type: ignore[arg-type]
-            sim.apply(c)
+            sim.apply(to_act(c))
             rec.measurements(m)
             rec.commands(c)
-            rec.truth(m.t, sim.truth_state())
+            rec.truth(m.t, ts)
             if k < n:
                 sim.advance(period)
     return Path(path)

@@ -36,7 +36,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from rtctl.messages import Commands, Measurements
+from rtctl.messages import Commands, Measurements, Task
 
 from ..rover.primitives import PrimitiveResult, solve_primitive, steering_controllers
 from ..rover.scenario import Scenario, load_scenario
@@ -45,7 +45,7 @@ from .simulator import RoverSimulator, TruthState
 __all__ = [
     "ControllerLike", "PidGains", "PrimitiveController", "PidSteeringController", "DriveResult", "run_drive",
     "drive_metrics", "build_controller", "BUILTIN_CONTROLLERS", "SECTION_7_3", "DISSERTATION_7_3", "plot_runs",
-    "ExperimentError", "wheel_tuple", "scenario_by_name",
+    "ExperimentError", "wheel_tuple", "scenario_by_name", "declared_task", "with_task", "trench_metrics",
 ]
 
 WHEELS = ("FR", "FL", "RR", "RL")
@@ -193,6 +193,56 @@ class PidSteeringController:
                  "heading_error": self._eyaw, "cross_track_error": self._ey})
 
 
+def declared_task(sc: Scenario) -> Task | None:
+    """The operator's task of a scenario as the rover declares it to rtctl: a trench goal gives
+    ``Task("trench", wheel, depth)`` with its target depth, else its minimum depth (7.29); None
+    without a trench goal. (The simulator's sensors do not produce it: a task is an operator's
+    command, attached to each measurement by the drive loop, :func:`with_task`.)"""
+    tr = sc.trench
+    if tr is None:
+        return None
+    depth = tr.target_depth if tr.target_depth is not None else tr.min_depth
+    return Task("trench", tr.wheel, float(depth))
+
+
+def with_task(m: Measurements, task: Task | None) -> Measurements:
+    """The measurement with the operator's task attached (unchanged when there is none)."""
+    from dataclasses import replace
+
+    return m if task is None else replace(m, task=task)
+
+
+def trench_metrics(truth: Sequence[TruthState], sc: Scenario, params: Any = None) -> dict[str, float]:
+    """The trench the trenching wheel leaves, by the soil-flow model of ch. 4 (eqs. (4.1)-(4.18))
+    from its *true* sinkage, slip angle and speed at each tick of the second half of the drive
+    (post hoc: the plant's forces do not depend on the trench, as in the optimizer, whose
+    trench rows (7.28)-(7.29) are constraints on the same quantities). Mean depth and rim-side
+    pile height in mm, and the fraction of ticks whose trench is clean-sided (pile <= 0.5 mm,
+    the goal's tolerance). Empty without a trench goal. ``params``: the truth's parameter set
+    (default: the scenario's)."""
+    from ..physics.soil_flow import trench_profile
+
+    tr = sc.trench
+    if tr is None or not truth:
+        return {}
+    ps = params or sc.params
+    i = WHEELS.index(tr.wheel)
+    depth, pile = [], []
+    for s in truth[len(truth) // 2:]:
+        beta = float(s.slip_angle[i])
+        vx = math.hypot(s.u, s.v) * math.cos(beta)
+        try:
+            tp = trench_profile(float(s.sinkage[i]), beta, float(s.omega[i]), max(vx, 1e-9), ps.wheel, ps.soil)
+        except ValueError:
+            continue
+        depth.append(tp.d)
+        pile.append(tp.h_R2)  # the pile the goal's check (TrenchGoal.check) requires to vanish
+    if not depth:
+        return {"trench_depth_mm": math.nan, "trench_pile_mm": math.nan, "trench_clean_fraction": math.nan}
+    return {"trench_depth_mm": 1e3 * float(np.mean(depth)), "trench_pile_mm": 1e3 * float(np.mean(pile)),
+            "trench_clean_fraction": float(np.mean(np.array(pile) <= 5e-4))}
+
+
 def _nominal_of(sc: Scenario) -> Scenario:
     from dataclasses import replace
 
@@ -292,6 +342,7 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
     diagnostic, step time and the truth.
     """
     sc = sim.scenario
+    task = declared_task(sc)
     if max_time is None:
         max_time = 3.0 * distance / sc.speed
     if hasattr(controller, "reset"):
@@ -304,7 +355,7 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
         controller.reset()
     sim.start(c0)
     while True:
-        m = sim.measure()
+        m = with_task(sim.measure(), task)
         ts = time.perf_counter()
         cmd, diag = controller.step(m)
         step = time.perf_counter() - ts
@@ -325,6 +376,7 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
         sim.advance(period)
     res.wall_seconds = time.perf_counter() - t0
     res.metrics = drive_metrics(res.truth, sc.speed)
+    res.metrics.update(trench_metrics(res.truth, sc, sim.truth.params))
     return res
 
 
@@ -339,7 +391,8 @@ def _first_measurement(sim: RoverSimulator) -> Measurements:
         steer.append(f.steer_stuck if f.steer_stuck is not None else 0.0)
     om = sim.scenario.speed / sim.scenario.params.wheel.shearing_radius
     return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * 4, steer_angle=tuple(steer),  # type: ignore[arg-type]
-                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, 0.0), failures=sim.failures)
+                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, 0.0), failures=sim.failures,
+                        task=declared_task(sim.scenario))
 
 
 def plot_runs(runs: Sequence[DriveResult], path: str | Path, title: str = "") -> Path:

@@ -7,10 +7,14 @@ Run from the repository root (one command; writes ``tests/bench/results_ekf_sim.
 For each drive (main-job scenario, rear-right steering stuck at -50 deg, rtctl in the loop) it
 reads the MCAP recording back and compares the EKF's estimate (``diagnostics.state`` with its
 1-sigma ``state_sigma``) with the simulator's truth channel, after a 10 s settling time:
-normalised squared errors per component (x, y, heading, crab angle; 1 for a consistent filter;
-diagonal only: the recording holds sigmas, not the full covariance) and the rover-level slip
-``1 - V / V_odo`` with ``V_odo`` the least-squares speed of ``r_s omega_i = V cos(beta_i)``
-over the four wheels, the same definition as the estimator's odometry.
+normalised squared errors per component (x, y, heading, slip, crab angle and, where the truth
+records it, gyro bias; 1 for a consistent filter; diagonal only: the recording holds sigmas,
+not the full covariance -- ``tests/test_rtctl_ekf_sim.py`` checks the full 5-dof NEES). The
+rover-level slip is ``1 - V / V_odo`` with ``V_odo`` the least-squares speed of
+``r_s omega_i = V cos(beta_i)`` over the four wheels, the estimator's odometry definition;
+the truth's crab ``atan2(v, u)`` minus the crab the commands asked for over the tick
+(``diagnostics.crab_commanded``, an input of the EKF's motion model since issue 13) is the
+EKF's crab state.
 """
 
 from __future__ import annotations
@@ -44,17 +48,20 @@ def check(path: Path, rs: float, settle: float = 10.0) -> dict[str, float]:
         t = truth.get(round(d["t"], 6))
         if t is None or d["mode"] != "qp" or d["t"] <= settle:
             continue
-        x, y, h, s, a, _ = d["state"]
-        sx, sy, sh, _, sa, _ = d["state_sigma"]
+        x, y, h, s, a, b = d["state"]
+        sx, sy, sh, ss, sa, sb = d["state_sigma"]
         om, st = np.array(t["omega"]), np.array(t["steer"])
         c = np.cos(st)
         v_odo = float(np.sum(c * rs * om) / np.sum(c * c))
         slip_true = 1.0 - math.hypot(t["u"], t["v"]) / v_odo
+        crab_true = math.atan2(t["v"], t["u"]) - float(d.get("crab_commanded", 0.0))
+        bias = (b - float(t["gyro_bias"])) / sb if "gyro_bias" in t else math.nan
         rows.append(((x - t["x"]) / sx, (y - t["y"]) / sy, math.remainder(h - t["heading"], 2 * math.pi) / sh,
-                     (a - math.atan2(t["v"], t["u"])) / sa, s - slip_true))
+                     (s - slip_true) / ss, (a - crab_true) / sa, bias, s - slip_true))
     z = np.array(rows)
-    return {"ticks": len(z), **{f"nees_{n}": float(np.mean(z[:, i] ** 2)) for i, n in enumerate(("x", "y", "heading", "crab"))},
-            "slip_err_mean_abs": float(np.mean(np.abs(z[:, 4])))}
+    return {"ticks": len(z),
+            **{f"nees_{n}": float(np.mean(z[:, i] ** 2)) for i, n in enumerate(("x", "y", "heading", "slip", "crab", "bias"))},
+            "slip_err_mean_abs": float(np.mean(np.abs(z[:, 6])))}
 
 
 def main() -> int:
@@ -66,9 +73,11 @@ def main() -> int:
     lines = ["# rtctl EKF against the simulator's truth", "",
              f"Written by `python tests/bench/bench_ekf_sim.py` on {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC. "
              "Main-job drive (RR steering stuck at -50 deg, 1.5 m at 3 cm/s, rtctl on the shipped tables); "
-             "statistics after 10 s. NEES columns: mean normalised squared error per component (1 for a "
-             "consistent filter; diagonal only). Slip: mean |EKF slip - true rover-level slip|.", "",
-             "| case | seed | ticks | x | y | heading | crab | slip error |", "|---|---|---|---|---|---|---|---|"]
+             "statistics after 10 s. Columns x ... bias: mean normalised squared error per component (1 for a "
+             "consistent filter; diagonal only; crab: the disturbance crab, truth minus the commanded crab; bias: "
+             "nan where the simulator's truth has no gyro bias). Slip error: mean |EKF slip - true rover-level slip|.",
+             "", "| case | seed | ticks | x | y | heading | slip | crab | bias | slip error |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
         for case, extra in CASES.items():
             for seed in args.seeds:
@@ -78,7 +87,8 @@ def main() -> int:
                     raise SystemExit(f"offnominal drive failed for {case}, seed {seed} (exit {rc})")
                 res = check(next(out.glob("*rtctl*.mcap")), rs)
                 lines.append(f"| {case} | {seed} | {res['ticks']} | {res['nees_x']:.2f} | {res['nees_y']:.2f} | "
-                             f"{res['nees_heading']:.2f} | {res['nees_crab']:.2f} | {res['slip_err_mean_abs']:.3f} |")
+                             f"{res['nees_heading']:.2f} | {res['nees_slip']:.2f} | {res['nees_crab']:.2f} | "
+                             f"{res['nees_bias']:.2f} | {res['slip_err_mean_abs']:.3f} |")
                 print(lines[-1], flush=True)
     write_text(args.out, "\n".join(lines) + "\n")
     print(f"wrote {args.out}")

@@ -7,7 +7,9 @@ One command (from the repository root)::
 For each of the three section 7.3 scenarios (clean-sided trench with RR, RR rim speed capped
 at half, RR steering stuck at -50 deg) it drives the simulated mini rover for ``--ticks``
 control ticks (5 Hz) with the controller and writes ``tests/data/rec_<scenario>_<controller>.mcap``
-(measurements, commands, diagnostics, timing and the simulator truth). The controller is
+(measurements, commands, diagnostics, timing and the simulator truth; recording format 2: the
+trench recording's measurements carry the operator's task ``Task("trench", "RR", 0.025)``,
+which selects the trench table). The controller is
 rtctl on the tables in ``tests/data/tables`` (``--controller rtctl``, the default when that
 folder holds an index), or the dissertation's feed-forward + PID with its "optimal" steering
 controllers (``--controller ff+optfb``). The metadata records the controller, the seed and the

@@ -1,0 +1,243 @@
+"""The drive discrepancy tool on concealed effects generated independently of its candidates (issue 14).
+
+What the tool is told: the MCAP recording (commands, encoders, gyro, IMU tilt, motor torque,
+pose fixes) and the believed scenario (nominal mini rover, flat, nominal soil). What it is NOT
+told: which effect was concealed, its size, the noise levels, the ``/sim/truth`` channel.
+The effects come from ``tests/concealed_effects.py``: forces through the simulator's
+disturbance hook (contract C5), a misaligned steering encoder in the actuator and sensor
+paths, IMU tilt computed from a terrain normal -- none of it goes through the plant inputs
+(``Truth.cross_slope``, ``tether_force``, ``steer_offset``) that the candidates set, and each
+has another functional form than the candidate that should name it (a plane given by its
+normal; a cable to a fixed anchor whose pull turns with the heading; an encoder offset
+passed through the servo's rate limits).
+
+Budget: the tests run 24 s drives against a fixed library of seven candidates (the expected
+ones and their confounders: IMU mounting tilt vs slope, tether vs soil vs a worn wheel, the
+other front wheel's steering), the same for every test, without the soil recalibration; the full library,
+40 s drives, every case, two effects at once and 20 negative seeds are in
+``tests/bench/bench_drive_discrepancy.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from concealed_effects import (
+    HubDrag,
+    SteeringEncoderMisaligned,
+    TerrainPlane,
+    TetherToAnchor,
+    Undulation,
+    gravity_and_tilt,
+    record_concealed,
+)
+from offline.fit.drive_candidates import DRIVE_CANDIDATES
+from offline.fit.drive_discrepancy import diagnose_drives
+from offline.fit.drive_synthetic import record_drive
+from offline.rover.scenario import load_scenario
+from offline.sim.sensors import SensorConfig
+from offline.sim.truth import Truth
+from rtctl.recording import read_recording
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARY = ("terrain_slope", "imu_tilt", "tether", "soil_stiffness", "wheel_radius_RR", "steer_offset_FL", "steer_offset_FR")
+QUIET = SensorConfig(wheel_speed_noise=0, steer_noise=0, gyro_noise=0, tilt_noise=0, torque_noise=0, pose_noise_xy=0,
+                     pose_noise_heading=0, gyro_bias_walk=0)
+DURATION = 24.0
+
+
+SC = load_scenario(ROOT / "offline/scenarios/nominal.toml")
+NOMINAL = Truth.nominal(SC.params, SC.rover)
+
+
+@pytest.fixture(scope="module")
+def sc():
+    return SC
+
+
+def _diagnose(path, sc, seed):
+    lib = [c for c in DRIVE_CANDIDATES if c.key in LIBRARY]
+    return diagnose_drives([path], sc, segment=6, candidates=lib, recalibrate=False, n_boot=500, seed=seed)
+
+
+def _readings(path):
+    r = read_recording(path)
+    return np.array([[*m.motor_torque, m.yaw_rate, m.roll, m.pitch] for m in r.measurements])
+
+
+# --------------------------------------------------------------------------- the generators' physics
+def test_terrain_normal_gravity_and_tilt_match_the_plants_slope_formula():
+    """Independent code, same physics: for planes of 1-10 deg with fall lines along the axes,
+    the in-plane gravity and IMU tilt from the normal equal the plant's slope / cross-slope
+    formula (gX = -W sin a, gY = -W cos a sin b, pitch = slope, roll = cross slope at heading 0);
+    at heading 90 deg a pure cross slope reads as pitch; a 3-4-5 rotation of the body leaves
+    |F| = W sin(inclination)."""
+    w = 34.3
+    for a in np.radians([1.0, 3.5, 10.0]):
+        n_cross = np.array([0.0, -math.sin(a), math.cos(a)])  # fall line to the right: left side up
+        fx, fy, roll, pitch = gravity_and_tilt(n_cross, 0.0, w)
+        assert (fx, fy) == pytest.approx((0.0, -w * math.sin(a)), abs=1e-12)
+        assert (roll, pitch) == pytest.approx((a, 0.0), abs=1e-12)
+        fx, fy, roll, pitch = gravity_and_tilt(n_cross, math.pi / 2, w)
+        assert (fx, fy) == pytest.approx((-w * math.sin(a), 0.0), abs=1e-12)
+        assert (roll, pitch) == pytest.approx((0.0, a), abs=1e-12)
+        n_up = np.array([-math.sin(a), 0.0, math.cos(a)])  # rises ahead
+        fx, fy, roll, pitch = gravity_and_tilt(n_up, 0.0, w)
+        assert (fx, fy, roll, pitch) == pytest.approx((-w * math.sin(a), 0.0, 0.0, a), abs=1e-12)
+        fx, fy, _, _ = gravity_and_tilt(n_up, math.atan2(3, 4), w)
+        assert math.hypot(fx, fy) == pytest.approx(w * math.sin(a), rel=1e-12)
+
+
+def test_terrain_plane_drive_equals_the_plants_cross_slope_drive(sc, tmp_path):
+    """A noise-free drive on TerrainPlane(3.5 deg, fall line to the right) through the hook and
+    the sensor path reproduces the plant's own 3.5 deg cross slope: torques within 1 mN m (the
+    hook cannot lower the normal load by cos 3.5 deg: 0.19 %), yaw rate within 1e-4 rad/s, IMU
+    within 1e-5 rad, pose within 0.1 mm. So the generator is the right physics, not a look-alike
+    tuned to the candidate."""
+    a = record_drive(tmp_path / "plant.mcap", sc, replace(NOMINAL, cross_slope=math.radians(3.5)), seed=0, duration=12.0,
+                     sensors=QUIET)
+    b = record_concealed(tmp_path / "plane.mcap", sc, TerrainPlane(math.radians(3.5), math.radians(-90.0)), seed=0,
+                         duration=12.0, sensors=QUIET)
+    d = np.abs(_readings(a) - _readings(b)).max(axis=0)
+    assert np.all(d[:4] < 1e-3) and d[4] < 1e-4 and np.all(d[5:] < 1e-5), d
+    pa = np.array([[t["x"], t["y"]] for t in read_recording(a).truth])
+    pb = np.array([[t["x"], t["y"]] for t in read_recording(b).truth])
+    assert np.abs(pa - pb).max() < 1e-4
+    assert np.abs(_readings(b)[:, 5]).min() > math.radians(3.0)  # the IMU does see the plane
+
+
+def test_tether_to_anchor_force_and_moment():
+    """Anchor straight behind at heading 0: a pure backward pull of the reel tension, no moment.
+    Heading 90 deg (turned left): in the body frame
+    the pull points mostly to +y (the world's -X), with yaw moment attach_x * F_y. Tension grows
+    with the paid-out length at the reel stiffness."""
+    t = TetherToAnchor(anchor=(-3.0, 0.0), attach=(-0.2, 0.0), tension0=2.0, stiffness=0.5)
+
+    class S:
+        x = y = heading = 0.0
+
+    f = t.forces(0.0, S)
+    assert f.body_force == pytest.approx((-2.0, 0.0)) and f.body_moment_z == pytest.approx(0.0)
+    S.heading = math.pi / 2  # attachment at world (0, -0.2): cable to the anchor along (-3, 0.2)
+    f = t.forces(0.0, S)
+    L = math.hypot(3.0, 0.2)
+    ten = 2.0 + 0.5 * (L - 2.8)
+    # body x = world Y, body y = -world X
+    assert f.body_force == pytest.approx((ten * 0.2 / L, ten * 3.0 / L), rel=1e-9)
+    assert f.body_moment_z == pytest.approx(-0.2 * f.body_force[1])
+    S.heading, S.x = 0.0, 1.0
+    assert -t.forces(0.0, S).body_force[0] == pytest.approx(2.0 + 0.5 * 1.0)
+
+
+def test_hub_drag_reaches_the_recorded_motor_torque(sc, tmp_path):
+    """The hook's hub drag shows in the RR motor torque, and only there, by exactly the torque the
+    simulator records as applied; that torque opposes the spin (negative while reversing) and is
+    coulomb + k h of the sinkage at the start of the step (median within 1 % of the tick's h)."""
+    hd = HubDrag("RR", coulomb=0.005, per_sinkage=3.0)
+    a = record_drive(tmp_path / "n.mcap", sc, NOMINAL, seed=0, duration=6.0, sensors=QUIET)
+    b = record_concealed(tmp_path / "h.mcap", sc, hd, seed=0, duration=6.0, sensors=QUIET)
+    d = _readings(b) - _readings(a)
+    tr = read_recording(b).truth
+    applied = np.array([t["disturbance"]["wheel_torque"][2] for t in tr[1:]])
+    assert np.abs(d[:, [0, 1, 3, 4, 5, 6]]).max() < 1e-12
+    assert d[1:, 2] == pytest.approx(applied, abs=1e-9)
+    h = np.array([t["sinkage"][2] for t in tr[1:]])
+    om = np.array([t["omega"][2] for t in tr[1:]])
+    assert np.all(np.sign(applied) == np.sign(om)) and (om < 0).any()
+    assert np.median(np.abs(np.abs(applied) / (0.005 + 3.0 * h) - 1)) < 0.01
+
+
+# --------------------------------------------------------------------------- diagnoses: in the library
+def test_terrain_plane_is_named_terrain_slope(sc, tmp_path):
+    """A plane of 3.5 deg whose fall line points 80 deg right of the start heading: named
+    terrain_slope (not the IMU mounting tilt, which fits the roll alone), the cross slope within
+    20 % and the along slope within 0.5 deg of the plane's gravity components at heading 0."""
+    eff = TerrainPlane(math.radians(3.5), math.radians(-80.0))
+    f = record_concealed(tmp_path / "plane.mcap", sc, eff, seed=4, duration=DURATION)
+    v = _diagnose(f, sc, 1)
+    assert v.missing_physics == ["terrain_slope"], v.summary()
+    vals = dict(zip(v.chosen.names, v.chosen.values))
+    want = eff.expect()["terrain_slope"]
+    assert vals["cross_slope"] == pytest.approx(want["cross_slope"], rel=0.2)
+    assert abs(vals["slope"] - want["slope"]) < 0.5
+
+
+@pytest.fixture(scope="module")
+def tether_case(sc, tmp_path_factory):
+    eff = TetherToAnchor()
+    f = record_concealed(tmp_path_factory.mktemp("tether") / "tether.mcap", sc, eff, seed=4, duration=DURATION)
+    return eff, _diagnose(f, sc, 1)
+
+
+def test_tether_to_a_fixed_anchor_is_named_tether(tether_case):
+    """A spring-reel cable to an anchor 3 m behind the start (2 N, +0.5 N/m paid out): its pull
+    turns with the heading through the drive's turns. The tether is the first term named and
+    its force is within 20 % of the mean backward pull the rover felt; if the tool adds a
+    second term for the cable's lateral pull (outside the candidate's form), the verdict must
+    not claim a full explanation."""
+    eff, v = tether_case
+    assert v.missing_physics[:1] == ["tether"], v.summary()
+    vals = dict(zip(v.chosen.names, v.chosen.values))
+    assert vals["force"] == pytest.approx(eff.expect()["tether"]["force"], rel=0.2)
+    if len(v.missing_physics) > 1:
+        assert v.status == "partly_explained", v.summary()
+
+
+@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the cable's lateral pull and yaw moment are absorbed by a "
+                   "spurious second term (a steering offset); the library has no tether to a fixed anchor")
+def test_tether_to_a_fixed_anchor_gets_no_spurious_second_term(tether_case):
+    """Nothing but the tether is named."""
+    _, v = tether_case
+    assert v.missing_physics == ["tether"], v.summary()
+
+
+@pytest.fixture(scope="module")
+def steering_case(sc, tmp_path_factory):
+    f = record_concealed(tmp_path_factory.mktemp("steer") / "steer.mcap", sc,
+                         SteeringEncoderMisaligned("FL", math.radians(3.0)), seed=4, duration=DURATION)
+    return _diagnose(f, sc, 1)
+
+
+def test_misaligned_steering_encoder_is_named_a_front_steering_offset(steering_case):
+    """The FL steering servo turns to commanded + 3 deg while its encoder reads the commanded
+    angle: a front-wheel steering offset is named alone, its size within 20 %, and the true
+    wheel is either the one chosen or reported as indistinguishable from it."""
+    v = steering_case
+    assert len(v.missing_physics) == 1 and v.missing_physics[0] in ("steer_offset_FL", "steer_offset_FR"), v.summary()
+    assert v.chosen.values[0] == pytest.approx(3.0, rel=0.2)
+    assert "steer_offset_FL" in [v.missing_physics[0], *(s.label for s in v.indistinguishable)], v.summary()
+
+
+@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): on this 24 s drive FL and FR steering offsets differ by "
+                   "~1.3 noise units; the tool picks FR and reports FL as indistinguishable")
+def test_misaligned_steering_encoder_is_named_on_its_wheel(steering_case):
+    """The chosen wheel is the misaligned one (FL)."""
+    assert steering_case.missing_physics == ["steer_offset_FL"], steering_case.summary()
+
+
+# --------------------------------------------------------------------------- diagnoses: outside the library
+def test_hub_drag_is_not_given_a_confident_name(sc, tmp_path):
+    """Hub drag on RR rising with sinkage (about 0.03 N m, 3-4 segment noise units): no candidate
+    has a torque on one wheel's spin with no force on the rover, so an honest verdict is
+    unexplained or partly explained -- never 'explained' by a worn wheel or a soil change."""
+    f = record_concealed(tmp_path / "hub.mcap", sc, HubDrag("RR"), seed=4, duration=DURATION)
+    v = _diagnose(f, sc, 1)
+    assert v.status in ("unexplained", "partly_explained"), v.summary()
+
+
+@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the engine's per-channel dispersion s (pitch ~10, roll ~4) "
+                   "absorbs a misfit spread over the whole drive and the verdict is 'agree'; the lack-of-fit test runs "
+                   "only after an explanation is chosen")
+def test_terrain_undulation_is_not_called_agreement(sc, tmp_path):
+    """Terrain height 3 mm sin(2 pi X / 0.3 m): the IMU pitch swings by +-3.6 deg (about 20 times
+    its noise) and gravity pushes and pulls the rover along the path. No candidate has this form
+    (the mean slope is near zero), so the honest verdict is unexplained or partly explained --
+    and never 'agree'."""
+    f = record_concealed(tmp_path / "und.mcap", sc, Undulation(), seed=4, duration=DURATION)
+    v = _diagnose(f, sc, 1)
+    assert v.status in ("unexplained", "partly_explained"), v.summary()

@@ -188,10 +188,9 @@ def test_tether_to_a_fixed_anchor_is_named_tether(tether_case):
         assert v.status == "partly_explained", v.summary()
 
 
-@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the cable's lateral pull and yaw moment are absorbed by a "
-                   "spurious second term (a steering offset); the library has no tether to a fixed anchor")
 def test_tether_to_a_fixed_anchor_gets_no_spurious_second_term(tether_case):
-    """Nothing but the tether is named."""
+    """Nothing but the tether is named. (A strict xfail until the forward step ranked second terms
+    by their score test on top of the first and tested them against the pool's null.)"""
     _, v = tether_case
     assert v.missing_physics == ["tether"], v.summary()
 
@@ -205,12 +204,14 @@ def steering_case(sc, tmp_path_factory):
 
 def test_misaligned_steering_encoder_is_named_a_front_steering_offset(steering_case):
     """The FL steering servo turns to commanded + 3 deg while its encoder reads the commanded
-    angle: a front-wheel steering offset is named alone, its size within 20 %, and the true
-    wheel is either the one chosen or reported as indistinguishable from it."""
+    angle: a front-wheel steering offset is named alone -- or, when FL and FR fit the held-out
+    segments equally, the verdict is 'ambiguous' (nothing named) with both listed -- its size
+    within 20 %, and the true wheel is either the one chosen or reported with it."""
     v = steering_case
-    assert len(v.missing_physics) == 1 and v.missing_physics[0] in ("steer_offset_FL", "steer_offset_FR"), v.summary()
+    best = v.missing_physics if v.status != "ambiguous" else list(v.chosen.keys)
+    assert len(best) == 1 and best[0] in ("steer_offset_FL", "steer_offset_FR"), v.summary()
     assert v.chosen.values[0] == pytest.approx(3.0, rel=0.2)
-    assert "steer_offset_FL" in [v.missing_physics[0], *(s.label for s in v.indistinguishable)], v.summary()
+    assert "steer_offset_FL" in [best[0], *(s.label for s in v.indistinguishable)], v.summary()
 
 
 @pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): on this 24 s drive FL and FR steering offsets differ by "
@@ -224,10 +225,11 @@ def test_misaligned_steering_encoder_is_named_on_its_wheel(steering_case):
 def test_hub_drag_is_not_given_a_confident_name(sc, tmp_path):
     """Hub drag on RR rising with sinkage (about 0.03 N m, 3-4 segment noise units): no candidate
     has a torque on one wheel's spin with no force on the rover, so an honest verdict is
-    unexplained or partly explained -- never 'explained' by a worn wheel or a soil change."""
+    unexplained, partly explained or ambiguous (nothing named) -- never 'explained' by a worn
+    wheel or a soil change."""
     f = record_concealed(tmp_path / "hub.mcap", sc, HubDrag("RR"), seed=4, duration=DURATION)
     v = _diagnose(f, sc, 1)
-    assert v.status in ("unexplained", "partly_explained"), v.summary()
+    assert v.status in ("unexplained", "partly_explained", "ambiguous"), v.summary()
 
 
 @pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the engine's per-channel dispersion s (pitch ~10, roll ~4) "

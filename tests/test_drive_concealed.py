@@ -232,9 +232,6 @@ def test_hub_drag_is_not_given_a_confident_name(sc, tmp_path):
     assert v.status in ("unexplained", "partly_explained", "ambiguous"), v.summary()
 
 
-@pytest.mark.xfail(strict=True, reason="NOT DONE (issue 14): the engine's per-channel dispersion s (pitch ~10, roll ~4) "
-                   "absorbs a misfit spread over the whole drive and the verdict is 'agree'; the lack-of-fit test runs "
-                   "only after an explanation is chosen")
 def test_terrain_undulation_is_not_called_agreement(sc, tmp_path):
     """Terrain height 3 mm sin(2 pi X / 0.3 m): the IMU pitch swings by +-3.6 deg (about 20 times
     its noise) and gravity pushes and pulls the rover along the path. No candidate has this form

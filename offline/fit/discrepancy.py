@@ -33,6 +33,10 @@ Pipeline (:func:`diagnose`)
    units, per channel at ``alpha``), it is **partly explained** too; if the best
    explanation removes less than half of the held-out excess chi-square, the verdict
    is **unexplained** (the best candidate is shown as absorbing part, not as the answer).
+   With no candidate and no region the verdict is **agree** -- unless the adapter sets
+   ``lack_of_fit_floor`` (drive recordings) and a channel of the believed model fails the
+   same chi-square test with chi2 / rows above that floor: then **unexplained** (a misfit
+   spread over the whole record, e.g. a terrain undulation, has no region to find).
 
 6. **Identifiable?** (adapters that set ``withhold_lookalikes``, e.g. drive recordings) When
    look-alikes with other terms fit the held-out rows equally, or a term of the explanation is
@@ -780,8 +784,11 @@ def diagnose(
                                     obs.units[ch], rng, **_locate_kw(obs))
     failed1 = int((~ok1).sum())
     misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha) if chosen is not None else []
+    floor = getattr(obs, "lack_of_fit_floor", None)
+    if chosen is None and floor is not None:  # a misfit spread evenly over the record has no region
+        misfit = [m for m in _lack_of_fit(obs, pred0, 0, alpha) if m[1] / m[2] > floor]
     if chosen is None:
-        status = "agree" if not regions and failed0 == 0 else "unexplained"
+        status = "agree" if not regions and failed0 == 0 and not misfit else "unexplained"
     elif frac < 0.5:
         status = "unexplained"
     elif regions_after or failed1 or misfit:

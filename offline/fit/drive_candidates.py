@@ -63,7 +63,6 @@ from numpy.typing import NDArray
 
 from ..files import write_text
 from ..physics.params import ParameterSet, Rover, Soil
-from ..sim.actuators import ActuatorConfig
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
@@ -318,7 +317,7 @@ def recalibration_candidate(params: ParameterSet) -> Candidate:
                      kind="parameters", family="recalibration")
 
 
-def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> tuple[Truth, ActuatorConfig | None, dict[str, float]]:
+def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> tuple[Truth, dict[str, float] | None, dict[str, float]]:
     """The simulator's view of an extension: a truth, actuator overrides and measurement terms.
 
     Parameters
@@ -351,7 +350,7 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
     act = {k: t[k] for k in ("wheel_lag", "torque_limit") if k in t}
     meas = {"imu_roll": t.get("imu_roll", 0.0), "imu_pitch": t.get("imu_pitch", 0.0),
             "gyro_scale": t.get("gyro_scale", 0.0)}
-    return truth, (act or None), meas  # type: ignore[return-value]
+    return truth, (act or None), meas
 
 
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],

@@ -140,12 +140,12 @@ def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: 
     return num / den, (sigma_omega * wheel_radius) ** 2 / den
 
 
-class _Filter(ExtendedKalmanFilter):  # type: ignore[misc]
+class _Filter(ExtendedKalmanFilter):
     """filterpy's EKF with the nonlinear motion model in :meth:`predict_x`."""
 
     x: NDArray[np.float64]  # the state (filterpy keeps it as an attribute; typed here for mypy)
 
-    def predict_x(self, u: Any = 0) -> None:  # type: ignore[override]
+    def predict_x(self, u: Any = 0) -> None:
         """Eq. in the module docstring; ``u = (dt, v_odo, yaw_rate, crab_cmd)``."""
         dt, v_odo, r, a_cmd = u
         x: NDArray[np.float64] = self.x

@@ -24,7 +24,7 @@ from rtctl.table import TableError, load_table
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = ROOT / "tables" / "scenarios" / "nominal.toml"
 STUCK = ROOT / "tables" / "scenarios" / "rr_steer_stuck.toml"
-FAST = BuildOptions(trust_steps=(0.0625, 0.125))
+FAST = BuildOptions(trust_steps=(0.0625, 0.125), trust_search=(0.0625, 0.25, 1.0))
 
 
 @pytest.fixture(scope="module")
@@ -107,6 +107,28 @@ def test_partial_build_of_another_spec_is_refused(nominal, tmp_path):
     other = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=2,4", build=FAST)
     with pytest.raises(BuildError, match="partial build of a different spec"):
         build_table(other, tmp_path, progress=False)
+
+
+def test_checkpoints_of_other_library_code_are_discarded(nominal, tmp_path, monkeypatch, capsys):
+    """The checkpoint key includes the hash of the library code that computes the numbers: the
+    same spec's partial build made by other code is discarded with a message, not reused."""
+    from offline.rover import table_builder as TB
+
+    spec, path, _ = nominal
+    part = tmp_path / f".{spec.name}.partial"
+    shutil.copytree(path.parent / part.name, part)
+    assert (part / "code.sha256").read_text().strip() == TB.code_hash()
+    TB._Checkpoint(part, spec.key())  # same code: kept
+    assert len(list(part.glob("chain_*.npz"))) == 2 and "discarded" not in capsys.readouterr().out
+    monkeypatch.setattr(TB, "code_hash", lambda: "f" * 64)
+    ck = TB._Checkpoint(part, spec.key())
+    assert "discarded the checkpoints of a partial build made by other library code" in capsys.readouterr().out
+    assert not list(part.glob("chain_*.npz")) and ck.load("chain", 0) is None
+    assert (part / "code.sha256").read_text().strip() == "f" * 64
+    # a folder without a code record (an older builder) is discarded too
+    (part / "code.sha256").unlink()
+    TB._Checkpoint(part, spec.key())
+    assert "none recorded" in capsys.readouterr().out
 
 
 def test_retry_from_a_neighbour_and_not_found_without_one(nominal):

@@ -57,7 +57,8 @@ from ..files import check_output_dir, write_bytes, write_text
 __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
-    "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point",
+    "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
+    "CODE_SOURCES", "code_hash",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -295,8 +296,9 @@ class BuildOptions:
     trust_tolerance : float
         Largest error of the first-order prediction, as a fraction of each variable's scale
         (layout), inside the trust radius.
-    trust_step : float
-        Step of the per-point re-solve that sizes the trust radius, in parameter scales.
+    trust_search : tuple
+        Steps of the per-point trust-radius search, in parameter scales, ascending (a
+        geometric ladder; searched by bisection on it, both signs; :func:`point_trust_radius`).
     trust_steps : tuple
         Steps of ``offnominal tables verify``'s linearisation check, in parameter scales.
     active_tol : float
@@ -306,7 +308,7 @@ class BuildOptions:
     mz_offset: float = 0.2
     fy_offset: float = 1.0
     trust_tolerance: float = 0.02
-    trust_step: float = 0.5
+    trust_search: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
 
@@ -493,7 +495,8 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         "lbg": np.asarray(b["lbg"]) * csc, "ubg": np.asarray(b["ubg"]) * csc,
         "lam_x": lam_x_s / xsc, "lam_g": lam_g_s / csc,
         "jac_g_x": csc[:, None] * jgx_s / xsc[None, :], "jac_g_p": csc[:, None] * jgp_s,
-        "grad_f": gf_s.ravel() / xsc, "hess_lag": h_s / np.outer(xsc, xsc), "dx_dp": xsc[:, None] * dx_dp_s,
+        "grad_f": gf_s.ravel() / xsc, "hess_lag": h_s / np.outer(xsc, xsc), "hess_lag_xp": hxp_s / xsc[:, None],
+        "dx_dp": xsc[:, None] * dx_dp_s,
         "objective": np.float64(f.item()),
     }
     # per wheel: wrench and its exact Jacobian (AD graph), slip, slip angle, torque, power
@@ -537,41 +540,107 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             ctl[c, k] = (dx[lay.var("omega", wname)] * rs, dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
-    out["trust_radius"] = _point_trust_radius(spec, pb, sc, b, x_s, lam_x_s, lam_g_s, out["x"], out["dx_dp"])
+    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s, out["x"],
+                                                                      out["dx_dp"])
     out["active_x"], out["active_g"] = act_x, act_g
     out["kkt_cond"] = np.float64(cond)
     return out
 
 
-def _point_trust_radius(spec: TableSpec, pb: Any, sc: Any, b: Mapping[str, Any], x_s: NDArray[np.float64],
-                        lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
-                        dx_dp: NDArray[np.float64]) -> NDArray[np.float64]:
+def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float64], lam_x: NDArray[np.float64],
+                       lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                       dx_dp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Per parameter, the step over which the first-order prediction ``x + dx/dp dp`` stays within
-    ``trust_tolerance`` (of the variable scales) of the NLP's solution.
+    ``trust_tolerance`` (of the variable scales) of the NLP's solution at ``p + dp``.
 
-    One warm re-solve per parameter at ``d = trust_step`` x the parameter's scale gives the
-    error ``e``; with an error growing like ``d^k``, ``1 <= k <= 2`` (1 at a kink of the model,
-    2 where it is smooth), the radius is ``d (tol/e)^(1/2)`` if ``e <= tol`` and ``d tol/e``
-    otherwise, which is the smaller of the two growth laws in each case, capped at ``2 d``. A
-    failed re-solve gives 0. Parameters that are not continuous (contact, pivot lock) get 0: the
-    QP must not move them.
+    Search: for each sign, bisection on the ladder ``build.trust_search`` (parameter scales,
+    1/16 .. 2 by default) for the largest step whose re-solve succeeds and whose prediction
+    error is within the tolerance (at most 3 re-solves per sign for 6 steps; the error is taken
+    as growing with the step). Each re-solve starts at the primitive: one IPOPT run with its
+    own dual initialisation, then one warm-started with the primitive's multipliers, then the
+    optimizer's search (:func:`~offline.rover.primitives.solve_primitive` from the primitive,
+    the table's budgets, no confirmation search). Measured at 15 deg slope on the nominal
+    table: the multiplier warm start fails at the kink of the cross-slope response (beta = 0,
+    150 iterations, 0.5-0.8 s) where the first run converges in 8 iterations (0.03 s), hence
+    this order. The radius is the smaller of the two signs. When no step passes, the radius
+    is ``d tol / e`` from the smallest step ``d`` that was re-solved (error ``e``; the linear
+    growth law, the smaller of the linear and quadratic laws). A speed step that would leave
+    less than a quarter of the travel speed is not tried (counts as not passing).
+
+    Returns ``(radius, unverified)``: ``unverified`` is 1 where no re-solve of that parameter
+    succeeded at any step (both signs); its radius is then the documented fallback, the
+    smallest ladder step ``d_min`` (1/16 of the parameter scale by default), neither 0 nor NaN.
+    Parameters that are not continuous (contact, pivot lock) get radius 0 (the QP must not
+    move them) and are not flagged.
     """
+    from . import primitives as P
+
     lay = pb.layout
     xsc = lay.variable_scale
     tol = spec.build.trust_tolerance
-    out = np.zeros(lay.np_)
+    ladder = tuple(sorted(spec.build.trust_search))
+    cold_opts = replace(spec.solver, confirm=False) if spec.solver is not None else P.SolverOptions(confirm=False)
+    radius, unverified = np.zeros(lay.np_), np.zeros(lay.np_)
     for name in _LIN_PARAMS:
         j = lay.index(name)
-        d = spec.build.trust_step * lay.parameters[j].scale
-        kw: dict[str, Any] = {name: getattr(sc, name) + d}
-        if name == "speed":
-            kw.update(_fam_follow(spec, sc, sc.speed + d))
-        r = pb.solve(pb.bounds(replace(sc, **kw)), x_s, lam_x, lam_g)
-        if not r["success"]:
-            continue
-        e = float(np.max(np.abs(x + dx_dp[:, j] * d - np.asarray(r["x"]) * xsc) / xsc))
-        out[j] = 2 * d if e <= tol / 4 else (d * math.sqrt(tol / e) if e <= tol else d * tol / e)
-    return out
+        scale = lay.parameters[j].scale
+        best, solved_any = math.inf, False
+        for sgn in (1.0, -1.0):
+            cache: dict[int, float] = {}  # ladder index -> error (inf: no re-solve)
+
+            def err(k: int) -> float:
+                if k not in cache:
+                    d = sgn * ladder[k] * scale
+                    cache[k] = _prediction_error(spec, pb, sc, name, d, x_s, lam_x, lam_g, x, dx_dp[:, j], xsc,
+                                                 cold_opts)
+                return cache[k]
+
+            lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if err(mid) <= tol:
+                    lo = mid
+                else:
+                    hi = mid
+            if lo >= 0:
+                r = ladder[lo] * scale
+            else:  # no step passed: the linear law from the smallest step that was re-solved
+                err(0)
+                done = sorted(k for k, e in cache.items() if math.isfinite(e))
+                r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
+            solved_any = solved_any or any(math.isfinite(e) for e in cache.values())
+            best = min(best, r)
+        if not solved_any or not math.isfinite(best):
+            radius[j], unverified[j] = ladder[0] * scale, 1.0
+        else:
+            radius[j] = best
+    return radius, unverified
+
+
+def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, x_s: NDArray[np.float64],
+                      lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                      col: NDArray[np.float64], xsc: NDArray[np.float64], cold_opts: Any) -> float:
+    """Largest ``|x + col d - x*(p + d)| / scale`` (inf when the NLP at ``p + d`` is not re-solved)."""
+    from . import primitives as P
+
+    kw: dict[str, Any] = {name: getattr(sc, name) + d}
+    if name == "speed":
+        if sc.speed + d < 0.25 * sc.speed:
+            return math.inf
+        kw.update(_fam_follow(spec, sc, sc.speed + d))
+    sc2 = replace(sc, **kw)
+    b2 = pb.bounds(sc2)
+    r = pb.solve(b2, x_s)  # IPOPT from the primitive, its own dual initialisation
+    if not r["success"]:
+        r = pb.solve(b2, x_s, lam_x, lam_g)  # warm: the primitive's multipliers too
+    if r["success"]:
+        xs2 = np.asarray(r["x"], dtype=float)
+    else:  # the optimizer's search (continuation, restarts) from the primitive
+        rr = P.solve_primitive(sc2, cold_opts, x0=x_s)
+        if rr.status != "optimal":
+            return math.inf
+        xs2 = np.asarray(rr.x, dtype=float)
+    return float(np.max(np.abs(x + col * d - xs2 * xsc) / xsc))
 
 
 def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
@@ -701,19 +770,54 @@ def _trust_radius(errs: Mapping[str, list[tuple[float, float]]], tol: float) -> 
 
 
 # ------------------------------------------------------------------------------ orchestration
+CODE_SOURCES = ("offline/physics", "offline/rover", "rtctl/layout.py", "rtctl/table.py")
+"""Library sources (relative to the repository root) whose code determines a table's numbers;
+their hash, with the library version, keys a build's checkpoints (:func:`code_hash`)."""
+
+
+@functools.lru_cache(maxsize=1)
+def code_hash() -> str:
+    """sha256 of the library version and of every ``*.py`` file under :data:`CODE_SOURCES`
+    (relative path and bytes, sorted), so checkpoints made by other code are not reused."""
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha256(f"offnominal-rover {_library_version()}\n".encode())
+    files: list[Path] = []
+    for rel in CODE_SOURCES:
+        p = root / rel
+        files.extend(sorted(p.rglob("*.py")) if p.is_dir() else [p])
+    for f in sorted(files):
+        h.update(f"\n{f.relative_to(root).as_posix()}\n".encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 class _Checkpoint:
-    """Finished chains and retries of one build, one file each (atomic), keyed by the spec."""
+    """Finished chains and retries of one build, one file each (atomic), keyed by the spec and
+    by the library code (:func:`code_hash`).
+
+    A folder of another spec is refused (the user changed the grid, scenario or options: keep
+    it or delete it); a folder of the same spec written by other library code (or by a builder
+    that did not record its code) is discarded with a message and the build starts afresh.
+    """
 
     def __init__(self, folder: Path, key: str) -> None:
         self.folder, self.key = folder, key
+        code = code_hash()
         if folder.exists():
-            kf = folder / "spec.sha256"
+            kf, cf_ = folder / "spec.sha256", folder / "code.sha256"
             if not kf.is_file() or kf.read_text().strip() != key:
                 raise BuildError(f"{folder}: a partial build of a different spec (grid, scenario or options changed); "
                                  "delete this folder to start afresh, or rerun with the original options")
-        else:
+            old = cf_.read_text().strip() if cf_.is_file() else "none recorded"
+            if old != code:
+                old = old[:12] if cf_.is_file() else old
+                print(f"note: {folder.name}: discarded the checkpoints of a partial build made by other library code "
+                      f"(code hash {old}, now {code[:12]}); starting this table afresh")
+                shutil.rmtree(folder)
+        if not folder.exists():
             folder.mkdir(parents=True)
             write_text(folder / "spec.sha256", key)
+            write_text(folder / "code.sha256", code)
 
     def _path(self, kind: str, i: int) -> Path:
         return self.folder / f"{kind}_{i:06d}.npz"

@@ -193,3 +193,48 @@ def test_cli_verify_reports_all_three_checks(nominal, capsys):
     out = capsys.readouterr().out
     for part in ("Jacobians vs central differences", "Linearisation", "Interpolation at cell midpoints", "PASSED"):
         assert part in out
+
+
+def test_refinement_inserts_the_midpoint_of_a_poor_cell_within_the_point_budget(tmp_path):
+    """slope 0 and 10 deg: the 5 deg midpoint is off by more than the tolerance (measured 0.20
+    variable scales), so it is inserted; the budget of 3 points stops a second insertion;
+    the inserted point is the NLP's solution there; a resumed refinement gives the same bytes."""
+    from offline.rover.primitives import solve_primitive
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=3", build=FAST,
+                      refine=RefineOptions(tol=0.05, max_points=3))
+    path, summary = build_table(spec, tmp_path / "a", progress=False, keep_partial=True)
+    t = load_table(path)
+    np.testing.assert_allclose(t.axes["slope"], np.radians([0.0, 5.0, 10.0]))
+    ref = t.header["refinement"]
+    assert ref["inserted"] == {"slope": [pytest.approx(math.radians(5.0))]}
+    assert ref["base_axes"]["slope"] == [0.0, pytest.approx(math.radians(10.0))]
+    first = [c for c in ref["checks"] if c["round"] == 1]
+    assert len(first) == 1 and first[0]["error"] > 0.05
+    second = [c["error"] for c in ref["checks"] if c["round"] == 2]
+    assert len(second) == 2 and max(second) < first[0]["error"]  # the half-cells interpolate better
+    assert "point budget (3) reached" in ref["stopped"] and summary["grid_points"] == 3
+    # the inserted grid point holds the NLP's primitive at 5 deg
+    sc = scenario_at(spec.scenario, spec.family, {"slope": math.radians(5.0), "cross_slope": 0.0, "speed": 0.03})
+    r = solve_primitive(sc, spec.solver)
+    xsc = t.layout.variable_scale
+    assert r.status == "optimal" and t.status_at((1, 0, 0)) == "optimal"
+    np.testing.assert_allclose(t.arrays["x"][1, 0, 0] / xsc, r.x, atol=1e-6)
+    # resume after losing the new point's checkpoint: same bytes
+    part = path.parent / f".{spec.name}.partial"
+    (pt,) = part.glob("pt_*.npz")
+    pt.unlink()
+    shutil.copytree(part, tmp_path / "b" / part.name)
+    p2, _ = build_table(spec, tmp_path / "b", progress=False)
+    assert p2.read_bytes() == path.read_bytes()
+
+
+def test_refinement_options_are_checked():
+    from offline.rover.table_refine import RefineOptions
+
+    with pytest.raises(BuildError, match="refine-tol"):
+        RefineOptions(tol=0.0, max_points=10)
+    with pytest.raises(BuildError, match="max_points"):
+        RefineOptions(tol=0.5, max_points=0)
+    assert main(["tables", "build", str(NOMINAL), "--refine-tol", "0.5", "--out", "/nonexistent/x"]) != 0

@@ -315,7 +315,8 @@ class BuildOptions:
 
 @dataclass(frozen=True)
 class TableSpec:
-    """Everything that determines a table file (its hash covers all of it)."""
+    """Everything that determines a table file (its hash covers all of it); ``refine``: a
+    :class:`~offline.rover.table_refine.RefineOptions` or None (no grid refinement)."""
 
     name: str
     scenario: Any
@@ -325,12 +326,15 @@ class TableSpec:
     sources: dict[str, Any]
     build: BuildOptions = field(default_factory=BuildOptions)
     solver: Any = None
+    refine: Any = None
 
     def key(self) -> str:
         """sha256 of the spec (names the checkpoint folder's content)."""
-        blob = json.dumps(encode({"name": self.name, "scenario": self.scenario, "grid": self.grid.axes,
-                                  "family": self.family, "build": self.build, "solver": self.solver,
-                                  "sources": self.sources}), sort_keys=True)
+        d = {"name": self.name, "scenario": self.scenario, "grid": self.grid.axes, "family": self.family,
+             "build": self.build, "solver": self.solver, "sources": self.sources}
+        if self.refine is not None:
+            d["refine"] = self.refine
+        blob = json.dumps(encode(d), sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -339,7 +343,7 @@ def _file_record(path: Path) -> dict[str, str]:
 
 
 def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", build: BuildOptions | None = None,
-               solver: Any = None) -> TableSpec:
+               solver: Any = None, refine: Any = None) -> TableSpec:
     """Read a scenario file and make the spec of its table (default grid, overridden by ``grid``).
 
     Raises
@@ -370,7 +374,7 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         from .primitives import SolverOptions
 
         solver = SolverOptions(**TABLE_SOLVER_BUDGETS)
-    return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver)
+    return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver, refine)
 
 
 def chains(grid: GridSpec) -> list[list[int]]:
@@ -653,10 +657,13 @@ def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
     return {"failures": {**sc.failures, w: replace(sc.failure(w), rim_speed_max=frac * speed)}}
 
 
-def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> dict[str, Any]:
+def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None,
+                 op: Mapping[str, float] | None = None, data: bool = True) -> dict[str, Any]:
+    """Solve one point (grid index ``flat`` or operating point ``op``) from ``x0``; with
+    ``data`` the table's per-point data too (:func:`point_data`)."""
     from . import primitives as P
 
-    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat) if op is None else op)
     r = P.solve_primitive(sc, spec.solver, x0=x0)
     rec: dict[str, Any] = {"flat": flat, "status": r.status, "iterations": int(r.stats.get("iterations", 0)),
                            "evidence": encode(r.evidence) if r.status != "optimal" else None}
@@ -665,7 +672,7 @@ def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> 
         lam_g = np.asarray(r.stats["lam_g"], dtype=float).ravel()
         rec["x_scaled"] = np.asarray(r.x, dtype=float)
         rec["lam_x"], rec["lam_g"] = lam_x, lam_g
-        rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g)
+        rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g) if data else {}
     return rec
 
 
@@ -819,10 +826,10 @@ class _Checkpoint:
             write_text(folder / "spec.sha256", key)
             write_text(folder / "code.sha256", code)
 
-    def _path(self, kind: str, i: int) -> Path:
-        return self.folder / f"{kind}_{i:06d}.npz"
+    def _path(self, kind: str, i: int | str) -> Path:
+        return self.folder / (f"{kind}_{i:06d}.npz" if isinstance(i, int) else f"{kind}_{i}.npz")
 
-    def load(self, kind: str, i: int) -> list[dict[str, Any]] | None:
+    def load(self, kind: str, i: int | str) -> list[dict[str, Any]] | None:
         p = self._path(kind, i)
         if not p.is_file():
             return None
@@ -845,7 +852,7 @@ class _Checkpoint:
                 r["data"] = {k.split("/", 1)[1]: arrays[k] for k in arrays if k.startswith(f"{n}/")}
         return recs
 
-    def save(self, kind: str, i: int, recs: list[dict[str, Any]]) -> None:
+    def save(self, kind: str, i: int | str, recs: list[dict[str, Any]]) -> None:
         arrays, meta = {}, []
         for r in recs:
             m = {k: v for k, v in r.items() if k not in ("x_scaled", "lam_x", "lam_g", "data")}
@@ -966,6 +973,12 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
+        refinement = None
+        if spec.refine is not None:
+            from .table_refine import refine_grid
+
+            bar.close()
+            spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
     finally:
         bar.close()
         if executor is None:
@@ -973,7 +986,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 client.close()
             elif ex is not None:
                 ex.shutdown()
-    header, arrays = _assemble(spec, recs)
+    header, arrays = _assemble(spec, recs, refinement)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -983,7 +996,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "trust_radius": header["trust_radius"]}
+               "retried": len(retried), "trust_radius": header["trust_radius"],
+               "refinement": header.get("refinement")}
     return path, summary
 
 
@@ -996,7 +1010,8 @@ def _library_version() -> str:
         return "unknown"
 
 
-def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
+              refinement: Mapping[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     pb = _problem(spec.scenario, spec.solver)
     lay: NlpLayout = pb.layout
     shapes = field_shapes(lay.nx, lay.np_, lay.ng, len(lay.wheels))
@@ -1057,6 +1072,8 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict
         "grid_points": spec.grid.size,
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }
+    if refinement is not None:
+        header["refinement"] = refinement
     return header, arrays
 
 

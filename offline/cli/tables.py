@@ -168,6 +168,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     if t.feasible.any():
         med = np.median(t.arrays["trust_radius"][t.feasible], axis=0)
         print("trust radius (SI), median: " + ", ".join(f"{k} {med[t.layout.index(k)]:.3g}" for k in tr))
+        unv = h.get("trust_unverified_points", {})
+        if any(unv.values()):
+            print("points whose trust radius is the unverified fallback (no re-solve succeeded): "
+                  + ", ".join(f"{k} {v}" for k, v in unv.items() if v))
+    ref = h.get("refinement")
+    if ref:
+        ins = "; ".join(f"{k}: " + ", ".join(f"{v / h['axes'][k]['display_factor']:.4g}" for v in vals)
+                        for k, vals in ref["inserted"].items()) or "nothing"
+        print(f"refinement (tol {ref['tolerance_per_scale']} scales, <= {ref['max_points']} points): inserted {ins}; "
+              f"{ref['stopped']}")
     ev = h.get("evidence", {})
     for flat in list(ev)[: args.evidence]:
         idx = tuple(int(i) for i in np.unravel_index(int(flat), t.shape))

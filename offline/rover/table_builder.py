@@ -1067,8 +1067,14 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "build_options": encode(spec.build),
         "evidence": evidence,
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
-        "trust_radius_rule": (f"per point: first-order prediction within {spec.build.trust_tolerance} of the variable "
-                              "scales (field trust_radius); this entry: the smallest over the feasible points"),
+        "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
+                              f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "
+                              f"the first-order prediction matches within {spec.build.trust_tolerance} of the variable "
+                              "scales (bisection; below the ladder: d tol / e from the smallest re-solved step); where "
+                              "no re-solve succeeded, the fallback 'smallest ladder step' with trust_unverified = 1; "
+                              "this entry: the smallest over the feasible points"),
+        "trust_unverified_points": {n: int(np.sum(arrays["trust_unverified"][feas][:, lay.index(n)] > 0))
+                                    for n in _LIN_PARAMS} if feas.any() else {},
         "grid_points": spec.grid.size,
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }

@@ -238,3 +238,27 @@ def test_refinement_options_are_checked():
     with pytest.raises(BuildError, match="max_points"):
         RefineOptions(tol=0.5, max_points=0)
     assert main(["tables", "build", str(NOMINAL), "--refine-tol", "0.5", "--out", "/nonexistent/x"]) != 0
+
+
+def test_predicted_start_is_exact_in_speed_and_the_neighbour_pass_takes_only_better_optima(nominal):
+    """x + dx/dp dp from the 2 cm/s point lands on the 4 cm/s primitive (the soil model is
+    rate-independent: exact in speed), and the neighbour pass replaces a point only by a
+    strictly lower objective: told its objective were 1 higher, it returns the neighbour's
+    branch (the same primitive here), told the truth, nothing."""
+    from offline.rover.table_builder import polish_point, predicted_start
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc = t.layout.variable_scale
+    op0, op1 = spec.grid.point(0), spec.grid.point(1)  # slope 0: speed 2 and 4 cm/s
+    assert (op0["speed"], op1["speed"]) == (0.02, 0.04)
+    i0, i1 = np.unravel_index(0, t.shape), np.unravel_index(1, t.shape)
+    rec0 = {"data": {k: t.arrays[k][i0] for k in ("x", "dx_dp")}}
+    x0 = predicted_start(spec, rec0, op0, op1)
+    np.testing.assert_allclose(x0, t.arrays["x"][i1] / xsc, atol=1e-6)
+    f1 = float(t.arrays["objective"][i1])
+    assert polish_point(spec, 1, f1, [(0, x0)]) is None
+    rec = polish_point(spec, 1, f1 + 1.0, [(0, x0)])
+    assert rec is not None and rec["polished_from"] == 0
+    assert float(rec["data"]["objective"]) == pytest.approx(f1, rel=1e-8)
+    assert not np.any(t.arrays["polished_from"] >= 0)  # the fixture's chains were already on one branch

@@ -58,6 +58,7 @@ __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
+    "predicted_start", "polish_point",
     "CODE_SOURCES", "code_hash",
 ]
 
@@ -303,6 +304,9 @@ class BuildOptions:
         Steps of ``offnominal tables verify``'s linearisation check, in parameter scales.
     active_tol : float
         Multiplier magnitude (scaled problem) above which a bound or inequality is active.
+    polish_sweeps : int
+        Sweeps of the neighbour pass (:func:`polish_point`): a solved point takes a neighbour's
+        lower-objective optimum, so adjacent points lie on the same branch (0: off).
     """
 
     mz_offset: float = 0.2
@@ -311,6 +315,7 @@ class BuildOptions:
     trust_search: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
+    polish_sweeps: int = 2
 
 
 @dataclass(frozen=True)
@@ -687,6 +692,51 @@ def solve_chain(spec: TableSpec, chain: Sequence[int]) -> list[dict[str, Any]]:
     return out
 
 
+def predicted_start(spec: TableSpec, rec: Mapping[str, Any], op_from: Mapping[str, float],
+                    op_to: Mapping[str, float]) -> NDArray[np.float64]:
+    """Warm start (scaled) for ``op_to`` from the solved point ``rec`` at ``op_from``: its primitive
+    moved by its sensitivity, ``x + dx/dp (p_to - p_from)`` over the NLP parameters among the axes
+    (slope, cross-slope, speed; exact in speed on this rate-independent model), so the new point
+    continues the same branch of (7.25); a family axis (not an NLP parameter) adds nothing."""
+    d = rec["data"]
+    lay = _problem(spec.scenario, spec.solver).layout
+    dp = np.zeros(lay.np_)
+    for k in ("slope", "cross_slope", "speed"):
+        if k in op_to and k in op_from:
+            dp[lay.index(k)] = float(op_to[k]) - float(op_from[k])
+    return (np.asarray(d["x"]) + np.asarray(d["dx_dp"]) @ dp) / lay.variable_scale
+
+
+def polish_point(spec: TableSpec, flat: int, f_now: float,
+                 starts: Sequence[tuple[int, NDArray[np.float64]]]) -> dict[str, Any] | None:
+    """Re-solve a solved grid point from each neighbour's predicted start (``(flat, x0)``, fixed
+    order; :func:`predicted_start`) and return the record of the lowest objective found if it
+    beats ``f_now`` by more than 1e-6 relative (and passes the optimizer's independent check),
+    else None. The NLP (7.25) has several local optima (e.g. a wheel at the motor limit, or
+    mirrored steering), and chains solved independently can settle on different ones; taking
+    the neighbours' better optimum makes adjacent grid points lie on the same branch, which is
+    what interpolation between them needs."""
+    from . import primitives as P
+
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    pb = _problem(sc, spec.solver)
+    b = pb.bounds(sc)
+    best, its = None, 0
+    for nb, x0 in starts:
+        r = pb.solve(b, x0)
+        its += int(r["iterations"])
+        if not r["success"] or not (r["f"] < f_now - 1e-6 * max(abs(f_now), 1e-3)):
+            continue
+        if (best is None or r["f"] < best[1]["f"]) and P.check_solution(pb, sc, r["x"])[1]:
+            best = (nb, r)
+    if best is None:
+        return None
+    nb, r = best
+    x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
+    return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "polished_from": nb,
+            "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
+
+
 def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
     idx = np.unravel_index(flat, shape)
     out = []
@@ -973,6 +1023,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
+        polished = _polish(spec, recs, ck, ex, bar)
         refinement = None
         if spec.refine is not None:
             from .table_refine import refine_grid
@@ -996,9 +1047,49 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "trust_radius": header["trust_radius"],
+               "retried": len(retried), "polished": polished, "trust_radius": header["trust_radius"],
                "refinement": header.get("refinement")}
     return path, summary
+
+
+def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
+            bar: Any) -> int:
+    """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
+    uses the previous sweep's results only, so the outcome does not depend on the order in which
+    workers finish; a later sweep visits only points next to one that changed). Returns the
+    number of points replaced."""
+    shape = spec.grid.shape
+    changed = set(recs)
+    total = 0
+    for sweep in range(spec.build.polish_sweeps):
+        tasks, got = [], {}
+        for f in sorted(recs):
+            if recs[f]["status"] != "optimal" or not any(nb in changed for nb in _neighbours(shape, f) + [f]):
+                continue
+            c = ck.load(f"polish{sweep}", f)
+            if c is not None:
+                got[f] = c[0] if c[0]["status"] != "none" else None
+                continue
+            op = spec.grid.point(f)
+            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
+                      if recs[nb]["status"] == "optimal"]
+            if starts:
+                tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts), f))
+        if tasks:
+            bar.set_description(f"{spec.name} (neighbour pass {sweep + 1}: {len(tasks)} points)")
+
+        def done(f: int, rec: dict[str, Any] | None, sweep: int = sweep) -> None:
+            ck.save(f"polish{sweep}", f, [rec if rec is not None else {"flat": f, "status": "none"}])
+            got[f] = rec
+
+        _run(tasks, ex, done)
+        changed = {f for f, r in got.items() if r is not None}
+        for f in sorted(changed):
+            recs[f] = got[f]
+        total += len(changed)
+        if not changed:
+            break
+    return total
 
 
 def _library_version() -> str:
@@ -1024,6 +1115,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
     arrays["status"] = np.full(G, STATUS_NAMES.index("not_attempted"), dtype=np.int8)
     arrays["iterations"] = np.zeros(G, dtype=np.int32)
     arrays["retried_from"] = np.full(G, -1, dtype=np.int64)
+    arrays["polished_from"] = np.full(G, -1, dtype=np.int64)
     evidence: dict[str, Any] = {}
     for f in range(spec.grid.size):
         r = recs.get(f)
@@ -1034,6 +1126,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         arrays["status"][idx] = STATUS_NAMES.index(status)
         arrays["iterations"][idx] = r.get("iterations", 0)
         arrays["retried_from"][idx] = r.get("retried_from", -1)
+        arrays["polished_from"][idx] = r.get("polished_from", -1)
         if status == "optimal":
             for k in (*shapes, "active_x", "active_g"):
                 arrays[k][idx] = r["data"][k]

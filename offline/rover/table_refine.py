@@ -4,7 +4,8 @@ After a table's grid is solved (:func:`offline.rover.table_builder.build_table`)
 cell ``[v_i, v_i+1]`` is checked at its midpoint: with the other axes at grid values (a
 deterministic, evenly spaced sample of at most ``samples`` combinations whose two cell
 corners both have a primitive), the NLP is solved at the midpoint (warm-started from the
-lower corner) and compared with the linear interpolation of the corners, error = the largest
+lower corner's primitive moved by its sensitivity,
+:func:`~offline.rover.table_builder.predicted_start`) and compared with the linear interpolation of the corners, error = the largest
 ``|x_interp - x_direct| / scale`` over the decision variables (the interpolation check of
 ``offnominal tables verify``, made per axis cell). A midpoint without a primitive between two
 feasible corners counts as an infinite error (interpolation would bridge a hole).
@@ -12,7 +13,8 @@ feasible corners counts as an infinite error (interpolation would bridge a hole)
 Cells whose error exceeds ``tol`` get their midpoint inserted into the axis, largest error
 first, while the grid (still a tensor product, so :meth:`rtctl.table.Table.at` stays
 multilinear) keeps at most ``max_points`` points. The new grid points are solved like the
-first ones (warm-started from the old grid point below them, the table's per-point data,
+first ones (warm-started from the old grid point below them, moved by its sensitivity; the
+table's per-point data,
 retries from solved neighbours for unsolved ones), and the new half-cells are checked in the
 next round, up to ``rounds`` rounds. Every midpoint solve and new point is checkpointed in the
 build's checkpoint folder under a name derived from its operating point, so an interrupted
@@ -33,7 +35,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .table_builder import (MAX_RETRY_NEIGHBOURS, BuildError, GridSpec, TableSpec, _neighbours, _problem, _run,
-                            _solve_point, retry_point)
+                            _solve_point, predicted_start, retry_point)
 
 __all__ = ["RefineOptions", "refine_grid", "cell_errors"]
 
@@ -189,7 +191,8 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
                 for k_lo, _, k_mid in _cell_combos(spec, axes, store, a, lo, hi):
                     if k_mid not in seen:
                         seen.add(k_mid)
-                        jobs.append((k_mid, _mid_task, (spec, dict(zip(names, k_mid)), store[k_lo]["x_scaled"])))
+                        x0 = predicted_start(spec, store[k_lo], dict(zip(names, k_lo)), dict(zip(names, k_mid)))
+                        jobs.append((k_mid, _mid_task, (spec, dict(zip(names, k_mid)), x0)))
         mids = _cached_run(ck, ex, "mid", jobs, progress, f"{spec.name} refine {rnd + 1}: midpoints")
         errs = cell_errors(spec, axes, store, cells, mids)
         for e in errs:
@@ -217,7 +220,8 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
             if op_t in store:
                 continue
             base = tuple(v if v in old_axes[a] else max(w for w in old_axes[a] if w < v) for a, v in zip(names, op_t))
-            x0 = store[base]["x_scaled"] if store[base]["status"] == "optimal" else None
+            x0 = (predicted_start(spec, store[base], dict(zip(names, base)), dict(zip(names, op_t)))
+                  if store[base]["status"] == "optimal" else None)
             jobs.append((op_t, _point_task, (spec, dict(zip(names, op_t)), x0)))
         new = _cached_run(ck, ex, "pt", jobs, progress, f"{spec.name} refine {rnd + 1}: {len(jobs)} new points")
         store.update(new)

@@ -23,10 +23,16 @@ fixed), solved from flat ground upward, each point warm-started from the last so
 its chain (the first from the optimizer's automatic start). Chains are independent tasks for a
 local process pool or a Dask cluster. Points left unsolved (``not_found``/``solver_failure``)
 are then retried from each solved grid neighbour in a fixed order; still unsolved, they are
-``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Every
-finished chain and retry is checkpointed in ``<out>/.<name>.partial/``, so an interrupted
-build continues where it stopped. Finally the linearisation is checked against re-solves at
-a few points to size the trust radius stored in the table.
+``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Then a
+neighbour pass (:func:`polish_point`, ``build.polish_sweeps`` sweeps) re-solves every solved
+point from its neighbours' predicted starts ``x + dx/dp dp`` and keeps a strictly lower
+objective: (7.25) has several local optima (a wheel at the motor limit, mirrored steering),
+and independent chains can settle on different ones, which interpolation cannot bridge.
+Optionally the grid is refined (:mod:`offline.rover.table_refine`). Every finished chain,
+retry, pass and refinement solve is checkpointed in ``<out>/.<name>.partial/`` under a key of
+the spec and of the library code (:func:`code_hash`), so an interrupted build continues where
+it stopped and checkpoints made by other code are discarded. Each point's trust radius comes
+from NLP re-solves (:func:`point_trust_radius`).
 """
 
 from __future__ import annotations
@@ -707,27 +713,47 @@ def predicted_start(spec: TableSpec, rec: Mapping[str, Any], op_from: Mapping[st
     return (np.asarray(d["x"]) + np.asarray(d["dx_dp"]) @ dp) / lay.variable_scale
 
 
-def polish_point(spec: TableSpec, flat: int, f_now: float,
-                 starts: Sequence[tuple[int, NDArray[np.float64]]]) -> dict[str, Any] | None:
+def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tuple[int, NDArray[np.float64]]],
+                 x_now: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
     """Re-solve a solved grid point from each neighbour's predicted start (``(flat, x0)``, fixed
-    order; :func:`predicted_start`) and return the record of the lowest objective found if it
-    beats ``f_now`` by more than 1e-6 relative (and passes the optimizer's independent check),
-    else None. The NLP (7.25) has several local optima (e.g. a wheel at the motor limit, or
-    mirrored steering), and chains solved independently can settle on different ones; taking
-    the neighbours' better optimum makes adjacent grid points lie on the same branch, which is
-    what interpolation between them needs."""
+    order; :func:`predicted_start`) and return the record of the best optimum found if it beats
+    the current one (``f_now``, scaled ``x_now``), else None.
+
+    Better = lower objective by more than 1e-6 relative; at an equal objective (within that),
+    a different point (by 1e-3 scaled) whose steering sum ``sum(beta)`` (scaled) is lower by
+    1e-3: mirrored optima have equal objectives (measured: beta FR -0.494 / +0.494 rad at 20 deg
+    slope), and this fixed preference puts every grid point on the same one. Candidates must
+    pass the optimizer's independent check. The NLP (7.25) has several local optima (a wheel at
+    the motor limit, mirrored steering), and chains solved independently can settle on
+    different ones; taking the neighbours' better optimum makes adjacent grid points lie on the
+    same branch, which is what interpolation between them needs. The order is strict, so sweeps
+    cannot cycle."""
     from . import primitives as P
 
     sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
     pb = _problem(sc, spec.solver)
+    lay = pb.layout
+    ib = [lay.var("beta", w) for w in lay.wheels]
     b = pb.bounds(sc)
+    tol_f = 1e-6 * max(abs(f_now), 1e-3)
+
+    def key(f: float, x: NDArray[np.float64]) -> tuple[float, float]:
+        return (f, float(np.sum(np.asarray(x)[ib])))
+
+    def better(f: float, x: NDArray[np.float64], f0: float, x0: NDArray[np.float64] | None) -> bool:
+        if f < f0 - tol_f:
+            return True
+        if x0 is None or f > f0 + tol_f or float(np.max(np.abs(np.asarray(x) - x0))) <= 1e-3:
+            return False
+        return key(f, x)[1] < key(f0, x0)[1] - 1e-3
+
     best, its = None, 0
     for nb, x0 in starts:
         r = pb.solve(b, x0)
         its += int(r["iterations"])
-        if not r["success"] or not (r["f"] < f_now - 1e-6 * max(abs(f_now), 1e-3)):
+        if not r["success"] or not better(r["f"], r["x"], f_now, x_now):
             continue
-        if (best is None or r["f"] < best[1]["f"]) and P.check_solution(pb, sc, r["x"])[1]:
+        if (best is None or better(r["f"], r["x"], best[1]["f"], best[1]["x"])) and P.check_solution(pb, sc, r["x"])[1]:
             best = (nb, r)
     if best is None:
         return None
@@ -949,8 +975,12 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
                  on_done: Callable[[Path, dict[str, Any]], None] | None = None) -> list[tuple[Path, dict[str, Any]]]:
     """Build several tables with one pool of workers (each worker builds an NLP once and keeps it
     for every table that shares it); see :func:`build_table`."""
-    for spec in specs:  # every output checked before any work
-        check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+    for spec in specs:  # every output and partial build checked before any work
+        out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+        kf = out / f".{spec.name}.partial" / "spec.sha256"
+        if kf.is_file() and kf.read_text().strip() != spec.key():
+            raise BuildError(f"{kf.parent}: a partial build of a different spec (grid, scenario or options changed); "
+                             "delete this folder to start afresh, or rerun with the original options")
     ex, client = _executor(jobs, scheduler)
     out = []
     try:
@@ -1074,7 +1104,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
             starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
                       if recs[nb]["status"] == "optimal"]
             if starts:
-                tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts), f))
+                tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
         if tasks:
             bar.set_description(f"{spec.name} (neighbour pass {sweep + 1}: {len(tasks)} points)")
 

@@ -262,12 +262,13 @@ def test_predicted_start_is_exact_in_speed_and_the_neighbour_pass_takes_only_bet
     assert rec is not None and rec["polished_from"] == 0
     assert float(rec["data"]["objective"]) == pytest.approx(f1, rel=1e-8)
     assert not np.any(t.arrays["polished_from"] >= 0)  # the fixture's chains were already on one branch
-    # equal objective: the fixed preference (lower steering sum) decides, in one direction only
+    # equal objective: the fixed preference (lexicographically lower steering) decides, one way only
     ib = [t.layout.var("beta", w) for w in t.layout.wheels]
     x_true = t.arrays["x"][i1] / xsc
     higher, lower = x_true.copy(), x_true.copy()
-    higher[ib] += 0.5
-    lower[ib] -= 0.5
+    higher[ib[0]] += 0.5
+    higher[ib[1]] -= 0.5  # same sum, first angle higher: the true point is preferred
+    lower[ib[0]] -= 0.5
     rec = polish_point(spec, 1, f1, [(0, x0)], x_now=higher)
     assert rec is not None and np.allclose(rec["x_scaled"], x_true, atol=1e-6)
     assert polish_point(spec, 1, f1, [(0, x0)], x_now=lower) is None

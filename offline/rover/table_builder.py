@@ -720,9 +720,11 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
     the current one (``f_now``, scaled ``x_now``), else None.
 
     Better = lower objective by more than 1e-6 relative; at an equal objective (within that),
-    a different point (by 1e-3 scaled) whose steering sum ``sum(beta)`` (scaled) is lower by
-    1e-3: mirrored optima have equal objectives (measured: beta FR -0.494 / +0.494 rad at 20 deg
-    slope), and this fixed preference puts every grid point on the same one. Candidates must
+    a different point whose steering angles (scaled, in layout order FR, FL, RR, RL) are
+    lexicographically lower (the first one differing by more than 1e-3 is lower): mirrored
+    optima have equal objectives (measured: beta FR, FL = -0.494, +0.494 rad and +0.494, -0.494
+    rad at 20 deg slope, 0 cross-slope), and this fixed preference puts every grid point on the
+    same one. Candidates must
     pass the optimizer's independent check. The NLP (7.25) has several local optima (a wheel at
     the motor limit, mirrored steering), and chains solved independently can settle on
     different ones; taking the neighbours' better optimum makes adjacent grid points lie on the
@@ -737,15 +739,14 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
     b = pb.bounds(sc)
     tol_f = 1e-6 * max(abs(f_now), 1e-3)
 
-    def key(f: float, x: NDArray[np.float64]) -> tuple[float, float]:
-        return (f, float(np.sum(np.asarray(x)[ib])))
-
     def better(f: float, x: NDArray[np.float64], f0: float, x0: NDArray[np.float64] | None) -> bool:
         if f < f0 - tol_f:
             return True
-        if x0 is None or f > f0 + tol_f or float(np.max(np.abs(np.asarray(x) - x0))) <= 1e-3:
+        if x0 is None or f > f0 + tol_f:
             return False
-        return key(f, x)[1] < key(f0, x0)[1] - 1e-3
+        d = np.asarray(x)[ib] - np.asarray(x0)[ib]
+        k = np.flatnonzero(np.abs(d) > 1e-3)
+        return bool(k.size) and d[k[0]] < 0
 
     best, its = None, 0
     for nb, x0 in starts:

@@ -272,3 +272,30 @@ def test_predicted_start_is_exact_in_speed_and_the_neighbour_pass_takes_only_bet
     rec = polish_point(spec, 1, f1, [(0, x0)], x_now=higher)
     assert rec is not None and np.allclose(rec["x_scaled"], x_true, atol=1e-6)
     assert polish_point(spec, 1, f1, [(0, x0)], x_now=lower) is None
+
+
+def test_upgrade_of_a_schema_1_file_computes_the_same_cross_derivative(nominal, tmp_path):
+    """A schema-1 copy of the fixture table (its two new fields removed) upgraded without any
+    solve: hess_lag_xp equals the one the build computed; radii kept; refused twice."""
+    from offline.rover.table_builder import upgrade_table
+    from rtctl import table as T
+
+    _, path, _ = nominal
+    header, arrays = T._read(path)
+    ref = arrays.pop("hess_lag_xp")
+    arrays.pop("trust_unverified")
+    header = {k: v for k, v in header.items() if k != "content_hash"}
+    header["schema_version"] = 1
+    old = tmp_path / "v1" / path.name
+    old.parent.mkdir()
+    old.write_bytes(T.table_bytes(header, arrays))
+    with pytest.raises(TableError, match="schema 1, expected 2: rebuild with `offnominal tables build nominal.toml"):
+        load_table(old)
+    up = upgrade_table(old, tmp_path / "v2")
+    t = load_table(up)
+    assert t.header["upgraded_from_schema"] == 1
+    np.testing.assert_allclose(t.arrays["hess_lag_xp"], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_array_equal(t.arrays["trust_radius"], arrays["trust_radius"])  # all > 0 here: kept
+    assert not t.arrays["trust_unverified"].any()
+    with pytest.raises(TableError, match="not a schema-1 table"):
+        upgrade_table(up, tmp_path / "v3")

@@ -201,8 +201,26 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 0 if rep.passed else 1
 
 
+def cmd_upgrade(args: argparse.Namespace) -> int:
+    from rtctl.table import TableError
+
+    from ..files import OutputError
+    from ..rover.table_builder import BuildError, upgrade_table, write_index
+
+    done = []
+    try:
+        for f in args.files:
+            done.append(upgrade_table(f, args.out))
+            print(f"{done[-1]}: schema 2 (hess_lag_xp computed at every feasible point; schema-1 trust radius kept)")
+    except (TableError, BuildError, OutputError) as exc:
+        return fail(str(exc))
+    if not args.no_index:
+        print(f"index: {write_index(args.out, done)}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``tables build|info|verify``."""
+    """Add ``tables build|upgrade|info|verify``."""
     p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
                        description="Lookup tables: driving primitives and the QP's data over slope, cross-slope, "
                                    "speed and the failure's parameter.")
@@ -231,6 +249,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_build)
+
+    u = ts.add_parser("upgrade", help="upgrade schema-1 table files to schema 2 without re-solving",
+                      description="Adds hess_lag_xp (exact, from the stored primitive and multipliers) and "
+                                  "trust_unverified; keeps the schema-1 trust radius (0 -> the fallback, flagged). "
+                                  "A fresh 'tables build' gives the schema-2 trust radius and neighbour pass.")
+    u.add_argument("files", nargs="+", help="schema-1 .npz tables")
+    u.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
+    u.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    u.set_defaults(func=cmd_upgrade)
 
     i = ts.add_parser("info", help="describe a table file (checks its hash)")
     i.add_argument("file")

@@ -64,7 +64,7 @@ __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
-    "predicted_start", "polish_point",
+    "predicted_start", "polish_point", "upgrade_table",
     "CODE_SOURCES", "code_hash",
 ]
 
@@ -1236,6 +1236,68 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
     doc = {"schema": SCHEMA + " index", "schema_version": SCHEMA_VERSION, "tables": dict(sorted(entries.items()))}
     write_text(ip, json.dumps(doc, indent=1, sort_keys=True) + "\n")
     return ip
+
+
+def upgrade_table(src: str | Path, out_dir: str | Path) -> Path:
+    """Upgrade a schema-1 table file to schema 2 without re-solving (``offnominal tables upgrade``).
+
+    ``hess_lag_xp`` is computed exactly at every optimal point from the stored primitive and
+    IPOPT's multipliers (the AD graph of the same NLP; no new solve). The trust radius keeps the
+    schema-1 rule (one warm re-solve per parameter at half its scale, the growth-law estimate):
+    a radius the old build left at 0 (its re-solve failed) becomes the schema-2 fallback, the
+    smallest step of the search ladder, with ``trust_unverified = 1``. The header records
+    ``upgraded_from_schema = 1`` and the old rule. A fresh build (``offnominal tables build``)
+    gives the schema-2 trust radius and neighbour pass; use this where a rebuild is too costly.
+
+    Raises
+    ------
+    TableError
+        ``src`` is not a readable schema-1 table, or its content hash does not match.
+    """
+    from rtctl import table as T
+
+    p = Path(src)
+    header, arrays = T._read(p)
+    if header.get("schema") != SCHEMA or header.get("schema_version") != 1:
+        raise TableError(f"{p}: not a schema-1 table (schema {header.get('schema_version')!r}); nothing to upgrade")
+    if header.get("content_hash") != content_hash(header, arrays):
+        raise TableError(f"{p}: content hash mismatch: the file is corrupted; rebuild it")
+    out = check_output_dir(out_dir, inputs=[p], names=[p.name])
+    sc = scenario_from_header(header)
+    solver = decode(header["solver_options"]) if "solver_options" in header else None
+    pb = _problem(sc, solver)
+    lay: NlpLayout = pb.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    d = _derivatives(pb)
+    build = decode(header["build_options"]) if "build_options" in header else BuildOptions()
+    G = arrays["status"].shape
+    hxp = np.full(G + (lay.nx, lay.np_), np.nan)
+    unv = np.full(G + (lay.np_,), np.nan)
+    tr = np.array(arrays["trust_radius"], dtype=float)
+    floor = np.array([min(getattr(build, "trust_search", BuildOptions().trust_search)) * b.scale for b in lay.parameters])
+    lin = [lay.index(n) for n in _LIN_PARAMS]
+    for idx in np.ndindex(*G):
+        if arrays["status"][idx] != 0:
+            continue
+        x_s = arrays["x"][idx] / xsc
+        lam_g_s = arrays["lam_g"][idx] * csc
+        hxp[idx] = d(x_s, arrays["p"][idx], lam_g_s)[6] / xsc[:, None]
+        unv[idx] = 0.0
+        for j in lin:
+            if not tr[idx + (j,)] > 0.0:
+                tr[idx + (j,)], unv[idx + (j,)] = floor[j], 1.0
+    arrays = dict(arrays, hess_lag_xp=hxp, trust_unverified=unv, trust_radius=tr)
+    feas = arrays["status"] == 0
+    head = {k: v for k, v in header.items() if k != "content_hash"}
+    head.update(schema_version=SCHEMA_VERSION, upgraded_from_schema=1,
+                trust_radius_rule="schema-1 rule kept by 'offnominal tables upgrade': " + str(header.get("trust_radius_rule", ""))
+                + "; a radius of 0 (failed re-solve) replaced by the smallest step of the schema-2 ladder, trust_unverified = 1",
+                trust_unverified_points={n: int(np.sum(unv[feas][:, lay.index(n)] > 0)) for n in _LIN_PARAMS} if feas.any() else {})
+    if feas.any():
+        head["trust_radius"] = {n: float(np.min(tr[feas][:, lay.index(n)])) for n in _LIN_PARAMS}
+    path = out / p.name
+    write_bytes(path, table_bytes(head, arrays))
+    return path
 
 
 def scenario_from_header(header: Mapping[str, Any]) -> Any:

@@ -14,7 +14,10 @@ model row. With the table's data at the operating point (all physical, contract 
 
 where ``H_bar = S_x hess_lag S_x / c_f`` (the Hessian of the Lagrangian of (7.24)-(7.25),
 normalised by ``c_f``, plus ``regularization * I``; an indefinite one is first convexified by
-an eigenvalue floor), ``g_bar = S_x grad_f / c_f``,
+an eigenvalue floor), ``g_bar = S_x (grad_f + hess_lag_xp \\Delta p) / c_f`` (the cross
+derivative ``d^2 L / dx dp`` makes the step an exact SQP step in the parameters as well: its
+first-order response to a parameter change is the table's ``dx*/dp``; a table point without
+``hess_lag_xp`` gives zero there, the step is then exact only in the additive parameters),
 ``Delta p`` the change of the parameters (speed, slope, cross slope, and the offsets of
 (7.26)-(7.27)) from the table's point, and ``s_g`` the layout's row scales. The model rows are
 soft with an exact L1 penalty (``rho_1`` larger than any multiplier of the normalised problem),
@@ -71,6 +74,7 @@ class TablePointLike(Protocol):
     lbg: NDArray[np.float64]
     ubg: NDArray[np.float64]
     dx_dp: NDArray[np.float64]
+    # optional: hess_lag_xp (nx, np), d^2 L / dx dp; read with getattr (absent: zeros)
 
 
 @dataclass(frozen=True)
@@ -223,6 +227,12 @@ class QpAllocator:
             if name not in ("lbx", "ubx", "lbg", "ubg") and not math.isfinite(float(a.sum())):
                 raise AllocatorError(f"table point field {name!r} is not finite")
             f[name] = a
+        hxp = getattr(tp, "hess_lag_xp", None)
+        hxp = np.zeros((nx, npar)) if hxp is None else np.asarray(hxp, dtype=float)
+        if hxp.shape != (nx, npar):
+            raise AllocatorError(f"table point field 'hess_lag_xp' has shape {hxp.shape}, expected {(nx, npar)} for this layout")
+        if not math.isfinite(float(hxp.sum())):
+            raise AllocatorError("table point field 'hess_lag_xp' is not finite")
         s = self.settings
         sx, sg = self.sx, self.sg
         H = self._sxx * f["hess_lag"]
@@ -243,6 +253,7 @@ class QpAllocator:
         self._H = 0.5 * (H + H.T)
         self._g = g
         self._cf = cf
+        self._Hxp = sx[:, None] * hxp / cf  # normalised, scaled x, physical p
         self._J = f["jac_g_x"] * self._sx_over_sg
         self._Jp = f["jac_g_p"] / sg[:, None]
         self._g0 = f["g"] / sg
@@ -331,6 +342,7 @@ class QpAllocator:
         if not (math.isfinite(float(dp.sum())) and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
             return self._refused("bad QP data (non-finite parameters or empty box)")
         q = self._q_base.copy()
+        q[:self.nx] += self._Hxp @ dp  # d^2 L / dx dp: the gradient's move with the parameters
         if x_ref is not None:
             zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - self._x0) / sx)
             q[:self.nx] -= 2.0 * self._w * zr

@@ -59,13 +59,14 @@ from .layout import WHEELS, LayoutError, NlpLayout
 
 __all__ = [
     "SCHEMA", "SCHEMA_VERSION", "BIG", "STATUS_NAMES", "CONTROLLER_NAMES", "POINT_FIELDS", "TableError", "TablePoint",
-    "Table", "TableInfo", "load_table", "load_index", "content_hash", "table_bytes", "field_shapes",
+    "Table", "TableInfo", "load_table", "load_index", "content_hash", "table_bytes", "field_shapes", "rebuild_command",
 ]
 
 SCHEMA = "offnominal-rover lookup table"
 """Value of the header's ``schema`` entry."""
-SCHEMA_VERSION = 1
-"""Version of the file layout this module reads and writes."""
+SCHEMA_VERSION = 2
+"""Version of the file layout this module reads and writes (2: ``hess_lag_xp`` and
+``trust_unverified`` added; a version-1 file is refused with the command that rebuilds it)."""
 STATUS_NAMES: tuple[str, ...] = ("optimal", "infeasible", "not_found", "solver_failure", "not_attempted")
 """Per-point ``status`` codes (index = code). Only ``optimal`` points carry a primitive."""
 CONTROLLER_NAMES: tuple[str, ...] = ("Mz+", "Mz-", "Fy+", "Fy-")
@@ -75,8 +76,8 @@ primitive, per unit offset."""
 
 POINT_FIELDS: tuple[str, ...] = (
     "x", "p", "g", "lbx", "ubx", "lbg", "ubg", "lam_x", "lam_g", "jac_g_x", "jac_g_p", "grad_f", "hess_lag",
-    "dx_dp", "wrench", "wrench_jac", "slip", "slip_angle", "torque", "power", "controllers", "objective",
-    "trust_radius",
+    "hess_lag_xp", "dx_dp", "wrench", "wrench_jac", "slip", "slip_angle", "torque", "power", "controllers", "objective",
+    "trust_radius", "trust_unverified",
 )
 """Float fields stored per grid point (interpolated by :meth:`Table.at`)."""
 
@@ -100,9 +101,9 @@ def field_shapes(nx: int, np_: int, ng: int, n_wheels: int = len(WHEELS)) -> dic
     return {
         "x": (nx,), "p": (np_,), "g": (ng,), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,),
         "lam_x": (nx,), "lam_g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, np_), "grad_f": (nx,),
-        "hess_lag": (nx, nx), "dx_dp": (nx, np_), "wrench": (nw, 6), "wrench_jac": (nw, 6, 5), "slip": (nw,),
+        "hess_lag": (nx, nx), "hess_lag_xp": (nx, np_), "dx_dp": (nx, np_), "wrench": (nw, 6), "wrench_jac": (nw, 6, 5), "slip": (nw,),
         "slip_angle": (nw,), "torque": (nw,), "power": (nw,), "controllers": (len(CONTROLLER_NAMES), nw, 2),
-        "objective": (), "trust_radius": (np_,),
+        "objective": (), "trust_radius": (np_,), "trust_unverified": (np_,),
     }
 
 
@@ -179,6 +180,8 @@ class TablePoint:
     jac_g_x, jac_g_p     d g / d x (ng, nx) and d g / d p (ng, np)
     grad_f : (nx,)       gradient of the objective (7.24) as the NLP defines it (``meta["objective"]``)
     hess_lag : (nx, nx)  Hessian of the Lagrangian ``f + lam_g' g`` with IPOPT's multipliers
+    hess_lag_xp : (nx, np)  its cross derivative d^2 L / dx dp (the QP's linear term moves with
+                         ``hess_lag_xp @ dp``, which makes the step exact in the parameters too)
     lam_x, lam_g         IPOPT's multipliers for physical bounds/constraints
     lbx, ubx, lbg, ubg   bounds of the scenario at this point (+-BIG = 1e30 where unbounded)
     active : dict        bool masks ``x_lower``, ``x_upper``, ``g_lower``, ``g_upper`` (nearest corner)
@@ -188,6 +191,8 @@ class TablePoint:
     slip, slip_angle, torque, power : (4,)
     controllers : dict   ``{"Mz+": (4, 2), ...}``: per wheel (d rim speed [m/s], d steer [rad]) per N m / N
     trust_radius : (np,) step in each parameter over which the first-order prediction held (interpolated)
+    trust_verified : (np,) bool: every contributing corner's radius was measured by NLP re-solves
+                         (False: at least one corner holds the documented fallback, see the builder)
     feasible : bool      every corner that contributes is an optimal primitive (no fallback used)
     extrapolated : bool  corners without a primitive were dropped and the weights renormalised
     clamped : bool       the operating point was moved into the axes' range or to the nearest
@@ -221,6 +226,7 @@ class TablePoint:
     jac_g_p = property(lambda self: self._f("jac_g_p"), doc="d g / d p (ng, np).")
     grad_f = property(lambda self: self._f("grad_f"), doc="Objective gradient (nx,).")
     hess_lag = property(lambda self: self._f("hess_lag"), doc="Lagrangian Hessian (nx, nx).")
+    hess_lag_xp = property(lambda self: self._f("hess_lag_xp"), doc="Cross derivative d^2 L / dx dp (nx, np).")
     dx_dp = property(lambda self: self._f("dx_dp"), doc="Sensitivity d x* / d p (nx, np).")
     wrench = property(lambda self: self._f("wrench"), doc="Per-wheel wrench (4, 6).")
     wrench_jac = property(lambda self: self._f("wrench_jac"), doc="d wrench / d (vx, vy, omega, h, h0) (4, 6, 5).")
@@ -244,7 +250,17 @@ class TablePoint:
 
     trust_radius = property(lambda self: self._f("trust_radius"),
                             doc="Per-parameter step (SI) over which the first-order prediction x + dx_dp dp was "
-                                "verified against NLP re-solves at the corners (0: the QP must not move it).")
+                                "verified against NLP re-solves at the corners (0: the QP must not move it; "
+                                "where no re-solve succeeded, the builder's fallback, see trust_verified).")
+
+    trust_unverified = property(lambda self: self._f("trust_unverified"),
+                                doc="Per parameter, interpolated 0/1 flag: 1 where a corner's radius is the fallback.")
+
+    @property
+    def trust_verified(self) -> NDArray[np.bool_]:
+        """Per parameter: the radius of every contributing corner was measured by re-solves
+        (False where some corner holds the fallback value; ``trust_unverified`` interpolates 0/1)."""
+        return self._f("trust_unverified") == 0.0
 
     def __repr__(self) -> str:
         op = ", ".join(f"{k}={v:.4g}" for k, v in self.operating_point.items())
@@ -450,6 +466,25 @@ def _expect_rover(table: Table, expect_rover: Mapping[str, Any] | str | None, pa
         raise TableError(f"{path}: this table was built for another rover ({pairs}); rebuild it for this rover")
 
 
+def rebuild_command(header: Mapping[str, Any]) -> str:
+    """The ``offnominal tables build`` command that rebuilds a table from its header (scenario
+    file name and grid in display units; ``SCENARIO.toml`` when the header does not name it)."""
+    src = header.get("sources", {}) if isinstance(header.get("sources"), dict) else {}
+    name = (src.get("scenario_file") or {}).get("name", "SCENARIO.toml") if isinstance(src.get("scenario_file"), dict) \
+        else "SCENARIO.toml"
+    parts = []
+    axes = header.get("axes") if isinstance(header.get("axes"), dict) else {}
+    for k in header.get("axis_order", []) if isinstance(header.get("axis_order"), list) else []:
+        a = axes.get(k, {}) if isinstance(axes.get(k), dict) else {}
+        try:
+            f = float(a.get("display_factor", 1.0))
+            parts.append(f"{k}=" + ",".join(f"{float(v) / f:.10g}" for v in a["values"]))
+        except (KeyError, TypeError, ValueError):
+            continue
+    grid = f' --grid "{";".join(parts)}"' if parts else ""
+    return f"offnominal tables build {name}{grid} --out DIR"
+
+
 def load_table(path: str | Path, expect_rover: Mapping[str, Any] | str | None = None,
                expect_hash: str | None = None) -> Table:
     """Load a table file, check its schema and content hash, and prepare it for :meth:`Table.at`.
@@ -466,7 +501,8 @@ def load_table(path: str | Path, expect_rover: Mapping[str, Any] | str | None = 
     Raises
     ------
     TableError
-        Missing or unreadable file, wrong schema or version, content hash mismatch (corrupted
+        Missing or unreadable file, wrong schema or version (the message gives the rebuild
+        command, :func:`rebuild_command`), content hash mismatch (corrupted
         or edited file), inconsistent shapes, or a table for another rover.
     """
     p = Path(path)
@@ -474,8 +510,8 @@ def load_table(path: str | Path, expect_rover: Mapping[str, Any] | str | None = 
     if header.get("schema") != SCHEMA:
         raise TableError(f"{p}: schema {header.get('schema')!r}, expected {SCHEMA!r}: not an offnominal table")
     if header.get("schema_version") != SCHEMA_VERSION:
-        raise TableError(f"{p}: table schema version {header.get('schema_version')!r}, this reader understands "
-                         f"{SCHEMA_VERSION}: rebuild the table with this library version")
+        raise TableError(f"{p}: table schema {header.get('schema_version')!r}, expected {SCHEMA_VERSION}: rebuild with "
+                         f"`{rebuild_command(header)}`")
     stored = header.get("content_hash")
     actual = content_hash(header, arrays)
     if stored != actual:

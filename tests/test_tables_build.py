@@ -24,7 +24,7 @@ from rtctl.table import TableError, load_table
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = ROOT / "tables" / "scenarios" / "nominal.toml"
 STUCK = ROOT / "tables" / "scenarios" / "rr_steer_stuck.toml"
-FAST = BuildOptions(trust_steps=(0.0625, 0.125))
+FAST = BuildOptions(trust_steps=(0.0625, 0.125), trust_search=(0.0625, 0.25, 1.0))
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +109,28 @@ def test_partial_build_of_another_spec_is_refused(nominal, tmp_path):
         build_table(other, tmp_path, progress=False)
 
 
+def test_checkpoints_of_other_library_code_are_discarded(nominal, tmp_path, monkeypatch, capsys):
+    """The checkpoint key includes the hash of the library code that computes the numbers: the
+    same spec's partial build made by other code is discarded with a message, not reused."""
+    from offline.rover import table_builder as TB
+
+    spec, path, _ = nominal
+    part = tmp_path / f".{spec.name}.partial"
+    shutil.copytree(path.parent / part.name, part)
+    assert (part / "code.sha256").read_text().strip() == TB.code_hash()
+    TB._Checkpoint(part, spec.key())  # same code: kept
+    assert len(list(part.glob("chain_*.npz"))) == 2 and "discarded" not in capsys.readouterr().out
+    monkeypatch.setattr(TB, "code_hash", lambda: "f" * 64)
+    ck = TB._Checkpoint(part, spec.key())
+    assert "discarded the checkpoints of a partial build made by other library code" in capsys.readouterr().out
+    assert not list(part.glob("chain_*.npz")) and ck.load("chain", 0) is None
+    assert (part / "code.sha256").read_text().strip() == "f" * 64
+    # a folder without a code record (an older builder) is discarded too
+    (part / "code.sha256").unlink()
+    TB._Checkpoint(part, spec.key())
+    assert "none recorded" in capsys.readouterr().out
+
+
 def test_retry_from_a_neighbour_and_not_found_without_one(nominal):
     spec, path, _ = nominal
     t = load_table(path)
@@ -171,3 +193,109 @@ def test_cli_verify_reports_all_three_checks(nominal, capsys):
     out = capsys.readouterr().out
     for part in ("Jacobians vs central differences", "Linearisation", "Interpolation at cell midpoints", "PASSED"):
         assert part in out
+
+
+def test_refinement_inserts_the_midpoint_of_a_poor_cell_within_the_point_budget(tmp_path):
+    """slope 0 and 10 deg: the 5 deg midpoint is off by more than the tolerance (measured 0.20
+    variable scales), so it is inserted; the budget of 3 points stops a second insertion;
+    the inserted point is the NLP's solution there; a resumed refinement gives the same bytes."""
+    from offline.rover.primitives import solve_primitive
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=3", build=FAST,
+                      refine=RefineOptions(tol=0.05, max_points=3))
+    path, summary = build_table(spec, tmp_path / "a", progress=False, keep_partial=True)
+    t = load_table(path)
+    np.testing.assert_allclose(t.axes["slope"], np.radians([0.0, 5.0, 10.0]))
+    ref = t.header["refinement"]
+    assert ref["inserted"] == {"slope": [pytest.approx(math.radians(5.0))]}
+    assert ref["base_axes"]["slope"] == [0.0, pytest.approx(math.radians(10.0))]
+    first = [c for c in ref["checks"] if c["round"] == 1]
+    assert len(first) == 1 and first[0]["error"] > 0.05
+    second = [c["error"] for c in ref["checks"] if c["round"] == 2]
+    assert len(second) == 2 and max(second) < first[0]["error"]  # the half-cells interpolate better
+    assert "point budget (3) reached" in ref["stopped"] and summary["grid_points"] == 3
+    # the inserted grid point holds the NLP's primitive at 5 deg
+    sc = scenario_at(spec.scenario, spec.family, {"slope": math.radians(5.0), "cross_slope": 0.0, "speed": 0.03})
+    r = solve_primitive(sc, spec.solver)
+    xsc = t.layout.variable_scale
+    assert r.status == "optimal" and t.status_at((1, 0, 0)) == "optimal"
+    np.testing.assert_allclose(t.arrays["x"][1, 0, 0] / xsc, r.x, atol=1e-6)
+    # resume after losing the new point's checkpoint: same bytes
+    part = path.parent / f".{spec.name}.partial"
+    (pt,) = part.glob("pt_*.npz")
+    pt.unlink()
+    shutil.copytree(part, tmp_path / "b" / part.name)
+    p2, _ = build_table(spec, tmp_path / "b", progress=False)
+    assert p2.read_bytes() == path.read_bytes()
+
+
+def test_refinement_options_are_checked():
+    from offline.rover.table_refine import RefineOptions
+
+    with pytest.raises(BuildError, match="refine-tol"):
+        RefineOptions(tol=0.0, max_points=10)
+    with pytest.raises(BuildError, match="max_points"):
+        RefineOptions(tol=0.5, max_points=0)
+    assert main(["tables", "build", str(NOMINAL), "--refine-tol", "0.5", "--out", "/nonexistent/x"]) != 0
+
+
+def test_predicted_start_is_exact_in_speed_and_the_neighbour_pass_takes_only_better_optima(nominal):
+    """x + dx/dp dp from the 2 cm/s point lands on the 4 cm/s primitive (the soil model is
+    rate-independent: exact in speed), and the neighbour pass replaces a point only by a
+    strictly lower objective: told its objective were 1 higher, it returns the neighbour's
+    branch (the same primitive here), told the truth, nothing."""
+    from offline.rover.table_builder import polish_point, predicted_start
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc = t.layout.variable_scale
+    op0, op1 = spec.grid.point(0), spec.grid.point(1)  # slope 0: speed 2 and 4 cm/s
+    assert (op0["speed"], op1["speed"]) == (0.02, 0.04)
+    i0, i1 = np.unravel_index(0, t.shape), np.unravel_index(1, t.shape)
+    rec0 = {"data": {k: t.arrays[k][i0] for k in ("x", "dx_dp")}}
+    x0 = predicted_start(spec, rec0, op0, op1)
+    np.testing.assert_allclose(x0, t.arrays["x"][i1] / xsc, atol=1e-6)
+    f1 = float(t.arrays["objective"][i1])
+    assert polish_point(spec, 1, f1, [(0, x0)]) is None
+    rec = polish_point(spec, 1, f1 + 1.0, [(0, x0)])
+    assert rec is not None and rec["polished_from"] == 0
+    assert float(rec["data"]["objective"]) == pytest.approx(f1, rel=1e-8)
+    assert not np.any(t.arrays["polished_from"] >= 0)  # the fixture's chains were already on one branch
+    # equal objective: the fixed preference (lexicographically lower steering) decides, one way only
+    ib = [t.layout.var("beta", w) for w in t.layout.wheels]
+    x_true = t.arrays["x"][i1] / xsc
+    higher, lower = x_true.copy(), x_true.copy()
+    higher[ib[0]] += 0.5
+    higher[ib[1]] -= 0.5  # same sum, first angle higher: the true point is preferred
+    lower[ib[0]] -= 0.5
+    rec = polish_point(spec, 1, f1, [(0, x0)], x_now=higher)
+    assert rec is not None and np.allclose(rec["x_scaled"], x_true, atol=1e-6)
+    assert polish_point(spec, 1, f1, [(0, x0)], x_now=lower) is None
+
+
+def test_upgrade_of_a_schema_1_file_computes_the_same_cross_derivative(nominal, tmp_path):
+    """A schema-1 copy of the fixture table (its two new fields removed) upgraded without any
+    solve: hess_lag_xp equals the one the build computed; radii kept; refused twice."""
+    from offline.rover.table_builder import upgrade_table
+    from rtctl import table as T
+
+    _, path, _ = nominal
+    header, arrays = T._read(path)
+    ref = arrays.pop("hess_lag_xp")
+    arrays.pop("trust_unverified")
+    header = {k: v for k, v in header.items() if k != "content_hash"}
+    header["schema_version"] = 1
+    old = tmp_path / "v1" / path.name
+    old.parent.mkdir()
+    old.write_bytes(T.table_bytes(header, arrays))
+    with pytest.raises(TableError, match="schema 1, expected 2: rebuild with `offnominal tables build nominal.toml"):
+        load_table(old)
+    up = upgrade_table(old, tmp_path / "v2")
+    t = load_table(up)
+    assert t.header["upgraded_from_schema"] == 1
+    np.testing.assert_allclose(t.arrays["hess_lag_xp"], ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_array_equal(t.arrays["trust_radius"], arrays["trust_radius"])  # all > 0 here: kept
+    assert not t.arrays["trust_unverified"].any()
+    with pytest.raises(TableError, match="not a schema-1 table"):
+        upgrade_table(up, tmp_path / "v3")

@@ -65,7 +65,7 @@ def test_interpolation_reproduces_multilinear_fields_exactly(tmp_path):
         op = {k: rng.uniform(v[0], v[-1]) for k, v in axes.items()}
         tp = t.at(**op)
         assert tp.feasible and not tp.clamped and not tp.extrapolated
-        for k in ("x", "jac_g_x", "hess_lag", "dx_dp", "wrench_jac", "controllers"):
+        for k in ("x", "jac_g_x", "hess_lag", "hess_lag_xp", "dx_dp", "wrench_jac", "controllers"):
             got = getattr(tp, k) if k != "controllers" else np.stack(list(tp.controllers.values()))
             # the fields are multilinear in (slope, speed, steer): inside a cell they equal the
             # weighted sum of the corners, evaluated here independently of the table's code
@@ -175,8 +175,40 @@ def test_other_rover_and_schema_are_refused(tmp_path):
     arrays = {k: v for k, v in arrays.items()}
     q = tmp_path / "future.npz"
     q.write_bytes(table_bytes(header, arrays))
-    with pytest.raises(TableError, match="schema version"):
+    with pytest.raises(TableError, match=f"table schema {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}"):
         load_table(q)
+
+
+def test_schema_1_table_is_refused_with_the_rebuild_command(tmp_path):
+    """A version-1 file (no hess_lag_xp, no trust_unverified) is refused before its arrays are
+    read, and the message gives the exact build command from its header."""
+    _, axes, arrays, header = _table(tmp_path, name="v1")
+    header = dict(header, schema_version=1, sources={"scenario_file": {"name": "nominal.toml", "sha256": "0" * 64}})
+    header["axes"]["slope"]["display_factor"] = math.pi / 180
+    old = {k: v for k, v in arrays.items() if k not in ("hess_lag_xp", "trust_unverified")}
+    q = tmp_path / "v1.npz"
+    q.write_bytes(table_bytes(header, old))
+    with pytest.raises(TableError, match="schema 1, expected 2: rebuild with `offnominal tables build nominal.toml "
+                                         '--grid "slope=0,10,20;speed=0.02,0.03;steer_stuck=.*" --out DIR`'):
+        load_table(q)
+
+
+def test_trust_verified_flags_a_corner_with_the_fallback_radius(tmp_path):
+    p, axes, arrays, header = _table(tmp_path, name="tv")
+    arrays = dict(arrays)
+    tu = np.zeros_like(arrays["trust_unverified"])
+    tu[1, 0, 2, 1] = 1.0  # slope radius of one grid point is the fallback
+    arrays["trust_unverified"] = tu
+    q = tmp_path / "tv2.npz"
+    q.write_bytes(table_bytes({k: v for k, v in header.items() if k != "content_hash"}, arrays))
+    t = load_table(q)
+    s = t.layout.index("slope")
+    at = dict(slope=axes["slope"][1], speed=axes["speed"][0], steer_stuck=axes["steer_stuck"][2])
+    assert not t.at(**at).trust_verified[s] and t.at(**at).trust_verified[t.layout.index("speed")]
+    near = dict(at, slope=0.5 * (axes["slope"][1] + axes["slope"][2]))  # a cell with that corner
+    assert not t.at(**near).trust_verified[s]
+    far = dict(at, steer_stuck=axes["steer_stuck"][0])  # no contributing corner is flagged
+    assert t.at(**far).trust_verified.all()
 
 
 def test_index_round_trip_and_hash_check(tmp_path):

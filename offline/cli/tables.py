@@ -22,13 +22,20 @@ trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10;
 steer_stuck=-90:90:30; rim_speed_cap_fraction=0.25,0.5,0.75,1; trench_depth=20:35:5.
 
 Example: offnominal tables build my_failure.toml --grid "slope=0:20:5;speed=3" --jobs 2 --out tables/
-A folder may hold grids.toml with [grids] <file stem> = "<grid>" per table (used when --grid is not given).
-An interrupted build resumes from <out>/.<name>.partial/ when run again with the same options.
+A folder may hold grids.toml with [grids] <file stem> = "<grid>" per table (used when --grid is not given)
+and [refine] <file stem> = {tol = 0.5, max_points = 200} (grid refinement, as --refine-tol/--max-points).
+
+Refinement (--refine-tol X --max-points N): after the grid is solved, each axis cell is checked at
+its midpoint (other axes at up to --refine-samples grid values) against a direct solve; cells off
+by more than X variable scales get their midpoint inserted (largest first, the grid stays a tensor
+product of at most N points), the new points are solved, and the new half-cells checked again
+(--refine-rounds). The table header records every check and insertion.
+An interrupted build (or refinement) resumes from <out>/.<name>.partial/ when run again with the
+same options; checkpoints made by other library code are discarded with a note.
 """
 
 
-def _folder_grids(folder: Path) -> dict[str, str]:
-    """``[grids]`` of ``<folder>/grids.toml``: scenario file stem -> --grid text."""
+def _folder_toml(folder: Path) -> dict:
     import tomllib
 
     from ..rover.table_builder import BuildError
@@ -40,11 +47,38 @@ def _folder_grids(folder: Path) -> dict[str, str]:
         d = tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise BuildError(f"{p}: not valid TOML ({exc})") from None
-    g = d.get("grids", {})
+    if set(d) - {"grids", "refine"}:
+        raise BuildError(f"{p}: unknown table(s) {sorted(set(d) - {'grids', 'refine'})}; expected [grids] and [refine]")
+    return d
+
+
+def _folder_grids(folder: Path) -> dict[str, str]:
+    """``[grids]`` of ``<folder>/grids.toml``: scenario file stem -> --grid text."""
+    from ..rover.table_builder import BuildError
+
+    g = _folder_toml(folder).get("grids", {})
     bad = [k for k, v in g.items() if not isinstance(v, str) or not (folder / f"{k}.toml").is_file()]
-    if bad or set(d) - {"grids"}:
-        raise BuildError(f"{p}: [grids] maps a scenario file stem to a grid string; bad entries {bad or sorted(set(d) - {'grids'})}")
+    if bad:
+        raise BuildError(f"{folder / 'grids.toml'}: [grids] maps a scenario file stem to a grid string; bad entries {bad}")
     return dict(g)
+
+
+def _folder_refine(folder: Path) -> dict:
+    """``[refine]`` of ``<folder>/grids.toml``: scenario file stem -> RefineOptions
+    (``{tol = .., max_points = .., rounds = .., samples = ..}``)."""
+    from ..rover.table_builder import BuildError
+    from ..rover.table_refine import RefineOptions
+
+    out = {}
+    for k, v in _folder_toml(folder).get("refine", {}).items():
+        if not isinstance(v, dict) or not (folder / f"{k}.toml").is_file():
+            raise BuildError(f"{folder / 'grids.toml'}: [refine] {k!r}: expected an existing scenario stem = "
+                             "{tol = 0.5, max_points = 200}")
+        try:
+            out[k] = RefineOptions(**v)
+        except TypeError as exc:
+            raise BuildError(f"{folder / 'grids.toml'}: [refine] {k}: {exc}; keys are tol, max_points, rounds, samples") from None
+    return out
 
 
 def cmd_build(args: argparse.Namespace) -> int:
@@ -58,11 +92,18 @@ def cmd_build(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         return fail(f"--jobs {args.jobs}: must be >= 1")
     try:
+        from ..rover.table_refine import RefineOptions
+
         grids = _folder_grids(src) if src.is_dir() else {}
+        refines = _folder_refine(src) if src.is_dir() else {}
+        if (args.refine_tol is None) != (args.max_points is None):
+            raise BuildError("--refine-tol and --max-points go together (e.g. --refine-tol 0.5 --max-points 200)")
+        cli_refine = (RefineOptions(args.refine_tol, args.max_points, args.refine_rounds, args.refine_samples)
+                      if args.refine_tol is not None else None)
         specs = []
         for f in files:
             g = args.grid if (len(files) == 1 or args.grid_all) and args.grid else grids.get(f.stem)
-            specs.append(table_spec(f, g, args.family))
+            specs.append(table_spec(f, g, args.family, refine=cli_refine or refines.get(f.stem)))
     except BuildError as exc:
         return fail(str(exc))
     names = [s.name for s in specs]
@@ -77,6 +118,11 @@ def cmd_build(args: argparse.Namespace) -> int:
         st = ", ".join(f"{k} {v}" for k, v in summ["statuses"].items())
         print(f"{path}: {summ['grid_points']} points {summ['shape']}, {st}; feasible {summ['feasible_fraction']:.0%}; "
               f"{summ['bytes'] / 1e6:.2f} MB")
+        ref = summ.get("refinement")
+        if ref:
+            ins = "; ".join(f"{k} +{len(v)}" for k, v in ref["inserted"].items()) or "nothing inserted"
+            worst = max((c["error"] if c["error"] is not None else math.inf for c in ref["checks"]), default=0.0)
+            print(f"  refinement: {ins} ({ref['stopped']}; largest checked midpoint error {worst:.3g} scales)")
 
     try:
         build_tables(specs, args.out, jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
@@ -122,6 +168,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     if t.feasible.any():
         med = np.median(t.arrays["trust_radius"][t.feasible], axis=0)
         print("trust radius (SI), median: " + ", ".join(f"{k} {med[t.layout.index(k)]:.3g}" for k in tr))
+        unv = h.get("trust_unverified_points", {})
+        if any(unv.values()):
+            print("points whose trust radius is the unverified fallback (no re-solve succeeded): "
+                  + ", ".join(f"{k} {v}" for k, v in unv.items() if v))
+    ref = h.get("refinement")
+    if ref:
+        ins = "; ".join(f"{k}: " + ", ".join(f"{v / h['axes'][k]['display_factor']:.4g}" for v in vals)
+                        for k, vals in ref["inserted"].items()) or "nothing"
+        print(f"refinement (tol {ref['tolerance_per_scale']} scales, <= {ref['max_points']} points): inserted {ins}; "
+              f"{ref['stopped']}")
     ev = h.get("evidence", {})
     for flat in list(ev)[: args.evidence]:
         idx = tuple(int(i) for i in np.unravel_index(int(flat), t.shape))
@@ -145,8 +201,26 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 0 if rep.passed else 1
 
 
+def cmd_upgrade(args: argparse.Namespace) -> int:
+    from rtctl.table import TableError
+
+    from ..files import OutputError
+    from ..rover.table_builder import BuildError, upgrade_table, write_index
+
+    done = []
+    try:
+        for f in args.files:
+            done.append(upgrade_table(f, args.out))
+            print(f"{done[-1]}: schema 2 (hess_lag_xp computed at every feasible point; schema-1 trust radius kept)")
+    except (TableError, BuildError, OutputError) as exc:
+        return fail(str(exc))
+    if not args.no_index:
+        print(f"index: {write_index(args.out, done)}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``tables build|info|verify``."""
+    """Add ``tables build|upgrade|info|verify``."""
     p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
                        description="Lookup tables: driving primitives and the QP's data over slope, cross-slope, "
                                    "speed and the failure's parameter.")
@@ -164,10 +238,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
     b.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786): run there instead")
     b.add_argument("--out", required=True, help="output folder (tables and index.json)")
+    b.add_argument("--refine-tol", type=float, metavar="X",
+                   help="refine the grid: insert the midpoint of every axis cell whose midpoint error exceeds X "
+                        "variable scales (needs --max-points)")
+    b.add_argument("--max-points", type=int, metavar="N", help="grid-point budget of the refined table")
+    b.add_argument("--refine-rounds", type=int, default=2, help="refinement rounds (default 2)")
+    b.add_argument("--refine-samples", type=int, default=3,
+                   help="combinations of the other axes checked per cell (default 3)")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_build)
+
+    u = ts.add_parser("upgrade", help="upgrade schema-1 table files to schema 2 without re-solving",
+                      description="Adds hess_lag_xp (exact, from the stored primitive and multipliers) and "
+                                  "trust_unverified; keeps the schema-1 trust radius (0 -> the fallback, flagged). "
+                                  "A fresh 'tables build' gives the schema-2 trust radius and neighbour pass.")
+    u.add_argument("files", nargs="+", help="schema-1 .npz tables")
+    u.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
+    u.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    u.set_defaults(func=cmd_upgrade)
 
     i = ts.add_parser("info", help="describe a table file (checks its hash)")
     i.add_argument("file")

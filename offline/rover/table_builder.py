@@ -23,10 +23,16 @@ fixed), solved from flat ground upward, each point warm-started from the last so
 its chain (the first from the optimizer's automatic start). Chains are independent tasks for a
 local process pool or a Dask cluster. Points left unsolved (``not_found``/``solver_failure``)
 are then retried from each solved grid neighbour in a fixed order; still unsolved, they are
-``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Every
-finished chain and retry is checkpointed in ``<out>/.<name>.partial/``, so an interrupted
-build continues where it stopped. Finally the linearisation is checked against re-solves at
-a few points to size the trust radius stored in the table.
+``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Then a
+neighbour pass (:func:`polish_point`, ``build.polish_sweeps`` sweeps) re-solves every solved
+point from its neighbours' predicted starts ``x + dx/dp dp`` and keeps a strictly lower
+objective: (7.25) has several local optima (a wheel at the motor limit, mirrored steering),
+and independent chains can settle on different ones, which interpolation cannot bridge.
+Optionally the grid is refined (:mod:`offline.rover.table_refine`). Every finished chain,
+retry, pass and refinement solve is checkpointed in ``<out>/.<name>.partial/`` under a key of
+the spec and of the library code (:func:`code_hash`), so an interrupted build continues where
+it stopped and checkpoints made by other code are discarded. Each point's trust radius comes
+from NLP re-solves (:func:`point_trust_radius`).
 """
 
 from __future__ import annotations
@@ -57,7 +63,9 @@ from ..files import check_output_dir, write_bytes, write_text
 __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
-    "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point",
+    "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
+    "predicted_start", "polish_point", "upgrade_table",
+    "CODE_SOURCES", "code_hash",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -295,25 +303,31 @@ class BuildOptions:
     trust_tolerance : float
         Largest error of the first-order prediction, as a fraction of each variable's scale
         (layout), inside the trust radius.
-    trust_step : float
-        Step of the per-point re-solve that sizes the trust radius, in parameter scales.
+    trust_search : tuple
+        Steps of the per-point trust-radius search, in parameter scales, ascending (a
+        geometric ladder; searched by bisection on it, both signs; :func:`point_trust_radius`).
     trust_steps : tuple
         Steps of ``offnominal tables verify``'s linearisation check, in parameter scales.
     active_tol : float
         Multiplier magnitude (scaled problem) above which a bound or inequality is active.
+    polish_sweeps : int
+        Sweeps of the neighbour pass (:func:`polish_point`): a solved point takes a neighbour's
+        lower-objective optimum, so adjacent points lie on the same branch (0: off).
     """
 
     mz_offset: float = 0.2
     fy_offset: float = 1.0
     trust_tolerance: float = 0.02
-    trust_step: float = 0.5
+    trust_search: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
+    polish_sweeps: int = 2
 
 
 @dataclass(frozen=True)
 class TableSpec:
-    """Everything that determines a table file (its hash covers all of it)."""
+    """Everything that determines a table file (its hash covers all of it); ``refine``: a
+    :class:`~offline.rover.table_refine.RefineOptions` or None (no grid refinement)."""
 
     name: str
     scenario: Any
@@ -323,12 +337,15 @@ class TableSpec:
     sources: dict[str, Any]
     build: BuildOptions = field(default_factory=BuildOptions)
     solver: Any = None
+    refine: Any = None
 
     def key(self) -> str:
         """sha256 of the spec (names the checkpoint folder's content)."""
-        blob = json.dumps(encode({"name": self.name, "scenario": self.scenario, "grid": self.grid.axes,
-                                  "family": self.family, "build": self.build, "solver": self.solver,
-                                  "sources": self.sources}), sort_keys=True)
+        d = {"name": self.name, "scenario": self.scenario, "grid": self.grid.axes, "family": self.family,
+             "build": self.build, "solver": self.solver, "sources": self.sources}
+        if self.refine is not None:
+            d["refine"] = self.refine
+        blob = json.dumps(encode(d), sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -337,7 +354,7 @@ def _file_record(path: Path) -> dict[str, str]:
 
 
 def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", build: BuildOptions | None = None,
-               solver: Any = None) -> TableSpec:
+               solver: Any = None, refine: Any = None) -> TableSpec:
     """Read a scenario file and make the spec of its table (default grid, overridden by ``grid``).
 
     Raises
@@ -368,7 +385,7 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         from .primitives import SolverOptions
 
         solver = SolverOptions(**TABLE_SOLVER_BUDGETS)
-    return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver)
+    return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver, refine)
 
 
 def chains(grid: GridSpec) -> list[list[int]]:
@@ -493,7 +510,8 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         "lbg": np.asarray(b["lbg"]) * csc, "ubg": np.asarray(b["ubg"]) * csc,
         "lam_x": lam_x_s / xsc, "lam_g": lam_g_s / csc,
         "jac_g_x": csc[:, None] * jgx_s / xsc[None, :], "jac_g_p": csc[:, None] * jgp_s,
-        "grad_f": gf_s.ravel() / xsc, "hess_lag": h_s / np.outer(xsc, xsc), "dx_dp": xsc[:, None] * dx_dp_s,
+        "grad_f": gf_s.ravel() / xsc, "hess_lag": h_s / np.outer(xsc, xsc), "hess_lag_xp": hxp_s / xsc[:, None],
+        "dx_dp": xsc[:, None] * dx_dp_s,
         "objective": np.float64(f.item()),
     }
     # per wheel: wrench and its exact Jacobian (AD graph), slip, slip angle, torque, power
@@ -537,41 +555,107 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             ctl[c, k] = (dx[lay.var("omega", wname)] * rs, dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
-    out["trust_radius"] = _point_trust_radius(spec, pb, sc, b, x_s, lam_x_s, lam_g_s, out["x"], out["dx_dp"])
+    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s, out["x"],
+                                                                      out["dx_dp"])
     out["active_x"], out["active_g"] = act_x, act_g
     out["kkt_cond"] = np.float64(cond)
     return out
 
 
-def _point_trust_radius(spec: TableSpec, pb: Any, sc: Any, b: Mapping[str, Any], x_s: NDArray[np.float64],
-                        lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
-                        dx_dp: NDArray[np.float64]) -> NDArray[np.float64]:
+def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float64], lam_x: NDArray[np.float64],
+                       lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                       dx_dp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Per parameter, the step over which the first-order prediction ``x + dx/dp dp`` stays within
-    ``trust_tolerance`` (of the variable scales) of the NLP's solution.
+    ``trust_tolerance`` (of the variable scales) of the NLP's solution at ``p + dp``.
 
-    One warm re-solve per parameter at ``d = trust_step`` x the parameter's scale gives the
-    error ``e``; with an error growing like ``d^k``, ``1 <= k <= 2`` (1 at a kink of the model,
-    2 where it is smooth), the radius is ``d (tol/e)^(1/2)`` if ``e <= tol`` and ``d tol/e``
-    otherwise, which is the smaller of the two growth laws in each case, capped at ``2 d``. A
-    failed re-solve gives 0. Parameters that are not continuous (contact, pivot lock) get 0: the
-    QP must not move them.
+    Search: for each sign, bisection on the ladder ``build.trust_search`` (parameter scales,
+    1/16 .. 2 by default) for the largest step whose re-solve succeeds and whose prediction
+    error is within the tolerance (at most 3 re-solves per sign for 6 steps; the error is taken
+    as growing with the step). Each re-solve starts at the primitive: one IPOPT run with its
+    own dual initialisation, then one warm-started with the primitive's multipliers, then the
+    optimizer's search (:func:`~offline.rover.primitives.solve_primitive` from the primitive,
+    the table's budgets, no confirmation search). Measured at 15 deg slope on the nominal
+    table: the multiplier warm start fails at the kink of the cross-slope response (beta = 0,
+    150 iterations, 0.5-0.8 s) where the first run converges in 8 iterations (0.03 s), hence
+    this order. The radius is the smaller of the two signs. When no step passes, the radius
+    is ``d tol / e`` from the smallest step ``d`` that was re-solved (error ``e``; the linear
+    growth law, the smaller of the linear and quadratic laws). A speed step that would leave
+    less than a quarter of the travel speed is not tried (counts as not passing).
+
+    Returns ``(radius, unverified)``: ``unverified`` is 1 where no re-solve of that parameter
+    succeeded at any step (both signs); its radius is then the documented fallback, the
+    smallest ladder step ``d_min`` (1/16 of the parameter scale by default), neither 0 nor NaN.
+    Parameters that are not continuous (contact, pivot lock) get radius 0 (the QP must not
+    move them) and are not flagged.
     """
+    from . import primitives as P
+
     lay = pb.layout
     xsc = lay.variable_scale
     tol = spec.build.trust_tolerance
-    out = np.zeros(lay.np_)
+    ladder = tuple(sorted(spec.build.trust_search))
+    cold_opts = replace(spec.solver, confirm=False) if spec.solver is not None else P.SolverOptions(confirm=False)
+    radius, unverified = np.zeros(lay.np_), np.zeros(lay.np_)
     for name in _LIN_PARAMS:
         j = lay.index(name)
-        d = spec.build.trust_step * lay.parameters[j].scale
-        kw: dict[str, Any] = {name: getattr(sc, name) + d}
-        if name == "speed":
-            kw.update(_fam_follow(spec, sc, sc.speed + d))
-        r = pb.solve(pb.bounds(replace(sc, **kw)), x_s, lam_x, lam_g)
-        if not r["success"]:
-            continue
-        e = float(np.max(np.abs(x + dx_dp[:, j] * d - np.asarray(r["x"]) * xsc) / xsc))
-        out[j] = 2 * d if e <= tol / 4 else (d * math.sqrt(tol / e) if e <= tol else d * tol / e)
-    return out
+        scale = lay.parameters[j].scale
+        best, solved_any = math.inf, False
+        for sgn in (1.0, -1.0):
+            cache: dict[int, float] = {}  # ladder index -> error (inf: no re-solve)
+
+            def err(k: int) -> float:
+                if k not in cache:
+                    d = sgn * ladder[k] * scale
+                    cache[k] = _prediction_error(spec, pb, sc, name, d, x_s, lam_x, lam_g, x, dx_dp[:, j], xsc,
+                                                 cold_opts)
+                return cache[k]
+
+            lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if err(mid) <= tol:
+                    lo = mid
+                else:
+                    hi = mid
+            if lo >= 0:
+                r = ladder[lo] * scale
+            else:  # no step passed: the linear law from the smallest step that was re-solved
+                err(0)
+                done = sorted(k for k, e in cache.items() if math.isfinite(e))
+                r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
+            solved_any = solved_any or any(math.isfinite(e) for e in cache.values())
+            best = min(best, r)
+        if not solved_any or not math.isfinite(best):
+            radius[j], unverified[j] = ladder[0] * scale, 1.0
+        else:
+            radius[j] = best
+    return radius, unverified
+
+
+def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, x_s: NDArray[np.float64],
+                      lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                      col: NDArray[np.float64], xsc: NDArray[np.float64], cold_opts: Any) -> float:
+    """Largest ``|x + col d - x*(p + d)| / scale`` (inf when the NLP at ``p + d`` is not re-solved)."""
+    from . import primitives as P
+
+    kw: dict[str, Any] = {name: getattr(sc, name) + d}
+    if name == "speed":
+        if sc.speed + d < 0.25 * sc.speed:
+            return math.inf
+        kw.update(_fam_follow(spec, sc, sc.speed + d))
+    sc2 = replace(sc, **kw)
+    b2 = pb.bounds(sc2)
+    r = pb.solve(b2, x_s)  # IPOPT from the primitive, its own dual initialisation
+    if not r["success"]:
+        r = pb.solve(b2, x_s, lam_x, lam_g)  # warm: the primitive's multipliers too
+    if r["success"]:
+        xs2 = np.asarray(r["x"], dtype=float)
+    else:  # the optimizer's search (continuation, restarts) from the primitive
+        rr = P.solve_primitive(sc2, cold_opts, x0=x_s)
+        if rr.status != "optimal":
+            return math.inf
+        xs2 = np.asarray(rr.x, dtype=float)
+    return float(np.max(np.abs(x + col * d - xs2 * xsc) / xsc))
 
 
 def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
@@ -584,10 +668,13 @@ def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
     return {"failures": {**sc.failures, w: replace(sc.failure(w), rim_speed_max=frac * speed)}}
 
 
-def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> dict[str, Any]:
+def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None,
+                 op: Mapping[str, float] | None = None, data: bool = True) -> dict[str, Any]:
+    """Solve one point (grid index ``flat`` or operating point ``op``) from ``x0``; with
+    ``data`` the table's per-point data too (:func:`point_data`)."""
     from . import primitives as P
 
-    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat) if op is None else op)
     r = P.solve_primitive(sc, spec.solver, x0=x0)
     rec: dict[str, Any] = {"flat": flat, "status": r.status, "iterations": int(r.stats.get("iterations", 0)),
                            "evidence": encode(r.evidence) if r.status != "optimal" else None}
@@ -596,7 +683,7 @@ def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None) -> 
         lam_g = np.asarray(r.stats["lam_g"], dtype=float).ravel()
         rec["x_scaled"] = np.asarray(r.x, dtype=float)
         rec["lam_x"], rec["lam_g"] = lam_x, lam_g
-        rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g)
+        rec["data"] = point_data(spec, sc, rec["x_scaled"], lam_x, lam_g) if data else {}
     return rec
 
 
@@ -609,6 +696,72 @@ def solve_chain(spec: TableSpec, chain: Sequence[int]) -> list[dict[str, Any]]:
             x0 = rec["x_scaled"]
         out.append(rec)
     return out
+
+
+def predicted_start(spec: TableSpec, rec: Mapping[str, Any], op_from: Mapping[str, float],
+                    op_to: Mapping[str, float]) -> NDArray[np.float64]:
+    """Warm start (scaled) for ``op_to`` from the solved point ``rec`` at ``op_from``: its primitive
+    moved by its sensitivity, ``x + dx/dp (p_to - p_from)`` over the NLP parameters among the axes
+    (slope, cross-slope, speed; exact in speed on this rate-independent model), so the new point
+    continues the same branch of (7.25); a family axis (not an NLP parameter) adds nothing."""
+    d = rec["data"]
+    lay = _problem(spec.scenario, spec.solver).layout
+    dp = np.zeros(lay.np_)
+    for k in ("slope", "cross_slope", "speed"):
+        if k in op_to and k in op_from:
+            dp[lay.index(k)] = float(op_to[k]) - float(op_from[k])
+    return (np.asarray(d["x"]) + np.asarray(d["dx_dp"]) @ dp) / lay.variable_scale
+
+
+def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tuple[int, NDArray[np.float64]]],
+                 x_now: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
+    """Re-solve a solved grid point from each neighbour's predicted start (``(flat, x0)``, fixed
+    order; :func:`predicted_start`) and return the record of the best optimum found if it beats
+    the current one (``f_now``, scaled ``x_now``), else None.
+
+    Better = lower objective by more than 1e-6 relative; at an equal objective (within that),
+    a different point whose steering angles (scaled, in layout order FR, FL, RR, RL) are
+    lexicographically lower (the first one differing by more than 1e-3 is lower): mirrored
+    optima have equal objectives (measured: beta FR, FL = -0.494, +0.494 rad and +0.494, -0.494
+    rad at 20 deg slope, 0 cross-slope), and this fixed preference puts every grid point on the
+    same one. Candidates must
+    pass the optimizer's independent check. The NLP (7.25) has several local optima (a wheel at
+    the motor limit, mirrored steering), and chains solved independently can settle on
+    different ones; taking the neighbours' better optimum makes adjacent grid points lie on the
+    same branch, which is what interpolation between them needs. The order is strict, so sweeps
+    cannot cycle."""
+    from . import primitives as P
+
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    pb = _problem(sc, spec.solver)
+    lay = pb.layout
+    ib = [lay.var("beta", w) for w in lay.wheels]
+    b = pb.bounds(sc)
+    tol_f = 1e-6 * max(abs(f_now), 1e-3)
+
+    def better(f: float, x: NDArray[np.float64], f0: float, x0: NDArray[np.float64] | None) -> bool:
+        if f < f0 - tol_f:
+            return True
+        if x0 is None or f > f0 + tol_f:
+            return False
+        d = np.asarray(x)[ib] - np.asarray(x0)[ib]
+        k = np.flatnonzero(np.abs(d) > 1e-3)
+        return bool(k.size) and d[k[0]] < 0
+
+    best, its = None, 0
+    for nb, x0 in starts:
+        r = pb.solve(b, x0)
+        its += int(r["iterations"])
+        if not r["success"] or not better(r["f"], r["x"], f_now, x_now):
+            continue
+        if (best is None or better(r["f"], r["x"], best[1]["f"], best[1]["x"])) and P.check_solution(pb, sc, r["x"])[1]:
+            best = (nb, r)
+    if best is None:
+        return None
+    nb, r = best
+    x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
+    return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "polished_from": nb,
+            "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
 
 
 def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
@@ -701,24 +854,59 @@ def _trust_radius(errs: Mapping[str, list[tuple[float, float]]], tol: float) -> 
 
 
 # ------------------------------------------------------------------------------ orchestration
+CODE_SOURCES = ("offline/physics", "offline/rover", "rtctl/layout.py", "rtctl/table.py")
+"""Library sources (relative to the repository root) whose code determines a table's numbers;
+their hash, with the library version, keys a build's checkpoints (:func:`code_hash`)."""
+
+
+@functools.lru_cache(maxsize=1)
+def code_hash() -> str:
+    """sha256 of the library version and of every ``*.py`` file under :data:`CODE_SOURCES`
+    (relative path and bytes, sorted), so checkpoints made by other code are not reused."""
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha256(f"offnominal-rover {_library_version()}\n".encode())
+    files: list[Path] = []
+    for rel in CODE_SOURCES:
+        p = root / rel
+        files.extend(sorted(p.rglob("*.py")) if p.is_dir() else [p])
+    for f in sorted(files):
+        h.update(f"\n{f.relative_to(root).as_posix()}\n".encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 class _Checkpoint:
-    """Finished chains and retries of one build, one file each (atomic), keyed by the spec."""
+    """Finished chains and retries of one build, one file each (atomic), keyed by the spec and
+    by the library code (:func:`code_hash`).
+
+    A folder of another spec is refused (the user changed the grid, scenario or options: keep
+    it or delete it); a folder of the same spec written by other library code (or by a builder
+    that did not record its code) is discarded with a message and the build starts afresh.
+    """
 
     def __init__(self, folder: Path, key: str) -> None:
         self.folder, self.key = folder, key
+        code = code_hash()
         if folder.exists():
-            kf = folder / "spec.sha256"
+            kf, cf_ = folder / "spec.sha256", folder / "code.sha256"
             if not kf.is_file() or kf.read_text().strip() != key:
                 raise BuildError(f"{folder}: a partial build of a different spec (grid, scenario or options changed); "
                                  "delete this folder to start afresh, or rerun with the original options")
-        else:
+            old = cf_.read_text().strip() if cf_.is_file() else "none recorded"
+            if old != code:
+                old = old[:12] if cf_.is_file() else old
+                print(f"note: {folder.name}: discarded the checkpoints of a partial build made by other library code "
+                      f"(code hash {old}, now {code[:12]}); starting this table afresh")
+                shutil.rmtree(folder)
+        if not folder.exists():
             folder.mkdir(parents=True)
             write_text(folder / "spec.sha256", key)
+            write_text(folder / "code.sha256", code)
 
-    def _path(self, kind: str, i: int) -> Path:
-        return self.folder / f"{kind}_{i:06d}.npz"
+    def _path(self, kind: str, i: int | str) -> Path:
+        return self.folder / (f"{kind}_{i:06d}.npz" if isinstance(i, int) else f"{kind}_{i}.npz")
 
-    def load(self, kind: str, i: int) -> list[dict[str, Any]] | None:
+    def load(self, kind: str, i: int | str) -> list[dict[str, Any]] | None:
         p = self._path(kind, i)
         if not p.is_file():
             return None
@@ -741,7 +929,7 @@ class _Checkpoint:
                 r["data"] = {k.split("/", 1)[1]: arrays[k] for k in arrays if k.startswith(f"{n}/")}
         return recs
 
-    def save(self, kind: str, i: int, recs: list[dict[str, Any]]) -> None:
+    def save(self, kind: str, i: int | str, recs: list[dict[str, Any]]) -> None:
         arrays, meta = {}, []
         for r in recs:
             m = {k: v for k, v in r.items() if k not in ("x_scaled", "lam_x", "lam_g", "data")}
@@ -788,8 +976,12 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
                  on_done: Callable[[Path, dict[str, Any]], None] | None = None) -> list[tuple[Path, dict[str, Any]]]:
     """Build several tables with one pool of workers (each worker builds an NLP once and keeps it
     for every table that shares it); see :func:`build_table`."""
-    for spec in specs:  # every output checked before any work
-        check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+    for spec in specs:  # every output and partial build checked before any work
+        out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
+        kf = out / f".{spec.name}.partial" / "spec.sha256"
+        if kf.is_file() and kf.read_text().strip() != spec.key():
+            raise BuildError(f"{kf.parent}: a partial build of a different spec (grid, scenario or options changed); "
+                             "delete this folder to start afresh, or rerun with the original options")
     ex, client = _executor(jobs, scheduler)
     out = []
     try:
@@ -862,6 +1054,13 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
+        polished = _polish(spec, recs, ck, ex, bar)
+        refinement = None
+        if spec.refine is not None:
+            from .table_refine import refine_grid
+
+            bar.close()
+            spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
     finally:
         bar.close()
         if executor is None:
@@ -869,7 +1068,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 client.close()
             elif ex is not None:
                 ex.shutdown()
-    header, arrays = _assemble(spec, recs)
+    header, arrays = _assemble(spec, recs, refinement)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -879,8 +1078,49 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "trust_radius": header["trust_radius"]}
+               "retried": len(retried), "polished": polished, "trust_radius": header["trust_radius"],
+               "refinement": header.get("refinement")}
     return path, summary
+
+
+def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
+            bar: Any) -> int:
+    """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
+    uses the previous sweep's results only, so the outcome does not depend on the order in which
+    workers finish; a later sweep visits only points next to one that changed). Returns the
+    number of points replaced."""
+    shape = spec.grid.shape
+    changed = set(recs)
+    total = 0
+    for sweep in range(spec.build.polish_sweeps):
+        tasks, got = [], {}
+        for f in sorted(recs):
+            if recs[f]["status"] != "optimal" or not any(nb in changed for nb in _neighbours(shape, f) + [f]):
+                continue
+            c = ck.load(f"polish{sweep}", f)
+            if c is not None:
+                got[f] = c[0] if c[0]["status"] != "none" else None
+                continue
+            op = spec.grid.point(f)
+            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
+                      if recs[nb]["status"] == "optimal"]
+            if starts:
+                tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
+        if tasks:
+            bar.set_description(f"{spec.name} (neighbour pass {sweep + 1}: {len(tasks)} points)")
+
+        def done(f: int, rec: dict[str, Any] | None, sweep: int = sweep) -> None:
+            ck.save(f"polish{sweep}", f, [rec if rec is not None else {"flat": f, "status": "none"}])
+            got[f] = rec
+
+        _run(tasks, ex, done)
+        changed = {f for f, r in got.items() if r is not None}
+        for f in sorted(changed):
+            recs[f] = got[f]
+        total += len(changed)
+        if not changed:
+            break
+    return total
 
 
 def _library_version() -> str:
@@ -892,7 +1132,8 @@ def _library_version() -> str:
         return "unknown"
 
 
-def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
+              refinement: Mapping[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     pb = _problem(spec.scenario, spec.solver)
     lay: NlpLayout = pb.layout
     shapes = field_shapes(lay.nx, lay.np_, lay.ng, len(lay.wheels))
@@ -905,6 +1146,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict
     arrays["status"] = np.full(G, STATUS_NAMES.index("not_attempted"), dtype=np.int8)
     arrays["iterations"] = np.zeros(G, dtype=np.int32)
     arrays["retried_from"] = np.full(G, -1, dtype=np.int64)
+    arrays["polished_from"] = np.full(G, -1, dtype=np.int64)
     evidence: dict[str, Any] = {}
     for f in range(spec.grid.size):
         r = recs.get(f)
@@ -915,6 +1157,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict
         arrays["status"][idx] = STATUS_NAMES.index(status)
         arrays["iterations"][idx] = r.get("iterations", 0)
         arrays["retried_from"][idx] = r.get("retried_from", -1)
+        arrays["polished_from"][idx] = r.get("polished_from", -1)
         if status == "optimal":
             for k in (*shapes, "active_x", "active_g"):
                 arrays[k][idx] = r["data"][k]
@@ -948,11 +1191,19 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]]) -> tuple[dict
         "build_options": encode(spec.build),
         "evidence": evidence,
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
-        "trust_radius_rule": (f"per point: first-order prediction within {spec.build.trust_tolerance} of the variable "
-                              "scales (field trust_radius); this entry: the smallest over the feasible points"),
+        "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
+                              f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "
+                              f"the first-order prediction matches within {spec.build.trust_tolerance} of the variable "
+                              "scales (bisection; below the ladder: d tol / e from the smallest re-solved step); where "
+                              "no re-solve succeeded, the fallback 'smallest ladder step' with trust_unverified = 1; "
+                              "this entry: the smallest over the feasible points"),
+        "trust_unverified_points": {n: int(np.sum(arrays["trust_unverified"][feas][:, lay.index(n)] > 0))
+                                    for n in _LIN_PARAMS} if feas.any() else {},
         "grid_points": spec.grid.size,
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }
+    if refinement is not None:
+        header["refinement"] = refinement
     return header, arrays
 
 
@@ -985,6 +1236,68 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
     doc = {"schema": SCHEMA + " index", "schema_version": SCHEMA_VERSION, "tables": dict(sorted(entries.items()))}
     write_text(ip, json.dumps(doc, indent=1, sort_keys=True) + "\n")
     return ip
+
+
+def upgrade_table(src: str | Path, out_dir: str | Path) -> Path:
+    """Upgrade a schema-1 table file to schema 2 without re-solving (``offnominal tables upgrade``).
+
+    ``hess_lag_xp`` is computed exactly at every optimal point from the stored primitive and
+    IPOPT's multipliers (the AD graph of the same NLP; no new solve). The trust radius keeps the
+    schema-1 rule (one warm re-solve per parameter at half its scale, the growth-law estimate):
+    a radius the old build left at 0 (its re-solve failed) becomes the schema-2 fallback, the
+    smallest step of the search ladder, with ``trust_unverified = 1``. The header records
+    ``upgraded_from_schema = 1`` and the old rule. A fresh build (``offnominal tables build``)
+    gives the schema-2 trust radius and neighbour pass; use this where a rebuild is too costly.
+
+    Raises
+    ------
+    TableError
+        ``src`` is not a readable schema-1 table, or its content hash does not match.
+    """
+    from rtctl import table as T
+
+    p = Path(src)
+    header, arrays = T._read(p)
+    if header.get("schema") != SCHEMA or header.get("schema_version") != 1:
+        raise TableError(f"{p}: not a schema-1 table (schema {header.get('schema_version')!r}); nothing to upgrade")
+    if header.get("content_hash") != content_hash(header, arrays):
+        raise TableError(f"{p}: content hash mismatch: the file is corrupted; rebuild it")
+    out = check_output_dir(out_dir, inputs=[p], names=[p.name])
+    sc = scenario_from_header(header)
+    solver = decode(header["solver_options"]) if "solver_options" in header else None
+    pb = _problem(sc, solver)
+    lay: NlpLayout = pb.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    d = _derivatives(pb)
+    build = decode(header["build_options"]) if "build_options" in header else BuildOptions()
+    G = arrays["status"].shape
+    hxp = np.full(G + (lay.nx, lay.np_), np.nan)
+    unv = np.full(G + (lay.np_,), np.nan)
+    tr = np.array(arrays["trust_radius"], dtype=float)
+    floor = np.array([min(getattr(build, "trust_search", BuildOptions().trust_search)) * b.scale for b in lay.parameters])
+    lin = [lay.index(n) for n in _LIN_PARAMS]
+    for idx in np.ndindex(*G):
+        if arrays["status"][idx] != 0:
+            continue
+        x_s = arrays["x"][idx] / xsc
+        lam_g_s = arrays["lam_g"][idx] * csc
+        hxp[idx] = d(x_s, arrays["p"][idx], lam_g_s)[6] / xsc[:, None]
+        unv[idx] = 0.0
+        for j in lin:
+            if not tr[idx + (j,)] > 0.0:
+                tr[idx + (j,)], unv[idx + (j,)] = floor[j], 1.0
+    arrays = dict(arrays, hess_lag_xp=hxp, trust_unverified=unv, trust_radius=tr)
+    feas = arrays["status"] == 0
+    head = {k: v for k, v in header.items() if k != "content_hash"}
+    head.update(schema_version=SCHEMA_VERSION, upgraded_from_schema=1,
+                trust_radius_rule="schema-1 rule kept by 'offnominal tables upgrade': " + str(header.get("trust_radius_rule", ""))
+                + "; a radius of 0 (failed re-solve) replaced by the smallest step of the schema-2 ladder, trust_unverified = 1",
+                trust_unverified_points={n: int(np.sum(unv[feas][:, lay.index(n)] > 0)) for n in _LIN_PARAMS} if feas.any() else {})
+    if feas.any():
+        head["trust_radius"] = {n: float(np.min(tr[feas][:, lay.index(n)])) for n in _LIN_PARAMS}
+    path = out / p.name
+    write_bytes(path, table_bytes(head, arrays))
+    return path
 
 
 def scenario_from_header(header: Mapping[str, Any]) -> Any:

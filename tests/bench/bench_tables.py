@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from offline.cli.tables import _folder_grids  # noqa: E402
+from offline.cli.tables import _folder_grids, _folder_refine  # noqa: E402
 from offline.files import write_text  # noqa: E402
 from offline.rover.table_builder import build_tables, table_spec, write_index  # noqa: E402
 from rtctl.table import load_table  # noqa: E402
@@ -47,12 +47,20 @@ def main() -> int:
     ap.add_argument("--out", default=str(ROOT / "tables"))
     ap.add_argument("--scenarios", default=str(ROOT / "tables" / "scenarios"))
     ap.add_argument("--results", default=str(ROOT / "tests" / "bench" / "results_tables.md"))
+    ap.add_argument("--only", help="comma-separated table names to rebuild (default: all); the others are kept as "
+                                   "they are and only their reading times are measured")
     args = ap.parse_args()
     src, out = Path(args.scenarios), Path(args.out)
     grids = _folder_grids(src)
     files = sorted(f for f in src.glob("*.toml") if f.name != "grids.toml")
-    rows, paths = [], []
-    specs = [table_spec(f, grids.get(f.stem)) for f in files]
+    rows, paths, extra = [], [], []
+    refines = _folder_refine(src)
+    specs = [table_spec(f, grids.get(f.stem), refine=refines.get(f.stem)) for f in files]
+    kept = []
+    if args.only:
+        names = set(args.only.split(","))
+        kept = [s.name for s in specs if s.name not in names]
+        specs = [s for s in specs if s.name in names]
     old = {s.name: (hashlib.sha256((out / f"{s.name}.npz").read_bytes()).hexdigest()
                     if (out / f"{s.name}.npz").is_file() else None) for s in specs}
     t_all, c_all = time.perf_counter(), _cpu()
@@ -68,11 +76,25 @@ def main() -> int:
         same = "no previous file" if prev is None else ("yes" if prev == new_sha else "NO")
         rows.append((s["name"], "x".join(map(str, s["shape"])), s["grid_points"], s["statuses"], s["feasible_fraction"],
                      s["bytes"], wall, cpu, same))
+        t = load_table(path)
+        ref = s.get("refinement")
+        ins = ("; ".join(f"{k} +{len(v)}" for k, v in ref["inserted"].items()) or "none") + f" ({ref['stopped']})" \
+            if ref else "not asked"
+        errs = [c["error"] for c in ref["checks"]] if ref else []
+        worst = max((e if e is not None else float("inf") for e in errs), default=float("nan"))
+        trs = []
+        if t.feasible.any():
+            for n in ("slope", "speed", "cross_slope"):
+                col = t.arrays["trust_radius"][t.feasible][:, t.layout.index(n)]
+                unv = int(np.sum(t.arrays["trust_unverified"][t.feasible][:, t.layout.index(n)] > 0))
+                trs.append(f"{n} {np.median(col):.3g} / {col.min():.3g} ({unv} unverified)")
+        extra.append((s["name"], ins, worst, "; ".join(trs) or "-"))
         paths.append(path)
         print(f"{s['name']}: {wall:.1f} s wall, {s['statuses']}", flush=True)
 
     build_tables(specs, out, jobs=args.jobs, progress=True, inputs=files, on_done=done)
     wall_all, cpu_all = time.perf_counter() - t_all, _cpu() - c_all
+    paths += [out / f"{n}.npz" for n in kept]
     write_index(out, paths)
     # load + check, interpolation
     rng = np.random.default_rng(0)
@@ -95,7 +117,7 @@ def main() -> int:
         t0 = time.perf_counter()
         for op in ops:
             tp = t.at(**op)
-            tp.x, tp.jac_g_x, tp.jac_g_p, tp.hess_lag, tp.grad_f, tp.dx_dp, tp.wrench_jac, tp.active, tp.controllers
+            tp.x, tp.jac_g_x, tp.jac_g_p, tp.hess_lag, tp.hess_lag_xp, tp.grad_f, tp.dx_dp, tp.wrench_jac, tp.active, tp.controllers
         full = (time.perf_counter() - t0) / len(ops)
         perf.append((t.name, statistics.median(ts), statistics.median(per), full))
     now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -106,8 +128,9 @@ def main() -> int:
         f"Python {platform.python_version()}, {len(__import__('os').sched_getaffinity(0))} CPUs visible, machine shared "
         f"with other jobs (load average at the end {__import__('os').getloadavg()[0]:.1f}).",
         "",
-        f"**All {len(rows)} tables from scratch: {wall_all:.0f} s wall ({wall_all / 60:.1f} min), {cpu_all:.0f} s CPU** "
-        f"(target <= 10 min wall on 2 cores; moonshot 2 min). CPU time = this process + its worker processes.",
+        f"**{'All ' if not kept else ''}{len(rows)} tables from scratch: {wall_all:.0f} s wall ({wall_all / 60:.1f} min), "
+        f"{cpu_all:.0f} s CPU** (target <= 10 min wall on 2 cores for all; moonshot 2 min). CPU time = this process + "
+        "its worker processes." + (f" Not rebuilt in this run (`--only`): {', '.join(kept)}." if kept else ""),
         "",
         "| table | grid | points | statuses | feasible | file | wall [s] | CPU of the main process [s] | same bytes as before |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -115,6 +138,11 @@ def main() -> int:
     for name, shape, n, st, ff, b, w, c, same in rows:
         sts = ", ".join(f"{k} {v}" for k, v in st.items())
         lines.append(f"| {name} | {shape} | {n} | {sts} | {ff:.0%} | {b / 1e6:.2f} MB | {w:.0f} | {c:.0f} | {same} |")
+    lines += ["", "Refinement (inserted axis values; largest checked midpoint error, variable scales) and trust radius "
+              "(SI, median / min over the feasible points):", "",
+              "| table | refinement | largest midpoint error | trust radius median / min |", "|---|---|---|---|"]
+    for name, ins, worst, trs in extra:
+        lines.append(f"| {name} | {ins} | {worst:.3g} | {trs} |")
     lines += ["", "Reading the tables (median; targets: load + check <= 50 ms, `at()` <= 50 us, moonshot 10 us):", "",
               "| table | load + hash/schema check [ms] | `at()` [us] | `at()` + reading every QP field [us] |",
               "|---|---|---|---|"]

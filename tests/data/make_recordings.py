@@ -18,20 +18,16 @@ sha256 of every table file, so a replay knows what it must be built from.
 ``--import-tables FILE ...`` first copies built tables (``offnominal tables build``) into
 ``tests/data/tables`` and writes their index. A table from a builder older than tables commit
 57f65c1 lacks the per-point ``trust_radius`` field: it gets the table-wide header values at
-every point (none: 0) and a new content hash, as the controller helper did for
-``tests/data/rtctl_nominal_small.npz``. The committed tables were built at tables commit
-22463f9 with::
+every point (none: 0) and a new content hash. The committed tables (schema 2) were built on
+branch tables11 directly into ``tests/data/tables`` with::
 
-    offnominal tables build offline/scenarios/nominal.toml --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5"
+    offnominal tables build offline/scenarios/nominal.toml --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5" --out tests/data/tables
     offnominal tables build offline/scenarios/rr_steer_stuck_50.toml \
-        --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5;steer_stuck=-60,-50,-40"
-
-and, at tables commits 22463f9 and 57f65c1 respectively::
-
+        --grid "slope=0,5;cross_slope=-5,0,5;speed=2.5,3,3.5;steer_stuck=-60,-50,-40" --out tests/data/tables
     offnominal tables build offline/scenarios/rr_speed_cap_half.toml \
-        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;rim_speed_cap_fraction=0.4,0.5,0.6"
+        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;rim_speed_cap_fraction=0.4,0.5,0.6" --out tests/data/tables
     offnominal tables build offline/scenarios/rr_trench_clean.toml \
-        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;trench_depth=20,25,30"
+        --grid "slope=0,5;cross_slope=0;speed=2.5,3,3.5;trench_depth=20,25,30" --out tests/data/tables
 
 Regenerate them when a change to the controller is *meant* to change its commands; the
 replay test fails on any change that is not.

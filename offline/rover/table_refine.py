@@ -1,0 +1,259 @@
+"""Grid refinement of a lookup table: insert axis values where interpolation is poor.
+
+After a table's grid is solved (:func:`offline.rover.table_builder.build_table`), every axis
+cell ``[v_i, v_i+1]`` is checked at its midpoint: with the other axes at grid values (a
+deterministic, evenly spaced sample of at most ``samples`` combinations whose two cell
+corners both have a primitive), the NLP is solved at the midpoint (warm-started from the
+lower corner's primitive moved by its sensitivity,
+:func:`~offline.rover.table_builder.predicted_start`) and compared with the linear interpolation of the corners, error = the largest
+``|x_interp - x_direct| / scale`` over the decision variables (the interpolation check of
+``offnominal tables verify``, made per axis cell). A midpoint without a primitive between two
+feasible corners counts as an infinite error (interpolation would bridge a hole).
+
+Cells whose error exceeds ``tol`` get their midpoint inserted into the axis, largest error
+first, while the grid (still a tensor product, so :meth:`rtctl.table.Table.at` stays
+multilinear) keeps at most ``max_points`` points. The new grid points are solved like the
+first ones (warm-started from the old grid point below them, moved by its sensitivity; the
+table's per-point data,
+retries from solved neighbours for unsolved ones), and the new half-cells are checked in the
+next round, up to ``rounds`` rounds. Every midpoint solve and new point is checkpointed in the
+build's checkpoint folder under a name derived from its operating point, so an interrupted
+refinement resumes like a build, and the result does not depend on the worker count or the
+order in which workers finish. The table header's ``refinement`` entry records the base grid,
+every checked cell with its error, and the inserted values.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from .table_builder import (MAX_RETRY_NEIGHBOURS, BuildError, GridSpec, TableSpec, _neighbours, _problem, _run,
+                            _solve_point, predicted_start, retry_point)
+
+__all__ = ["RefineOptions", "refine_grid", "cell_errors"]
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """Settings of a grid refinement (module docstring).
+
+    Attributes
+    ----------
+    tol : float
+        Largest accepted midpoint error of a cell, in variable scales (layout).
+    max_points : int
+        Largest number of grid points of the refined table.
+    rounds : int
+        Check-and-insert rounds (each round checks the half-cells the previous one made).
+    samples : int
+        Combinations of the other axes' grid values checked per cell (evenly spaced, fixed).
+    """
+
+    tol: float
+    max_points: int
+    rounds: int = 2
+    samples: int = 3
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tol) and self.tol > 0):
+            raise BuildError(f"--refine-tol {self.tol}: must be a positive number of variable scales (e.g. 0.5)")
+        if self.max_points < 1 or self.rounds < 1 or self.samples < 1:
+            raise BuildError(f"refinement: max_points ({self.max_points}), rounds ({self.rounds}) and samples "
+                             f"({self.samples}) must be >= 1")
+
+
+Key = tuple[float, ...]
+
+
+def _key(op: Mapping[str, float], names: tuple[str, ...]) -> Key:
+    return tuple(float(op[k]) for k in names)
+
+
+def _tag(key: Key) -> str:
+    """Checkpoint id of an operating point (hash of the exact float values)."""
+    return hashlib.sha256(json.dumps([repr(v) for v in key]).encode()).hexdigest()[:20]
+
+
+def _sample(n: int, k: int) -> list[int]:
+    """``k`` evenly spaced indices of ``range(n)`` (all when ``n <= k``)."""
+    if n <= k:
+        return list(range(n))
+    return sorted({int(round(i)) for i in np.linspace(0, n - 1, k)})
+
+
+def _mid_task(spec: TableSpec, op: dict[str, float], x0: Any) -> dict[str, Any]:
+    return _solve_point(spec, 0, x0, op=op, data=False)
+
+
+def _point_task(spec: TableSpec, op: dict[str, float], x0: Any) -> dict[str, Any]:
+    return _solve_point(spec, 0, x0, op=op, data=True)
+
+
+def _retry_task(spec: TableSpec, flat: int, starts: list[Any]) -> dict[str, Any]:
+    return retry_point(spec, flat, starts)
+
+
+def _cached_run(ck: Any, ex: Any, kind: str, jobs: list[tuple[Key, Any, tuple[Any, ...]]], progress: bool,
+                desc: str) -> dict[Key, dict[str, Any]]:
+    """Run ``fn(*args)`` per key (checkpointed as ``<kind>_<hash of key>``); returns key -> record."""
+    from tqdm import tqdm
+
+    out: dict[Key, dict[str, Any]] = {}
+    todo, ids = [], {}
+    for n, (key, fn, args) in enumerate(jobs):
+        got = ck.load(kind, _tag(key))
+        if got is not None:
+            out[key] = got[0]
+        else:
+            ids[n] = key
+            todo.append((fn, args, n))
+    bar = tqdm(total=len(jobs), initial=len(out), desc=desc, unit="pt", disable=not progress, leave=True,
+               dynamic_ncols=True)
+
+    def done(n: int, rec: dict[str, Any]) -> None:
+        rec = dict(rec, flat=0)
+        ck.save(kind, _tag(ids[n]), [rec])
+        out[ids[n]] = rec
+        bar.update(1)
+
+    try:
+        _run(todo, ex, done)
+    finally:
+        bar.close()
+    return out
+
+
+def cell_errors(spec: TableSpec, axes: dict[str, list[float]], store: Mapping[Key, dict[str, Any]],
+                cells: Mapping[str, list[tuple[float, float]]], mids: Mapping[Key, dict[str, Any]]
+                ) -> list[dict[str, Any]]:
+    """Per checked cell: the largest midpoint error (variable scales; inf where a midpoint has no
+    primitive) over its sampled combinations, given the midpoint solves ``mids``."""
+    names = tuple(axes)
+    xsc = _problem(spec.scenario, spec.solver).layout.variable_scale
+    out = []
+    for a in names:
+        ia = names.index(a)
+        for lo, hi in cells.get(a, []):
+            errs = []
+            for key_lo, key_hi, key_mid in _cell_combos(spec, axes, store, a, lo, hi):
+                m = mids.get(key_mid)
+                if m is None:
+                    continue
+                if m["status"] != "optimal":
+                    errs.append(math.inf)
+                    continue
+                xi = 0.5 * (store[key_lo]["data"]["x"] + store[key_hi]["data"]["x"])
+                errs.append(float(np.max(np.abs(xi - np.asarray(m["x_scaled"]) * xsc) / xsc)))
+            if errs:
+                out.append({"axis": a, "axis_index": ia, "cell": (lo, hi), "error": max(errs), "checked": len(errs)})
+    return out
+
+
+def _cell_combos(spec: TableSpec, axes: dict[str, list[float]], store: Mapping[Key, dict[str, Any]], a: str,
+                 lo: float, hi: float) -> list[tuple[Key, Key, Key]]:
+    """Sampled (lower corner, upper corner, midpoint) keys of one cell whose corners are optimal."""
+    names = tuple(axes)
+    ia = names.index(a)
+    others = [axes[k] if k != a else [None] for k in names]
+    ok = []
+    for combo in itertools.product(*others):
+        k_lo = tuple(lo if i == ia else v for i, v in enumerate(combo))
+        k_hi = tuple(hi if i == ia else v for i, v in enumerate(combo))
+        if store[k_lo]["status"] == "optimal" and store[k_hi]["status"] == "optimal":
+            ok.append((k_lo, k_hi, tuple(0.5 * (lo + hi) if i == ia else v for i, v in enumerate(combo))))
+    return [ok[i] for i in _sample(len(ok), spec.refine.samples)]
+
+
+def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex: Any,
+                progress: bool = True) -> tuple[TableSpec, dict[int, dict[str, Any]], dict[str, Any]]:
+    """Refine ``spec``'s solved grid (``recs``: flat index -> record) by ``spec.refine``.
+
+    Returns the spec with the refined grid, its records by flat index, and the header's
+    ``refinement`` entry. ``ck``: the build's checkpoint; ``ex``: its executor (None: here).
+    """
+    opt: RefineOptions = spec.refine
+    names = spec.grid.names
+    axes = {k: list(v) for k, v in spec.grid.axes}
+    store: dict[Key, dict[str, Any]] = {_key(spec.grid.point(f), names): r for f, r in recs.items()}
+    cells = {a: list(zip(v[:-1], v[1:])) for a, v in axes.items()}
+    checks, inserted, stop = [], {a: [] for a in names}, f"{opt.rounds} rounds done"
+    for rnd in range(opt.rounds):
+        jobs, seen = [], set()
+        for a in names:
+            for lo, hi in cells[a]:
+                for k_lo, _, k_mid in _cell_combos(spec, axes, store, a, lo, hi):
+                    if k_mid not in seen:
+                        seen.add(k_mid)
+                        x0 = predicted_start(spec, store[k_lo], dict(zip(names, k_lo)), dict(zip(names, k_mid)))
+                        jobs.append((k_mid, _mid_task, (spec, dict(zip(names, k_mid)), x0)))
+        mids = _cached_run(ck, ex, "mid", jobs, progress, f"{spec.name} refine {rnd + 1}: midpoints")
+        errs = cell_errors(spec, axes, store, cells, mids)
+        for e in errs:
+            checks.append({"round": rnd + 1, "axis": e["axis"], "cell": list(e["cell"]), "checked": e["checked"],
+                           "error": e["error"] if math.isfinite(e["error"]) else None})
+        bad = sorted((e for e in errs if e["error"] > opt.tol), key=lambda e: (-e["error"], e["axis_index"], e["cell"][0]))
+        add: dict[str, list[float]] = {a: [] for a in names}
+        for e in bad:
+            trial = {a: len(axes[a]) + len(add[a]) + (a == e["axis"]) for a in names}
+            if int(np.prod(list(trial.values()))) <= opt.max_points:
+                add[e["axis"]].append(0.5 * (e["cell"][0] + e["cell"][1]))
+        if not any(add.values()):
+            stop = ("every checked cell within the tolerance" if not bad
+                    else f"point budget ({opt.max_points}) reached with {len(bad)} cell(s) above the tolerance")
+            break
+        old_axes = {a: list(v) for a, v in axes.items()}
+        for a in names:
+            axes[a] = sorted(axes[a] + add[a])
+            inserted[a] = sorted(inserted[a] + add[a])
+        grid = GridSpec(tuple((a, tuple(axes[a])) for a in names))
+        spec = replace(spec, grid=grid)
+        # new points, warm-started from the old grid point below them
+        jobs = []
+        for op_t in itertools.product(*(axes[a] for a in names)):
+            if op_t in store:
+                continue
+            base = tuple(v if v in old_axes[a] else max(w for w in old_axes[a] if w < v) for a, v in zip(names, op_t))
+            x0 = (predicted_start(spec, store[base], dict(zip(names, base)), dict(zip(names, op_t)))
+                  if store[base]["status"] == "optimal" else None)
+            jobs.append((op_t, _point_task, (spec, dict(zip(names, op_t)), x0)))
+        new = _cached_run(ck, ex, "pt", jobs, progress, f"{spec.name} refine {rnd + 1}: {len(jobs)} new points")
+        store.update(new)
+        # unsolved new points: retried from solved neighbours of the refined grid
+        rjobs = []
+        for op_t, rec in sorted(new.items()):
+            if rec["status"] not in ("not_found", "solver_failure"):
+                continue
+            flat = int(np.ravel_multi_index(tuple(axes[a].index(v) for a, v in zip(names, op_t)), grid.shape))
+            starts = []
+            for nb in _neighbours(grid.shape, flat):
+                r = store[_key(grid.point(nb), names)]
+                if r["status"] == "optimal":
+                    starts.append((nb, r["x_scaled"], r["lam_x"], r["lam_g"]))
+            rjobs.append((op_t, _retry_task, (spec, flat, starts[:MAX_RETRY_NEIGHBOURS])))
+        if rjobs:
+            for op_t, rec in _cached_run(ck, ex, "rpt", rjobs, progress, f"{spec.name} refine {rnd + 1}: retries").items():
+                rec = dict(rec)
+                if rec["status"] != "optimal":
+                    rec["evidence"] = {"first attempt": store[op_t].get("evidence"), **(rec.get("evidence") or {})}
+                store[op_t] = rec
+        cells = {a: [c for v in add[a] for c in ((max(w for w in axes[a] if w < v), v), (v, min(w for w in axes[a] if w > v)))]
+                 for a in names}
+    out = {}
+    for f in range(spec.grid.size):
+        rec = dict(store[_key(spec.grid.point(f), names)])
+        rec["flat"] = f
+        out[f] = rec
+    info = {"tolerance_per_scale": opt.tol, "max_points": opt.max_points, "rounds": opt.rounds, "samples": opt.samples,
+            "base_axes": {a: [v for v in axes[a] if v not in inserted[a]] for a in names},
+            "inserted": {a: v for a, v in inserted.items() if v}, "checks": checks, "stopped": stop,
+            "error_rule": "max |x_interp - x_direct| / variable scale at the cell midpoint, other axes at sampled grid "
+                          "values (null: a midpoint without a primitive between feasible corners)"}
+    return spec, out, info
+

@@ -165,7 +165,8 @@ class QpAllocator:
         self._sxx = self.sx[:, None] * self.sx[None, :]
         self._sx_over_sg = self.sx[None, :] / self.sg[:, None]
         # ---- fixed sparsity of P: dense upper triangle of the nx block, diagonal slack block
-        cols_p, rows_p = [], []
+        cols_p: list[int] = []
+        rows_p: list[int] = []
         for j in range(nx):
             rows_p.extend(range(j + 1))
             cols_p.extend([j] * (j + 1))
@@ -177,7 +178,7 @@ class QpAllocator:
         self._p_indptr = np.searchsorted(self._p_cols, np.arange(self.n + 1)).astype(np.int64)
         # ---- fixed sparsity of A: [J | -I | I] over the model rows, I for z, I for the slacks
         rows_a: list[int] = []
-        self._a_jac_pos = []  # positions of the Jacobian entries in A.data, column-major
+        self._a_jac_pos: list[int] = []  # positions of the Jacobian entries in A.data, column-major
         for j in range(nx):
             self._a_jac_pos.extend(range(len(rows_a), len(rows_a) + ng))
             rows_a.extend(range(ng))

@@ -469,11 +469,13 @@ def _expect_rover(table: Table, expect_rover: Mapping[str, Any] | str | None, pa
 def rebuild_command(header: Mapping[str, Any]) -> str:
     """The ``offnominal tables build`` command that rebuilds a table from its header (scenario
     file name and grid in display units; ``SCENARIO.toml`` when the header does not name it)."""
-    src = header.get("sources", {}) if isinstance(header.get("sources"), dict) else {}
-    name = (src.get("scenario_file") or {}).get("name", "SCENARIO.toml") if isinstance(src.get("scenario_file"), dict) \
-        else "SCENARIO.toml"
+    sources = header.get("sources")
+    src: dict[str, Any] = sources if isinstance(sources, dict) else {}
+    scen = src.get("scenario_file")
+    name = str(scen.get("name", "SCENARIO.toml")) if isinstance(scen, dict) else "SCENARIO.toml"
     parts = []
-    axes = header.get("axes") if isinstance(header.get("axes"), dict) else {}
+    axes_raw = header.get("axes")
+    axes: dict[str, Any] = axes_raw if isinstance(axes_raw, dict) else {}
     for k in header.get("axis_order", []) if isinstance(header.get("axis_order"), list) else []:
         a = axes.get(k, {}) if isinstance(axes.get(k), dict) else {}
         try:

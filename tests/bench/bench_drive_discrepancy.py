@@ -14,7 +14,7 @@ Groups
 ------
 ``effects``   in-library effects (must be named: right candidate and wheel, parameter within
               20 %), out-of-library effects (must NOT be named confidently: verdict
-              ``unexplained`` or ``partly_explained``), two effects at once.
+              ``unexplained``, ``partly_explained`` or ``ambiguous``), two effects at once.
 ``negatives`` no effect, 20 seeds: false alarms (any verdict but ``agree``).
 ``recovery``  the previous cases generated through the plant's own truth parameters (cross
               slope, radius, steer offset, tether, k), for comparison.
@@ -71,7 +71,7 @@ from offline.sim.truth import Truth  # noqa: E402
 
 DURATION = 40.0
 N_NEGATIVE = 20
-HONEST_OUT = ("unexplained", "partly_explained")
+HONEST_OUT = ("unexplained", "partly_explained", "ambiguous")  # ambiguous: nothing named (the explanations that fit equally are listed)
 
 
 class _PlantTruth(Effect):

@@ -94,7 +94,7 @@ class HilReport:
 
     ticks: int
     deadline_misses: int
-    commands: list[Commands | None] = field(default_factory=list, repr=False)
+    commands: list[Commands] = field(default_factory=list, repr=False)
     step_times: list[float] = field(default_factory=list, repr=False)
     round_trips: list[float] = field(default_factory=list, repr=False)
     late_seqs: list[int] = field(default_factory=list)

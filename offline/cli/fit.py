@@ -288,8 +288,13 @@ def _calibrate(args: argparse.Namespace) -> int:
     avg = average_conditions(trials)
     for wname, wheel in wheels.items():
         bar = tqdm(total=args.max_evals, desc=f"joint fit, {wname} wheel", unit="eval", leave=False, disable=args.quiet)
+
+        def progress(i: int, c: float, bar: Any = bar) -> None:
+            bar.update(1)
+            bar.set_postfix(cost=f"{c:.0f}")
+
         res = fit_joint(fit_set, start_soil, wheel, start_tuning, names, opts, max_nfev=args.max_evals,
-                        progress=lambda i, c: (bar.update(1), bar.set_postfix(cost=f"{c:.0f}")), priors=priors)
+                        progress=progress, priors=priors)
         bar.close()
         fitted_wheel = res.wheel or wheel
         label = f"calibrated, {wname} wheel" + (", soil-flow exit angle" if args.exit_angle == "soil_flow" else "")

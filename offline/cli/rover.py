@@ -72,8 +72,11 @@ def cmd_slope_sweep(args: argparse.Namespace) -> int:
         if sc is None:
             return 2
         t0 = time.perf_counter()
-        res = slope_sweep(sc, slopes, progress=None if args.quiet else (
-            lambda a, r, n=n: print(f"  {n}: slope {a:5.1f} deg -> {r.status}", flush=True)))
+
+        def say(a: float, r: Any, n: str = n) -> None:
+            print(f"  {n}: slope {a:5.1f} deg -> {r.status}", flush=True)
+
+        res = slope_sweep(sc, slopes, progress=None if args.quiet else say)
         results[n] = res
         for r in res:
             rows.append([n, math.degrees(r.scenario.slope), r.status, r.mean_slip() if r.ok else math.nan,

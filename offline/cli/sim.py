@@ -48,7 +48,9 @@ class _TracedPlant:
     def __init__(self, sim: Any) -> None:
         from ..sim.experiments import declared_task
 
-        self.sim, self.truth, self.measurements = sim, [], []
+        self.sim = sim
+        self.truth: list[Any] = []
+        self.measurements: list[Any] = []
         self.task = declared_task(sim.scenario)
 
     def measure(self) -> Any:

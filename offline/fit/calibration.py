@@ -153,7 +153,9 @@ class FitResult:
 def _apply(
     soil: Soil, tuning: ContactTuning, names: Sequence[str], values: Sequence[float], wheel: Wheel | None = None
 ) -> tuple[Soil, ContactTuning, Wheel | None]:
-    s_kw, t_kw, w_kw = {}, {}, {}
+    s_kw: dict[str, Any] = {}
+    t_kw: dict[str, Any] = {}
+    w_kw: dict[str, Any] = {}
     for n, v in zip(names, values):
         if n in _TUNING_FIELDS:
             t_kw[_TUNING_FIELDS[n]] = float(v)

@@ -761,7 +761,7 @@ def load_trials(path: str | Path | None = None, *, check_units: bool = True) -> 
         rep = np.where(np.isnan(rep_f), -1, rep_f).astype(int)
     else:
         rep = np.zeros(n, dtype=int)
-        counter: dict[tuple[float, float, float], int] = {}
+        counter: dict[tuple[Any, ...], int] = {}
         for i, key in enumerate(zip(beta_cmd_deg, rim_cmd, vx_cmd)):
             counter[key] = counter.get(key, 0) + 1
             rep[i] = counter[key]

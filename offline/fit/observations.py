@@ -47,14 +47,23 @@ class Probe:
 class Observations(Protocol):
     """What the discrepancy engine needs from a recording (see module docstring)."""
 
-    channels: tuple[str, ...]
-    units: Mapping[str, str]
-    scale_out: Mapping[str, float]
-    measured: dict[str, NDArray[np.float64]]
-    noise: dict[str, NDArray[np.float64]]
-    features: dict[str, NDArray[np.float64]]
-    noise_source: str
-    source: str
+    # read-only attributes (a frozen dataclass's fields satisfy them)
+    @property
+    def channels(self) -> tuple[str, ...]: ...
+    @property
+    def units(self) -> Mapping[str, str]: ...
+    @property
+    def scale_out(self) -> Mapping[str, float]: ...
+    @property
+    def measured(self) -> dict[str, NDArray[np.float64]]: ...
+    @property
+    def noise(self) -> dict[str, NDArray[np.float64]]: ...
+    @property
+    def features(self) -> dict[str, NDArray[np.float64]]: ...
+    @property
+    def noise_source(self) -> str: ...
+    @property
+    def source(self) -> str: ...
 
     def __len__(self) -> int: ...
 

@@ -254,6 +254,7 @@ def fit(
         nfev += int(res.nfev) * (1 + x0.size)
         if best is None or res.cost < best.cost:
             best = res
+    assert best is not None  # starts is not empty (checked above)
     r = best.fun
     J = best.jac
     dof = max(r.size - J.shape[1], 1)

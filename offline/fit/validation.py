@@ -547,10 +547,10 @@ def plot_fig_5_6(
     for ax in axes[-1]:
         ax.set_xlabel("slip ratio s")
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.7 / fig.get_figheight()))
-    p = Path(path)
+    out = Path(path)
     try:
-        with atomic_path(p) as tmp:  # written whole or not at all
-            fig.savefig(tmp, dpi=110, format=p.suffix.lstrip(".") or "png")
+        with atomic_path(out) as tmp:  # written whole or not at all
+            fig.savefig(tmp, dpi=110, format=out.suffix.lstrip(".") or "png")
     finally:
         plt.close(fig)
-    return p
+    return out

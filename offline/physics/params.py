@@ -321,10 +321,11 @@ class TuningTable:
         b = min(max(b, lo), hi)
         cols = [[getattr(r, f) for r in self.rows] for f in ("a0", "a1", "b0", "b1")]
         if len(self.rows) == 1:
-            return tuple(c[0] for c in cols)  # type: ignore[return-value]
+            return (float(cols[0][0]), float(cols[1][0]), float(cols[2][0]), float(cols[3][0]))
         import numpy as np
 
-        return tuple(float(np.interp(b, self.abs_beta, c)) for c in cols)  # type: ignore[return-value]
+        a0, a1, b0, b1 = (float(np.interp(b, self.abs_beta, c)) for c in cols)
+        return a0, a1, b0, b1
 
     def covers(self, abs_beta: float) -> bool:
         """True when :meth:`at` has a value at ``abs_beta`` (rad)."""
@@ -521,7 +522,8 @@ def _table_from_section(path: str, table: Mapping[str, Any]) -> TuningTable:
     rows = []
     for i, b in enumerate(arrays["beta_deg"]):
         try:
-            rows.append(ContactTuning(*(arrays[c][i] for c in cols), name=f"row_{b:g}deg"))
+            a0, a1, b0, b1 = (float(arrays[c][i]) for c in cols)
+            rows.append(ContactTuning(a0, a1, b0, b1, name=f"row_{b:g}deg"))
         except ParameterError as exc:
             raise ParameterError(f"{path}: [tuning] row {i} (beta_deg = {b:g}): {exc}") from None
     try:
@@ -647,7 +649,7 @@ def save_toml(path: str | Path, meta: Mapping[str, Any] | None = None, **section
         cls, keys = _SECTIONS[section]
         if not isinstance(obj, cls):
             raise ParameterError(f"section [{section}] needs a {cls.__name__}, got {type(obj).__name__}")
-        d = asdict(obj)
+        d = asdict(obj)  # type: ignore[call-overload]  # obj is one of the _SECTIONS dataclasses (checked above)
         lines.append(f"[{section}]")
         for meta_key in ("name", "source"):
             lines.append(f"{meta_key} = {_fmt(d[meta_key])}")

@@ -815,11 +815,14 @@ def exit_angle(
     beta: Any,
     omega: Any,
     vx: Any,
-    wheel: Wheel,
-    soil: Soil,
+    wheel: Wheel | Any,
+    soil: Soil | Any,
     smoothing_deg: float = 1.0,
 ) -> Any:
     """Exit angle theta_r from the soil-flow profile, sec. 5.2.1 (Fig. 5.2 e-f), any backend.
+
+    ``wheel`` and ``soil`` are a :class:`Wheel` and a :class:`Soil`, or views with the same
+    field names whose values may be symbolic (the casadi backend).
 
     The rear rim meets the final profile of :func:`trench_profile` across its lateral footprint
     (half-width ``b cos(beta) / 2``) centred where it leaves the surface,

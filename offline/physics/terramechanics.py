@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .backend import CASADI, NUMPY, Backend, gauss_legendre, smooth_abs
-from .params import ContactTuning, ParameterSet, Soil, Wheel
+from .params import ContactTuning, ParameterError, ParameterSet, Soil, TuningTable, Wheel
 
 __all__ = [
     "ModelOptions",
@@ -198,8 +198,14 @@ class PhysParams(NamedTuple):
     b1_beta: Any
 
     @classmethod
-    def from_sets(cls, soil: Soil, wheel: Wheel, tuning: ContactTuning) -> "PhysParams":
-        """Collect the SI values of ``soil``, ``wheel`` and ``tuning``."""
+    def from_sets(cls, soil: Soil, wheel: Wheel, tuning: ContactTuning | TuningTable) -> "PhysParams":
+        """Collect the SI values of ``soil``, ``wheel`` and ``tuning``.
+
+        A :class:`~offline.physics.params.TuningTable` has no single a0..b1 and raises its
+        :class:`~offline.physics.params.ParameterError` saying to take ``tuning_at(abs_beta)``."""
+        if isinstance(tuning, TuningTable):
+            raise ParameterError(f"TuningTable {tuning.name!r} holds one tuning per slip angle, not a single a0..b1: "
+                                 "build the model from tuning.tuning_at(abs_beta) (a ContactTuning)")
         return cls(
             soil.k, soil.n0, soil.n1, soil.n2, soil.friction_angle, soil.unit_weight, soil.cohesion,
             soil.shear_modulus, soil.repose_angle, wheel.radius, wheel.width, wheel.grouser_height,
@@ -652,7 +658,7 @@ class WheelModel:
     True
     """
 
-    def __init__(self, soil: Soil, wheel: Wheel, tuning: ContactTuning, options: ModelOptions | None = None) -> None:
+    def __init__(self, soil: Soil, wheel: Wheel, tuning: ContactTuning | TuningTable, options: ModelOptions | None = None) -> None:
         self.soil = soil
         self.wheel = wheel
         self.tuning = tuning
@@ -746,8 +752,8 @@ class WheelModel:
         with np.errstate(invalid="ignore", divide="ignore", over="ignore", under="ignore"):
             for start in range(0, nb, chunk):
                 sl = slice(start, min(nb, start + chunk))
-                args = [a[sl, None] for a in (vxa, vya, wa, ha, h0a)]
-                wr, dg = wrench_core(NUMPY, *args, self.params, self.options)
+                vx_, vy_, w_, h_, h0_ = (a[sl, None] for a in (vxa, vya, wa, ha, h0a))
+                wr, dg = wrench_core(NUMPY, vx_, vy_, w_, h_, h0_, self.params, self.options)
                 for k, val in zip(WRENCH_NAMES, wr):
                     cols[k][sl] = np.broadcast_to(val, (sl.stop - sl.start, 1))[:, 0]
                 for k in DIAG_NAMES:
@@ -798,7 +804,8 @@ class WheelModel:
 
         # the serialised graph covers parameters, options and the code that built it
         flags = _compile_flags()
-        digest = hashlib.sha256((f.serialize() + tag + ca.__version__ + " ".join(flags)).encode()).hexdigest()[:16]
+        version = str(getattr(ca, "__version__", ""))  # casadi ships no type stubs
+        digest = hashlib.sha256((f.serialize() + tag + version + " ".join(flags)).encode()).hexdigest()[:16]
         root = Path(cache_dir) if cache_dir else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "offnominal"
         so = root / f"{f.name()}_{digest}.so"
         cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")

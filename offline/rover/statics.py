@@ -224,11 +224,12 @@ def free_body_residuals(rover: Rover, wrench: Mapping[str, Sequence[float]], bet
     """
     lr, hr, wr, W = rover.rocker_length, rover.pivot_height, rover.track_width, rover.weight
     contact = contact or {k: 1.0 for k in WHEELS}
-    ang = {}
+    measured: dict[str, float | None] = {}
     for side, (f, r) in (("R", ("FR", "RR")), ("L", ("FL", "RL"))):
-        ang[side] = float(np.arcsin((h[r] - h[f]) / lr)) if contact[f] and contact[r] else None
-    ang["R"] = ang["L"] if ang["R"] is None else ang["R"]
-    ang["L"] = ang["R"] if ang["L"] is None else ang["L"]
+        measured[side] = float(np.arcsin((h[r] - h[f]) / lr)) if contact[f] and contact[r] else None
+    # a side with a raised wheel takes the other side's rocker angle; neither side: level
+    ang = {side: next((a for a in (measured[side], measured[other]) if a is not None), 0.0)
+           for side, other in (("R", "L"), ("L", "R"))}
     gravity = rotation_x(cross_slope).T @ rotation_y(-slope).T @ np.array([0.0, 0.0, -W])
     force = gravity.copy()
     force[2] = 0.0

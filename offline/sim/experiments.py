@@ -142,16 +142,18 @@ class PidSteeringController:
         # a side whose offset re-solve failed is taken as the mirror of the other side (a linear
         # controller, antisymmetric); the substitution is listed in ``self.mirrored``
         self.mirrored: list[str] = []
-        self.gains = {}
+        self.gains: dict[str, NDArray[np.float64]] = {}
         for axis in ("Mz", "Fy"):
             plus, minus = gains.get(f"{axis}+"), gains.get(f"{axis}-")
-            if not plus and not minus:
+            if plus and not minus:
+                minus = {w: (-plus[w][0], -plus[w][1]) for w in WHEELS}
+                self.mirrored.append(f"{axis}-")
+            elif minus and not plus:
+                plus = {w: (-minus[w][0], -minus[w][1]) for w in WHEELS}
+                self.mirrored.append(f"{axis}+")
+            if not plus or not minus:
                 raise ExperimentError(f"steering controllers {axis}+ and {axis}- could not be computed (their offset "
                                       "re-solves failed); use a feed-forward-only controller for this scenario")
-            if not minus:
-                minus, _ = {w: (-plus[w][0], -plus[w][1]) for w in WHEELS}, self.mirrored.append(f"{axis}-")
-            if not plus:
-                plus, _ = {w: (-minus[w][0], -minus[w][1]) for w in WHEELS}, self.mirrored.append(f"{axis}+")
             self.gains[f"{axis}+"] = np.array([plus[w] for w in WHEELS])
             self.gains[f"{axis}-"] = np.array([minus[w] for w in WHEELS])
         self.base = PrimitiveController(primitive, name)

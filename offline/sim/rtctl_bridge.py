@@ -76,5 +76,5 @@ def _at_speed(base: Any, speed: float) -> Any:
     if abs(cfg.drive.speed - speed) > 1e-12:
         cfg = replace(cfg, drive=replace(cfg.drive, speed=speed))
     ctl = Controller(base.tables, cfg)
-    ctl.name = "rtctl"
+    setattr(ctl, "name", "rtctl")  # the label experiments.drive reads with getattr(controller, "name", ...)
     return ctl

@@ -80,11 +80,11 @@ class DisturbanceError(ValueError):
 def _floats(name: str, v: Any, n: int | None) -> Any:
     """``v`` as a float (``n is None``) or a tuple of ``n`` floats, finite, else DisturbanceError."""
     try:
-        out = float(v) if n is None else tuple(float(x) for x in v)
+        vals: tuple[float, ...] = (float(v),) if n is None else tuple(float(x) for x in v)
     except (TypeError, ValueError):
         raise DisturbanceError(f"DisturbanceForces.{name} must be {'a number' if n is None else f'{n} numbers'}, "
                                f"got {v!r}") from None
-    vals = (out,) if n is None else out
+    out: Any = vals[0] if n is None else vals
     if n is not None and len(vals) != n:
         raise DisturbanceError(f"DisturbanceForces.{name} must have {n} entries, got {len(vals)}: {v!r}")
     if not all(math.isfinite(x) for x in vals):

@@ -342,10 +342,16 @@ def fit_per_angle(
     ----------
     trials : TrialSet
         Trials of one commanded slip angle (use :meth:`TrialSet.subset`).
+    soil, wheel : Soil, Wheel
+        The soil and wheel held fixed while the tuning is fitted.
     start : ContactTuning
         Starting point; beta slopes are ignored (set to zero).
+    options : ModelOptions, optional
+        Terramechanics variant (default :class:`ModelOptions()`).
     noise : mapping, optional
         Per-channel noise (N); defaults to the pooled repeat spread of ``trials``.
+    max_nfev : int
+        Residual-evaluation budget of the least-squares solver.
     """
     options = options or ModelOptions()
     t0 = time.perf_counter()
@@ -475,8 +481,22 @@ def fit_joint(
 
     Parameters
     ----------
+    trials : TrialSet
+        The trials fitted (every slip angle at once).
+    soil, wheel : Soil, Wheel
+        Starting soil and wheel; their fields not in ``names`` stay fixed.
+    start : ContactTuning
+        Starting contact-angle tuning (eqs. (7.8)-(7.9): lines in |beta|).
     names : sequence of str
         Free parameters (PhysParams field names, see :data:`DEFAULT_BOUNDS`).
+    options : ModelOptions, optional
+        Terramechanics variant (default :class:`ModelOptions()`).
+    noise : mapping, optional
+        Per-channel noise scales (N, m); defaults to the pooled repeat spread of ``trials``.
+    bounds : mapping, optional
+        ``name -> (low, high)`` in SI, overriding :data:`DEFAULT_BOUNDS`.
+    max_nfev : int
+        Residual-evaluation budget of the least-squares solver.
     progress : callable, optional
         Called as ``progress(evaluation, cost)``.
     priors : mapping, optional

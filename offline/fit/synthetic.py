@@ -53,13 +53,26 @@ def write_synthetic_trials(
 
     Parameters
     ----------
-    soil, wheel, tuning : the generating parameters.
-    slip_angles_deg, slips : commanded slip angles (deg) and slip ratios (eq. 5.2).
-    repeats : trials per condition (>= 2 gives the noise estimate calibration needs).
-    load : mean vertical load, N; each trial's load is ``load (1 + load_rel_sd N(0, 1))``.
-    speed : carriage speed, m/s.
-    noise : standard deviations of F_x (N), F_y (N) and sinkage (m).
-    seed : seed of the random generator.
+    path : str or Path
+        The CSV written atomically (the testbed data's columns).
+    soil, wheel, tuning : Soil, Wheel, ContactTuning
+        The generating parameters.
+    slip_angles_deg, slips : sequence of float
+        Commanded slip angles (deg) and slip ratios (eq. 5.2).
+    repeats : int
+        Trials per condition (>= 2 gives the noise estimate calibration needs).
+    load : float
+        Mean vertical load, N; each trial's load is ``load (1 + load_rel_sd N(0, 1))``.
+    load_rel_sd : float
+        Relative standard deviation of the load between trials.
+    speed : float
+        Carriage speed, m/s.
+    noise : tuple of float
+        Standard deviations of F_x (N), F_y (N) and sinkage (m).
+    seed : int
+        Seed of the random generator.
+    options : ModelOptions, optional
+        Terramechanics variant that generates the forces (default :class:`ModelOptions()`).
 
     Returns
     -------

@@ -266,6 +266,8 @@ def trial_states(
 
     Parameters
     ----------
+    trials : TrialSet
+        The trials.
     angle : {"commanded", "measured"}
         Slip angle used. The testbed holds the commanded angle (measured within 0.3 deg),
         and the dissertation evaluates its model at the commanded angles; ``"measured"``

@@ -157,6 +157,8 @@ class Wheel:
         mu of eq. (5.9): fraction of the rim covered by grouser tips (1 for a smooth wheel).
     grouser_volume_fraction : float
         zeta of eq. (4.3): fraction of each grouser filled with transported soil.
+    name, source : str
+        A label and where the values come from (written to parameter files).
     """
 
     radius: float
@@ -273,6 +275,8 @@ class TuningTable:
         Slip-angle magnitudes of the rows, rad, strictly increasing, within [0, pi/2].
     rows : tuple of ContactTuning
         The tuning of each row (no per-radian slopes).
+    name, source : str
+        A label and where the values come from (written to parameter files).
     """
 
     abs_beta: tuple[float, ...]

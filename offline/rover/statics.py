@@ -103,6 +103,8 @@ class FourWheelRocker:
     pitch_includes_wheel_torque : bool
         Include the soil moments M_y about the wheel axles in the rocker pitch balances
         (default; ``False`` reproduces the printed (7.16)-(7.17) in this respect).
+    wheels : tuple of str
+        Wheel names in the order of every per-wheel array (FR, FL, RR, RL).
     """
 
     rover: Rover

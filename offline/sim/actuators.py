@@ -82,6 +82,10 @@ class Actuators:
     rs_nominal : float
         Shearing radius the rover software uses to turn a rim-speed command into a wheel
         speed (``omega = rim / r_s``): a worn wheel of the truth still gets this conversion.
+    steer, omega_servo : ndarray, shape (4,)
+        Servo states (rad, rad/s), zero at the start.
+    steer_cmd, omega_cmd : ndarray, shape (4,)
+        The latched commands (rad, rad/s), zero at the start.
     """
 
     config: ActuatorConfig

@@ -134,7 +134,10 @@ class PidSteeringController:
     gains : dict
         :func:`offline.rover.primitives.steering_controllers` output: per offset direction,
         per wheel ``(d rim speed, d steer)`` per unit offset.
-    pid : PidGains
+    pid : PidGains, optional
+        PID gains on the pose errors (default :class:`PidGains()`).
+    name : str
+        Label of the controller in results and plots.
     """
 
     def __init__(self, primitive: PrimitiveResult, gains: Mapping[str, Mapping[str, tuple[float, float]]],

@@ -208,11 +208,15 @@ class RoverSimulator:
         set (its wheel's shearing radius converts rim-speed commands to wheel speeds).
     truth : Truth, optional
         The simulated world (default: the scenario's parameters, flat, no tether).
-    actuators, sensors : configs
+    actuators, sensors : ActuatorConfig, SensorConfig, optional
+        Servo limits and dynamics; sensor noise and rates (defaults: the classes' defaults).
     dt : float
         Fixed plant step, s (the 5 Hz control period should be a multiple).
     seed : int
         Seeds every noise source.
+    compiled : bool
+        C-compile the wheel forces (cached on disk); ``False`` uses casadi's virtual
+        machine (slower, the same numbers to rounding).
     disturbance : Disturbance, optional
         External forces (contract C5): called once at the start of each step, held over it;
         ``None`` runs the undisturbed equations bit for bit.

@@ -306,6 +306,9 @@ class BuildOptions:
     trust_search : tuple
         Steps of the per-point trust-radius search, in parameter scales, ascending (a
         geometric ladder; searched by bisection on it, both signs; :func:`point_trust_radius`).
+    trust_max_iter : int
+        IPOPT iterations of each of the (at most two) verification runs of one trust-radius
+        step, both started at the first-order prediction (:func:`point_trust_radius`).
     trust_steps : tuple
         Steps of ``offnominal tables verify``'s linearisation check, in parameter scales.
     active_tol : float
@@ -319,6 +322,7 @@ class BuildOptions:
     fy_offset: float = 1.0
     trust_tolerance: float = 0.02
     trust_search: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
+    trust_max_iter: int = 30
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
     polish_sweeps: int = 2
@@ -545,7 +549,8 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         b2 = dict(b)
         b2["p"] = p.copy()
         b2["p"][lay.index(par)] += sgn * mag
-        r = pb.solve(b2, x_s, lam_x_s, lam_g_s)
+        # warm-started at the first-order prediction of the offset's solution (with IPOPT's multipliers)
+        r = pb.solve(b2, x_s + dx_dp_s[:, lay.index(par)] * sgn * mag, lam_x_s, lam_g_s)
         if r["success"]:
             dx = (np.asarray(r["x"]) - x_s) * xsc / (sgn * mag)
         else:
@@ -569,18 +574,21 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     ``trust_tolerance`` (of the variable scales) of the NLP's solution at ``p + dp``.
 
     Search: for each sign, bisection on the ladder ``build.trust_search`` (parameter scales,
-    1/16 .. 2 by default) for the largest step whose re-solve succeeds and whose prediction
-    error is within the tolerance (at most 3 re-solves per sign for 6 steps; the error is taken
-    as growing with the step). Each re-solve starts at the primitive: one IPOPT run with its
-    own dual initialisation, then one warm-started with the primitive's multipliers, then the
-    optimizer's search (:func:`~offline.rover.primitives.solve_primitive` from the primitive,
-    the table's budgets, no confirmation search). Measured at 15 deg slope on the nominal
-    table: the multiplier warm start fails at the kink of the cross-slope response (beta = 0,
-    150 iterations, 0.5-0.8 s) where the first run converges in 8 iterations (0.03 s), hence
-    this order. The radius is the smaller of the two signs. When no step passes, the radius
-    is ``d tol / e`` from the smallest step ``d`` that was re-solved (error ``e``; the linear
-    growth law, the smaller of the linear and quadratic laws). A speed step that would leave
-    less than a quarter of the travel speed is not tried (counts as not passing).
+    1/16 .. 2 by default) for the largest *verified* step: a step is verified when a re-solve
+    of the NLP at ``p + dp`` started at the prediction ``x + dx/dp dp`` converges and lands
+    within the tolerance of it (at most 3 steps per sign for 6 steps; the error is taken as
+    growing with the step). The re-solve is one IPOPT run warm-started there with the
+    primitive's multipliers and, if that does not converge, one run from the same point with
+    IPOPT's own dual initialisation (a step across a kink of the response changes the active
+    set, which the old multipliers do not describe); each run has ``build.trust_max_iter``
+    iterations. There is no further search: a step whose re-solve from the prediction does not
+    converge is not verified, whatever another optimum far away might be (measured on the
+    nominal table: the optimizer's multi-start search used as a third fallback took 61 % of a
+    build's CPU time and verified no step that passes). The radius is the smaller of the
+    two signs. When no step passes, the radius is ``d tol / e`` from the smallest step ``d``
+    that was re-solved (error ``e``; the linear growth law, the smaller of the linear and
+    quadratic laws). A speed step that would leave less than a quarter of the travel speed is
+    not tried (counts as not passing).
 
     Returns ``(radius, unverified)``: ``unverified`` is 1 where no re-solve of that parameter
     succeeded at any step (both signs); its radius is then the documented fallback, the
@@ -588,13 +596,10 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     Parameters that are not continuous (contact, pivot lock) get radius 0 (the QP must not
     move them) and are not flagged.
     """
-    from . import primitives as P
-
     lay = pb.layout
     xsc = lay.variable_scale
     tol = spec.build.trust_tolerance
     ladder = tuple(sorted(spec.build.trust_search))
-    cold_opts = replace(spec.solver, confirm=False) if spec.solver is not None else P.SolverOptions(confirm=False)
     radius, unverified = np.zeros(lay.np_), np.zeros(lay.np_)
     for name in _LIN_PARAMS:
         j = lay.index(name)
@@ -606,8 +611,7 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
             def err(k: int) -> float:
                 if k not in cache:
                     d = sgn * ladder[k] * scale
-                    cache[k] = _prediction_error(spec, pb, sc, name, d, x_s, lam_x, lam_g, x, dx_dp[:, j], xsc,
-                                                 cold_opts)
+                    cache[k] = _prediction_error(spec, pb, sc, name, d, lam_x, lam_g, x, dx_dp[:, j], xsc)
                 return cache[k]
 
             lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
@@ -632,30 +636,25 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     return radius, unverified
 
 
-def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, x_s: NDArray[np.float64],
-                      lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
-                      col: NDArray[np.float64], xsc: NDArray[np.float64], cold_opts: Any) -> float:
-    """Largest ``|x + col d - x*(p + d)| / scale`` (inf when the NLP at ``p + d`` is not re-solved)."""
-    from . import primitives as P
-
+def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, lam_x: NDArray[np.float64],
+                      lam_g: NDArray[np.float64], x: NDArray[np.float64], col: NDArray[np.float64],
+                      xsc: NDArray[np.float64]) -> float:
+    """Largest ``|x + col d - x*(p + d)| / scale``, ``x*`` re-solved from the prediction
+    ``x + col d`` (:func:`point_trust_radius`); inf when the re-solve does not converge."""
     kw: dict[str, Any] = {name: getattr(sc, name) + d}
     if name == "speed":
         if sc.speed + d < 0.25 * sc.speed:
             return math.inf
         kw.update(_fam_follow(spec, sc, sc.speed + d))
-    sc2 = replace(sc, **kw)
-    b2 = pb.bounds(sc2)
-    r = pb.solve(b2, x_s)  # IPOPT from the primitive, its own dual initialisation
+    b2 = pb.bounds(replace(sc, **kw))
+    pred = x + col * d
+    its = spec.build.trust_max_iter
+    r = pb.solve(b2, pred / xsc, lam_x, lam_g, max_iter=its)  # warm: the primitive's multipliers
     if not r["success"]:
-        r = pb.solve(b2, x_s, lam_x, lam_g)  # warm: the primitive's multipliers too
-    if r["success"]:
-        xs2 = np.asarray(r["x"], dtype=float)
-    else:  # the optimizer's search (continuation, restarts) from the primitive
-        rr = P.solve_primitive(sc2, cold_opts, x0=x_s)
-        if rr.status != "optimal":
-            return math.inf
-        xs2 = np.asarray(rr.x, dtype=float)
-    return float(np.max(np.abs(x + col * d - xs2 * xsc) / xsc))
+        r = pb.solve(b2, pred / xsc, max_iter=its)  # IPOPT's own dual initialisation
+    if not r["success"]:
+        return math.inf
+    return float(np.max(np.abs(pred - np.asarray(r["x"], dtype=float) * xsc) / xsc))
 
 
 def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:

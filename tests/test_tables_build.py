@@ -299,3 +299,106 @@ def test_upgrade_of_a_schema_1_file_computes_the_same_cross_derivative(nominal, 
     assert not t.arrays["trust_unverified"].any()
     with pytest.raises(TableError, match="not a schema-1 table"):
         upgrade_table(up, tmp_path / "v3")
+
+
+def test_trust_radius_verifies_steps_from_the_prediction_without_the_full_search(nominal, monkeypatch):
+    """Every trust-radius re-solve starts at the first-order prediction x + dx/dp dp with the
+    budget build.trust_max_iter, and a step whose re-solve fails is simply not verified: the
+    optimizer's multi-start search (solve_primitive) is never called. Made to fail here for
+    one parameter, the radius falls back to the documented smallest ladder step, flagged."""
+    from offline.rover import primitives as P
+    from offline.rover.table_builder import _problem, point_trust_radius, scenario_at
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    lay = t.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    idx = np.unravel_index(1, t.shape)
+    a = {k: t.arrays[k][idx] for k in ("x", "lam_x", "lam_g", "dx_dp", "trust_radius", "trust_unverified")}
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(1))
+    pb = _problem(sc, spec.solver)
+
+    def no_search(*args, **kw):
+        raise AssertionError("the trust-radius search called the optimizer's full search")
+
+    monkeypatch.setattr(P, "solve_primitive", no_search)
+    calls = []
+    orig = type(pb).solve
+    j_slope = lay.index("slope")
+
+    def solve(self, b, x0, lam_x0=None, lam_g0=None, max_iter=None):
+        d = b["p"][j_slope] - sc.slope
+        pred = np.clip((a["x"] + a["dx_dp"][:, j_slope] * d) / xsc, b["lbx"], b["ubx"])
+        calls.append((max_iter, d))
+        if d != 0.0:  # a slope step: it must start at the prediction; make it fail
+            np.testing.assert_allclose(np.clip(x0, b["lbx"], b["ubx"]), pred, rtol=1e-12, atol=1e-12)
+            r = orig(self, b, x0, lam_x0, lam_g0, max_iter=max_iter)
+            return {**r, "success": False}
+        return orig(self, b, x0, lam_x0, lam_g0, max_iter=max_iter)
+
+    monkeypatch.setattr(type(pb), "solve", solve)
+    radius, unverified = point_trust_radius(spec, pb, sc, a["x"] / xsc, a["lam_x"] * xsc, a["lam_g"] * csc,
+                                            a["x"], a["dx_dp"])
+    assert calls and all(m == spec.build.trust_max_iter for m, _ in calls)
+    assert any(d != 0.0 for _, d in calls)
+    ladder0 = min(spec.build.trust_search) * lay.parameters[j_slope].scale
+    assert unverified[j_slope] == 1.0 and radius[j_slope] == pytest.approx(ladder0)
+    # the other parameters are verified as in the build (same code path, same starts)
+    for name in ("speed", "cross_slope", "fy_offset", "mz_offset"):
+        j = lay.index(name)
+        assert unverified[j] == 0.0 and radius[j] == pytest.approx(a["trust_radius"][j], rel=1e-9)
+
+
+def test_speed_twins_are_verified_resolves_of_the_first_speed(nominal):
+    """The 4 cm/s points of the fixture come from their 2 cm/s twins (exact speed scaling of
+    (7.25)): recorded as such, each verified by a warm re-solve of a few iterations, and equal
+    to a full solve of the optimizer there (so the scaling is exact, not assumed)."""
+    from offline.rover import primitives as P
+    from offline.rover.table_builder import scenario_at, speed_twin
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    assert [speed_twin(spec.grid, f) for f in range(spec.grid.size)] == [None, 0, None, 2]
+    assert t.header["speed_twins"] == {"1": 0, "3": 2}
+    xsc = t.layout.variable_scale
+    for f in (1, 3):
+        idx = np.unravel_index(f, t.shape)
+        assert t.arrays["iterations"][idx] <= 5
+        r = P.solve_primitive(scenario_at(spec.scenario, spec.family, spec.grid.point(f)), spec.solver)
+        assert r.status == "optimal"
+        np.testing.assert_allclose(t.arrays["x"][idx] / xsc, r.x, atol=1e-5)
+
+
+def test_twin_pass_gives_a_point_without_primitive_its_twins_optimum(nominal, tmp_path):
+    """A point marked infeasible whose speed twin is solved is re-solved from the twin (the
+    verdict was wrong: the same NLP scaled has a primitive); an unsolvable twin changes nothing."""
+    from offline.rover import table_builder as TB
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+    i0 = np.unravel_index(0, t.shape)
+    rec0 = {"flat": 0, "status": "optimal", "x_scaled": t.arrays["x"][i0] / xsc, "lam_x": t.arrays["lam_x"][i0] * xsc,
+            "lam_g": t.arrays["lam_g"][i0] * csc, "data": {k: t.arrays[k][i0] for k in ("x", "dx_dp")}}
+    recs = {0: rec0, 1: {"flat": 1, "status": "infeasible", "evidence": {}},
+            2: {"flat": 2, "status": "not_found", "evidence": {}}, 3: {"flat": 3, "status": "infeasible", "evidence": {}}}
+    twin_of = {f: TB.speed_twin(spec.grid, f) for f in range(4)}
+    ck = TB._Checkpoint(tmp_path / ".twins", spec.key())
+    assert TB._twin_pass(spec, recs, twin_of, ck, None, "twin0") == 1
+    assert recs[1]["status"] == "optimal" and recs[1]["speed_twin_of"] == 0
+    np.testing.assert_allclose(recs[1]["data"]["x"], t.arrays["x"][np.unravel_index(1, t.shape)], atol=1e-6 * xsc.max())
+    assert recs[3]["status"] == "infeasible" and recs[2]["status"] == "not_found"  # no solved twin: unchanged
+
+
+def test_a_twin_without_primitive_shares_the_verdict_after_its_own_search(tmp_path):
+    """rr_locked has no primitive: the 4 cm/s point runs its own search without confirmation,
+    finds nothing, and takes its 2 cm/s twin's verdict with both evidences."""
+    spec = table_spec(ROOT / "tables" / "scenarios" / "rr_locked.toml", grid="slope=0;cross_slope=0;speed=2,4", build=FAST)
+    path, summary = build_table(spec, tmp_path, jobs=1, progress=False)
+    t = load_table(path)
+    assert summary["statuses"] == {"infeasible": 2}
+    assert t.header["speed_twins"] == {"1": 0}
+    ev = t.header["evidence"]["1"]
+    assert ev["speed twin"] == 0 and ev["twin evidence"] == t.header["evidence"]["0"]
+    assert "confirmation" not in " ".join(map(str, ev["own search"].values()))
+    assert t.arrays["iterations"].ravel()[1] < t.arrays["iterations"].ravel()[0]

@@ -64,7 +64,7 @@ __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
-    "predicted_start", "polish_point", "upgrade_table",
+    "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve", "solve_twin_chain",
     "CODE_SOURCES", "code_hash",
 ]
 
@@ -316,6 +316,10 @@ class BuildOptions:
     polish_sweeps : int
         Sweeps of the neighbour pass (:func:`polish_point`): a solved point takes a neighbour's
         lower-objective optimum, so adjacent points lie on the same branch (0: off).
+    speed_twins : bool
+        Exploit the exact speed scaling of (7.25) on this rate-independent soil model
+        (:func:`solve_twin`): only the first speed of the grid is searched in full; every other
+        speed starts from its twin at the first speed and is verified by its own re-solve.
     """
 
     mz_offset: float = 0.2
@@ -326,6 +330,7 @@ class BuildOptions:
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
     polish_sweeps: int = 2
+    speed_twins: bool = True
 
 
 @dataclass(frozen=True)
@@ -668,13 +673,14 @@ def _fam_follow(spec: TableSpec, sc: Any, speed: float) -> dict[str, Any]:
 
 
 def _solve_point(spec: TableSpec, flat: int, x0: NDArray[np.float64] | None,
-                 op: Mapping[str, float] | None = None, data: bool = True) -> dict[str, Any]:
-    """Solve one point (grid index ``flat`` or operating point ``op``) from ``x0``; with
-    ``data`` the table's per-point data too (:func:`point_data`)."""
+                 op: Mapping[str, float] | None = None, data: bool = True, solver: Any = None) -> dict[str, Any]:
+    """Solve one point (grid index ``flat`` or operating point ``op``) from ``x0`` (with the
+    spec's solver options, or ``solver``); with ``data`` the table's per-point data too
+    (:func:`point_data`)."""
     from . import primitives as P
 
     sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat) if op is None else op)
-    r = P.solve_primitive(sc, spec.solver, x0=x0)
+    r = P.solve_primitive(sc, spec.solver if solver is None else solver, x0=x0)
     rec: dict[str, Any] = {"flat": flat, "status": r.status, "iterations": int(r.stats.get("iterations", 0)),
                            "evidence": encode(r.evidence) if r.status != "optimal" else None}
     if r.status == "optimal":
@@ -691,6 +697,87 @@ def solve_chain(spec: TableSpec, chain: Sequence[int]) -> list[dict[str, Any]]:
     out, x0 = [], None
     for flat in chain:
         rec = _solve_point(spec, flat, x0)
+        if rec["status"] == "optimal":
+            x0 = rec["x_scaled"]
+        out.append(rec)
+    return out
+
+
+def speed_twin(grid: GridSpec, flat: int) -> int | None:
+    """The grid point that differs from ``flat`` only in speed and is at the grid's first speed
+    (None when ``flat`` is at the first speed or the grid has fewer than two speeds)."""
+    if "speed" not in grid.names or len(grid.values("speed")) < 2:
+        return None
+    idx = list(np.unravel_index(flat, grid.shape))
+    a = grid.names.index("speed")
+    if idx[a] == 0:
+        return None
+    idx[a] = 0
+    return int(np.ravel_multi_index(idx, grid.shape))
+
+
+def twin_resolve(spec: TableSpec, flat: int, twin: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The primitive at ``flat`` from the solved point ``twin`` that differs from it only in
+    speed, or None if it does not verify.
+
+    (7.25) scales exactly with the travel speed on this rate-independent soil model: every
+    wheel's omega and every bound on it (motor limit (7.2), a rim-speed cap given as a fraction
+    of the speed) scale with it, all other variables, constraint rows and the objective are
+    unchanged (measured on the shipped rim-speed-cap table: the scaled optimum violates the
+    other speed's constraints by 2e-9 scaled, its objective differs by < 1e-8). The twin's
+    optimum moved by its sensitivity (exact in speed, :func:`predicted_start`) and its
+    multipliers (those of the omega bounds divided by the speed ratio) start one warm IPOPT run
+    of ``build.trust_max_iter`` iterations; the point is accepted only if that run converges
+    and passes the optimizer's independent numeric check."""
+    from . import primitives as P
+
+    op, op_t = spec.grid.point(flat), spec.grid.point(int(twin["flat"]))
+    sc = scenario_at(spec.scenario, spec.family, op)
+    pb = _problem(sc, spec.solver)
+    lay = pb.layout
+    x0 = predicted_start(spec, twin, op_t, op)
+    lam_x = np.asarray(twin["lam_x"], dtype=float).copy()
+    om = [lay.var("omega", w) for w in lay.wheels]
+    lam_x[om] /= op["speed"] / op_t["speed"]
+    r = pb.solve(pb.bounds(sc), x0, lam_x, twin["lam_g"], max_iter=spec.build.trust_max_iter)
+    if not r["success"] or not P.check_solution(pb, sc, r["x"])[1]:
+        return None
+    x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
+    return {"flat": flat, "status": "optimal", "iterations": int(r["iterations"]), "evidence": None,
+            "speed_twin_of": int(twin["flat"]), "x_scaled": x, "lam_x": lx, "lam_g": lg,
+            "data": point_data(spec, sc, x, lx, lg)}
+
+
+def solve_twin_chain(spec: TableSpec, chain: Sequence[int], twins: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Solve a chain at a speed other than the grid's first from its twins there (same order).
+
+    A point whose twin is optimal: :func:`twin_resolve`; if that does not verify, the full
+    search from the twin's scaled optimum. A point whose twin has no primitive: the
+    optimizer's main search without its confirmation search (the twin's search had one),
+    from the chain's last solved point like a first-pass chain; solved, it is optimal (and the
+    twin gets this optimum in :func:`build_table`'s twin pass); not solved, it takes the
+    twin's verdict, the twin's evidence and its own search's evidence: the two problems are
+    the same NLP up to the exact speed scaling (:func:`twin_resolve`)."""
+    out: list[dict[str, Any]] = []
+    x0 = None
+    for flat, tw in zip(chain, twins):
+        rec: dict[str, Any] | None = None
+        if tw["status"] == "optimal":
+            rec = twin_resolve(spec, flat, tw)
+            if rec is None:
+                rec = _solve_point(spec, flat, predicted_start(spec, tw, spec.grid.point(int(tw["flat"])),
+                                                                spec.grid.point(flat)))
+        else:
+            own = _solve_point(spec, flat, x0, solver=replace(spec.solver, confirm=False))
+            if own["status"] == "optimal":
+                rec = own
+            else:
+                rec = {"flat": flat, "status": tw["status"], "iterations": own["iterations"], "speed_twin_of": int(tw["flat"]),
+                       "evidence": {"verdict": f"{tw['status']}: the verdict of grid point {tw['flat']}, the same NLP "
+                                               "at another travel speed (exact speed scaling of (7.25)); this point's "
+                                               "own search (no confirmation) found no primitive either",
+                                    "speed twin": int(tw["flat"]), "twin evidence": tw["evidence"],
+                                    "own search": own["evidence"]}}
         if rec["status"] == "optimal":
             x0 = rec["x_scaled"]
         out.append(rec)
@@ -1011,14 +1098,17 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     ch = chains(spec.grid)
+    twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}
+    first = [i for i, c in enumerate(ch) if twin_of.get(c[0]) is None]
+    later = [i for i, c in enumerate(ch) if twin_of.get(c[0]) is not None]
     recs: dict[int, dict[str, Any]] = {}
     todo = []
-    for i, c in enumerate(ch):
+    for i in first:
         got = ck.load("chain", i)
         if got is not None:
             recs.update({r["flat"]: r for r in got})
         else:
-            todo.append((solve_chain, (spec, c), i))
+            todo.append((solve_chain, (spec, ch[i]), i))
     bar = tqdm(total=spec.grid.size, initial=len(recs), desc=f"{spec.name}", unit="pt", disable=not progress,
                leave=True, dynamic_ncols=True)
     ex, client = (executor, None) if executor is not None else _executor(jobs, scheduler)
@@ -1029,6 +1119,17 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.update(len(res))
 
         _run(todo, ex, chain_done)
+        # chains at the other speeds, from their twins at the first speed (solve_twin_chain)
+        todo = []
+        for i in later:
+            got = ck.load("chain", i)
+            if got is not None:
+                recs.update({r["flat"]: r for r in got})
+                bar.update(len(got))
+            else:
+                todo.append((solve_twin_chain, (spec, ch[i], [recs[twin_of[f]] for f in ch[i]]), i))
+        _run(todo, ex, chain_done)
+        _twin_pass(spec, recs, twin_of, ck, ex, "twin0")
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
         retry_tasks, retried = [], {}
@@ -1053,6 +1154,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
+        if twin_of:
+            _twin_pass(spec, recs, twin_of, ck, ex, "twin1")
         polished = _polish(spec, recs, ck, ex, bar)
         refinement = None
         if spec.refine is not None:
@@ -1080,6 +1183,42 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                "retried": len(retried), "polished": polished, "trust_radius": header["trust_radius"],
                "refinement": header.get("refinement")}
     return path, summary
+
+
+def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mapping[int, int | None], ck: _Checkpoint,
+               ex: cf.Executor | None, kind: str) -> int:
+    """Make the speeds of one operating point agree: a point without a primitive whose speed
+    twins (the points differing from it only in speed) include a solved one is re-solved from
+    the solved twin of lowest speed (:func:`twin_resolve`); a verified re-solve replaces the
+    verdict (the twin's optimum shows the NLP has a primitive). Uses the records as they are
+    when called (deterministic). Returns the number of points replaced."""
+    groups: dict[int, list[int]] = {}
+    for f in range(spec.grid.size):
+        t = twin_of.get(f)
+        groups.setdefault(f if t is None else t, []).append(f)
+    tasks, got = [], {}
+    for members in groups.values():
+        solved = [f for f in sorted(members) if recs[f]["status"] == "optimal"]
+        if not solved:
+            continue
+        for f in sorted(members):
+            if recs[f]["status"] == "optimal":
+                continue
+            c = ck.load(kind, f)
+            if c is not None:
+                got[f] = c[0] if c[0]["status"] != "none" else None
+                continue
+            tasks.append((twin_resolve, (spec, f, recs[solved[0]]), f))
+
+    def done(f: int, rec: dict[str, Any] | None) -> None:
+        ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
+        got[f] = rec
+
+    _run(tasks, ex, done)
+    changed = sorted(f for f, r in got.items() if r is not None)
+    for f in changed:
+        recs[f] = got[f]
+    return len(changed)
 
 
 def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
@@ -1189,6 +1328,10 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "solver_options": encode(pb.options),
         "build_options": encode(spec.build),
         "evidence": evidence,
+        "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
+        "speed_twins_rule": ("grid point -> the point at another speed it was solved from (twin_resolve: exact speed "
+                             "scaling, verified by a warm re-solve and the independent check) or whose verdict it "
+                             "shares after its own search found no primitive (solve_twin_chain)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
                               f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "

@@ -554,8 +554,7 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         b2 = dict(b)
         b2["p"] = p.copy()
         b2["p"][lay.index(par)] += sgn * mag
-        # warm-started at the first-order prediction of the offset's solution (with IPOPT's multipliers)
-        r = pb.solve(b2, x_s + dx_dp_s[:, lay.index(par)] * sgn * mag, lam_x_s, lam_g_s)
+        r = pb.solve(b2, x_s, lam_x_s, lam_g_s)
         if r["success"]:
             dx = (np.asarray(r["x"]) - x_s) * xsc / (sgn * mag)
         else:

@@ -23,7 +23,11 @@ fixed), solved from flat ground upward, each point warm-started from the last so
 its chain (the first from the optimizer's automatic start). Chains are independent tasks for a
 local process pool or a Dask cluster. Points left unsolved (``not_found``/``solver_failure``)
 are then retried from each solved grid neighbour in a fixed order; still unsolved, they are
-``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Then a
+``not_found`` (distinct from ``infeasible``, which carries the optimizer's evidence). Then,
+with ``build.speed_twins`` (default), a twin pass (:func:`_twin_pass`): (7.25) scales exactly
+with the travel speed on this rate-independent soil model, so the points that differ only in
+speed are one NLP, and each takes the best optimum found at any of its speeds
+(:func:`twin_resolve`, verified by its own re-solve). Then a
 neighbour pass (:func:`polish_point`, ``build.polish_sweeps`` sweeps) re-solves every solved
 point from its neighbours' predicted starts ``x + dx/dp dp`` and keeps a strictly lower
 objective: (7.25) has several local optima (a wheel at the motor limit, mirrored steering),
@@ -64,7 +68,7 @@ __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
-    "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve", "solve_twin_chain",
+    "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
     "CODE_SOURCES", "code_hash",
 ]
 
@@ -317,9 +321,8 @@ class BuildOptions:
         Sweeps of the neighbour pass (:func:`polish_point`): a solved point takes a neighbour's
         lower-objective optimum, so adjacent points lie on the same branch (0: off).
     speed_twins : bool
-        Exploit the exact speed scaling of (7.25) on this rate-independent soil model
-        (:func:`solve_twin`): only the first speed of the grid is searched in full; every other
-        speed starts from its twin at the first speed and is verified by its own re-solve.
+        Twin pass (:func:`_twin_pass`): points that differ only in speed (one NLP up to the exact
+        speed scaling of (7.25)) take the best optimum found at any of their speeds.
     """
 
     mz_offset: float = 0.2
@@ -586,9 +589,12 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     IPOPT's own dual initialisation (a step across a kink of the response changes the active
     set, which the old multipliers do not describe); each run has ``build.trust_max_iter``
     iterations. There is no further search: a step whose re-solve from the prediction does not
-    converge is not verified, whatever another optimum far away might be (measured on the
-    nominal table: the optimizer's multi-start search used as a third fallback took 61 % of a
-    build's CPU time and verified no step that passes). The radius is the smaller of the
+    converge is not verified, whatever another optimum far away might be. (Measured with
+    ``tests/bench/profile_tables.py``: the former search -- re-solves from the primitive itself,
+    then the optimizer's multi-start search -- took 71 % of the CPU time of a nominal build
+    (cross-slope 0, 22 points; 640 IPOPT iterations per point) and 63 % of a rim-speed-cap
+    build (24 points); this one 37 % and 10 %, with the same or larger radii at all but a few
+    points.) The radius is the smaller of the
     two signs. When no step passes, the radius is ``d tol / e`` from the smallest step ``d``
     that was re-solved (error ``e``; the linear growth law, the smaller of the linear and
     quadratic laws). A speed step that would leave less than a quarter of the travel speed is
@@ -745,42 +751,6 @@ def twin_resolve(spec: TableSpec, flat: int, twin: Mapping[str, Any]) -> dict[st
     return {"flat": flat, "status": "optimal", "iterations": int(r["iterations"]), "evidence": None,
             "speed_twin_of": int(twin["flat"]), "x_scaled": x, "lam_x": lx, "lam_g": lg,
             "data": point_data(spec, sc, x, lx, lg)}
-
-
-def solve_twin_chain(spec: TableSpec, chain: Sequence[int], twins: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Solve a chain at a speed other than the grid's first from its twins there (same order).
-
-    A point whose twin is optimal: :func:`twin_resolve`; if that does not verify, the full
-    search from the twin's scaled optimum. A point whose twin has no primitive: the
-    optimizer's main search without its confirmation search (the twin's search had one),
-    from the chain's last solved point like a first-pass chain; solved, it is optimal (and the
-    twin gets this optimum in :func:`build_table`'s twin pass); not solved, it takes the
-    twin's verdict, the twin's evidence and its own search's evidence: the two problems are
-    the same NLP up to the exact speed scaling (:func:`twin_resolve`)."""
-    out: list[dict[str, Any]] = []
-    x0 = None
-    for flat, tw in zip(chain, twins):
-        rec: dict[str, Any] | None = None
-        if tw["status"] == "optimal":
-            rec = twin_resolve(spec, flat, tw)
-            if rec is None:
-                rec = _solve_point(spec, flat, predicted_start(spec, tw, spec.grid.point(int(tw["flat"])),
-                                                                spec.grid.point(flat)))
-        else:
-            own = _solve_point(spec, flat, x0, solver=replace(spec.solver, confirm=False))
-            if own["status"] == "optimal":
-                rec = own
-            else:
-                rec = {"flat": flat, "status": tw["status"], "iterations": own["iterations"], "speed_twin_of": int(tw["flat"]),
-                       "evidence": {"verdict": f"{tw['status']}: the verdict of grid point {tw['flat']}, the same NLP "
-                                               "at another travel speed (exact speed scaling of (7.25)); this point's "
-                                               "own search (no confirmation) found no primitive either",
-                                    "speed twin": int(tw["flat"]), "twin evidence": tw["evidence"],
-                                    "own search": own["evidence"]}}
-        if rec["status"] == "optimal":
-            x0 = rec["x_scaled"]
-        out.append(rec)
-    return out
 
 
 def predicted_start(spec: TableSpec, rec: Mapping[str, Any], op_from: Mapping[str, float],
@@ -1098,16 +1068,14 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     ch = chains(spec.grid)
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}
-    first = [i for i, c in enumerate(ch) if twin_of.get(c[0]) is None]
-    later = [i for i, c in enumerate(ch) if twin_of.get(c[0]) is not None]
     recs: dict[int, dict[str, Any]] = {}
     todo = []
-    for i in first:
+    for i, c in enumerate(ch):
         got = ck.load("chain", i)
         if got is not None:
             recs.update({r["flat"]: r for r in got})
         else:
-            todo.append((solve_chain, (spec, ch[i]), i))
+            todo.append((solve_chain, (spec, c), i))
     bar = tqdm(total=spec.grid.size, initial=len(recs), desc=f"{spec.name}", unit="pt", disable=not progress,
                leave=True, dynamic_ncols=True)
     ex, client = (executor, None) if executor is not None else _executor(jobs, scheduler)
@@ -1118,17 +1086,6 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.update(len(res))
 
         _run(todo, ex, chain_done)
-        # chains at the other speeds, from their twins at the first speed (solve_twin_chain)
-        todo = []
-        for i in later:
-            got = ck.load("chain", i)
-            if got is not None:
-                recs.update({r["flat"]: r for r in got})
-                bar.update(len(got))
-            else:
-                todo.append((solve_twin_chain, (spec, ch[i], [recs[twin_of[f]] for f in ch[i]]), i))
-        _run(todo, ex, chain_done)
-        _twin_pass(spec, recs, twin_of, ck, ex, "twin0")
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
         retry_tasks, retried = [], {}
@@ -1154,7 +1111,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 if rec["status"] != "optimal" else None
             recs[f] = rec
         if twin_of:
-            _twin_pass(spec, recs, twin_of, ck, ex, "twin1")
+            bar.set_description(f"{spec.name} (speed twins)")
+            _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         polished = _polish(spec, recs, ck, ex, bar)
         refinement = None
         if spec.refine is not None:
@@ -1186,11 +1144,16 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
 
 def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mapping[int, int | None], ck: _Checkpoint,
                ex: cf.Executor | None, kind: str) -> int:
-    """Make the speeds of one operating point agree: a point without a primitive whose speed
-    twins (the points differing from it only in speed) include a solved one is re-solved from
-    the solved twin of lowest speed (:func:`twin_resolve`); a verified re-solve replaces the
-    verdict (the twin's optimum shows the NLP has a primitive). Uses the records as they are
-    when called (deterministic). Returns the number of points replaced."""
+    """Make the speeds of one operating point agree. Points that differ only in speed are one
+    NLP up to the exact speed scaling (:func:`twin_resolve`), yet each speed was searched on
+    its own and the searches can end differently (measured on the former shipped tables:
+    ``infeasible`` at 2 cm/s and ``optimal`` at 4 cm/s at 6 rim-speed-cap, 3 stuck-steering and
+    4 trench points; optima of different objective). The best optimum of a group (lowest
+    objective; at an equal one within 1e-6 relative, the lowest speed) is carried to every
+    other member that has no primitive or a higher objective (by more than 1e-6 relative); the
+    carried point replaces the member only if its re-solve verifies (:func:`twin_resolve`).
+    Uses the records as they are when called (deterministic). Returns the number of points
+    replaced."""
     groups: dict[int, list[int]] = {}
     for f in range(spec.grid.size):
         t = twin_of.get(f)
@@ -1200,23 +1163,35 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
         solved = [f for f in sorted(members) if recs[f]["status"] == "optimal"]
         if not solved:
             continue
+        obj = {f: float(recs[f]["data"]["objective"]) for f in solved}
+        best = min(solved, key=lambda f: (obj[f], f))
+        fb = obj[best]
+        best = min(f for f in solved if obj[f] <= fb + 1e-6 * max(abs(fb), 1e-3))
         for f in sorted(members):
-            if recs[f]["status"] == "optimal":
+            if f == best or (f in obj and obj[f] <= obj[best] + 1e-6 * max(abs(obj[best]), 1e-3)):
                 continue
             c = ck.load(kind, f)
             if c is not None:
                 got[f] = c[0] if c[0]["status"] != "none" else None
                 continue
-            tasks.append((twin_resolve, (spec, f, recs[solved[0]]), f))
+            tasks.append((twin_resolve, (spec, f, recs[best]), f))
 
     def done(f: int, rec: dict[str, Any] | None) -> None:
         ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
         got[f] = rec
 
     _run(tasks, ex, done)
-    changed = sorted(f for f, r in got.items() if r is not None)
-    for f in changed:
-        recs[f] = got[f]
+    changed = []
+    for f in sorted(got):
+        r = got[f]
+        if r is None:
+            continue
+        if recs[f]["status"] == "optimal":  # only a strictly better optimum replaces one
+            f0 = float(recs[f]["data"]["objective"])
+            if not float(r["data"]["objective"]) < f0 - 1e-6 * max(abs(f0), 1e-3):
+                continue
+        recs[f] = r
+        changed.append(f)
     return len(changed)
 
 
@@ -1328,9 +1303,8 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "build_options": encode(spec.build),
         "evidence": evidence,
         "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
-        "speed_twins_rule": ("grid point -> the point at another speed it was solved from (twin_resolve: exact speed "
-                             "scaling, verified by a warm re-solve and the independent check) or whose verdict it "
-                             "shares after its own search found no primitive (solve_twin_chain)"),
+        "speed_twins_rule": ("grid point -> the point at another speed whose better optimum it took in the twin pass "
+                             "(exact speed scaling of (7.25); verified by a warm re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
                               f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "

@@ -339,9 +339,12 @@ def test_trust_radius_verifies_steps_from_the_prediction_without_the_full_search
     monkeypatch.setattr(type(pb), "solve", solve)
     radius, unverified = point_trust_radius(spec, pb, sc, a["x"] / xsc, a["lam_x"] * xsc, a["lam_g"] * csc,
                                             a["x"], a["dx_dp"])
-    assert calls and all(m == spec.build.trust_max_iter for m, _ in calls)
-    assert any(d != 0.0 for _, d in calls)
     ladder0 = min(spec.build.trust_search) * lay.parameters[j_slope].scale
+    # the budget is build.trust_max_iter; only the smallest slope step, after every slope step of
+    # a sign failed, is tried once more with the optimizer's per-run budget
+    assert calls and all(m == spec.build.trust_max_iter for m, d in calls if d == 0.0)
+    last = [(m, d) for m, d in calls if d != 0.0 and m != spec.build.trust_max_iter]
+    assert sorted(last) == sorted([(spec.solver.max_iter, ladder0), (spec.solver.max_iter, -ladder0)] * 2)
     assert unverified[j_slope] == 1.0 and radius[j_slope] == pytest.approx(ladder0)
     # the other parameters are verified as in the build (same code path, same starts)
     for name in ("speed", "cross_slope", "fy_offset", "mz_offset"):

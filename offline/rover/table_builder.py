@@ -597,7 +597,10 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     points.) The radius is the smaller of the
     two signs. When no step passes, the radius is ``d tol / e`` from the smallest step ``d``
     that was re-solved (error ``e``; the linear growth law, the smaller of the linear and
-    quadratic laws). A speed step that would leave less than a quarter of the travel speed is
+    quadratic laws); if no re-solve of a sign converged, its smallest step is re-solved once
+    more from the prediction with the optimizer's per-run budget ``solver.max_iter`` (measured
+    at 3 rim-speed-cap points: such re-solves converge in 52-116 iterations to a point 1-20
+    variable scales from the prediction, so the radius is tiny, not the fallback). A speed step that would leave less than a quarter of the travel speed is
     not tried (counts as not passing).
 
     Returns ``(radius, unverified)``: ``unverified`` is 1 where no re-solve of that parameter
@@ -618,10 +621,10 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
         for sgn in (1.0, -1.0):
             cache: dict[int, float] = {}  # ladder index -> error (inf: no re-solve)
 
-            def err(k: int) -> float:
+            def err(k: int, its: int | None = None) -> float:
                 if k not in cache:
                     d = sgn * ladder[k] * scale
-                    cache[k] = _prediction_error(spec, pb, sc, name, d, lam_x, lam_g, x, dx_dp[:, j], xsc)
+                    cache[k] = _prediction_error(spec, pb, sc, name, d, lam_x, lam_g, x, dx_dp[:, j], xsc, its)
                 return cache[k]
 
             lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
@@ -635,6 +638,11 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
                 r = ladder[lo] * scale
             else:  # no step passed: the linear law from the smallest step that was re-solved
                 err(0)
+                if not any(math.isfinite(e) for e in cache.values()):
+                    # nothing converged within build.trust_max_iter: the smallest step once more
+                    # with the optimizer's per-run budget (its error sizes the radius)
+                    del cache[0]
+                    err(0, spec.solver.max_iter if spec.solver is not None else None)
                 done = sorted(k for k, e in cache.items() if math.isfinite(e))
                 r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
             solved_any = solved_any or any(math.isfinite(e) for e in cache.values())
@@ -648,9 +656,10 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
 
 def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, lam_x: NDArray[np.float64],
                       lam_g: NDArray[np.float64], x: NDArray[np.float64], col: NDArray[np.float64],
-                      xsc: NDArray[np.float64]) -> float:
+                      xsc: NDArray[np.float64], max_iter: int | None = None) -> float:
     """Largest ``|x + col d - x*(p + d)| / scale``, ``x*`` re-solved from the prediction
-    ``x + col d`` (:func:`point_trust_radius`); inf when the re-solve does not converge."""
+    ``x + col d`` with ``max_iter`` (default ``build.trust_max_iter``) iterations per run
+    (:func:`point_trust_radius`); inf when the re-solve does not converge."""
     kw: dict[str, Any] = {name: getattr(sc, name) + d}
     if name == "speed":
         if sc.speed + d < 0.25 * sc.speed:
@@ -658,7 +667,7 @@ def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, la
         kw.update(_fam_follow(spec, sc, sc.speed + d))
     b2 = pb.bounds(replace(sc, **kw))
     pred = x + col * d
-    its = spec.build.trust_max_iter
+    its = spec.build.trust_max_iter if max_iter is None else max_iter
     r = pb.solve(b2, pred / xsc, lam_x, lam_g, max_iter=its)  # warm: the primitive's multipliers
     if not r["success"]:
         r = pb.solve(b2, pred / xsc, max_iter=its)  # IPOPT's own dual initialisation

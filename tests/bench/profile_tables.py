@@ -8,7 +8,8 @@ Phases (exclusive process time, IPOPT runs and iterations in each): the first so
 grid point (``solve_primitive`` from the chain's warm start, split by its verdict: optimal /
 infeasible / not_found), the table data of a solved point (derivatives, KKT sensitivity,
 wrenches), the steering-controller re-solves, the trust-radius re-solves, the retries of
-unsolved points from their neighbours, the neighbour pass, and grid refinement. The build is
+unsolved points from their neighbours, the speed-twin pass, the neighbour pass, and grid
+refinement. The build is
 written to a temporary folder and discarded.
 """
 
@@ -117,6 +118,7 @@ def main() -> int:
     _wrap(TB, "point_trust_radius", "trust radius")
     _wrap(TB, "retry_point", "retry from neighbours")
     _wrap(TB, "polish_point", "neighbour pass")
+    _wrap(TB, "twin_resolve", "speed-twin pass")
     _wrap(TR, "_solve_point", "refinement: point")
     _wrap(TR, "retry_point", "refinement: retry")
     if hasattr(TR, "_midpoint"):

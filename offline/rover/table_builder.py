@@ -1155,9 +1155,10 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
                ex: cf.Executor | None, kind: str) -> int:
     """Make the speeds of one operating point agree. Points that differ only in speed are one
     NLP up to the exact speed scaling (:func:`twin_resolve`), yet each speed was searched on
-    its own and the searches can end differently (measured on the former shipped tables:
-    ``infeasible`` at 2 cm/s and ``optimal`` at 4 cm/s at 6 rim-speed-cap, 3 stuck-steering and
-    4 trench points; optima of different objective). The best optimum of a group (lowest
+    its own and the searches can end differently (measured on the shipped tables of main
+    832105c: ``infeasible`` at one speed and ``optimal`` at the other at 6 rim-speed-cap, 3
+    stuck-steering and 2 trench operating points, ``not_found`` and ``optimal`` at 1 trench
+    point). The best optimum of a group (lowest
     objective; at an equal one within 1e-6 relative, the lowest speed) is carried to every
     other member that has no primitive or a higher objective (by more than 1e-6 relative); the
     carried point replaces the member only if its re-solve verifies (:func:`twin_resolve`).

@@ -299,3 +299,109 @@ def test_upgrade_of_a_schema_1_file_computes_the_same_cross_derivative(nominal, 
     assert not t.arrays["trust_unverified"].any()
     with pytest.raises(TableError, match="not a schema-1 table"):
         upgrade_table(up, tmp_path / "v3")
+
+
+def test_trust_radius_verifies_steps_from_the_prediction_without_the_full_search(nominal, monkeypatch):
+    """Every trust-radius re-solve starts at the first-order prediction x + dx/dp dp with the
+    budget build.trust_max_iter, and a step whose re-solve fails is simply not verified: the
+    optimizer's multi-start search (solve_primitive) is never called. Made to fail here for
+    one parameter, the radius falls back to the documented smallest ladder step, flagged."""
+    from offline.rover import primitives as P
+    from offline.rover.table_builder import _problem, point_trust_radius, scenario_at
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    lay = t.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    idx = np.unravel_index(1, t.shape)
+    a = {k: t.arrays[k][idx] for k in ("x", "lam_x", "lam_g", "dx_dp", "trust_radius", "trust_unverified")}
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(1))
+    pb = _problem(sc, spec.solver)
+
+    def no_search(*args, **kw):
+        raise AssertionError("the trust-radius search called the optimizer's full search")
+
+    monkeypatch.setattr(P, "solve_primitive", no_search)
+    calls = []
+    orig = type(pb).solve
+    j_slope = lay.index("slope")
+
+    def solve(self, b, x0, lam_x0=None, lam_g0=None, max_iter=None):
+        d = b["p"][j_slope] - sc.slope
+        pred = np.clip((a["x"] + a["dx_dp"][:, j_slope] * d) / xsc, b["lbx"], b["ubx"])
+        calls.append((max_iter, d))
+        if d != 0.0:  # a slope step: it must start at the prediction; make it fail
+            np.testing.assert_allclose(np.clip(x0, b["lbx"], b["ubx"]), pred, rtol=1e-12, atol=1e-12)
+            r = orig(self, b, x0, lam_x0, lam_g0, max_iter=max_iter)
+            return {**r, "success": False}
+        return orig(self, b, x0, lam_x0, lam_g0, max_iter=max_iter)
+
+    monkeypatch.setattr(type(pb), "solve", solve)
+    radius, unverified = point_trust_radius(spec, pb, sc, a["x"] / xsc, a["lam_x"] * xsc, a["lam_g"] * csc,
+                                            a["x"], a["dx_dp"])
+    ladder0 = min(spec.build.trust_search) * lay.parameters[j_slope].scale
+    # the budget is build.trust_max_iter; only the smallest slope step, after every slope step of
+    # a sign failed, is tried once more with the optimizer's per-run budget
+    assert calls and all(m == spec.build.trust_max_iter for m, d in calls if d == 0.0)
+    last = [(m, d) for m, d in calls if d != 0.0 and m != spec.build.trust_max_iter]
+    assert sorted(last) == sorted([(spec.solver.max_iter, ladder0), (spec.solver.max_iter, -ladder0)] * 2)
+    assert unverified[j_slope] == 1.0 and radius[j_slope] == pytest.approx(ladder0)
+    # the other parameters are verified as in the build (same code path, same starts)
+    for name in ("speed", "cross_slope", "fy_offset", "mz_offset"):
+        j = lay.index(name)
+        assert unverified[j] == 0.0 and radius[j] == pytest.approx(a["trust_radius"][j], rel=1e-9)
+
+
+def test_twin_resolve_carries_a_primitive_exactly_to_another_speed(nominal):
+    """The 2 cm/s primitive carried to 4 cm/s (exact speed scaling of (7.25)) verifies in a few
+    warm iterations and equals the 4 cm/s primitive the chain found by its own search: the
+    scaling is checked, not assumed. The fixture's speeds agree, so the twin pass changed
+    nothing."""
+    from offline.rover.table_builder import speed_twin, twin_resolve
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    assert [speed_twin(spec.grid, f) for f in range(spec.grid.size)] == [None, 0, None, 2]
+    assert t.header["speed_twins"] == {}
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+    for src, dst in ((0, 1), (3, 2)):
+        i0, i1 = np.unravel_index(src, t.shape), np.unravel_index(dst, t.shape)
+        rec = {"flat": src, "x_scaled": t.arrays["x"][i0] / xsc, "lam_x": t.arrays["lam_x"][i0] * xsc,
+               "lam_g": t.arrays["lam_g"][i0] * csc, "data": {k: t.arrays[k][i0] for k in ("x", "dx_dp")}}
+        r = twin_resolve(spec, dst, rec)
+        assert r is not None and r["speed_twin_of"] == src and r["iterations"] <= 5
+        np.testing.assert_allclose(r["x_scaled"], t.arrays["x"][i1] / xsc, atol=1e-6)
+        assert float(r["data"]["objective"]) == pytest.approx(float(t.arrays["objective"][i1]), rel=1e-7)
+
+
+def test_twin_pass_carries_the_best_optimum_to_the_other_speeds(nominal, tmp_path):
+    """A point marked infeasible, or holding a worse optimum, whose speed twin is solved gets
+    the twin's optimum (the same NLP scaled has it); a group without a solved point, or whose
+    other member is already as good, is left alone."""
+    from offline.rover import table_builder as TB
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+
+    def rec(f, worse=0.0):
+        i = np.unravel_index(f, t.shape)
+        d = {k: t.arrays[k][i] for k in ("x", "dx_dp")}
+        d["objective"] = t.arrays["objective"][i] + worse
+        return {"flat": f, "status": "optimal", "x_scaled": t.arrays["x"][i] / xsc, "lam_x": t.arrays["lam_x"][i] * xsc,
+                "lam_g": t.arrays["lam_g"][i] * csc, "data": d}
+
+    twin_of = {f: TB.speed_twin(spec.grid, f) for f in range(4)}
+    recs = {0: rec(0), 1: {"flat": 1, "status": "infeasible", "evidence": {}},
+            2: {"flat": 2, "status": "not_found", "evidence": {}}, 3: {"flat": 3, "status": "infeasible", "evidence": {}}}
+    ck = TB._Checkpoint(tmp_path / ".twins", spec.key())
+    assert TB._twin_pass(spec, recs, twin_of, ck, None, "twin_a") == 1
+    assert recs[1]["status"] == "optimal" and recs[1]["speed_twin_of"] == 0
+    np.testing.assert_allclose(recs[1]["data"]["x"], t.arrays["x"][np.unravel_index(1, t.shape)], atol=1e-6 * xsc.max())
+    assert recs[3]["status"] == "infeasible" and recs[2]["status"] == "not_found"  # no solved twin: unchanged
+    # a worse optimum at 2 cm/s (objective told 1 higher) takes the 4 cm/s one; an equal one stays
+    recs = {0: rec(0, worse=1.0), 1: rec(1), 2: rec(2), 3: rec(3)}
+    assert TB._twin_pass(spec, recs, twin_of, ck, None, "twin_b") == 1
+    assert recs[0]["speed_twin_of"] == 1 and "speed_twin_of" not in recs[2]
+    assert float(recs[0]["data"]["objective"]) == pytest.approx(float(t.arrays["objective"][np.unravel_index(0, t.shape)]),
+                                                                 rel=1e-7)

@@ -241,13 +241,14 @@ class SteadyStateProblem:
         self.g_names = L.constraint_names
         self._nlp = {"x": xs, "p": p, "f": f, "g": g}
         self.solver = ca.nlpsol("primitive", "ipopt", self._nlp, self._ipopt_options(warm=False))
-        self._warm_solver: Any = None
+        self._solvers: dict[tuple[bool, int | None], Any] = {}  # (warm start, max_iter) -> IPOPT instance
         self.eval_g = ca.Function("eval_g", [xs, p], [g, f])
         self.build_seconds = time.perf_counter() - t0
 
-    def _ipopt_options(self, warm: bool) -> dict[str, Any]:
+    def _ipopt_options(self, warm: bool, max_iter: int | None = None) -> dict[str, Any]:
         o = self.options
-        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol, "ipopt.max_iter": o.max_iter,
+        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol,
+              "ipopt.max_iter": o.max_iter if max_iter is None else int(max_iter),
               "ipopt.mu_strategy": "adaptive", "ipopt.hessian_approximation": o.hessian, "ipopt.constr_viol_tol": 1e-9}
         if warm:
             io.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
@@ -327,11 +328,12 @@ class SteadyStateProblem:
 
     # ------------------------------------------------------------------ solve
     def solve(self, b: dict[str, NDArray[np.float64]], x0: NDArray[np.float64], lam_x0: NDArray[np.float64] | None = None,
-              lam_g0: NDArray[np.float64] | None = None) -> dict[str, Any]:
+              lam_g0: NDArray[np.float64] | None = None, max_iter: int | None = None) -> dict[str, Any]:
         """One IPOPT run from ``x0`` (scaled; clipped into the bounds).
 
         With multipliers ``lam_x0``, ``lam_g0`` (from a previous result) IPOPT is warm-started
-        (``warm_start_init_point``). Returns ``x`` (scaled), ``g`` (scaled rows), ``f``,
+        (``warm_start_init_point``). ``max_iter``: this run's iteration budget (default the
+        options' ``max_iter``; an IPOPT instance per budget is built once and kept). Returns ``x`` (scaled), ``g`` (scaled rows), ``f``,
         ``lam_x``, ``lam_g`` (IPOPT multipliers), ``status`` (IPOPT return status),
         ``iterations``, ``success`` (converged and within ``feasibility_tol``), ``feasible``
         (the end point satisfies the constraints) and ``violation``.
@@ -340,11 +342,16 @@ class SteadyStateProblem:
 
         x0 = np.clip(np.asarray(x0, dtype=float), b["lbx"], b["ubx"])
         args = {"x0": x0, "p": b["p"], "lbx": b["lbx"], "ubx": b["ubx"], "lbg": b["lbg"], "ubg": b["ubg"]}
-        solver = self.solver
-        if lam_x0 is not None or lam_g0 is not None:
-            if self._warm_solver is None:
-                self._warm_solver = ca.nlpsol("primitive_warm", "ipopt", self._nlp, self._ipopt_options(warm=True))
-            solver = self._warm_solver
+        warm = lam_x0 is not None or lam_g0 is not None
+        mi = None if max_iter is None or int(max_iter) == self.options.max_iter else int(max_iter)
+        if not warm and mi is None:
+            solver = self.solver
+        else:
+            solver = self._solvers.get((warm, mi))
+            if solver is None:
+                name = "primitive" + ("_warm" if warm else "") + (f"_{mi}" if mi is not None else "")
+                solver = self._solvers[(warm, mi)] = ca.nlpsol(name, "ipopt", self._nlp, self._ipopt_options(warm, mi))
+        if warm:
             args["lam_x0"] = np.zeros(self.layout.nx) if lam_x0 is None else lam_x0
             args["lam_g0"] = np.zeros(self.layout.ng) if lam_g0 is None else lam_g0
         try:

@@ -231,6 +231,25 @@ def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
         _step(sim, dt / 2, depth + 1)
 
 
+def _recorded_pose(d: DriveData) -> Callable[[float], tuple[float, float, float]] | None:
+    """The recorded pose at time t in the frame of the drive's start pose (for hooks that depend on
+    where the rover is, :class:`offline.fit.drive_candidates.AnchoredTether`); None without pose
+    fixes (the hook then takes the simulator's dead-reckoned state)."""
+    if not np.all(np.isfinite(d.pose[:, :2])):
+        return None
+    x0, y0, h0 = d.pose[0]
+    c, s = math.cos(h0), math.sin(h0)
+    X = c * (d.pose[:, 0] - x0) + s * (d.pose[:, 1] - y0)
+    Y = -s * (d.pose[:, 0] - x0) + c * (d.pose[:, 1] - y0)
+    H = d.pose[:, 2] - h0
+    t = d.t
+
+    def at(tt: float) -> tuple[float, float, float]:
+        return float(np.interp(tt, t, X)), float(np.interp(tt, t, Y)), float(np.interp(tt, t, H))
+
+    return at
+
+
 def load_drives(paths: Sequence[str | Path], gyro_bias: float = 0.0) -> list[DriveData]:
     """Read recordings: files, or folders (every ``*.mcap`` inside, sorted by name)."""
     files: list[Path] = []
@@ -664,7 +683,11 @@ class DriveModel:
         body = np.full((n, 3), np.nan)
         try:
             truth, act, _ = truth_from_terms(self.params, self.truth, ext)
-            hook = disturbance_from_terms(ext, self.params, self.scenario.rover)
+            # pose-dependent hooks (an anchored tether) see the recorded pose of the tick being solved
+            # (the simulator's own clock skips the ticks interpolated in steady stretches)
+            path, clock = _recorded_pose(d), [0.0]
+            hook = disturbance_from_terms(ext, self.params, self.scenario.rover,
+                                          None if path is None else (lambda t: path(clock[0])))
         except ValueError:
             return ticks, body, False
         acfg = replace(self.actuators, **act) if act else self.actuators
@@ -705,6 +728,7 @@ class DriveModel:
                     servo[k] = act.omega_servo
                     continue
                 sim.heading = float(hd[k])
+                clock[0] = float(d.t[k])
                 steer_before = act.steer.copy()
                 try:
                     _step(sim, d.period)
@@ -871,8 +895,13 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         header = {"verdict": v.status, "terms": v.chosen.label, "fitted": v.chosen.parameters_text(),
                   "held_out_chi2": f"{v.chi2_cv_base:.1f} -> {v.chosen.chi2_cv:.1f}",
                   "recordings": obs.source}
-        hook = disturbance_from_terms(ext, model.params, model.scenario.rover)
-        dist = {"clearance_m": hook.clearance, "face_width_m": hook.face_width, "arm_m": hook.arm} if hook else None
+        terms = rover_terms(ext)
+        dist = {k: terms[t] for k, t in (("hub_clearance_m", "hub_clearance"), ("hub_face_width_m", "hub_face_width"),
+                                          ("hub_arm_m", "hub_arm"), ("anchor_tension_N", "anchor_tension"),
+                                          ("anchor_bearing_rad", "anchor_bearing"),
+                                          ("anchor_inverse_distance_per_m", "anchor_inverse_distance"),
+                                          ("anchor_attach_x_m", "anchor_attach_x"),
+                                          ("anchor_spring_rate_N_per_m", "anchor_spring_rate")) if t in terms} or None
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
                                       meas, act, header, dist)
         extra += ["", "## Accepted terms as a simulator truth file", "",

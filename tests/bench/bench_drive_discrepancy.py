@@ -142,12 +142,12 @@ def judge(v: Any, expect: dict[str, dict[str, float]], in_library: bool) -> dict
     errs = {}
     if v.chosen is not None:
         vals = dict(zip(v.chosen.names, v.chosen.values))
-        for key, pars in expect.items():
-            if key not in named:
-                continue
-            for name, truth in pars.items():
-                if name in vals and truth != 0.0:
-                    errs[f"{key}.{name}"] = {"fitted": vals[name], "truth": truth, "rel_error": abs(vals[name] - truth) / abs(truth)}
+        for keys, pars in expect.items():
+            for key in [k for k in keys.split("|") if k in named]:
+                for name, truth in pars.items():
+                    if name in vals and truth != 0.0:
+                        errs[f"{key}.{name}"] = {"fitted": vals[name], "truth": truth,
+                                                 "rel_error": abs(vals[name] - truth) / abs(truth)}
     return {"ok": bool(ok), "param_errors": errs}
 
 

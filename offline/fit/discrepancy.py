@@ -537,6 +537,7 @@ def diagnose(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
     forward: str = "regions",
+    fit_tol: float | None = None,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -563,8 +564,10 @@ def diagnose(
         Linearisation points per candidate for the null (the fit and ``n_points - 1`` spread
         over the parameter box).
     n_refit : int
-        At most this many candidates (those passing on the screening score) are scored again
-        with a full refit per fold.
+        At most this many threshold candidates (those passing on the screening score) are scored
+        again with a full refit per fold; one whose (optimistic) screening improvement is below
+        ``1 - equal_fraction`` of the best smooth significant candidate's is not (it could not
+        become the best nor a look-alike of it) and stays not significant.
     max_terms : int
         At most this many candidates combined.
     max_tries : int
@@ -586,6 +589,10 @@ def diagnose(
         When the forward step looks for a second term: only when the first leaves significant
         regions (the single-wheel default), or always (drives: a second effect partly absorbed
         by the first may leave no region; the extra term's own test keeps the level).
+    fit_tol : float, optional
+        Relative tolerance of every least-squares fit on the chi-square and the step
+        (:func:`~offline.fit.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
+        ``max_nfev``).
 
     Raises
     ------
@@ -649,7 +656,7 @@ def diagnose(
         lo = np.concatenate([c.lower for c in cands])
         hi = np.concatenate([c.upper for c in cands])
         r = resid_fn(cands)
-        f = fit(r, lo, hi, starts, nc, max_nfev=max_nfev)
+        f = fit(r, lo, hi, starts, nc, max_nfev=max_nfev, tol=fit_tol)
         rows = held_out(f, lambda x: r(x).reshape(-1, nc), folds, lo, hi)
         s = CandidateScore(tuple(c.key for c in cands), tuple(c.physics for c in cands), tuple(c.kind for c in cands),
                            tuple(q[0] for c in cands for q in c.params), tuple(q[1] for c in cands for q in c.params),
@@ -682,12 +689,18 @@ def diagnose(
     null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None))
     observed = np.array([s.delta_cv for s in singles])
     _, p_adj = adjusted_p(observed, null)
-    # candidates that pass on the screening score are scored again with a full refit per fold
-    for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > 0 and library[i].threshold][:n_refit]:
+    # candidates that pass on the screening score are scored again with a full refit per fold --
+    # unless even their screening score (optimistic for a threshold: the full-data fit placed the
+    # threshold using the held-out rows) falls short of what a look-alike of the best smooth
+    # candidate must reach: then the refit cannot make them the best or equivalent (budget)
+    smooth = [observed[i] for i in range(len(library)) if p_adj[i] < alpha and observed[i] > 0 and not library[i].threshold]
+    reach = (1.0 - equal_fraction) * max(smooth, default=0.0)
+    for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > max(reach, 0.0)
+              and library[i].threshold][:n_refit]:
         c = library[i]
         say(f"held-out refits of {c.key}")
         starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])] + [np.array(q, dtype=float) for q in c.starts]
-        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev)
+        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev, tol=fit_tol)
         singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                            nfev=singles[i].nfev + nf, refit=True)
     observed = np.array([s.delta_cv for s in singles])
@@ -743,10 +756,13 @@ def diagnose(
                 say(f"trying {primary.label} + {c2.key}")
                 x0 = np.array([*primary.values, *s2.values])
                 sc2, f2 = score(first + [c2], [x0])
-                if any(c.threshold for c in first + [c2]):
+                # a threshold's refit per fold only when its (optimistic) screening gain passes the
+                # test: otherwise the refit cannot make the pair significant (budget)
+                if any(c.threshold for c in first + [c2]) and primary.chi2_cv - sc2.chi2_cv > max(q_pool, 0.0):
                     lo = np.concatenate([c.lower for c in first + [c2]])
                     hi = np.concatenate([c.upper for c in first + [c2]])
-                    rows, nf = refit_held_out(rows_fn(first + [c2]), folds, lo, hi, [f2.x], nc, max_nfev=max_nfev)
+                    rows, nf = refit_held_out(rows_fn(first + [c2]), folds, lo, hi, [f2.x], nc, max_nfev=max_nfev,
+                                              tol=fit_tol)
                     sc2 = _with(sc2, chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                                 nfev=sc2.nfev + nf, refit=True)
                 extra = primary.chi2_cv - sc2.chi2_cv
@@ -786,7 +802,8 @@ def diagnose(
         # on a drive): refit the subset the data determine, the others held at the model's values
         c = by_key[chosen.keys[0]][0]
         say(f"reducing {c.key} to the parameters the data determine")
-        red = reduced_parameters(c, chosen, fits[by_key[c.key][2]].jac, resid_fn([c]), folds, nc, chi2_base, max_nfev)
+        red = reduced_parameters(c, chosen, fits[by_key[c.key][2]].jac, resid_fn([c]), folds, nc, chi2_base, max_nfev,
+                                 tol=fit_tol)
         if red is not None and chi2_base - red.chi2_cv >= (1.0 - equal_fraction) * chosen.delta_cv:
             scores.append(red)
             chosen = red
@@ -844,7 +861,8 @@ def diagnose(
 
 def reduced_parameters(c: Candidate, s: CandidateScore, jac: NDArray[np.float64],
                        resid: Callable[[NDArray[np.float64]], NDArray[np.float64]], folds: NDArray[np.int_], nc: int,
-                       chi2_base: float, max_nfev: int, level: float = 0.95) -> CandidateScore | None:
+                       chi2_base: float, max_nfev: int, level: float = 0.95, tol: float | None = None
+                       ) -> CandidateScore | None:
     """Refit a group of the model's own parameters on the subset the data determine.
 
     Backward elimination: while a free parameter's ``level`` interval (``2 z se``, from the
@@ -890,7 +908,7 @@ def reduced_parameters(c: Candidate, s: CandidateScore, jac: NDArray[np.float64]
             x[fr] = xs
             return x
 
-        f = fit(lambda xs: resid(embed(xs)), lo[fr], hi[fr], [x_full[fr], start[fr]], nc, max_nfev=max_nfev)
+        f = fit(lambda xs: resid(embed(xs)), lo[fr], hi[fr], [x_full[fr], start[fr]], nc, max_nfev=max_nfev, tol=tol)
         nfev += f.nfev
         se = f.std_errors
         if np.all(np.isfinite(se)) and np.all(2 * zq * se < half[fr]):

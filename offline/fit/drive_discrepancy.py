@@ -17,7 +17,8 @@ every step: at drive speeds the plant is quasi-static (soil damping time constan
 milliseconds), so the state at a tick depends on the actuator states (driven by the recorded
 commands) and on the heading (gravity direction on a slope); forcing the heading keeps an
 open-loop heading drift from turning into a slowly growing, time-correlated residual. Each
-prediction is then local in time.
+prediction is then local in time. Candidates whose force depends on where the rover is (a
+tether to a fixed anchor) see the recorded pose of the tick being solved, for the same reason.
 
 Observations (:class:`DriveRecording`): rows are time segments
 --------------------------------------------------------------
@@ -530,7 +531,9 @@ class DriveRecording:
         a tether from a softer soil or a worn wheel, nor one front wheel's steering offset from the
         other's), or a longer drive when it already has them all."""
         have = self.manoeuvres()
-        wanted = {"turn": "a point turn or Ackermann turns both ways", "crab": "a crab (all wheels at one angle)",
+        wanted = {"turn": "a point turn or Ackermann turns both ways",
+                  "crab": ("crabs both ways at a large angle (all wheels at one angle, about 60 deg: it separates "
+                           "one front wheel's steering offset from the other's)"),
                   "reverse": "a reverse leg"}
         need = [text for m, text in wanted.items() if have[m] < 1.0]
         rec = ", ".join(f"{k} {v:.0f} s" for k, v in have.items())

@@ -100,7 +100,8 @@ force and yaw moment; with every wheel steered at ``s`` the offset's force on th
 flips sign between FL and FR (at 57 deg one of them has almost no moment). Measured on a 40 s
 drive with :data:`REALISTIC_SENSORS` (seed 3): FL/FR Jacobian correlation 0.90 and a chi-square
 separation of a 3 deg FL offset from the best FR fit of 19.6 with the former single 20 deg
-crab; 0.58 and 75.7 with these crabs (joint standard errors 0.68 / 0.64 deg -> 0.35 / 0.36 deg).
+crab; 0.58 and 75.7 with these crabs (joint standard errors 0.68 / 0.64 deg -> 0.34 / 0.36 deg;
+``python tests/bench/bench_drive_discrepancy.py fl_fr``).
 
 No point turn: the plant (:mod:`offline.sim.plant`) has no quasi-static equilibrium when a
 wheel's speed passes through zero or the rover stands still, and a point turn from a moving
@@ -135,7 +136,7 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
                  duration: float | None = None, sensors: SensorConfig = REALISTIC_SENSORS,
                  actuators: ActuatorConfig | None = None, period: float = 0.2, sim_dt: float = 0.1,
                  disturbance: Any = None, actuator_path: ActuatorPath | None = None,
-                 sensor_path: SensorPath | None = None) -> Path:
+                 sensor_path: SensorPath | None = None, segments: tuple[DriveSegment, ...] = CALIBRATION_SEGMENTS) -> Path:
     """Drive the calibration script on the truth simulator and write an MCAP recording.
 
     The truth state goes to the ``/sim/truth`` channel (for plots and metrics only); the
@@ -147,8 +148,9 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
     torques, evaluated by the simulator once per step), ``actuator_path`` (the commands the
     actuators really receive; the recording keeps the commanded ones) and ``sensor_path``
     (the readings the recording keeps, from the simulator's readings and the true state).
+    ``segments``: another command script (default :data:`CALIBRATION_SEGMENTS`).
     """
-    d, at = calibration_drive(duration)
+    d, at = calibration_drive(duration, segments)
     kw = {} if disturbance is None else {"disturbance": disturbance}
     sim = RoverSimulator(scenario, truth, actuators=actuators, sensors=sensors, dt=sim_dt, seed=seed, **kw)
     to_act: ActuatorPath = actuator_path or (lambda c: c)

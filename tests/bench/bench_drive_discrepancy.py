@@ -31,6 +31,7 @@ group's rows of an earlier run; report folders under out/bench_drive_discrepancy
     nice python tests/bench/bench_drive_discrepancy.py effects tether     # cases whose name contains 'tether' (no file written)
     python tests/bench/bench_drive_discrepancy.py table                   # rewrite the .md from the .json
     nice python tests/bench/bench_drive_discrepancy.py lack_of_fit        # residuals vs noise before any explanation
+    python tests/bench/bench_drive_discrepancy.py fl_fr                   # FL vs FR steering separation, this and the former drive
 """
 
 from __future__ import annotations
@@ -240,6 +241,52 @@ def lack_of_fit(sc: Any) -> int:
     return 0
 
 
+def _former_segments() -> tuple[Any, ...]:
+    """The calibration drive before the crabs both ways at 57 deg (one 20 deg crab right), for fl_fr."""
+    from offline.fit.drive_synthetic import DriveSegment, _ackermann
+
+    left, right = _ackermann(0.35, 0.03), _ackermann(-0.5, 0.04)
+    return (DriveSegment(0.0, 10.0, (0.03,) * 4, (0.0,) * 4), DriveSegment(10.0, 24.0, *left),
+            DriveSegment(24.0, 32.0, (0.03,) * 4, (0.0,) * 4), DriveSegment(32.0, 40.0, (0.03,) * 4, (-0.35,) * 4),
+            DriveSegment(40.0, 48.0, *right), DriveSegment(48.0, 52.0, (0.02,) * 4, (0.0,) * 4),
+            DriveSegment(52.0, 60.0, (-0.03,) * 4, (0.0,) * 4))
+
+
+def fl_fr(sc: Any, tr: Truth) -> int:
+    """Fisher information of a front-left vs a front-right steering offset on a 40 s drive without
+    any effect (seed 3, REALISTIC_SENSORS), for the former and the current calibration drive: the
+    correlation of the two offsets' Jacobians (normalised residuals per degree, the engine's noise
+    and dispersion), the chi-square separation of a 3 deg FL offset from the best-fitting FR one,
+    and the joint standard errors (deg) of the two offsets fitted together."""
+    import numpy as np
+
+    from offline.fit.drive_candidates import RoverExtension
+    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
+    from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, record_drive
+    from offline.fit.significance import normalised
+
+    for label, segs in (("former (one 20 deg crab right)", _former_segments()),
+                        ("current (crabs both ways at 57 deg)", CALIBRATION_SEGMENTS)):
+        with tempfile.TemporaryDirectory() as tmp:
+            f = record_drive(Path(tmp) / "d.mcap", sc, tr, seed=3, duration=DURATION, segments=segs)
+            m = DriveModel(sc)
+            obs = DriveRecording.build(load_drives([f]), m, 5)
+        p0, _ = m.predict(obs, None)
+        s = obs.dispersion(p0)
+        z0 = normalised(obs, p0, s)
+        J = {}
+        for w in ("FL", "FR"):
+            p, _ = m.predict(obs, RoverExtension(terms={f"steer_offset.{w}": math.radians(1.0)}))
+            J[w] = (normalised(obs, p, s) - z0).ravel()
+        a, b = J["FL"], J["FR"]
+        corr = float(a @ b / math.sqrt((a @ a) * (b @ b)))
+        sep = 9.0 * float(a @ a - (a @ b) ** 2 / (b @ b))
+        cov = np.linalg.inv(np.stack([a, b], 1).T @ np.stack([a, b], 1))
+        print(f"{label}: FL/FR Jacobian correlation {corr:.2f}; chi2 separation of FL = 3 deg from the best FR fit "
+              f"{sep:.1f}; joint standard errors FL {math.sqrt(cov[0, 0]):.2f} deg, FR {math.sqrt(cov[1, 1]):.2f} deg")
+    return 0
+
+
 def main(argv: list[str]) -> int:
     group = argv[0] if argv else "effects"
     sel = argv[1] if len(argv) > 1 else ""
@@ -252,6 +299,8 @@ def main(argv: list[str]) -> int:
         return 0
     if group == "lack_of_fit":
         return lack_of_fit(sc)
+    if group == "fl_fr":
+        return fl_fr(sc, tr)
     if group not in groups:
         print(f"unknown group {group!r}; use one of {sorted(groups)}", file=sys.stderr)
         return 2

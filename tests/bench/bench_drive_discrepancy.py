@@ -185,7 +185,10 @@ def _md(data: dict[str, Any]) -> str:
           "tool is told nothing of the truth. Effects from `tests/concealed_effects.py` (disturbance hook, actuator and "
           "sensor paths). Held-out chi2: the engine's 5 contiguous time blocks (before -> after) and a second drive "
           "(seed + 100) scored with the parameters fitted on the first. 'right?': in library = named right and nothing "
-          "else; OUT = not named confidently (unexplained / partly explained); negative = agree.", ""]
+          "else; OUT = not named confidently (unexplained / partly explained); negative = agree. The calibration drive "
+          "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (crabs both ways at 57 deg, no point "
+          "turn). Seconds depend on the machine's load (two groups ran at once, with tests and another helper's work: "
+          "load 3-5 on 2 cores); sims (re-simulations of the drive) do not.", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
                   f"{info['load_after']} after (shared 2-core machine)")

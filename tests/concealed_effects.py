@@ -153,7 +153,7 @@ class _Hooked(Effect):
     """An effect with a force hook; keeps the sum of the applied forces for :meth:`applied_mean`."""
 
     def __post_init__(self) -> None:
-        self._sum = np.zeros(3)
+        self._sum = np.zeros(4)
         self._n = 0
 
     def forces(self, t: float, s: Any) -> Any:  # pragma: no cover - overridden
@@ -165,7 +165,7 @@ class _Hooked(Effect):
 
         def hook(t: float, s: Any) -> Any:
             f = self.forces(t, s)
-            self._sum += (f.body_force[0], f.body_force[1], f.body_moment_z)
+            self._sum += (f.body_force[0], f.body_force[1], f.body_moment_z, math.hypot(*f.body_force))
             self._n += 1
             return f
 
@@ -173,7 +173,11 @@ class _Hooked(Effect):
 
     def applied_mean(self) -> tuple[float, float, float]:
         """Mean body force (x, y, N) and yaw moment (N m) over the hook's calls of the last drive."""
-        return tuple(self._sum / max(self._n, 1))  # type: ignore[return-value]
+        return tuple(self._sum[:3] / max(self._n, 1))  # type: ignore[return-value]
+
+    def mean_force(self) -> float:
+        """Mean magnitude of the body force (N) over the hook's calls of the last drive."""
+        return float(self._sum[3] / max(self._n, 1))
 
 
 @dataclass
@@ -218,8 +222,9 @@ class TetherToAnchor(_Hooked):
     world ``anchor`` (m, in the frame of the start pose). Tension ``T0 + stiffness (L - L0)``
     (``L0`` the length at the start, never below zero); the force points from the attachment
     to the anchor, so its body-frame direction turns with the heading and it has a yaw moment
-    about the CoM. Expected: tether with the mean backward (-x) component the drive felt (the
-    candidate is a constant pull along -x; the lateral part is outside its form)."""
+    about the CoM. Expected: ``tether`` with the mean backward (-x) component the drive felt (a
+    constant pull along -x; the lateral part is outside its form) or ``tether_anchor`` with the
+    tension at the start."""
 
     anchor: tuple[float, float] = (-3.0, 0.0)
     attach: tuple[float, float] = (-0.2, 0.0)
@@ -245,7 +250,7 @@ class TetherToAnchor(_Hooked):
         return _forces(body_force=(fx, fy), body_moment_z=mz)
 
     def expect(self) -> dict[str, dict[str, float]]:
-        return {"tether": {"force": -self.applied_mean()[0]}}
+        return {"tether|tether_anchor": {"force": -self.applied_mean()[0], "tension": self.tension0}}
 
 
 @dataclass

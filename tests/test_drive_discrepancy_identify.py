@@ -254,3 +254,91 @@ def test_undetermined_terms_uses_the_joint_covariance():
     assert len(flat) == 1 and flat[0].startswith("soil_stiffness (k_scale")
     nan = score(["tether"], [2.0], [[np.nan]])
     assert "no standard error" in undetermined_terms(nan, lib)[0]
+
+
+# ----------------------------------------------------------------- anchored tether, reduced recalibration
+def test_anchored_tether_pulls_towards_the_anchor_with_the_reel_tension():
+    """Anchor 3 m straight behind the start (bearing 180 deg, 1/3 per m), attachment 0.2 m behind
+    the centre of mass: at the start a pure backward pull of the tension, no moment. Turned 90 deg
+    left at the start the attachment is at (0, -0.2) and the cable runs along (-3, 0.2): in the
+    body frame (x = the terrain's Y, y = -X) the pull is T (0.2, 3) / L with the tension grown by
+    the spring rate times the cable paid out (L - 2.8 m) and the yaw moment -0.2 F_y. An anchor
+    at infinity (q = 0) is the limit of far anchors; the recorded pose, when given, wins over
+    the simulator's state; two hooks add; a pushing cable is refused."""
+    from offline.fit.drive_candidates import AnchoredTether, DriveCandidateError, Hooks
+
+    t = AnchoredTether(2.0, math.pi, 1.0 / 3.0, -0.2, 0.5)
+    f = t(0.0, _state(0.0, 0.0, 0.0, 0.0, 0.0))
+    assert f.body_force == pytest.approx((-2.0, 0.0), abs=1e-12) and f.body_moment_z == pytest.approx(0.0, abs=1e-12)
+    turned = AnchoredTether(2.0, math.pi, 1.0 / 3.0, -0.2, 0.5, pose_at=lambda _: (0.0, 0.0, math.pi / 2))
+    g = turned(0.0, _state(0.0, 0.0, 0.0, 0.0, 0.0))
+    L = math.hypot(3.0, 0.2)
+    ten = 2.0 + 0.5 * (L - 2.8)
+    assert g.body_force == pytest.approx((ten * 0.2 / L, ten * 3.0 / L), rel=1e-12)
+    assert g.body_moment_z == pytest.approx(-0.2 * g.body_force[1], rel=1e-12)
+    pose = (0.4, -0.3, 0.7)
+    far = [AnchoredTether(1.5, 2.0, q, -0.1, 0.8, pose_at=lambda _: pose)(0.0, _state(0, 0, 0, 0, 0)) for q in (0.0, 1e-7)]
+    np.testing.assert_allclose(far[0].vector(), far[1].vector(), atol=1e-6)
+    both = Hooks((t, turned))(0.0, _state(0.0, 0.0, 0.0, 0.0, 0.0))
+    np.testing.assert_allclose(both.vector(), f.vector() + g.vector(), atol=1e-15)
+    with pytest.raises(DriveCandidateError, match="only"):
+        AnchoredTether(-1.0, math.pi, 0.3)
+
+
+def test_anchored_tether_candidate_is_named_with_its_anchor_distance_as_a_nuisance():
+    """The anchored tether's null is its tension alone (NaN: the anchor means nothing without a
+    pull): a clear tension is 'determined' even though the anchor's distance is not (a nuisance
+    parameter); a tension within noise of zero is not, however far the other parameters are
+    from their starts."""
+    from offline.fit.discrepancy import CandidateScore, undetermined_terms
+
+    lib = {c.key: (c, None, i) for i, c in enumerate(DRIVE_CANDIDATES)}
+
+    def score(values, se):
+        cov = np.diag(np.square(se))
+        return CandidateScore(("tether_anchor",), ("",), ("term",), ("x",) * 5, ("-",) * 5, tuple(values), tuple(se), 5,
+                              0.0, 0.0, 0.0, math.nan, math.nan, True, np.zeros(1), covariance=cov)
+
+    assert undetermined_terms(score([1.9, 180.0, 0.65, -0.19, 0.48], [0.1, 2.1, 0.31, 0.014, 0.21]), lib) == []
+    weak = undetermined_terms(score([0.1, 120.0, 0.2, 0.25, 1.0], [0.1, 20.0, 0.1, 0.02, 0.5]), lib)
+    assert len(weak) == 1 and "not distinguishable from 0" in weak[0]
+    assert "bearing" in undetermined_terms(score([1.9, 180.0, 0.65, -0.19, 0.48], [0.1, 60.0, 0.31, 0.014, 0.21]), lib)[0]
+
+
+def test_reduced_parameters_holds_what_the_data_do_not_determine():
+    """Three parameters of the model's own, the third's column a near copy of the first's: the
+    full fit cannot tell them apart (intervals wider than half the range), the reduction holds
+    one of the pair at its start value and refits the rest, which it determines, on the truth
+    within 3 standard errors; held parameters are reported as such and carry no error."""
+    from offline.fit.candidates import Candidate
+    from offline.fit.discrepancy import CandidateScore, reduced_parameters, undetermined_terms
+    from offline.fit.significance import fit
+
+    rng = np.random.default_rng(4)
+    n, nc = 60, 2
+    J = rng.standard_normal((n * nc, 3))
+    J[:, 2] = J[:, 0] + 1e-3 * rng.standard_normal(n * nc)
+    truth = np.array([1.0, -0.5, 0.0])
+    y = J @ truth + rng.standard_normal(n * nc)
+    c = Candidate("own", "test parameters", tuple((f"p{i}", "-", -3.0, 3.0, 0.0, 1.0) for i in range(3)),
+                  lambda t, p: None, kind="parameters")
+
+    def resid(x):
+        return y - J @ x
+
+    f = fit(resid, c.lower, c.upper, [np.zeros(3)], nc, max_nfev=50)
+    folds = np.arange(n) % 5
+    s = CandidateScore(("own",), ("",), ("parameters",), ("p0", "p1", "p2"), ("-",) * 3, tuple(f.x), tuple(f.std_errors), 3,
+                       f.chi2, 0.0, 0.0, math.nan, math.nan, True, np.zeros(n), covariance=f.covariance)
+    lib = {"own": (c, s, 0)}
+    assert undetermined_terms(s, lib)
+    r = reduced_parameters(c, s, f.jac, resid, folds, nc, float((resid(np.zeros(3)) ** 2).sum()), 50)
+    assert r is not None and sum(r.held) == 1 and not r.held[1] and (r.held[0] or r.held[2])
+    assert undetermined_terms(r, lib) == []
+    free = [i for i in range(3) if not r.held[i]]
+    held = [i for i in range(3) if r.held[i]][0]
+    assert r.values[held] == 0.0 and not math.isfinite(r.std_errors[held]) and r.k == 2
+    # the pair's sum is what the data show: p0 + p2 = 1 (held one at 0)
+    assert r.values[free[0]] == pytest.approx(1.0 if free[0] in (0, 2) else -0.5, abs=3 * r.std_errors[free[0]])
+    assert r.values[1] == pytest.approx(-0.5, abs=3 * r.std_errors[1])
+    assert "held at 0" in r.parameters_text() and r.chi2_cv > 0

@@ -267,7 +267,14 @@ class Candidate:
         Parameter values (reported units) at which the term is absent, i.e. the believed model
         (0 for an offset, 1 for a scale). With it the engine can test whether the data determine
         the term at all (its fitted values against these, Wald test) and starts the forward
-        step's score test there; None: no such point inside the box (a clearance, a lag).
+        step's score test there; None: no such point inside the box (a clearance, a lag). A NaN
+        entry: the parameter means nothing once the term is absent (a tether's anchor when its
+        tension is zero); it is left out of the Wald test and the score test starts it at its start.
+    nuisance : tuple of str
+        Parameters of the term's form that the data need not determine for the term to be named
+        (an anchor's distance when the rover drove a metre: the pull's tension and direction are
+        what the drive shows). Their intervals are reported, but a wide one does not make the
+        verdict ambiguous.
     """
 
     key: str
@@ -280,6 +287,7 @@ class Candidate:
     starts: tuple[tuple[float, ...], ...] = ()
     threshold: bool = False
     null: tuple[float, ...] | None = None
+    nuisance: tuple[str, ...] = ()
 
     @property
     def k(self) -> int:

@@ -100,6 +100,7 @@ __all__ = [
     "Verdict",
     "diagnose",
     "undetermined_terms",
+    "reduced_parameters",
     "predict_recording",
     "VERDICTS",
 ]
@@ -139,6 +140,9 @@ class CandidateScore:
         The held-out score is from full refits per fold (otherwise the one-step screening score).
     covariance : ndarray or None
         Covariance of ``values`` (reported units) from the in-sample fit.
+    held : tuple of bool
+        Parameters held at the model's own value, not fitted (a reduced recalibration,
+        :func:`reduced_parameters`); empty: every parameter fitted.
     """
 
     keys: tuple[str, ...]
@@ -159,6 +163,11 @@ class CandidateScore:
     nfev: int = 0
     refit: bool = False
     covariance: NDArray[np.float64] | None = field(default=None, repr=False)
+    held: tuple[bool, ...] = ()
+
+    def is_held(self, i: int) -> bool:
+        """Parameter ``i`` was held at the model's own value (not fitted)."""
+        return bool(self.held) and self.held[i]
 
     @property
     def label(self) -> str:
@@ -166,9 +175,10 @@ class CandidateScore:
         return " + ".join(self.keys)
 
     def parameters_text(self) -> str:
-        """``name = value ± error unit`` list."""
-        return ", ".join(f"{n} = {v:.4g} ± {e:.2g} {u}" if math.isfinite(e) else f"{n} = {v:.4g} (not determined) {u}"
-                         for n, u, v, e in zip(self.names, self.units, self.values, self.std_errors))
+        """``name = value ± error unit`` list (``held at`` for parameters not fitted)."""
+        return ", ".join(f"{n} held at {v:.4g} {u}" if self.is_held(i) else
+                         f"{n} = {v:.4g} ± {e:.2g} {u}" if math.isfinite(e) else f"{n} = {v:.4g} (not determined) {u}"
+                         for i, (n, u, v, e) in enumerate(zip(self.names, self.units, self.values, self.std_errors)))
 
 
 @dataclass(frozen=True)
@@ -323,8 +333,9 @@ class Verdict:
         """Machine-readable verdict (``verdict.json``)."""
         def sc(s: CandidateScore) -> dict[str, Any]:
             return {"terms": list(s.keys), "physics": list(s.physics), "kinds": list(s.kinds),
-                    "parameters": [{"name": n, "unit": u, "value": v, "std_error": e if math.isfinite(e) else None}
-                                   for n, u, v, e in zip(s.names, s.units, s.values, s.std_errors)],
+                    "parameters": [{"name": n, "unit": u, "value": v, "std_error": e if math.isfinite(e) else None,
+                                    "held_at_model_value": s.is_held(i)}
+                                   for i, (n, u, v, e) in enumerate(zip(s.names, s.units, s.values, s.std_errors))],
                     "k": s.k, "chi2_in_sample": s.chi2_in, "chi2_held_out": s.chi2_cv, "held_out_improvement": s.delta_cv,
                     "p": s.p if math.isfinite(s.p) else None,
                     "p_adjusted": s.p_adjusted if math.isfinite(s.p_adjusted) else None, "significant": s.significant,
@@ -487,7 +498,8 @@ def _conditional_rows(resid_fn: Callable[[Sequence[Candidate]], Callable[[NDArra
     """Held-out chi-square per row of ``first`` (fitted at ``x1``, Jacobian ``jac1``) plus ``c`` at
     its believed value (``c.null``, else its start), linearised in all parameters
     (:func:`~offline.fit.significance.linear_held_out`): ``1 + c.k`` model evaluations."""
-    xc = np.array(c.null if c.null is not None else [q[4] for q in c.params], dtype=float)
+    start = np.array([q[4] for q in c.params], dtype=float)
+    xc = start if c.null is None else np.where(np.isfinite(np.array(c.null, dtype=float)), np.array(c.null, dtype=float), start)
     r = resid_fn([*first, c])
     z = r(np.concatenate([x1, xc]))
     jc = _fd_jac(lambda t: r(np.concatenate([x1, t])), xc, c.lower, c.upper, r0=z)
@@ -525,6 +537,7 @@ def diagnose(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
     forward: str = "regions",
+    fit_tol: float | None = None,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -551,8 +564,10 @@ def diagnose(
         Linearisation points per candidate for the null (the fit and ``n_points - 1`` spread
         over the parameter box).
     n_refit : int
-        At most this many candidates (those passing on the screening score) are scored again
-        with a full refit per fold.
+        At most this many threshold candidates (those passing on the screening score) are scored
+        again with a full refit per fold; one whose (optimistic) screening improvement is below
+        ``1 - equal_fraction`` of the best smooth significant candidate's is not (it could not
+        become the best nor a look-alike of it) and stays not significant.
     max_terms : int
         At most this many candidates combined.
     max_tries : int
@@ -574,6 +589,10 @@ def diagnose(
         When the forward step looks for a second term: only when the first leaves significant
         regions (the single-wheel default), or always (drives: a second effect partly absorbed
         by the first may leave no region; the extra term's own test keeps the level).
+    fit_tol : float, optional
+        Relative tolerance of every least-squares fit on the chi-square and the step
+        (:func:`~offline.fit.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
+        ``max_nfev``).
 
     Raises
     ------
@@ -637,7 +656,7 @@ def diagnose(
         lo = np.concatenate([c.lower for c in cands])
         hi = np.concatenate([c.upper for c in cands])
         r = resid_fn(cands)
-        f = fit(r, lo, hi, starts, nc, max_nfev=max_nfev)
+        f = fit(r, lo, hi, starts, nc, max_nfev=max_nfev, tol=fit_tol)
         rows = held_out(f, lambda x: r(x).reshape(-1, nc), folds, lo, hi)
         s = CandidateScore(tuple(c.key for c in cands), tuple(c.physics for c in cands), tuple(c.kind for c in cands),
                            tuple(q[0] for c in cands for q in c.params), tuple(q[1] for c in cands for q in c.params),
@@ -670,12 +689,18 @@ def diagnose(
     null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None))
     observed = np.array([s.delta_cv for s in singles])
     _, p_adj = adjusted_p(observed, null)
-    # candidates that pass on the screening score are scored again with a full refit per fold
-    for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > 0 and library[i].threshold][:n_refit]:
+    # candidates that pass on the screening score are scored again with a full refit per fold --
+    # unless even their screening score (optimistic for a threshold: the full-data fit placed the
+    # threshold using the held-out rows) falls short of what a look-alike of the best smooth
+    # candidate must reach: then the refit cannot make them the best or equivalent (budget)
+    smooth = [observed[i] for i in range(len(library)) if p_adj[i] < alpha and observed[i] > 0 and not library[i].threshold]
+    reach = (1.0 - equal_fraction) * max(smooth, default=0.0)
+    for i in [i for i in np.argsort(-observed) if p_adj[i] < alpha and observed[i] > max(reach, 0.0)
+              and library[i].threshold][:n_refit]:
         c = library[i]
         say(f"held-out refits of {c.key}")
         starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])] + [np.array(q, dtype=float) for q in c.starts]
-        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev)
+        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev, tol=fit_tol)
         singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                            nfev=singles[i].nfev + nf, refit=True)
     observed = np.array([s.delta_cv for s in singles])
@@ -731,10 +756,13 @@ def diagnose(
                 say(f"trying {primary.label} + {c2.key}")
                 x0 = np.array([*primary.values, *s2.values])
                 sc2, f2 = score(first + [c2], [x0])
-                if any(c.threshold for c in first + [c2]):
+                # a threshold's refit per fold only when its (optimistic) screening gain passes the
+                # test: otherwise the refit cannot make the pair significant (budget)
+                if any(c.threshold for c in first + [c2]) and primary.chi2_cv - sc2.chi2_cv > max(q_pool, 0.0):
                     lo = np.concatenate([c.lower for c in first + [c2]])
                     hi = np.concatenate([c.upper for c in first + [c2]])
-                    rows, nf = refit_held_out(rows_fn(first + [c2]), folds, lo, hi, [f2.x], nc, max_nfev=max_nfev)
+                    rows, nf = refit_held_out(rows_fn(first + [c2]), folds, lo, hi, [f2.x], nc, max_nfev=max_nfev,
+                                              tol=fit_tol)
                     sc2 = _with(sc2, chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                                 nfev=sc2.nfev + nf, refit=True)
                 extra = primary.chi2_cv - sc2.chi2_cv
@@ -768,6 +796,17 @@ def diagnose(
                     chosen = min(pairs, key=lambda s: s.chi2_cv)
                     equivalent = [s for s in pairs if s is not chosen and vuong(chosen.rows_cv, s.rows_cv) < 2.0
                                   and chi2_base - s.chi2_cv >= (1.0 - equal_fraction) * (chi2_base - chosen.chi2_cv)]
+    if (chosen is not None and getattr(obs, "withhold_lookalikes", False) and len(chosen.keys) == 1
+            and chosen.kinds[0] == "parameters" and chosen.k > 1 and undetermined_terms(chosen, by_key)):
+        # "parameters off" with parameters the data do not determine (soil parameters trade off
+        # on a drive): refit the subset the data determine, the others held at the model's values
+        c = by_key[chosen.keys[0]][0]
+        say(f"reducing {c.key} to the parameters the data determine")
+        red = reduced_parameters(c, chosen, fits[by_key[c.key][2]].jac, resid_fn([c]), folds, nc, chi2_base, max_nfev,
+                                 tol=fit_tol)
+        if red is not None and chi2_base - red.chi2_cv >= (1.0 - equal_fraction) * chosen.delta_cv:
+            scores.append(red)
+            chosen = red
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]
         ext = _ext_of(cands, np.array(chosen.values), ps, empty)
@@ -820,6 +859,82 @@ def diagnose(
                    ambiguity)
 
 
+def reduced_parameters(c: Candidate, s: CandidateScore, jac: NDArray[np.float64],
+                       resid: Callable[[NDArray[np.float64]], NDArray[np.float64]], folds: NDArray[np.int_], nc: int,
+                       chi2_base: float, max_nfev: int, level: float = 0.95, tol: float | None = None
+                       ) -> CandidateScore | None:
+    """Refit a group of the model's own parameters on the subset the data determine.
+
+    Backward elimination: while a free parameter's ``level`` interval (``2 z se``, from the
+    Gauss-Newton covariance of the free columns of ``jac``, the Jacobian of the full fit, scaled
+    by ``max(1, chi2 / dof)``) is wider than half its physical range, the one widest relative
+    to its range is held at the model's own value (the candidate's start); the free ones are
+    then refitted (from the full fit and from the model's values) and checked again on the new
+    fit's covariance. Returns the score of the reduced fit (full-length ``values``, ``held``
+    marking the parameters not fitted, one-step held-out score on ``folds``), or None when no
+    parameter is determined.
+    """
+    from scipy import stats
+
+    zq = float(stats.norm.ppf(0.5 + level / 2))
+    lo, hi = c.lower, c.upper
+    half = 0.5 * (hi - lo)
+    start = np.array([q[4] for q in c.params], dtype=float)
+    x_full = np.array(s.values, dtype=float)
+    s2 = max(s.chi2_in / max(jac.shape[0] - c.k, 1), 1.0)
+
+    def wide(J: NDArray[np.float64], free: list[int], scale2: float) -> NDArray[np.float64]:
+        A = J[:, free]
+        w, V = np.linalg.eigh(A.T @ A)
+        if w.min() <= max(w.max(), 1e-300) * 1e-10:
+            return np.full(len(free), np.inf)
+        se = np.sqrt(scale2 * np.diag((V / w) @ V.T))
+        return 2 * zq * se / half[free]
+
+    free = list(range(c.k))
+    nfev = 0
+    found = None
+    while free:
+        ratio = wide(jac, free, s2)
+        while ratio.max() >= 1.0:
+            free.pop(int(np.argmax(ratio)))
+            if not free:
+                return None
+            ratio = wide(jac, free, s2)
+        fr = list(free)
+
+        def embed(xs: NDArray[np.float64], fr: list[int] = fr) -> NDArray[np.float64]:
+            x = start.copy()
+            x[fr] = xs
+            return x
+
+        f = fit(lambda xs: resid(embed(xs)), lo[fr], hi[fr], [x_full[fr], start[fr]], nc, max_nfev=max_nfev, tol=tol)
+        nfev += f.nfev
+        se = f.std_errors
+        if np.all(np.isfinite(se)) and np.all(2 * zq * se < half[fr]):
+            found = (fr, f, embed)
+            break
+        # still undetermined at the refit: judge again on its Jacobian, hold the widest
+        jac = np.zeros((f.jac.shape[0], c.k))
+        jac[:, fr] = f.jac
+        s2 = max(f.chi2 / max(f.jac.shape[0] - len(fr), 1), 1.0)
+        se = np.where(np.isfinite(se), se, np.inf)
+        free.pop(int(np.argmax(se / half[fr])))
+    if found is None:
+        return None
+    fr, f, embed = found
+    rows = held_out(f, lambda xs: resid(embed(xs)).reshape(-1, nc), folds, lo[fr], hi[fr])
+    se_full = np.full(c.k, np.nan)
+    se_full[fr] = f.std_errors
+    cov = np.zeros((c.k, c.k))
+    if f.covariance is not None:
+        cov[np.ix_(fr, fr)] = f.covariance
+    return CandidateScore(s.keys, s.physics, s.kinds, s.names, s.units, tuple(float(v) for v in embed(f.x)),
+                          tuple(float(e) for e in se_full), len(fr), f.chi2, float(rows.sum()), chi2_base - float(rows.sum()),
+                          math.nan, math.nan, True, rows, s.nfev + nfev + int(np.unique(folds).size), covariance=cov,
+                          held=tuple(i not in fr for i in range(c.k)))
+
+
 def _signature(keys: Sequence[str], kinds: Sequence[str]) -> frozenset[str]:
     """What an explanation claims: its new terms, and "parameters off" for any change of the model's
     own parameters (a k scale and a full recalibration make the same claim)."""
@@ -831,7 +946,8 @@ def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float =
 
     Any candidate (new term or group of the model's own parameters) with a parameter whose
     ``level`` interval (``2 z se``) is wider than half the parameter's physical range
-    (bounds), or that lies in a null direction of the Jacobian (no standard error); and a new
+    (bounds; not for the candidate's ``nuisance`` parameters, nor those held at the model's
+    value), or that lies in a null direction of the Jacobian (no standard error); and a new
     term whose fitted parameters are not distinguishable from the term's absence
     (``Candidate.null``): Wald statistic ``d' C^-1 d`` of its parameter block (``d`` = fitted -
     null, ``C`` its block of the joint covariance) below the ``level`` quantile of chi-square
@@ -853,15 +969,19 @@ def undetermined_terms(s: CandidateScore, by_key: dict[str, Any], level: float =
         se = np.array(s.std_errors[blk])
         vals = s.values[blk]
         wide = [f"{q[0]} = {v:.3g} ± {e:.2g} {q[1]}" if math.isfinite(e) else f"{q[0]} (no standard error)"
-                for q, v, e in zip(c.params, vals, se) if not math.isfinite(e) or 2 * zq * e > 0.5 * (q[3] - q[2])]
+                for j, (q, v, e) in enumerate(zip(c.params, vals, se))
+                if not s.is_held(blk.start + j) and q[0] not in c.nuisance
+                and (not math.isfinite(e) or 2 * zq * e > 0.5 * (q[3] - q[2]))]
         if wide:
             out.append(f"{key} ({'; '.join(wide)}: {100 * level:.0f} % interval wider than half the physical range)")
             continue
         if kind != "term" or c.null is None:
             continue
-        d = np.array(vals) - np.array(c.null, dtype=float)
-        w = float(d @ np.linalg.pinv(s.covariance[blk, blk]) @ d)
-        if w < stats.chi2.ppf(level, c.k):
+        nul = np.array(c.null, dtype=float)
+        m = np.isfinite(nul)  # NaN: a parameter with no meaning once the term is absent (a tether's anchor)
+        d = (np.array(vals) - nul)[m]
+        w = float(d @ np.linalg.pinv(s.covariance[blk, blk][np.ix_(m, m)]) @ d)
+        if w < stats.chi2.ppf(level, int(m.sum())):
             out.append(f"{key} ({c.params[0][0]} = {vals[0]:.3g} ± {se[0]:.2g} {c.params[0][1]}: "
                        f"not distinguishable from {c.null[0]:g}, Wald {w:.1f})")
     return out

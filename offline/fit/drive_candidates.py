@@ -22,6 +22,8 @@ imu_tilt             IMU mounted tilted (readings only, no force)         sensor
 wheel_radius_<W>     one wheel worn / mis-measured                        ``wheels.<W>.radius_mm``
 steer_offset_<W>     one wheel points elsewhere than its encoder says     ``wheels.<W>.steer_offset_deg``
 tether               tether / drawbar pull along the rover's -x           ``tether_force_N``
+tether_anchor        a cable to a fixed anchor (start frame) at a tension     disturbance hook (C5):
+                     whose pull turns with the rover's pose                   :class:`AnchoredTether`
 servo_lag            wheel-speed servo slower than believed               actuator ``wheel_lag``
 torque_saturation    drive torque saturates lower than believed           actuator ``torque_limit``
 gyro_scale           gyro scale-factor error (readings only)              (measurement chain)
@@ -40,8 +42,8 @@ parameter file, failures, and the slope / cross-slope axes): ``terrain_slope`` (
 ``soil_stiffness`` and ``recalibration`` (the parameter file's soil), ``wheel_radius_all`` (the
 parameter file's wheel radius) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every
 wheel). Not taken (not done): per-wheel radius and steering offset (the optimizer's rover has one
-wheel geometry and exact steering), ``tether`` (no external-force parameter in the steady-state
-problem), ``hub_contact`` (no disturbance term in the NLP) and ``servo_lag`` (a dynamic effect the
+wheel geometry and exact steering), ``tether`` and ``tether_anchor`` (no external-force parameter in the
+steady-state problem), ``hub_contact`` (no disturbance term in the NLP) and ``servo_lag`` (a dynamic effect the
 steady-state tables have no place for). ``imu_tilt`` and ``gyro_scale`` act on the readings only and
 change no table.
 
@@ -69,12 +71,14 @@ from .candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
+           "AnchoredTether", "Hooks", "PosePath",
            "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
 
 ROVER_KEYS = (
     "slope", "cross_slope", "imu_roll", "imu_pitch", "tether", "wheel_lag", "torque_limit", "gyro_scale",
     "radius_scale_all", *(f"radius_scale.{w}" for w in WHEELS), *(f"steer_offset.{w}" for w in WHEELS),
-    "hub_clearance", "hub_face_width", "hub_arm",
+    "hub_clearance", "hub_face_width", "hub_arm", "anchor_tension", "anchor_bearing", "anchor_inverse_distance",
+    "anchor_attach_x", "anchor_spring_rate",
 )
 """Rover terms of :attr:`RoverExtension.terms` (SI: rad, N, s, N m, m, relative)."""
 
@@ -212,13 +216,115 @@ class HubContact:
                                  wheel_torque=tuple(float(x) for x in torque))
 
 
-def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rover: Rover) -> HubContact | None:
-    """The simulator disturbance hook of an extension's hub-contact terms (None without them)."""
+PosePath = Any
+"""``pose_at(t) -> (x, y, heading)`` in the frame of the drive's start pose (m, rad): where the
+rover was at time ``t`` (the recorded pose for a re-simulated drive)."""
+
+
+@dataclass(frozen=True)
+class AnchoredTether:
+    """A cable from the rover to a fixed anchor: its pull turns with the rover's pose.
+
+    The cable leaves the rover at ``(attach_x, 0)`` (body frame, m) and runs straight to an
+    anchor fixed in the terrain at bearing ``bearing`` (rad, counter-clockwise from the drive's
+    start heading) and distance ``1 / inverse_distance`` (m) from the start position, at the
+    constant ``tension`` (N). With ``a`` the attachment's position in the start frame and
+    ``u = (cos bearing, sin bearing)``, the pull points along ``u - q a`` (``q`` the inverse
+    distance: 0 is an anchor far away, a pull of fixed direction in the terrain). The tension is
+    that of a spring reel, ``tension + spring_rate (L - L0)`` (never below zero), ``L - L0 =
+    (|u - q a| - |u - q a0|) / q`` the cable paid out since the start (``a0`` the attachment
+    there; ``-u . (a - a0)`` at ``q = 0``); in the body
+    frame it is turned by ``-heading`` and has a yaw moment ``attach_x * F_y`` about the centre
+    of mass. The inverse distance keeps the force smooth in its parameters up to an anchor at
+    infinity. The rover's pose comes from ``pose_at`` (the recorded pose in a re-simulation, so
+    the direction does not drift with a dead-reckoning error), or from the simulator's truth
+    state when None. Evaluated once per plant step by the simulator's disturbance hook
+    (contract C5).
+
+    Parameters
+    ----------
+    tension : float
+        Cable tension, N (>= 0).
+    bearing : float
+        Direction of the anchor from the start position, rad from the start heading.
+    inverse_distance : float
+        1 / distance of the anchor from the start position, 1/m (>= 0).
+    attach_x : float
+        Attachment point on the body's x axis, m (negative: behind the centre of mass).
+    spring_rate : float
+        Tension gained per metre of cable paid out, N/m (0: a constant-tension reel).
+    pose_at : callable, optional
+        :data:`PosePath`.
+    """
+
+    tension: float
+    bearing: float
+    inverse_distance: float
+    attach_x: float = 0.0
+    spring_rate: float = 0.0
+    pose_at: PosePath = None
+
+    def _direction(self, x: float, y: float, h: float) -> tuple[float, float, float]:
+        q = self.inverse_distance
+        dx = math.cos(self.bearing) - q * (x + math.cos(h) * self.attach_x)
+        dy = math.sin(self.bearing) - q * (y + math.sin(h) * self.attach_x)
+        return dx, dy, math.hypot(dx, dy)
+
+    def __post_init__(self) -> None:
+        for name in ("tension", "bearing", "inverse_distance", "attach_x", "spring_rate"):
+            v = getattr(self, name)
+            if not math.isfinite(v):
+                raise DriveCandidateError(f"AnchoredTether.{name} must be finite, got {v!r}")
+        if self.tension < 0.0 or self.inverse_distance < 0.0:
+            raise DriveCandidateError(f"AnchoredTether tension (N) and inverse_distance (1/m) must be >= 0 (a cable only "
+                                      f"pulls), got {self.tension!r}, {self.inverse_distance!r}")
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The force over the next step (contract C5)."""
+        x, y, h = self.pose_at(t) if self.pose_at is not None else (s.x, s.y, s.heading)
+        c, sn = math.cos(h), math.sin(h)
+        dx, dy, d = self._direction(x, y, h)
+        if d < 1e-9:
+            return DisturbanceForces()
+        q = self.inverse_distance
+        if q > 1e-9:
+            paid = (d - self._direction(0.0, 0.0, 0.0)[2]) / q
+        else:
+            paid = -(math.cos(self.bearing) * (x + (c - 1.0) * self.attach_x) + math.sin(self.bearing) * (y + sn * self.attach_x))
+        ten = max(0.0, self.tension + self.spring_rate * paid)
+        fx = ten * (c * dx + sn * dy) / d
+        fy = ten * (-sn * dx + c * dy) / d
+        return DisturbanceForces(body_force=(fx, fy), body_moment_z=self.attach_x * fy)
+
+
+@dataclass(frozen=True)
+class Hooks:
+    """Several disturbance hooks acting together (their forces add)."""
+
+    hooks: tuple[Any, ...]
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The summed forces over the next step (contract C5)."""
+        v = sum(h(t, s).vector() for h in self.hooks)
+        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2], wheel_force=tuple(zip(v[3:7], v[7:11])),
+                                 wheel_torque=tuple(v[11:15]))
+
+
+def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rover: Rover,
+                           pose_at: PosePath = None) -> Any:
+    """The simulator disturbance hook of an extension's hub-contact and anchored-tether terms (None
+    without them; :class:`Hooks` with both). ``pose_at``: :class:`AnchoredTether`."""
     t = rover_terms(ext)
-    if "hub_clearance" not in t:
+    hooks: list[Any] = []
+    if "hub_clearance" in t:
+        soil = replace(params.soil, **ext.soil) if ext is not None and ext.soil else params.soil
+        hooks.append(HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover))
+    if "anchor_tension" in t:
+        hooks.append(AnchoredTether(t["anchor_tension"], t.get("anchor_bearing", math.pi), t.get("anchor_inverse_distance", 0.0),
+                                    t.get("anchor_attach_x", 0.0), t.get("anchor_spring_rate", 0.0), pose_at))
+    if not hooks:
         return None
-    soil = replace(params.soil, **ext.soil) if ext is not None and ext.soil else params.soil
-    return HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover)
+    return hooks[0] if len(hooks) == 1 else Hooks(tuple(hooks))
 
 
 def _wheel_candidates() -> list[Candidate]:
@@ -250,7 +356,18 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
     *_wheel_candidates(),
     Candidate("tether", "a tether or drawbar pulls the rover backward along its own -x axis (positive: pulls back)",
               (("force", "N", -10.0, 10.0, 0.0, 1.0),),
-              lambda t, p: _opt(tether=t[0]), ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), null=(0.0,)),
+              lambda t, p: _opt(tether=t[0]), ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), family="tether",
+              null=(0.0,)),
+    Candidate("tether_anchor", "a tether to a fixed anchor: a cable from a spring reel, from a point on the rover's x "
+              "axis to an anchor fixed in the terrain (bearing from the start heading, 1 / distance from the start, "
+              "at least 1 m away), so its pull turns with the rover's pose and grows with the cable paid out",
+              (("tension", "N", 0.0, 10.0, 1.0, 1.0), ("bearing", "deg", 0.0, 360.0, 180.0, _D),
+               ("inverse_distance", "1/m", 0.0, 1.0, 0.3, 1.0), ("attach_x", "m", -0.3, 0.3, 0.0, 1.0),
+               ("spring_rate", "N/m", 0.0, 5.0, 0.0, 1.0)),
+              lambda t, p: _opt(anchor_tension=t[0], anchor_bearing=t[1], anchor_inverse_distance=t[2],
+                                anchor_attach_x=t[3], anchor_spring_rate=t[4]),
+              ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body", "dy_body", "yaw_rate", "dheading"),
+              family="tether", null=(0.0, math.nan, math.nan, math.nan, math.nan), nuisance=("inverse_distance",)),
     Candidate("servo_lag", "the wheel-speed servos lag more than believed (first-order time constant)",
               (("time_constant", "s", 0.0, 2.0, 0.3, 1.0),),
               lambda t, p: _opt(wheel_lag=t[0]), ("omega_FR", "omega_FL", "omega_RR", "omega_RL"),
@@ -291,6 +408,7 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     **{f"steer_offset_{w}": "no (not done): the optimizer's steering is exact" for w in WHEELS},
     "tether": "no (not done): the steady-state problem has no external-force parameter",
     "hub_contact": "no (not done): the steady-state problem has no disturbance term",
+    "tether_anchor": "no (not done): the steady-state problem has no external-force parameter",
     "servo_lag": "no: a dynamic effect; steady-state tables have no place for it",
     "imu_tilt": "not applicable: acts on the readings only",
     "gyro_scale": "not applicable: acts on the readings only",
@@ -361,8 +479,8 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     Only what differs from the believed world is written. Terms the truth format has no key
     for (IMU tilt, gyro scale, servo lag, torque limit) go to a ``[sensors_and_actuators]``
     comment block with their values, since they belong to the sensor and actuator
-    configuration, not to the world; ``disturbance`` (hub contact: clearance_m, face_width_m,
-    arm_m) goes to a comment block too. ``header`` lines become comments (fitted values,
+    configuration, not to the world; ``disturbance`` (hub contact, anchored tether: their
+    parameters, SI) goes to a comment block too. ``header`` lines become comments (fitted values,
     standard errors, held-out improvement).
     """
     lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
@@ -392,8 +510,8 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
             lines += ["", f"[wheels.{w}]", *wl]
     hub = {k: v for k, v in (disturbance or {}).items()}
     if hub:
-        lines += ["", "# hub contact (offline.fit.drive_candidates.HubContact, a simulator disturbance hook; not a key",
-                  "# of the truth format, so offnominal drive --truth does not apply it), SI:"]
+        lines += ["", "# disturbance hooks (offline.fit.drive_candidates.HubContact / AnchoredTether; not keys of the",
+                  "# truth format, so offnominal drive --truth does not apply them), SI:"]
         lines += [f"#   {k} = {v:.6g}" for k, v in hub.items()]
     extra = {k: v for k, v in measurement.items() if v}
     extra.update(actuator or {})

@@ -235,11 +235,14 @@ class FitResult:
 
 def fit(
     residual: Callable[[NDArray[np.float64]], NDArray[np.float64]], lower: NDArray[np.float64], upper: NDArray[np.float64],
-    starts: Sequence[NDArray[np.float64]], n_channels: int, max_nfev: int = 30,
+    starts: Sequence[NDArray[np.float64]], n_channels: int, max_nfev: int = 30, tol: float | None = None,
 ) -> FitResult:
     """Bounded least squares (scipy trust-region reflective) from each start; the best wins.
 
-    ``residual(x)`` returns the flattened normalised residuals.
+    ``residual(x)`` returns the flattened normalised residuals. ``tol``: relative tolerance on
+    the cost and on the step (scipy's ``ftol`` and ``xtol``; None: scipy's 1e-8), so a fit
+    stops once the chi-square changes by less than ``tol`` of itself instead of spending its
+    whole evaluation budget.
     """
     from scipy.optimize import least_squares
 
@@ -250,7 +253,8 @@ def fit(
     span = upper - lower
     for s in starts:
         x0 = np.clip(np.asarray(s, dtype=float), lower + 1e-6 * span, upper - 1e-6 * span)
-        res = least_squares(residual, x0, bounds=(lower, upper), diff_step=1e-3, max_nfev=max_nfev, x_scale=0.1 * span)
+        kw = {} if tol is None else {"ftol": tol, "xtol": tol}
+        res = least_squares(residual, x0, bounds=(lower, upper), diff_step=1e-3, max_nfev=max_nfev, x_scale=0.1 * span, **kw)
         nfev += int(res.nfev) * (1 + x0.size)
         if best is None or res.cost < best.cost:
             best = res
@@ -334,9 +338,9 @@ def linear_held_out(
 def refit_held_out(
     residual_rows: Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]], folds: NDArray[np.int_],
     lower: NDArray[np.float64], upper: NDArray[np.float64], starts: Sequence[NDArray[np.float64]], n_channels: int,
-    max_nfev: int = 30,
+    max_nfev: int = 30, tol: float | None = None,
 ) -> tuple[NDArray[np.float64], int]:
-    """Held-out chi-square of every row with a full refit on each training fold.
+    """Held-out chi-square of every row with a full refit on each training fold (``tol``: :func:`fit`).
 
     ``residual_rows(x, rows)`` returns the normalised residuals of ``rows`` (rows x
     channels). Each training fold is fitted from the same starts as the full-data fit (so a
@@ -353,7 +357,7 @@ def refit_held_out(
     nfev = 0
     for f in np.unique(folds):
         tr, te = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
-        res = fit(lambda x: residual_rows(x, tr).ravel(), lower, upper, starts, n_channels, max_nfev=max_nfev)
+        res = fit(lambda x: residual_rows(x, tr).ravel(), lower, upper, starts, n_channels, max_nfev=max_nfev, tol=tol)
         nfev += res.nfev + 1
         out[te] = (residual_rows(res.x, te) ** 2).sum(axis=1)
     return out, nfev

@@ -628,7 +628,7 @@ def diagnose(
     regions: list[Region] = []
     for ch in chans:
         regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng,
-                          **_locate_kw(obs))
+                          **_locate_kw(obs, ch))
     folds = obs.folds(k_folds)
     z0 = normalised(obs, pred0, scale)
     base_rows = (z0**2).sum(axis=1)
@@ -820,7 +820,7 @@ def diagnose(
     if chosen is not None:
         for ch in chans:
             regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
-                                    obs.units[ch], rng, **_locate_kw(obs))
+                                    obs.units[ch], rng, **_locate_kw(obs, ch))
     failed1 = int((~ok1).sum())
     misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha) if chosen is not None else []
     floor = getattr(obs, "lack_of_fit_floor", None)
@@ -1032,11 +1032,17 @@ def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: 
     return out
 
 
-def _locate_kw(obs: Any) -> dict[str, Any]:
-    """Per-channel level and Monte-Carlo size of the region test: an observations adapter with
-    many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
-    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400)."""
-    return {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+def _locate_kw(obs: Any, channel: str) -> dict[str, Any]:
+    """Per-channel level, Monte-Carlo size and null of the region test: an observations adapter
+    with many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
+    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400). An adapter of a time
+    series gives its correlated noise through ``channel_null_draw(rng, channel, n)``
+    (``(n, rows)``, unit variance); without it the rows are independent."""
+    kw: dict[str, Any] = {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+    draw = getattr(obs, "channel_null_draw", None)
+    if draw is not None:
+        kw["draw"] = lambda rng, n: draw(rng, channel, n)
+    return kw
 
 
 def _regions_of(model: Any, obs: Any, ext: Any, rng: np.random.Generator) -> list[Region]:
@@ -1045,7 +1051,7 @@ def _regions_of(model: Any, obs: Any, ext: Any, rng: np.random.Generator) -> lis
     out: list[Region] = []
     for ch in obs.channels:
         r = obs.measured[ch] - pred[ch]
-        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs))
+        out += locate(r / obs.noise[ch], r * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng, **_locate_kw(obs, ch))
     if not ok.all():
         out.append(Region("model fails", {}, int((~ok).sum()), math.nan, math.nan, "", math.inf, 0.0))
     return out

@@ -473,11 +473,29 @@ class DriveRecording:
             rows = np.flatnonzero(self.drive == k)
             rows = rows[np.argsort(self.segment[rows])]
             for c, ch in enumerate(self.channels):
-                rho = float(np.clip(self.segment_corr.get(ch, 0.0), -0.49, 0.49))
-                theta = 0.0 if rho == 0.0 else (1.0 - math.sqrt(1.0 - 4.0 * rho * rho)) / (2.0 * rho)
-                w = rng.standard_normal((rows.size + 1, n_boot))
-                out[rows, c] = (w[1:] + theta * w[:-1]) / math.sqrt(1.0 + theta * theta)
+                out[rows, c] = self._ma1(rng, ch, rows.size, n_boot)
         return out.reshape(n, n_boot)
+
+    def channel_null_draw(self, rng: np.random.Generator, channel: str, n_draws: int) -> NDArray[np.float64]:
+        """``(n_draws, rows)`` noise draws of one channel for the engine's region test
+        (:func:`offline.fit.significance.locate`): per drive the same unit-variance MA(1) series
+        over the segments as :meth:`null_draw`, so a box of adjacent segments is judged against
+        correlated noise, not independent rows."""
+        if channel not in self.channels:
+            raise ValueError(f"channel_null_draw: unknown channel {channel!r}; channels are {list(self.channels)}")
+        out = np.empty((n_draws, len(self)))
+        for k in np.unique(self.drive):
+            rows = np.flatnonzero(self.drive == k)
+            rows = rows[np.argsort(self.segment[rows])]
+            out[:, rows] = self._ma1(rng, channel, rows.size, n_draws).T
+        return out
+
+    def _ma1(self, rng: np.random.Generator, channel: str, n_rows: int, n_draws: int) -> NDArray[np.float64]:
+        """``(n_rows, n_draws)`` unit-variance MA(1) series with lag-1 correlation ``segment_corr[channel]``."""
+        rho = float(np.clip(self.segment_corr.get(channel, 0.0), -0.49, 0.49))
+        theta = 0.0 if rho == 0.0 else (1.0 - math.sqrt(1.0 - 4.0 * rho * rho)) / (2.0 * rho)
+        w = rng.standard_normal((n_rows + 1, n_draws))
+        return (w[1:] + theta * w[:-1]) / math.sqrt(1.0 + theta * theta)
 
     lack_of_fit_floor: float = 3.0
     """With nothing in the library significant and no region located, a channel whose believed-model

@@ -156,14 +156,17 @@ _PRIORITY = {"abs_beta_deg": 0, "slip": 1, "sinkage_mm": 2, "load_N": 3, "rim_sp
 def locate(
     z: NDArray[np.float64], raw: NDArray[np.float64], features: Mapping[str, NDArray[np.float64]], channel: str, unit: str,
     rng: np.random.Generator, alpha: float = 0.01, max_regions: int = 3, n_perm: int = 400, min_rows: int = 3,
+    draw: Callable[[np.random.Generator, int], NDArray[np.float64]] | None = None,
 ) -> list[Region]:
     """Significant regions of one channel's residuals.
 
     The statistic of a box is ``Z = sum(z) / sqrt(n)``; its significance is a Monte-Carlo
-    test of the *maximum* |Z| over all boxes under the null of exchangeable Gaussian
-    residuals at a robust scale (MAD of z, at least 1). Up to ``max_regions`` regions, each
-    found after the previous one is explained away (its mean removed). ``raw`` is the
-    residual in report units (for the magnitude).
+    test of the *maximum* |Z| over all boxes under the null of Gaussian residuals at a
+    robust scale (MAD of z, at least 1): independent rows by default, or the correlated
+    unit-variance noise ``draw(rng, n_perm)`` gives (``(n_perm, len(z))``, e.g. a time
+    series' MA(1) noise, so that correlated noise does not make a long box significant).
+    Up to ``max_regions`` regions, each found after the previous one is explained away (its
+    mean removed). ``raw`` is the residual in report units (for the magnitude).
     """
     ok = np.isfinite(z)
     z, raw = z[ok], raw[ok]
@@ -184,7 +187,13 @@ def locate(
         stat = masks @ zc / np.sqrt(counts)
         top = np.flatnonzero(np.abs(stat) >= np.abs(stat).max() * (1 - 1e-9))
         best = int(min(top, key=lambda i: (len(desc[i]), min(_PRIORITY.get(f, 9) for f in desc[i]))))
-        draws = rng.normal(0.0, scale, size=(n_perm, zc.size))
+        if draw is None:
+            draws = rng.normal(0.0, scale, size=(n_perm, zc.size))
+        else:
+            full = np.asarray(draw(rng, n_perm), dtype=float)
+            if full.shape != (n_perm, ok.size):
+                raise ValueError(f"locate: draw gave shape {full.shape}, expected {(n_perm, ok.size)}")
+            draws = scale * full[:, ok]
         null = np.abs(draws @ masks.T / np.sqrt(counts)).max(axis=1)
         p = (1 + np.sum(null >= abs(stat[best]))) / (n_perm + 1)
         if p > alpha:

@@ -476,6 +476,9 @@ class SingleWheelModel:
     ----------
     params : ParameterSet
     options : ModelOptions
+    cache_size : int
+        Wheel responses kept (sinkage solve and wrench, keyed by the rows and the extension's
+        physics fields), oldest dropped first.
     """
 
     params: ParameterSet

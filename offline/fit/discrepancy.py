@@ -593,6 +593,8 @@ def diagnose(
         Relative tolerance of every least-squares fit on the chi-square and the step
         (:func:`~offline.fit.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
         ``max_nfev``).
+    progress : callable, optional
+        Called with a short message at each stage (screening, fits, regions).
 
     Raises
     ------

@@ -645,6 +645,9 @@ class DriveModel:
         change and while the servos move (steering slew, speed lag) it is solved at every tick.
         The actuators follow every tick's commands. At drive speeds the plant is quasi-static,
         so the interpolation error is that of a slowly turning gravity vector.
+    cache_size : int
+        Re-simulated drives kept (keyed by the drive, heading offset and the extension's
+        physics), oldest dropped first.
     """
 
     scenario: Scenario
@@ -853,6 +856,8 @@ def diagnose_drives(
         chi-square changes by less than 1e-4 of itself, about 0.05 on a 40 s drive, which no
         held-out comparison resolves); the forward step for a second term always runs
         (``forward="always"``).
+    progress : callable, optional
+        Called with a short message at each stage of the diagnosis.
 
     Returns
     -------

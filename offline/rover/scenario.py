@@ -65,7 +65,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 from ..physics.params import (
     ROVER_MINI_T72,
@@ -93,7 +93,30 @@ from .failures import (
 from .statics import WHEELS
 
 __all__ = ["ScenarioError", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
-           "ROVER_PRESETS", "example_scenarios", "MAX_SPEED", "MAX_SLOPE_DEG"]
+           "ROVER_PRESETS", "example_scenarios", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
+
+
+def wheel_tables(path: Path, data: Mapping[str, Any], known: Iterable[str],
+                 error: Callable[[str], Exception]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """The ``[wheels.FR]`` ... tables of a parsed TOML file (scenario or truth), checked.
+
+    Yields ``(wheel name, table)`` in file order. Raises ``error(message)`` naming ``path``
+    when ``[wheels]`` is not a table of tables, a wheel name is not one of FR, FL, RR, RL, or a
+    key is not in ``known``.
+    """
+    known = sorted(known)
+    wheels = data.get("wheels", {})
+    if not isinstance(wheels, dict):
+        raise error(f"{path}: [wheels] must hold tables [wheels.FR] ...")
+    for name, tab in wheels.items():
+        if name not in WHEELS:
+            raise error(f"{path}: [wheels.{name}] unknown wheel; use one of {list(WHEELS)}")
+        if not isinstance(tab, dict):
+            raise error(f"{path}: [wheels.{name}] must be a table")
+        bad = sorted(set(tab) - set(known))
+        if bad:
+            raise error(f"{path}: [wheels.{name}] unknown key(s) {bad}; known: {known}")
+        yield name, tab
 
 
 class ScenarioError(ValueError):
@@ -315,17 +338,7 @@ def load_scenario(path: str | Path) -> Scenario:
                              vals.get("grouser_area_ratio"))
     rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
     failures: dict[str, WheelFailure] = {}
-    wheels = data.get("wheels", {})
-    if not isinstance(wheels, dict):
-        raise ScenarioError(f"{p}: [wheels] must hold tables [wheels.FR] ...")
-    for wname, tab in wheels.items():
-        if wname not in WHEELS:
-            raise ScenarioError(f"{p}: [wheels.{wname}] unknown wheel; use one of {list(WHEELS)}")
-        if not isinstance(tab, dict):
-            raise ScenarioError(f"{p}: [wheels.{wname}] must be a table")
-        bad = sorted(set(tab) - set(_WHEEL_KEYS))
-        if bad:
-            raise ScenarioError(f"{p}: [wheels.{wname}] unknown key(s) {bad}; known: {sorted(_WHEEL_KEYS)}")
+    for wname, tab in wheel_tables(p, data, _WHEEL_KEYS, ScenarioError):
         kinds = []
         for kind in KINDS:
             mine = {k: tab[k] for k in kind.TOML_KEYS if k in tab}

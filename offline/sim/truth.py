@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
-from ..rover.scenario import PARAM_PRESETS
+from ..rover.scenario import PARAM_PRESETS, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
@@ -172,17 +172,7 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
                                       name=f"{soil.name} x{vals['soil_stiffness_scale']:g} k"))
     radius = [ps.wheel.radius] * 4
     offset = [0.0] * 4
-    wheels = data.get("wheels", {})
-    if not isinstance(wheels, dict):
-        raise TruthError(f"{p}: [wheels] must hold tables [wheels.FR] ...")
-    for name, tab in wheels.items():
-        if name not in WHEELS:
-            raise TruthError(f"{p}: [wheels.{name}] unknown wheel; use one of {list(WHEELS)}")
-        if not isinstance(tab, dict):
-            raise TruthError(f"{p}: [wheels.{name}] must be a table")
-        bad = sorted(set(tab) - set(_WHEEL_KEYS))
-        if bad:
-            raise TruthError(f"{p}: [wheels.{name}] unknown key(s) {bad}; known: {sorted(_WHEEL_KEYS)}")
+    for name, tab in wheel_tables(p, data, _WHEEL_KEYS, TruthError):
         i = WHEELS.index(name)
         if "radius_mm" in tab:
             radius[i] = 1e-3 * _num(p, f"wheels.{name}", "radius_mm", tab["radius_mm"], *_WHEEL_KEYS["radius_mm"])

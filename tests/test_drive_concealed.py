@@ -63,7 +63,7 @@ def sc():
 
 def _diagnose(path, sc, seed):
     lib = [c for c in DRIVE_CANDIDATES if c.key in LIBRARY]
-    return diagnose_drives([path], sc, segment=6, candidates=lib, recalibrate=False, n_boot=500, seed=seed)
+    return diagnose_drives([path], sc, segment=6, candidates=lib, recalibrate=False, seed=seed)
 
 
 def _readings(path):

@@ -86,8 +86,8 @@ def register(sub: Any) -> None:
     d.add_argument("--bulldozing", choices=["pavlov", "hegedus", "ishigami", "none"], default="pavlov",
                    help="sidewall model of the model under test ('none' to study a model without it)")
     d.add_argument("--max-beta-deg", type=float, default=None, help="only conditions up to this slip angle")
-    d.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default: %(default)s)")
-    d.add_argument("--bootstrap", type=int, default=2000, help="null draws of the bootstrap (default: %(default)s)")
+    d.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level of a single-wheel diagnosis (default: %(default)s; drives use 0.001 before and 0.01 after an explanation, offline.fit.drive_discrepancy.DRIVE_ALPHA)")
+    d.add_argument("--bootstrap", type=int, default=2000, help="null draws of the single-wheel bootstrap (default: %(default)s; drives: 3 / level)")
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the region test")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     drive_discrepancy.add_recording_arguments(d)

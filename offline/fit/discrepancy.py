@@ -472,7 +472,7 @@ CRITERION = (
     "parameters the verdict is 'parameters off'. If the first leaves regions (drives: always), every other term is screened "
     "on top of it by a linearised held-out score test, the best {tries} are fitted jointly with it, and a second term is "
     "added when its extra improvement exceeds the 1 - {alpha} quantile of the maximum of the screened terms' nulls. Remaining regions, or residuals still above the measurement noise "
-    "(chi2 in noise units per channel, at {alpha}/channels), make the verdict 'partly explained'; less than half of "
+    "(chi2 in noise units per channel; both at {alpha_after}/channels), make the verdict 'partly explained'; less than half of "
     "the held-out excess chi2 explained makes it 'unexplained'. For recordings whose adapter withholds look-alikes (drives), "
     "look-alikes with other terms, or a term whose fitted parameters the joint fit cannot tell from the term's absence "
     "(Wald test at 95 %) or whose 95 % interval is wider than half its physical range, make it 'ambiguous': nothing is named and the explanations that fit equally are listed. A run whose model fails on more than half of the rows "
@@ -538,6 +538,7 @@ def diagnose(
     progress: Callable[[str], None] | None = None,
     forward: str = "regions",
     fit_tol: float | None = None,
+    alpha_after: float | None = None,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -593,6 +594,11 @@ def diagnose(
         Relative tolerance of every least-squares fit on the chi-square and the step
         (:func:`~offline.fit.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
         ``max_nfev``).
+    alpha_after : float, optional
+        Level of the checks of what an accepted explanation leaves (regions and lack of fit
+        after it; default ``alpha``). A higher level than ``alpha`` errs on the cautious side:
+        a remaining misfit is more readily reported ("partly explained") while the tests that
+        raise an alarm on agreeing data keep ``alpha`` (drives: 0.01 after, 0.001 before).
     progress : callable, optional
         Called with a short message at each stage (screening, fits, regions).
 
@@ -603,6 +609,9 @@ def diagnose(
         a wrong unit, a parameter file for another wheel): no verdict can be given.
     """
     t0 = time.perf_counter()
+    alpha_after = alpha if alpha_after is None else alpha_after
+    if not (0.0 < alpha <= alpha_after < 0.5):
+        raise ValueError(f"alpha = {alpha}, alpha_after = {alpha_after}: expected 0 < alpha <= alpha_after < 0.5")
     if forward not in ("regions", "always"):
         raise ValueError(f"forward = {forward!r}: expected 'regions' or 'always'")
     say = progress or (lambda s: None)
@@ -822,9 +831,9 @@ def diagnose(
     if chosen is not None:
         for ch in chans:
             regions_after += locate(res1[ch] / obs.noise[ch], res1[ch] * obs.scale_out[ch], obs.features, ch,
-                                    obs.units[ch], rng, **_locate_kw(obs, ch))
+                                    obs.units[ch], rng, **_locate_kw(obs, ch, alpha_after / alpha))
     failed1 = int((~ok1).sum())
-    misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha) if chosen is not None else []
+    misfit = _lack_of_fit(obs, pred1, chosen.k if chosen is not None else 0, alpha_after) if chosen is not None else []
     floor = getattr(obs, "lack_of_fit_floor", None)
     if chosen is None and floor is not None:  # a misfit spread evenly over the record has no region
         misfit = [m for m in _lack_of_fit(obs, pred0, 0, alpha) if m[1] / m[2] > floor]
@@ -854,7 +863,7 @@ def diagnose(
     recal = None
     if chosen is not None and status not in ("unexplained", "ambiguous") and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
-    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, keep=100 * (1 - equal_fraction),
+    crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, alpha_after=alpha_after, keep=100 * (1 - equal_fraction),
                             tries=max_tries)
     return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
                    chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
@@ -1034,13 +1043,16 @@ def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: 
     return out
 
 
-def _locate_kw(obs: Any, channel: str) -> dict[str, Any]:
+def _locate_kw(obs: Any, channel: str, scale: float = 1.0) -> dict[str, Any]:
     """Per-channel level, Monte-Carlo size and null of the region test: an observations adapter
     with many channels (a drive has 14) sets ``locate_alpha`` (e.g. 0.01 / channels) and
-    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400). An adapter of a time
-    series gives its correlated noise through ``channel_null_draw(rng, channel, n)``
-    (``(n, rows)``, unit variance); without it the rows are independent."""
-    kw: dict[str, Any] = {"alpha": getattr(obs, "locate_alpha", 0.01), "n_perm": getattr(obs, "locate_perm", 400)}
+    ``locate_perm``; the defaults are the single-wheel ones (0.01, 400). ``scale`` multiplies
+    the level (the checks after an explanation, at ``alpha_after / alpha``), the draws keep
+    their ratio to it. An adapter of a time series gives its correlated noise through
+    ``channel_null_draw(rng, channel, n)`` (``(n, rows)``, unit variance); without it the rows
+    are independent."""
+    a, n = getattr(obs, "locate_alpha", 0.01), getattr(obs, "locate_perm", 400)
+    kw: dict[str, Any] = {"alpha": a * scale, "n_perm": n if scale == 1.0 else int(math.ceil(n / scale))}
     draw = getattr(obs, "channel_null_draw", None)
     if draw is not None:
         kw["draw"] = lambda rng, n: draw(rng, channel, n)

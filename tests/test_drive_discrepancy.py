@@ -130,6 +130,15 @@ def test_bad_recordings_are_named(tmp_path):
     assert rc == 2 and "no such recording" in err
 
 
+def test_levels_a_monte_carlo_size_cannot_reach_are_refused(sc, tmp_path):
+    """At the drive level 0.001 a candidate test of 500 draws could never be significant (its
+    smallest p-value is 1/501): refused before any simulation, naming the minimum."""
+    with pytest.raises(ValueError, match=r"at least 1000 draws"):
+        diagnose_drives([tmp_path / "never_read.mcap"], sc, n_boot=500)
+    with pytest.raises(ValueError, match="false-alarm level"):
+        diagnose_drives([tmp_path / "never_read.mcap"], sc, alpha=0.0)
+
+
 def test_accepted_terms_round_trip_through_a_truth_file(sc, nominal, tmp_path):
     """Terms -> truth file -> offline.sim.truth.load_truth gives the same world back."""
     lib = {c.key: c for c in DRIVE_CANDIDATES}

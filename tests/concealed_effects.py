@@ -65,7 +65,8 @@ from rtctl.messages import Commands, Measurements
 
 __all__ = ["TerrainPlane", "TetherToAnchor", "SteeringEncoderMisaligned", "WornWheel", "LooserSoil", "HubDrag",
            "SoftPatch", "Undulation", "GyroBiasStep", "Effect", "Combined", "record_concealed", "LOOSE_SOIL",
-           "terrain_frame", "gravity_and_tilt", "WHEEL_XY", "soil_pressure_check", "true_mean_sinkage"]
+           "terrain_frame", "gravity_and_tilt", "WHEEL_XY", "soil_pressure_check", "true_mean_sinkage",
+           "soil_behaviour_check"]
 
 G = 9.81
 
@@ -315,7 +316,8 @@ class LooserSoil(Effect):
     so it is not the k scaling of the soil_stiffness candidate. It still goes through the plant's
     soil law (the same eqs. 5.5-5.10 the believed model uses): the soil's functional form is the
     model's, its parameters are not. Expected: "parameters off" (soil_stiffness or the
-    recalibration); the check is the pressure ``k z^n`` at the drive's mean sinkage."""
+    recalibration); the check is what the accepted soil does to the wheels at the drive's true
+    states (:func:`soil_behaviour_check`: sinkage and wheel torque)."""
 
     soil: Soil = LOOSE_SOIL
     name: str = "looser_soil"
@@ -486,3 +488,55 @@ def soil_pressure_check(v: Any, effect: Effect, base: Truth, path: str | Path) -
     true = effect.truth(base).params.soil
     pf, pt = fitted.k * z**fitted.n0 / 1e3, true.k * z**true.n0 / 1e3
     return {"fitted": pf, "truth": pt, "rel_error": abs(pf - pt) / pt, "sinkage_mm": 1e3 * z}
+
+
+def soil_behaviour_check(v: Any, effect: Effect, base: Truth, path: str | Path, every: int = 2) -> dict[str, dict[str, float]]:
+    """What the accepted soil does to a wheel, against what the true soil does, at the states
+    the drive went through: for every ``every``-th tick and every wheel of the recording's
+    ``/sim/truth`` channel (its true load, slip and slip angle; reverse and |slip| >= 1 ticks
+    left out), the sinkage carrying the load (eq. 5.34) and the wheel torque M_y
+    (eqs. 5.5-5.10, quasi-static, so the travel speed does not enter) under each soil.
+
+    A drive cannot pin a Bekker pair (k, n) down (no sinkage sensor; one load level), so two
+    soils with very different k agree on everything the rover feels; this compares that, not
+    the parameters. Returns two checks, each ``fitted`` / ``truth`` / ``rel_error`` and the
+    believed soil's error ``believed_rel_error`` for scale:
+
+    - ``sinkage at the drive's true states``: mean sinkage (mm); error = mean |h_fit - h_true| / h_true;
+    - ``wheel torque at the drive's true states``: RMS M_y (mN m); error = RMS(M_fit - M_true) / RMS(M_true).
+    """
+    from offline.fit.drive_discrepancy import accepted_extension
+    from offline.physics.terramechanics import WheelModel, state_from_slip
+    from rtctl.recording import read_recording
+
+    rec = read_recording(path).truth[::every]
+    load = np.array([x for d in rec for x in d["load"]], dtype=float)
+    slip = np.array([x for d in rec for x in d["slip"]], dtype=float)
+    beta = np.array([x for d in rec for x in d["slip_angle"]], dtype=float)
+    ok = np.isfinite(load) & np.isfinite(slip) & np.isfinite(beta) & (load > 0) & (np.abs(slip) < 0.95) & (np.abs(beta) < 0.5 * math.pi)
+    ps = base.params
+    vx, vy, om = state_from_slip(slip[ok], beta[ok], 0.03, ps.wheel)
+    soils = {"fitted": replace(ps.soil, **accepted_extension(v).soil), "truth": effect.truth(base).params.soil,
+             "believed": ps.soil}
+    h, my = {}, {}
+    for name, soil in soils.items():
+        m = WheelModel(soil, ps.wheel, ps.tuning)
+        r = m.sinkage_from_load(load[ok], vx, vy, om)
+        h[name] = np.asarray(r.h, dtype=float)
+        my[name] = np.asarray(m.wrench(vx, vy, om, r.h, r.h_zero_slip).My, dtype=float)
+    good = np.all([np.isfinite(h[k]) & np.isfinite(my[k]) for k in soils], axis=0)
+
+    def sink_err(k: str) -> float:
+        return float(np.mean(np.abs(h[k][good] - h["truth"][good]) / h["truth"][good]))
+
+    def torque_err(k: str) -> float:
+        return float(np.sqrt(np.mean((my[k][good] - my["truth"][good]) ** 2) / np.mean(my["truth"][good] ** 2)))
+
+    rms = lambda a: float(np.sqrt(np.mean(a[good] ** 2)))  # noqa: E731
+    return {"sinkage at the drive's true states": {"fitted": 1e3 * float(np.mean(h["fitted"][good])),
+                                                   "truth": 1e3 * float(np.mean(h["truth"][good])),
+                                                   "rel_error": sink_err("fitted"), "believed_rel_error": sink_err("believed"),
+                                                   "states": int(good.sum())},
+            "wheel torque at the drive's true states": {"fitted": 1e3 * rms(my["fitted"]), "truth": 1e3 * rms(my["truth"]),
+                                                        "rel_error": torque_err("fitted"),
+                                                        "believed_rel_error": torque_err("believed"), "states": int(good.sum())}}

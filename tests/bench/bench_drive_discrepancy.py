@@ -15,7 +15,8 @@ Groups
 ``effects``   in-library effects (must be named: right candidate and wheel, parameter within
               20 %), out-of-library effects (must NOT be named confidently: verdict
               ``unexplained``, ``partly_explained`` or ``ambiguous``), two effects at once.
-``negatives`` no effect, 20 seeds: false alarms (any verdict but ``agree``).
+``negatives`` no effect, 20 seeds (31-50): false alarms (any verdict but ``agree``).
+``fresh_negatives`` no effect, 20 seeds never run before the drive level 0.001 was set (51-70).
 ``recovery``  the previous cases generated through the plant's own truth parameters (cross
               slope, radius, steer offset, tether, k), for comparison.
 
@@ -31,6 +32,7 @@ group's rows of an earlier run; report folders under out/bench_drive_discrepancy
 
     nice python tests/bench/bench_drive_discrepancy.py effects
     nice python tests/bench/bench_drive_discrepancy.py negatives
+    nice python tests/bench/bench_drive_discrepancy.py fresh_negatives
     nice python tests/bench/bench_drive_discrepancy.py effects tether     # cases whose name contains 'tether' (no file written)
     python tests/bench/bench_drive_discrepancy.py table                   # rewrite the .md from the .json
     nice python tests/bench/bench_drive_discrepancy.py lack_of_fit        # residuals vs noise before any explanation
@@ -76,6 +78,7 @@ from offline.sim.truth import Truth  # noqa: E402
 
 DURATION = 40.0
 N_NEGATIVE = 20
+NEGATIVE_GROUPS = ("negatives", "fresh_negatives")
 HONEST_OUT = ("unexplained", "partly_explained", "ambiguous")  # ambiguous: nothing named (the explanations that fit equally are listed)
 
 
@@ -122,6 +125,7 @@ def cases(tr: Truth) -> dict[str, list[tuple[str, Callable[[], Effect], bool, in
          True, 3),
     ]
     negatives = [(f"negative_control_seed{s}", lambda: Effect(), True, s) for s in range(31, 31 + N_NEGATIVE)]
+    fresh = [(f"negative_control_seed{s}", lambda: Effect(), True, s) for s in range(51, 51 + N_NEGATIVE)]
     recovery = [
         ("plant cross_slope_3.5deg", lambda: _PlantTruth("cs", {"cross_slope": d(3.5)}, {"terrain_slope": {"cross_slope": 3.5}}), True, 3),
         ("plant radius_RR_-7pct", lambda: _PlantTruth("rr", {"wheel_radius": (r, r, 0.93 * r, r)}, {"wheel_radius_RR": {"radius_change": -7.0}}),
@@ -130,7 +134,7 @@ def cases(tr: Truth) -> dict[str, list[tuple[str, Callable[[], Effect], bool, in
          True, 3),
         ("plant tether_2N", lambda: _PlantTruth("t", {"tether_force": 2.0}, {"tether": {"force": 2.0}}), True, 3),
     ]
-    return {"effects": effects, "negatives": negatives, "recovery": recovery}
+    return {"effects": effects, "negatives": negatives, "fresh_negatives": fresh, "recovery": recovery}
 
 
 def judge(v: Any, expect: dict[str, dict[str, float]], in_library: bool) -> dict[str, Any]:
@@ -208,14 +212,14 @@ def _md(data: dict[str, Any]) -> str:
                        for k, e in r["param_errors"].items())
         if r["indistinguishable"]:
             pe += f" [indistinguishable: {', '.join(r['indistinguishable'])}]"
-        indep = "-" if r["group"] == "negatives" else "yes" if r["independent"] else "no"
+        indep = "-" if r["group"] in NEGATIVE_GROUPS else "yes" if r["independent"] else "no"
         md.append(f"| {r['case']} | {indep} | {r['verdict']} | {' + '.join(r['named']) or '-'} | "
                   f"{'yes' if r['ok'] else 'NO'} | {pe or '-'} | {r['heldout_segments_chi2'][0]:.0f} -> {r['heldout_segments_chi2'][1]:.0f} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
                   f"{r['seconds']:.0f} | {r['simulations']} |")
-    inl = [r for r in rows if r["group"] != "negatives" and r["in_library"]]
+    inl = [r for r in rows if r["group"] not in NEGATIVE_GROUPS and r["in_library"]]
     out = [r for r in rows if not r["in_library"]]
-    neg = [r for r in rows if r["group"] == "negatives"]
+    neg = [r for r in rows if r["group"] in NEGATIVE_GROUPS]
     within = [e["rel_error"] <= 0.2 for r in inl for e in r["param_errors"].values() if e.get("judged", True)]
     md += ["", f"In-library cases named right: {sum(r['ok'] for r in inl)}/{len(inl)}; parameters within 20 %: "
            f"{sum(within)}/{len(within)}; out-of-library cases not named confidently: {sum(r['ok'] for r in out)}/{len(out)}; "

@@ -148,12 +148,17 @@ def _physics_key(rec: SingleWheelRecording, ext: Extension) -> tuple[Any, ...]:
             tuple(sorted((k, repr(v)) for k, v in ext.options.items())), ext.beta_offset, ext.omega_max, ext.load_offset)
 
 
+def _kw(changes: Mapping[str, float]) -> dict[str, Any]:
+    """An extension's field changes as keyword arguments of ``dataclasses.replace``."""
+    return dict(changes)
+
+
 def _solve_physics(params: ParameterSet, options: ModelOptions, rec: SingleWheelRecording, ext: Extension) -> _Physics | None:
     n = len(rec)
     try:
-        soil = replace(params.soil, **ext.soil)
-        wheel = replace(params.wheel, **ext.wheel)
-        tuning = replace(params.tuning, **ext.tuning)
+        soil = replace(params.soil, **_kw(ext.soil))
+        wheel = replace(params.wheel, **_kw(ext.wheel))
+        tuning = replace(params.tuning, **_kw(ext.tuning))
         opts = replace(options, **ext.options)
         model = WheelModel(soil, wheel, tuning, opts)
     except (ParameterError, ValueError):
@@ -528,9 +533,9 @@ class SingleWheelModel:
     def parameter_set(self, ext: Extension, note: str = "") -> ParameterSet:
         """The parameter set with the extension's soil, wheel and tuning changes applied."""
         p = self.params
-        return ParameterSet(replace(p.soil, **ext.soil, name=f"{p.soil.name}_recalibrated", source="offline.fit.discrepancy"),
-                            replace(p.wheel, **ext.wheel),
-                            replace(p.tuning, **ext.tuning, name=f"{p.tuning.name}_recalibrated", source="offline.fit.discrepancy"),
+        return ParameterSet(replace(p.soil, **_kw(ext.soil), name=f"{p.soil.name}_recalibrated", source="offline.fit.discrepancy"),
+                            replace(p.wheel, **_kw(ext.wheel)),
+                            replace(p.tuning, **_kw(ext.tuning), name=f"{p.tuning.name}_recalibrated", source="offline.fit.discrepancy"),
                             note or p.notes)
 
     def describe(self) -> str:

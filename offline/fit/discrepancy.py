@@ -432,7 +432,8 @@ def _plots(v: Verdict, out: Path) -> list[Path]:
                 ax.set_xlabel(fx)
             if j == 0:
                 ax.set_ylabel(fy)
-    fig.colorbar(sc, ax=axes, label="(measured - predicted) / noise (clipped at ±10; x: model failed)")
+    if sc is not None:
+        fig.colorbar(sc, ax=axes, label="(measured - predicted) / noise (clipped at ±10; x: model failed)")
     p = out / "residual_map.png"
     with atomic_path(p) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
@@ -615,8 +616,8 @@ def diagnose(
     if forward not in ("regions", "always"):
         raise ValueError(f"forward = {forward!r}: expected 'regions' or 'always'")
     say = progress or (lambda s: None)
-    model = params if hasattr(params, "predict") else SingleWheelModel(params, options or ModelOptions())
-    obs = (trials_or_recording if hasattr(trials_or_recording, "channels")
+    model: Any = params if hasattr(params, "predict") else SingleWheelModel(params, options or ModelOptions())
+    obs: Any = (trials_or_recording if hasattr(trials_or_recording, "channels")
            else SingleWheelRecording.from_trials(trials_or_recording))
     if len(obs) < max(2 * k_folds, 6):
         raise DiscrepancyError(f"{obs.source}: {len(obs)} rows (conditions); the held-out test needs at least "
@@ -692,7 +693,8 @@ def diagnose(
         if not (c.threshold or c.starts):  # smooth in its parameters: linearised at the fit and at the start
             xs = [np.array([q[4] for q in c.params])]
         else:  # thresholds and directions: the starts and points spread over the box
-            pick = np.unique(np.linspace(0, len(c.starts) - 1, min(len(c.starts), n_points - 1)).round().astype(int)) if c.starts else []
+            pick: Sequence[int] = (np.unique(np.linspace(0, len(c.starts) - 1, min(len(c.starts), n_points - 1)).round().astype(int)).tolist()
+                                   if c.starts else [])
             xs = [np.array(c.starts[j], dtype=float) for j in pick]
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
         pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
@@ -855,11 +857,13 @@ def diagnose(
     if equivalent and status != "unexplained":
         say("separating experiments")
         probes = obs.probes() if hasattr(obs, "probes") else []
-        first = next(s for s in scores if s.keys == chosen.keys[:1]) if chosen is not None and len(chosen.keys) > 1 else chosen
+        first_sc: CandidateScore | None = (next(sc for sc in scores if sc.keys == chosen.keys[:1])
+                                           if chosen is not None and len(chosen.keys) > 1 else chosen)
         cache: dict[Any, Any] = {}
-        for s in equivalent[:max_separations]:
-            a = chosen if chosen is not None and len(s.keys) == len(chosen.keys) else first
-            separations.append(_separate(model, ps, by_key, a, s, probes, cache, empty))
+        for eq in equivalent[:max_separations]:
+            a = chosen if chosen is not None and len(eq.keys) == len(chosen.keys) else first_sc
+            if a is not None:
+                separations.append(_separate(model, ps, by_key, a, eq, probes, cache, empty))
     recal = None
     if chosen is not None and status not in ("unexplained", "ambiguous") and "parameters" in chosen.kinds and hasattr(model, "parameter_set"):
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")

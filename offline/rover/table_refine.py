@@ -30,9 +30,10 @@ import itertools
 import json
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .table_builder import (MAX_RETRY_NEIGHBOURS, BuildError, GridSpec, TableSpec, _neighbours, _problem, _run,
                             _solve_point, predicted_start, retry_point)
@@ -161,13 +162,13 @@ def _cell_combos(spec: TableSpec, axes: dict[str, list[float]], store: Mapping[K
     """Sampled (lower corner, upper corner, midpoint) keys of one cell whose corners are optimal."""
     names = tuple(axes)
     ia = names.index(a)
-    others = [axes[k] if k != a else [None] for k in names]
-    ok = []
+    others = [axes[k] if k != a else [lo] for k in names]  # the refined axis' entry is replaced below
+    ok: list[tuple[Key, Key, Key]] = []
     for combo in itertools.product(*others):
-        k_lo = tuple(lo if i == ia else v for i, v in enumerate(combo))
-        k_hi = tuple(hi if i == ia else v for i, v in enumerate(combo))
+        k_lo = tuple(lo if i == ia else float(v) for i, v in enumerate(combo))
+        k_hi = tuple(hi if i == ia else float(v) for i, v in enumerate(combo))
         if store[k_lo]["status"] == "optimal" and store[k_hi]["status"] == "optimal":
-            ok.append((k_lo, k_hi, tuple(0.5 * (lo + hi) if i == ia else v for i, v in enumerate(combo))))
+            ok.append((k_lo, k_hi, tuple(0.5 * (lo + hi) if i == ia else float(v) for i, v in enumerate(combo))))
     return [ok[i] for i in _sample(len(ok), spec.refine.samples)]
 
 
@@ -183,9 +184,12 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
     axes = {k: list(v) for k, v in spec.grid.axes}
     store: dict[Key, dict[str, Any]] = {_key(spec.grid.point(f), names): r for f, r in recs.items()}
     cells = {a: list(zip(v[:-1], v[1:])) for a, v in axes.items()}
-    checks, inserted, stop = [], {a: [] for a in names}, f"{opt.rounds} rounds done"
+    checks: list[Any] = []
+    inserted: dict[str, list[float]] = {a: [] for a in names}
+    stop = f"{opt.rounds} rounds done"
     for rnd in range(opt.rounds):
-        jobs, seen = [], set()
+        jobs: list[tuple[Key, Callable[..., dict[str, Any]], tuple[Any, ...]]] = []
+        seen: set[Key] = set()
         for a in names:
             for lo, hi in cells[a]:
                 for k_lo, _, k_mid in _cell_combos(spec, axes, store, a, lo, hi):
@@ -220,9 +224,10 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
             if op_t in store:
                 continue
             base = tuple(v if v in old_axes[a] else max(w for w in old_axes[a] if w < v) for a, v in zip(names, op_t))
-            x0 = (predicted_start(spec, store[base], dict(zip(names, base)), dict(zip(names, op_t)))
-                  if store[base]["status"] == "optimal" else None)
-            jobs.append((op_t, _point_task, (spec, dict(zip(names, op_t)), x0)))
+            x0_new: NDArray[np.float64] | None = (
+                predicted_start(spec, store[base], dict(zip(names, base)), dict(zip(names, op_t)))
+                if store[base]["status"] == "optimal" else None)
+            jobs.append((op_t, _point_task, (spec, dict(zip(names, op_t)), x0_new)))
         new = _cached_run(ck, ex, "pt", jobs, progress, f"{spec.name} refine {rnd + 1}: {len(jobs)} new points")
         store.update(new)
         # unsolved new points: retried from solved neighbours of the refined grid

@@ -471,6 +471,14 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
     return truth, (act or None), meas
 
 
+_HOOK_KEYS = {"tether_anchor": {"anchor_tension_N": ("tension_N", 1.0), "anchor_bearing_rad": ("bearing_deg", 180 / math.pi),
+                                "anchor_inverse_distance_per_m": ("inverse_distance_per_m", 1.0),
+                                "anchor_attach_x_m": ("attach_x_m", 1.0),
+                                "anchor_spring_rate_N_per_m": ("spring_rate_N_per_m", 1.0)},
+              "hub_contact": {"hub_clearance_m": ("clearance_mm", 1e3), "hub_face_width_m": ("face_width_mm", 1e3),
+                              "hub_arm_m": ("arm_mm", 1e3)}}
+
+
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
                      actuator: Mapping[str, float] | None, header: Mapping[str, Any],
                      disturbance: Mapping[str, float] | None = None) -> Path:
@@ -480,7 +488,8 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     for (IMU tilt, gyro scale, servo lag, torque limit) go to a ``[sensors_and_actuators]``
     comment block with their values, since they belong to the sensor and actuator
     configuration, not to the world; ``disturbance`` (hub contact, anchored tether: their
-    parameters, SI) goes to a comment block too. ``header`` lines become comments (fitted values,
+    parameters, SI, keys ``anchor_tension_N`` ... ``hub_arm_m``) goes to the truth format's
+    ``[tether_anchor]`` and ``[hub_contact]`` sections. ``header`` lines become comments (fitted values,
     standard errors, held-out improvement).
     """
     lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
@@ -509,9 +518,12 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
         if wl:
             lines += ["", f"[wheels.{w}]", *wl]
     hub = {k: v for k, v in (disturbance or {}).items()}
+    for section, keys in _HOOK_KEYS.items():  # real sections of the truth format (load_truth reads them)
+        got = [(dst, hub.pop(src) * f) for src, (dst, f) in keys.items() if src in hub]
+        if got:
+            lines += ["", f"[{section}]", *(f"{k} = {v:.6g}" for k, v in got)]
     if hub:
-        lines += ["", "# disturbance hooks (offline.fit.drive_candidates.HubContact / AnchoredTether; not keys of the",
-                  "# truth format, so offnominal drive --truth does not apply them), SI:"]
+        lines += ["", "# disturbance parameters the truth format has no key for, SI:"]
         lines += [f"#   {k} = {v:.6g}" for k, v in hub.items()]
     extra = {k: v for k, v in measurement.items() if v}
     extra.update(actuator or {})

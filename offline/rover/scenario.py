@@ -116,7 +116,7 @@ from .failures import (
 from .statics import WHEELS
 
 __all__ = ["ScenarioError", "ExternalForce", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
-           "ROVER_PRESETS", "example_scenarios", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
+           "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
 
 
 def wheel_tables(path: Path, data: Mapping[str, Any], known: Iterable[str],
@@ -548,3 +548,40 @@ def example_scenarios() -> list[Path]:
     """The scenario files shipped in ``offline/scenarios``."""
     folder = Path(str(resources.files("offline").joinpath("scenarios")))
     return sorted(folder.glob("*.toml"))
+
+
+def scenario_with_world(sc: Scenario, world: Any) -> Scenario:
+    """The scenario in a world described by a truth file (``offnominal tables build --world``).
+
+    ``world`` is an :class:`offline.sim.truth.Truth` (read by the caller with
+    :func:`offline.sim.truth.load_truth`, e.g. the discrepancy tool's ``accepted_truth.toml``):
+
+    * soil: the world's (its ``soil_stiffness_scale`` and parameter file applied); wheel
+      geometry other than the radius and the contact tuning stay the scenario's;
+    * slope, cross slope: added to the scenario's own (a table's slope / cross-slope axes give
+      the absolute inclination at each grid point, as the rover's IMU reads it);
+    * ``tether_force_N`` and the anchored cable (``[tether_anchor]``: tension, bearing from the
+      rover's heading, attachment x; in steady straight driving a constant body-frame force):
+      added to the scenario's external pull (:class:`ExternalForce`);
+    * per-wheel rim radius and steering offset: replace the scenario's.
+
+    Raises
+    ------
+    ScenarioError
+        The world's radii are implausible for the scenario's wheel (outside 0.5-2 times it).
+    """
+    ps = replace(sc.params, soil=world.params.soil)
+    r0 = ps.wheel.radius
+    radii = tuple(float(r) for r in world.wheel_radius)
+    if not all(0.5 * r0 <= r <= 2.0 * r0 for r in radii):
+        raise ScenarioError(f"world {Path(world.source).name or '?'}: wheel radii {[1e3 * r for r in radii]} mm are not "
+                            f"within 0.5-2 x the scenario's {1e3 * r0:g} mm wheel")
+    ext = (sc.external or ExternalForce()) + ExternalForce.tether(float(world.tether_force))
+    anchor = getattr(world, "anchor", None)
+    if anchor is not None:
+        ext = ext + ExternalForce.cable(float(anchor["tension"]), float(anchor["bearing"]), float(anchor.get("attach_x", 0.0)))
+    offsets = tuple(float(o) for o in world.steer_offset)
+    return replace(sc, params=ps, slope=sc.slope + world.slope, cross_slope=sc.cross_slope + world.cross_slope,
+                   external=None if ext.zero else ext,
+                   wheel_radius=radii if any(r != r0 for r in radii) else None,
+                   steer_offset=offsets if any(offsets) else None)

@@ -369,8 +369,12 @@ def _file_record(path: Path) -> dict[str, str]:
 
 
 def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", build: BuildOptions | None = None,
-               solver: Any = None, refine: Any = None) -> TableSpec:
+               solver: Any = None, refine: Any = None, world: Any = None) -> TableSpec:
     """Read a scenario file and make the spec of its table (default grid, overridden by ``grid``).
+
+    ``world``: an :class:`offline.sim.truth.Truth` (``--world accepted_truth.toml``) whose terms
+    the scenario takes (:func:`offline.rover.scenario.scenario_with_world`); its file's name and
+    sha256 go to the header's ``sources["world_file"]``.
 
     Raises
     ------
@@ -395,6 +399,15 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         sources["params_file"] = _file_record(p.parent / ref)
     elif isinstance(ref, str):
         sources["params_preset"] = ref
+    if world is not None:
+        from .scenario import scenario_with_world
+
+        try:
+            sc = scenario_with_world(sc, world)
+        except ScenarioError as exc:
+            raise BuildError(str(exc)) from None
+        wp = Path(world.source) if getattr(world, "source", "") else None
+        sources["world_file"] = _file_record(wp) if wp is not None and wp.is_file() else {"name": "(in memory)"}
     sc = replace(sc, source=p.name)
     if solver is None:
         from .primitives import SolverOptions

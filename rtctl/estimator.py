@@ -123,7 +123,7 @@ class Odometry:
 
 
 def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: Sequence[bool],
-                   wheel_radius: float | Sequence[float], sigma_omega: float) -> tuple[float, float]:
+                   wheel_radius: float | Sequence[float] | NDArray[np.float64], sigma_omega: float) -> tuple[float, float]:
     """Least-squares travel speed from the valid wheels and its variance (module docstring).
 
     ``wheel_radius``: one shearing radius, or one per wheel (a worn wheel: its rim moves the

@@ -116,7 +116,7 @@ from .failures import (
 from .statics import WHEELS
 
 __all__ = ["ScenarioError", "ExternalForce", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
-           "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
+           "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "section_table", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
 
 
 def wheel_tables(path: Path, data: Mapping[str, Any], known: Iterable[str],
@@ -481,16 +481,8 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
     trench = None
     if "trench" in data:
-        t = data["trench"]
-        if not isinstance(t, dict):
-            raise ScenarioError(f"{p}: trench = {t!r}: the trench goal is a table, e.g. [trench] wheel = \"RR\", "
-                                "clean_side = true, min_depth_m = 0.02")
-        bad = sorted(set(t) - set(_TRENCH_KEYS))
-        if bad:
-            raise ScenarioError(f"{p}: [trench] unknown key(s) {bad}; known: {sorted(_TRENCH_KEYS)}")
-        if "wheel" not in t:
-            raise ScenarioError(f"{p}: [trench] missing key 'wheel'")
-        tv = {k: _get(str(p), t, k, typ, "trench") for k, typ in _TRENCH_KEYS.items() if k in t}
+        tv = _section(p, data["trench"], "trench", _TRENCH_KEYS, "wheel",
+                      "the trench goal is a table, e.g. [trench] wheel = \"RR\", clean_side = true, min_depth_m = 0.02")
         if tv["wheel"] not in WHEELS:
             raise ScenarioError(f"{p}: [trench] wheel = {tv['wheel']!r}; use one of {list(WHEELS)}")
         if failures.get(tv["wheel"], WheelFailure()).raised:
@@ -518,6 +510,27 @@ def load_scenario(path: str | Path) -> Scenario:
     )
 
 
+def section_table(path: Path, t: Any, name: str, known: Iterable[str], required: str, what: str,
+                  error: Callable[[str], Exception]) -> dict[str, Any]:
+    """A ``[name]`` table of a parsed TOML file (scenario or truth), checked: a table, only
+    ``known`` keys, the ``required`` key. Raises ``error(message)`` naming ``path`` (``what``:
+    the hint when it is not a table)."""
+    if not isinstance(t, dict):
+        raise error(f"{path}: {name} = {t!r}: {what}")
+    bad = sorted(set(t) - set(known))
+    if bad:
+        raise error(f"{path}: [{name}] unknown key(s) {bad}; known: {sorted(known)}")
+    if required not in t:
+        raise error(f"{path}: [{name}] missing key {required!r}")
+    return t
+
+
+def _section(p: Path, t: Any, name: str, keys: Mapping[str, type], required: str, what: str) -> dict[str, Any]:
+    """A checked ``[name]`` table (:func:`section_table`) with its values typed (:func:`_get`)."""
+    t = section_table(p, t, name, keys, required, what, ScenarioError)
+    return {k: _get(str(p), t, k, typ, name) for k, typ in keys.items() if k in t}
+
+
 def _external(p: Path, tether: float, cable: Any) -> ExternalForce | None:
     """The scenario's external pull: ``tether_force_N`` along -x plus the ``[tether]`` cable."""
     if abs(tether) > MAX_TETHER_N:
@@ -525,15 +538,8 @@ def _external(p: Path, tether: float, cable: Any) -> ExternalForce | None:
                             "(newtons expected)")
     ext = ExternalForce.tether(tether)
     if cable is not None:
-        if not isinstance(cable, dict):
-            raise ScenarioError(f"{p}: tether = {cable!r}: the cable is a table [tether] with tension_N, bearing_deg, "
-                                "attach_x_m")
-        bad = sorted(set(cable) - set(_TETHER_KEYS))
-        if bad:
-            raise ScenarioError(f"{p}: [tether] unknown key(s) {bad}; known: {sorted(_TETHER_KEYS)}")
-        if "tension_N" not in cable:
-            raise ScenarioError(f"{p}: [tether] missing key 'tension_N' (the cable tension, N)")
-        tv = {k: _get(str(p), cable, k, typ, "tether") for k, typ in _TETHER_KEYS.items() if k in cable}
+        tv = _section(p, cable, "tether", _TETHER_KEYS, "tension_N",
+                      "the cable is a table [tether] with tension_N, bearing_deg, attach_x_m")
         if not 0.0 <= tv["tension_N"] <= MAX_TETHER_N:
             raise ScenarioError(f"{p}: [tether] tension_N = {tv['tension_N']} outside [0, {MAX_TETHER_N:g}] N (a cable "
                                 "only pulls; newtons expected)")

@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
-from ..rover.scenario import PARAM_PRESETS, wheel_tables
+from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
@@ -156,15 +156,9 @@ def _hook(path: Path, data: dict[str, Any], section: str) -> dict[str, float] | 
     """A disturbance-hook section (:data:`_HOOKS`) in SI, or None when absent."""
     if section not in data:
         return None
-    tab = data[section]
     required, keys = _HOOKS[section]
-    if not isinstance(tab, dict):
-        raise TruthError(f"{path}: [{section}] must be a table with keys {sorted(keys)}")
-    bad = sorted(set(tab) - set(keys))
-    if bad:
-        raise TruthError(f"{path}: [{section}] unknown key(s) {bad}; known: {sorted(keys)}")
-    if required not in tab:
-        raise TruthError(f"{path}: [{section}] missing key {required!r}")
+    tab = section_table(path, data[section], section, keys, required, f"must be a table with keys {sorted(keys)}",
+                        TruthError)
     out = {si: f * _num(path, section, k, tab[k], lo, hi) for k, (si, f, lo, hi) in keys.items() if k in tab}
     if section == "tether_anchor":
         out.setdefault("bearing", math.pi)

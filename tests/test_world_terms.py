@@ -213,7 +213,7 @@ def test_truth_file_carries_anchor_and_hub_sections(tmp_path):
     assert w.external.fx == pytest.approx(-2.0 - 0.5) and w.external.mz == pytest.approx(0.0, abs=1e-12)
 
 
-def test_world_file_to_table_header_and_rtctl_commands(tmp_path):
+def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
     """End to end: accepted_truth.toml -> a one-point table built with ``--world`` -> header shows
     the terms; the primitive drives harder than nominal (the tether), the small RR wheel spins
     faster; rtctl commands rim speed omega_i r_s,i and steer beta - offset, and reads encoders + offset."""
@@ -235,6 +235,8 @@ def test_world_file_to_table_header_and_rtctl_commands(tmp_path):
     assert world["steer_offset_rad"] == pytest.approx([0.0, 0.0, math.radians(3.0), 0.0])
     assert world["external_force"]["fx_N"] == pytest.approx(-2.5)
     assert t.header["sources"]["world_file"]["name"] == "accepted_truth.toml"
+    assert main(["tables", "info", str(out / "nominal.npz")]) == 0
+    assert "world terms: rim radius" in capsys.readouterr().out
     tp = t.at(slope=0.0, cross_slope=0.0, speed=0.03)
     nom = solve_primitive(replace(load_scenario(NOMINAL), speed=0.03))
     lay = t.layout

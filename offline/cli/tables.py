@@ -168,6 +168,18 @@ def cmd_info(args: argparse.Namespace) -> int:
                       for k, v in h["sources"].items() if k != "scenario_text"))
     fam = h.get("family")
     print(f"family: {fam['kind']} of {fam['wheel']} (axis {fam['axis']})" if fam else "family: none (single scenario)")
+    world = h.get("world")
+    if world:
+        parts = []
+        if "wheel_radius_m" in world:
+            parts.append("rim radius " + ", ".join(f"{w} {1e3 * r:.2f} mm" for w, r in zip(world["order"], world["wheel_radius_m"])))
+        if "steer_offset_rad" in world:
+            parts.append("steering offset " + ", ".join(f"{w} {math.degrees(d):+.2f} deg"
+                                                        for w, d in zip(world["order"], world["steer_offset_rad"])))
+        if "external_force" in world:
+            e = world["external_force"]
+            parts.append(f"external pull Fx {e['fx_N']:+.3g} N, Fy {e['fy_N']:+.3g} N, Mz {e['mz_Nm']:+.3g} N m")
+        print("world terms: " + "; ".join(parts))
     for k, v in t.axes.items():
         a = h["axes"][k]
         disp = [round(float(x) / a["display_factor"], 6) for x in v]

@@ -211,6 +211,16 @@ def test_truth_file_carries_anchor_and_hub_sections(tmp_path):
     assert t.hub == pytest.approx({"clearance": 0.004})
     w = scenario_with_world(sc, t)
     assert w.external.fx == pytest.approx(-2.0 - 0.5) and w.external.mz == pytest.approx(0.0, abs=1e-12)
+    # offnominal drive --truth applies both hooks (the anchored cable pulls back at the start)
+    from offline.cli.sim import _truth_hooks
+    from offline.fit.drive_candidates import AnchoredTether, HubContact, Hooks
+
+    hooks = _truth_hooks(t, sc.rover)
+    assert isinstance(hooks, Hooks) and {type(h) for h in hooks.hooks} == {AnchoredTether, HubContact}
+    anchor = next(h for h in hooks.hooks if isinstance(h, AnchoredTether))
+    assert (anchor.tension, anchor.attach_x, anchor.inverse_distance) == pytest.approx((0.5, -0.1, 0.2))
+    assert _truth_hooks(replace(t, anchor=None, hub=None), sc.rover) is None
+    assert t.describe()["tether_anchor_SI"]["tension"] == pytest.approx(0.5)
 
 
 def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):

@@ -22,9 +22,6 @@ File format
     grouser_volume_fraction = 1.0    # optional override of zeta (the dissertation trenches with 1)
     grouser_area_ratio = 0.5         # optional override of mu (Table 5.2: 0.5; published code: 0.1)
     tether_force_N = 0.0             # constant pull along the rover's -x at the centre of mass O
-    world = "accepted_truth.toml"    # optional: a truth file (offline.sim.truth) whose terms apply
-                                     # (slope / cross slope added, soil k scaled, tether, per-wheel
-                                     # radius and steering offset, anchored tether)
 
     [tether]                         # optional: a cable to an anchor (constant bearing in steady
     tension_N = 2.0                  # straight driving, so a constant body-frame force)
@@ -76,6 +73,8 @@ Assumption: the cable is parallel to the terrain and attached at the height of O
 body and its weight act), so it has no roll or pitch moment (the simulator's planar balances
 make the same assumption). The defaults (no pull, the parameter set's radius on every wheel,
 zero offsets) leave the scenario, its NLP and its table files exactly as before.
+A truth file (:mod:`offline.sim.truth`, e.g. the discrepancy tool's ``accepted_truth.toml``)
+applies to a scenario with :func:`scenario_with_world` (``offnominal tables build --world``).
 
 Units are checked where a value is implausible for its unit: ``speed_m_s = 3.0`` is refused
 with a hint that it looks like cm/s; slopes beyond 60 deg are refused (degrees expected).

@@ -130,6 +130,8 @@ class Truth:
             "tether_force_N": self.tether_force, "mass_kg": self.mass, "yaw_inertia_kg_m2": self.yaw_inertia,
             "wheel_inertia_kg_m2": self.wheel_inertia,
             "source": Path(self.source).name if self.source else "",
+            **({"tether_anchor_SI": dict(self.anchor)} if self.anchor is not None else {}),
+            **({"hub_contact_SI": dict(self.hub)} if self.hub is not None else {}),
         }
 
 

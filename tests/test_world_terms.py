@@ -247,6 +247,11 @@ def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
     assert t.header["sources"]["world_file"]["name"] == "accepted_truth.toml"
     assert main(["tables", "info", str(out / "nominal.npz")]) == 0
     assert "world terms: rim radius" in capsys.readouterr().out
+    # the stored Jacobians are those of each wheel's own model (radius) and of the NLP with the pull
+    from offline.rover.table_verify import check_jacobians, spec_from_table
+
+    errs = check_jacobians(t, spec_from_table(t), [0])
+    assert max(errs.values()) < 1e-5, errs
     tp = t.at(slope=0.0, cross_slope=0.0, speed=0.03)
     nom = solve_primitive(replace(load_scenario(NOMINAL), speed=0.03))
     lay = t.layout

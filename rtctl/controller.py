@@ -65,7 +65,8 @@ from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureD
 
 _Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
 
-__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "load_tables"]
+__all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "wheel_radii_of", "steer_offsets_of",
+           "load_tables"]
 
 _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft soil
 _MAX_TILT = math.radians(45.0)
@@ -137,6 +138,26 @@ def wheel_radius_of(table: Any) -> float:
         if isinstance(r, (int, float)) and isinstance(hg, (int, float)):
             return float(r) + float(hg)
     return math.nan
+
+
+def wheel_radii_of(table: Any) -> tuple[float, ...]:
+    """Shearing radius per wheel (layout order) from the header's ``world`` record (a table built
+    with per-wheel radii), else :func:`wheel_radius_of` on every wheel."""
+    world = table.header.get("world") or {}
+    rs = world.get("shearing_radius_m")
+    if isinstance(rs, list) and len(rs) == len(WHEELS) and all(isinstance(v, (int, float)) for v in rs):
+        return tuple(float(v) for v in rs)
+    return (wheel_radius_of(table),) * len(WHEELS)
+
+
+def steer_offsets_of(table: Any) -> tuple[float, ...]:
+    """Steering offset per wheel (true minus encoder angle, rad, layout order) from the header's
+    ``world`` record; zeros when the table has none."""
+    world = table.header.get("world") or {}
+    d = world.get("steer_offset_rad")
+    if isinstance(d, list) and len(d) == len(WHEELS) and all(isinstance(v, (int, float)) for v in d):
+        return tuple(float(v) for v in d)
+    return (0.0,) * len(WHEELS)
 
 
 class _Index:
@@ -239,13 +260,30 @@ class Controller:
             self.default_table = config.default_table
         rs = config.drive.wheel_radius
         if not math.isfinite(rs):
-            radii = {wheel_radius_of(t) for t in self.tables.values()}
-            radii = {r for r in radii if math.isfinite(r)}
-            if len(radii) != 1:
-                raise ControllerError(f"wheel radius: tables give {sorted(radii) or 'none'}; set [drive] wheel_radius in the config")
-            rs = radii.pop()
-        self.wheel_radius = float(rs)
+            sets = {wheel_radii_of(t) for t in self.tables.values()}
+            sets = {r for r in sets if all(math.isfinite(v) for v in r)}
+            if len(sets) != 1:
+                raise ControllerError(f"wheel radius: tables give {sorted(sets) or 'none'}; set [drive] wheel_radius in the "
+                                      "config (or build every table with the same per-wheel radii)")
+            radii = sets.pop()
+        else:
+            radii = (float(rs),) * len(WHEELS)
+        offsets = {steer_offsets_of(t) for t in self.tables.values()}
+        if len(offsets) != 1:
+            raise ControllerError(f"steering offsets: tables give {sorted(offsets)}; build every table with the same "
+                                  "[wheels.*] steer_offset_deg (or --world file)")
+        self.wheel_radii = np.array(radii, dtype=float)
+        """Shearing radius per wheel, m: rim-speed command = omega x radius (eq. (5.2))."""
+        self.steer_offset = np.array(offsets.pop(), dtype=float)
+        """True minus encoder steering angle per wheel, rad: command = beta - offset, beta = reading + offset."""
+        self._per_wheel = len(set(radii)) > 1
+        self._offset_on = bool(np.any(self.steer_offset != 0.0))
+        self.wheel_radius = float(radii[0]) if not self._per_wheel else float(np.mean(radii))
         self.reset()
+
+    def _radii(self) -> float | NDArray[np.float64]:
+        """The radius the conversions use: the one radius, or per wheel (a table built with them)."""
+        return self.wheel_radii if self._per_wheel else self.wheel_radius
 
     @classmethod
     def from_config(cls, config: ControllerConfig) -> "Controller":
@@ -418,8 +456,8 @@ class Controller:
         v = math.nan
         if w in WHEELS:
             i = WHEELS.index(w)
-            if axis == "steer_stuck":
-                v = self._steer_meas[i]
+            if axis == "steer_stuck":  # the axis is in encoder terms (the scenario's steer_stuck_deg)
+                v = self._steer_meas[i] - (float(self.steer_offset[i]) if self._offset_on else 0.0)
                 if not math.isfinite(v):
                     v = self._failures.get((w, "steer_stuck"), math.nan)
             elif axis == "rim_speed_cap_fraction":
@@ -452,7 +490,7 @@ class Controller:
         """Rover-level slip of the primitive, by the EKF's own odometry definition."""
         x = tp.x
         om, be = x[ix.om].tolist(), x[ix.be].tolist()
-        v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self.wheel_radius, 1.0)
+        v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self._radii(), 1.0)
         v = float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
@@ -518,7 +556,7 @@ class Controller:
             self.prepare()
             if self._prep is not None:
                 self._prev_cmd = self._primitive_commands(self._prep.allocator.x0)
-        rs = self.wheel_radius
+        rs = self._radii()
         odo_ok = [v and ok for v, ok in zip(valid, self._odometry_wheels())]
         v_odo, var = wheel_odometry(om, st, odo_ok, rs, cfg.noise.wheel_speed)
         if stale:
@@ -652,7 +690,7 @@ class Controller:
 
     def _read_wheels(self, m: Any) -> tuple[list[float], list[float], list[bool]]:
         cfg = self.config
-        om_max = 2.0 * cfg.actuators.max_rim_speed / self.wheel_radius
+        om_max = 2.0 * cfg.actuators.max_rim_speed / float(np.min(self.wheel_radii))
         try:
             om = [float(v) for v in m.wheel_speed]
             st = [float(v) for v in m.steer_angle]
@@ -668,6 +706,8 @@ class Controller:
                 self._count(f"rejected_wheel_{w}")
                 om[i], st[i] = 0.0, 0.0
             else:
+                if self._offset_on:  # the encoder reads the true angle minus the offset
+                    st[i] = st[i] + float(self.steer_offset[i])
                 self._steer_meas[i] = st[i]
             valid.append(ok)
         return om, st, valid
@@ -715,7 +755,8 @@ class Controller:
         act = self.config.actuators
         alloc = prep.allocator
         lay = alloc.layout
-        rs = self.wheel_radius
+        rs = self._radii()
+        off = self.steer_offset if self._offset_on else 0.0
         tlo, thi = alloc.table_bounds
         x0 = alloc.x0
         nx = lay.nx
@@ -725,9 +766,9 @@ class Controller:
         ix = prep.idx
         pr, ps = np.array(prev_rim), np.array(prev_steer)
         alo[ix.om], ahi[ix.om] = act.min_rim_speed / rs, act.max_rim_speed / rs
-        alo[ix.be], ahi[ix.be] = -act.max_steer, act.max_steer
+        alo[ix.be], ahi[ix.be] = -act.max_steer + off, act.max_steer + off  # encoder limits, physical angles
         rlo[ix.om], rhi[ix.om] = (pr - act.max_rim_accel * dt) / rs, (pr + act.max_rim_accel * dt) / rs
-        rlo[ix.be], rhi[ix.be] = ps - act.max_steer_rate * dt, ps + act.max_steer_rate * dt
+        rlo[ix.be], rhi[ix.be] = ps + off - act.max_steer_rate * dt, ps + off + act.max_steer_rate * dt
         lo, hi = merge_bounds(alo, ahi, (tlo, thi))
         lbg, ubg = prep.point.lbg, prep.point.ubg
         fixed = np.zeros(nx, dtype=bool)
@@ -738,7 +779,8 @@ class Controller:
                 break
             io, ib = int(ix.om[i]), int(ix.be[i])
             if (w, "steer_stuck") in f:
-                v = self._steer_meas[i] if math.isfinite(self._steer_meas[i]) else f[(w, "steer_stuck")]
+                v = (self._steer_meas[i] if math.isfinite(self._steer_meas[i])
+                     else f[(w, "steer_stuck")] + (float(self.steer_offset[i]) if self._offset_on else 0.0))
                 if not math.isfinite(v):
                     v = float(x0[ib])
                 lo[ib] = hi[ib] = v
@@ -747,7 +789,7 @@ class Controller:
                 lo[io] = hi[io] = 0.0
                 fixed[io] = True
             if (w, "rim_speed_cap") in f:
-                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / rs)
+                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / (rs[i] if self._per_wheel else rs))  # type: ignore[index]
                 lo[io] = min(lo[io], hi[io])
             j = ix.torque[i]
             if j >= 0 and ((w, "unpowered") in f or (w, "torque_limit") in f):
@@ -766,13 +808,13 @@ class Controller:
     def _x_of_commands(self, prep: _Prepared) -> NDArray[np.float64]:
         x = prep.allocator.x0
         rim, steer = self._prev_cmd
-        x[prep.idx.om] = np.array(rim) / self.wheel_radius
-        x[prep.idx.be] = steer
+        x[prep.idx.om] = np.array(rim) / self._radii()
+        x[prep.idx.be] = np.array(steer) + self.steer_offset if self._offset_on else steer
         return x
 
     def _commands_from_x(self, prep: _Prepared, x: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        rim = tuple((x[prep.idx.om] * self.wheel_radius).tolist())
-        steer = tuple(x[prep.idx.be].tolist())
+        rim = tuple((x[prep.idx.om] * self._radii()).tolist())
+        steer = tuple((x[prep.idx.be] - self.steer_offset if self._offset_on else x[prep.idx.be]).tolist())
         return rim, steer
 
     def _primitive_commands(self, x0: NDArray[np.float64]) -> tuple[_Quad, _Quad]:

@@ -122,13 +122,27 @@ class Odometry:
     crab_cmd: float = 0.0
 
 
-def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: Sequence[bool], wheel_radius: float,
-                   sigma_omega: float) -> tuple[float, float]:
+def wheel_odometry(wheel_speed: Sequence[float], steer: Sequence[float], valid: Sequence[bool],
+                   wheel_radius: float | Sequence[float] | NDArray[np.float64], sigma_omega: float) -> tuple[float, float]:
     """Least-squares travel speed from the valid wheels and its variance (module docstring).
 
-    Returns ``(nan, inf)`` when the valid wheels carry too little information (sum of cos^2 of
-    their steering angles below 0.5, e.g. every usable wheel turned sideways).
+    ``wheel_radius``: one shearing radius, or one per wheel (a worn wheel: its rim moves the
+    rover less per radian). Returns ``(nan, inf)`` when the valid wheels carry too little
+    information (sum of cos^2 of their steering angles below 0.5, e.g. every usable wheel
+    turned sideways).
     """
+    if not isinstance(wheel_radius, (int, float)):
+        radii = [float(r) for r in wheel_radius]
+        num = den = var = 0.0
+        for om, b, ok, r in zip(wheel_speed, steer, valid, radii):
+            if ok:
+                c = math.cos(b)
+                num += c * r * om
+                den += c * c
+                var += (c * r * sigma_omega) ** 2
+        if den < 0.5:
+            return math.nan, math.inf
+        return num / den, var / (den * den)
     num = den = 0.0
     for om, b, ok in zip(wheel_speed, steer, valid):
         if ok:

@@ -104,6 +104,17 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
     return res
 
 
+def _truth_hooks(truth: Any, rover: Any) -> Any:
+    """The disturbance hook of a truth file's ``[tether_anchor]`` / ``[hub_contact]`` (None without them)."""
+    if truth.anchor is None and truth.hub is None:
+        return None
+    from ..fit.drive_candidates import RoverExtension, disturbance_from_terms
+
+    terms = {f"anchor_{k}": v for k, v in (truth.anchor or {}).items()}
+    terms.update({f"hub_{k}": v for k, v in (truth.hub or {}).items()})
+    return disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover)
+
+
 def _cmd_drive(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -160,7 +171,8 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                 bar.set_postfix_str(f"{name} / {label} / {kind}")
                 try:
                     ctl = build_controller(kind, sc, rtctl_factory=factory)
-                    sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed)
+                    sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed,
+                                         disturbance=_truth_hooks(truth, sc.rover))
                     meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
                             "seed": args.seed, "dt": args.dt, "truth": truth.describe(), "truth_label": label,
                             "sensors": sensors.__dict__, "distance_m": args.distance}

@@ -81,6 +81,19 @@ def _folder_refine(folder: Path) -> dict:
     return out
 
 
+def _world(path: str, scenario: Path) -> object:
+    """The truth file ``--world`` read for one scenario (its rover and parameter set as defaults)."""
+    from ..rover.scenario import ScenarioError, load_scenario
+    from ..rover.table_builder import BuildError
+    from ..sim.truth import TruthError, load_truth
+
+    try:
+        sc = load_scenario(scenario)
+        return load_truth(path, sc.rover, sc.params)
+    except (ScenarioError, TruthError) as exc:
+        raise BuildError(f"--world: {exc}") from None
+
+
 def cmd_build(args: argparse.Namespace) -> int:
     from ..files import OutputError
     from ..rover.table_builder import BuildError, build_tables, table_spec, write_index
@@ -103,9 +116,12 @@ def cmd_build(args: argparse.Namespace) -> int:
         specs = []
         for f in files:
             g = args.grid if (len(files) == 1 or args.grid_all) and args.grid else grids.get(f.stem)
-            specs.append(table_spec(f, g, args.family, refine=cli_refine or refines.get(f.stem)))
+            specs.append(table_spec(f, g, args.family, refine=cli_refine or refines.get(f.stem),
+                                    world=_world(args.world, f) if args.world else None))
     except BuildError as exc:
         return fail(str(exc))
+    if args.world:
+        files = [*files, Path(args.world)]
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
         return fail(f"two scenario files share a name {sorted(n for n in names if names.count(n) > 1)}; "
@@ -152,6 +168,18 @@ def cmd_info(args: argparse.Namespace) -> int:
                       for k, v in h["sources"].items() if k != "scenario_text"))
     fam = h.get("family")
     print(f"family: {fam['kind']} of {fam['wheel']} (axis {fam['axis']})" if fam else "family: none (single scenario)")
+    world = h.get("world")
+    if world:
+        parts = []
+        if "wheel_radius_m" in world:
+            parts.append("rim radius " + ", ".join(f"{w} {1e3 * r:.2f} mm" for w, r in zip(world["order"], world["wheel_radius_m"])))
+        if "steer_offset_rad" in world:
+            parts.append("steering offset " + ", ".join(f"{w} {math.degrees(d):+.2f} deg"
+                                                        for w, d in zip(world["order"], world["steer_offset_rad"])))
+        if "external_force" in world:
+            e = world["external_force"]
+            parts.append(f"external pull Fx {e['fx_N']:+.3g} N, Fy {e['fy_N']:+.3g} N, Mz {e['mz_Nm']:+.3g} N m")
+        print("world terms: " + "; ".join(parts))
     for k, v in t.axes.items():
         a = h["axes"][k]
         disp = [round(float(x) / a["display_factor"], 6) for x in v]
@@ -238,6 +266,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
     b.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786): run there instead")
     b.add_argument("--out", required=True, help="output folder (tables and index.json)")
+    b.add_argument("--world", metavar="TRUTH.toml",
+                   help="a truth file (e.g. the discrepancy tool's accepted_truth.toml) whose terms every table takes: "
+                        "soil, slope / cross-slope added, tether_force_N, [tether_anchor], per-wheel radius_mm and "
+                        "steer_offset_deg (recorded in the table header's 'world' and sources)")
     b.add_argument("--refine-tol", type=float, metavar="X",
                    help="refine the grid: insert the midpoint of every axis cell whose midpoint error exceeds X "
                         "variable scales (needs --max-points)")

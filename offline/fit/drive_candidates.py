@@ -11,8 +11,9 @@ merge with :meth:`RoverExtension.merge`; the single-wheel model's
 
 Each term maps onto an input the simulator already takes, so an accepted term *is* a truth
 file (:func:`truth_from_terms`, :func:`write_truth_toml`) that
-:func:`offline.sim.truth.load_truth` reads and the table builder can take as its scenario's
-slope / cross-slope / soil:
+:func:`offline.sim.truth.load_truth` reads and the table builder takes
+(``offnominal tables build SCENARIO --world accepted_truth.toml``,
+:func:`offline.rover.scenario.scenario_with_world`):
 
 ===================  ===================================================  =========================
 candidate            physics                                              simulator input
@@ -22,8 +23,9 @@ imu_tilt             IMU mounted tilted (readings only, no force)         sensor
 wheel_radius_<W>     one wheel worn / mis-measured                        ``wheels.<W>.radius_mm``
 steer_offset_<W>     one wheel points elsewhere than its encoder says     ``wheels.<W>.steer_offset_deg``
 tether               tether / drawbar pull along the rover's -x           ``tether_force_N``
-tether_anchor        a cable to a fixed anchor (start frame) at a tension     disturbance hook (C5):
-                     whose pull turns with the rover's pose                   :class:`AnchoredTether`
+tether_anchor        a cable to a fixed anchor (start frame) at a tension     ``[tether_anchor]``;
+                     whose pull turns with the rover's pose                   disturbance hook (C5):
+                                                                              :class:`AnchoredTether`
 servo_lag            wheel-speed servo slower than believed               actuator ``wheel_lag``
 torque_saturation    drive torque saturates lower than believed           actuator ``torque_limit``
 gyro_scale           gyro scale-factor error (readings only)              (measurement chain)
@@ -31,26 +33,30 @@ soil_stiffness       soil stiffer / softer than believed (k)              ``soil
 wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
 recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
 
-hub_contact          hub / body face bulldozes soil once a wheel sinks     disturbance hook (C5):
-                     beyond a clearance (Rankine passive pressure on a     :class:`HubContact`
-                     face, a drag force against the wheel's travel and a
+hub_contact          hub / body face bulldozes soil once a wheel sinks     ``[hub_contact]``;
+                     beyond a clearance (Rankine passive pressure on a     disturbance hook (C5):
+                     face, a drag force against the wheel's travel and a   :class:`HubContact`
                      torque against its spin)
 ===================  ===================================================  =========================
 
-Which of them the table builder takes (:mod:`offline.rover.table_builder` builds on a scenario:
-parameter file, failures, and the slope / cross-slope axes): ``terrain_slope`` (its axes),
-``soil_stiffness`` and ``recalibration`` (the parameter file's soil), ``wheel_radius_all`` (the
-parameter file's wheel radius) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every
-wheel). Not taken (not done): per-wheel radius and steering offset (the optimizer's rover has one
-wheel geometry and exact steering), ``tether`` and ``tether_anchor`` (no external-force parameter in the
-steady-state problem), ``hub_contact`` (no disturbance term in the NLP) and ``servo_lag`` (a dynamic effect the
-steady-state tables have no place for). ``imu_tilt`` and ``gyro_scale`` act on the readings only and
-change no table.
+Which of them the table builder takes (:data:`TABLE_BUILDER_TAKES`; ``--world`` applies the
+truth file to the scenario): ``terrain_slope`` (added to the scenario's slope / cross slope; the
+table's axes span the inclination), ``soil_stiffness`` and ``recalibration`` (the soil),
+``wheel_radius_all`` and ``wheel_radius_<W>`` (a rim radius per wheel in the NLP, the table
+header's ``world`` record, rtctl's per-wheel rim-speed conversion), ``steer_offset_<W>`` (steering
+failures in encoder terms move by the offset, the header records it, rtctl commands
+``beta - offset``), ``tether`` and ``tether_anchor`` (a constant body-frame force in the balance
+(7.12), (7.13), (7.18): in steady straight driving the anchored cable's bearing is constant; its
+anchor distance and spring rate, which make the pull vary along a drive, are not in the steady
+state) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel). Not taken:
+``hub_contact`` (not done: a sinkage-dependent drag is a new wheel term in the NLP, not a constant)
+and ``servo_lag`` (a dynamic effect the steady-state tables have no place for). ``imu_tilt`` and
+``gyro_scale`` act on the readings only and change no table.
 
-Hub contact travels as a :class:`~offline.sim.simulator.DisturbanceForces` hook
-(:func:`disturbance_from_terms`), which :class:`~offline.sim.simulator.RoverSimulator` takes; the
-truth file format has no key for it, so ``accepted_truth.toml`` carries it as a comment block
-with its parameters (``offnominal drive --truth`` does not apply it: not done).
+Hub contact and the anchored tether travel as :class:`~offline.sim.simulator.DisturbanceForces`
+hooks (:func:`disturbance_from_terms`), which :class:`~offline.sim.simulator.RoverSimulator` takes;
+``accepted_truth.toml`` carries their parameters in the truth format's ``[tether_anchor]`` and
+``[hub_contact]`` sections, which ``offnominal drive --truth`` applies.
 """
 
 from __future__ import annotations
@@ -404,11 +410,14 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     "recalibration": "yes: the parameter file's soil (recalibrated.toml)",
     "wheel_radius_all": "yes: the parameter file's wheel radius",
     "torque_saturation": "yes: a torque_limit_Nm failure on every wheel in the scenario file",
-    **{f"wheel_radius_{w}": "no (not done): the optimizer's rover has one wheel geometry" for w in WHEELS},
-    **{f"steer_offset_{w}": "no (not done): the optimizer's steering is exact" for w in WHEELS},
-    "tether": "no (not done): the steady-state problem has no external-force parameter",
-    "hub_contact": "no (not done): the steady-state problem has no disturbance term",
-    "tether_anchor": "no (not done): the steady-state problem has no external-force parameter",
+    **{f"wheel_radius_{w}": "yes: [wheels.<W>] radius_mm (--world): that wheel's radius in the NLP, the table header "
+                            "and rtctl's rim-speed conversion" for w in WHEELS},
+    **{f"steer_offset_{w}": "yes: [wheels.<W>] steer_offset_deg (--world): steering limits and stuck angles in encoder "
+                            "terms, the table header and rtctl's commands (beta - offset)" for w in WHEELS},
+    "tether": "yes: tether_force_N (--world): a constant pull along -x in the balance (7.12)",
+    "hub_contact": "no (not done): a sinkage-dependent drag per wheel would be a new wheel term in the NLP",
+    "tether_anchor": "yes: [tether_anchor] (--world): tension at its bearing from the attachment, a constant body-frame "
+                     "force and yaw moment in the steady state (anchor distance and spring rate not used)",
     "servo_lag": "no: a dynamic effect; steady-state tables have no place for it",
     "imu_tilt": "not applicable: acts on the readings only",
     "gyro_scale": "not applicable: acts on the readings only",
@@ -471,6 +480,14 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
     return truth, (act or None), meas
 
 
+_HOOK_KEYS = {"tether_anchor": {"anchor_tension_N": ("tension_N", 1.0), "anchor_bearing_rad": ("bearing_deg", 180 / math.pi),
+                                "anchor_inverse_distance_per_m": ("inverse_distance_per_m", 1.0),
+                                "anchor_attach_x_m": ("attach_x_m", 1.0),
+                                "anchor_spring_rate_N_per_m": ("spring_rate_N_per_m", 1.0)},
+              "hub_contact": {"hub_clearance_m": ("clearance_mm", 1e3), "hub_face_width_m": ("face_width_mm", 1e3),
+                              "hub_arm_m": ("arm_mm", 1e3)}}
+
+
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
                      actuator: Mapping[str, float] | None, header: Mapping[str, Any],
                      disturbance: Mapping[str, float] | None = None) -> Path:
@@ -480,7 +497,8 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     for (IMU tilt, gyro scale, servo lag, torque limit) go to a ``[sensors_and_actuators]``
     comment block with their values, since they belong to the sensor and actuator
     configuration, not to the world; ``disturbance`` (hub contact, anchored tether: their
-    parameters, SI) goes to a comment block too. ``header`` lines become comments (fitted values,
+    parameters, SI, keys ``anchor_tension_N`` ... ``hub_arm_m``) goes to the truth format's
+    ``[tether_anchor]`` and ``[hub_contact]`` sections. ``header`` lines become comments (fitted values,
     standard errors, held-out improvement).
     """
     lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
@@ -509,9 +527,12 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
         if wl:
             lines += ["", f"[wheels.{w}]", *wl]
     hub = {k: v for k, v in (disturbance or {}).items()}
+    for section, keys in _HOOK_KEYS.items():  # real sections of the truth format (load_truth reads them)
+        got = [(dst, hub.pop(src) * f) for src, (dst, f) in keys.items() if src in hub]
+        if got:
+            lines += ["", f"[{section}]", *(f"{k} = {v:.6g}" for k, v in got)]
     if hub:
-        lines += ["", "# disturbance hooks (offline.fit.drive_candidates.HubContact / AnchoredTether; not keys of the",
-                  "# truth format, so offnominal drive --truth does not apply them), SI:"]
+        lines += ["", "# disturbance parameters the truth format has no key for, SI:"]
         lines += [f"#   {k} = {v:.6g}" for k, v in hub.items()]
     extra = {k: v for k, v in measurement.items() if v}
     extra.update(actuator or {})

@@ -974,8 +974,9 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
                                       meas, act, header, dist)
         extra += ["", "## Accepted terms as a simulator truth file", "",
-                  f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` and the "
-                  "table builder's scenario take slope, cross-slope and soil from it).", "",
+                  f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
+                  f"and `offnominal tables build SCENARIO --world {truth_file.name} --out DIR` rebuilds the tables with "
+                  "its terms: soil, slope, tether, anchored cable, per-wheel radius and steering offset).", "",
                   "Does the table builder take each accepted term?", ""]
         extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
     md = (out / "report.md").read_text()

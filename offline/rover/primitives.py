@@ -64,6 +64,7 @@ __all__ = [
     "PrimitiveResult",
     "STATUSES",
     "get_problem",
+    "world_of",
     "solve_primitive",
     "check_solution",
     "steering_controllers",
@@ -152,9 +153,23 @@ class SolverOptions:
 
 @functools.lru_cache(maxsize=16)
 def get_problem(params: ParameterSet, rover: Rover, exit_angle: str = "classic", trench_wheel: str | None = None,
-                options: SolverOptions | None = None) -> "SteadyStateProblem":
-    """The (cached) NLP of one parameter set, rover, exit-angle model and trench wheel."""
-    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions())
+                options: SolverOptions | None = None, external: tuple[float, float, float] | None = None,
+                wheel_radius: tuple[float, ...] | None = None) -> "SteadyStateProblem":
+    """The (cached) NLP of one parameter set, rover, exit-angle model and trench wheel, with an
+    optional constant external pull and per-wheel rim radii (:class:`SteadyStateProblem`)."""
+    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions(), external, wheel_radius)
+
+
+def world_of(sc: Scenario) -> dict[str, Any]:
+    """The NLP-structure arguments of a scenario's world terms (:func:`get_problem`): ``external``
+    (body-frame ``(F_x, F_y, M_z)``) and ``wheel_radius``, each only when set, so a scenario
+    without them keys (and builds) exactly the NLP it always did."""
+    out: dict[str, Any] = {}
+    if sc.external is not None and not sc.external.zero:
+        out["external"] = (float(sc.external.fx), float(sc.external.fy), float(sc.external.mz))
+    if sc.wheel_radius is not None:
+        out["wheel_radius"] = tuple(float(r) for r in sc.wheel_radius)
+    return out
 
 
 _problem = get_problem  # former private name
@@ -175,10 +190,26 @@ class SteadyStateProblem:
         casadi SX ``"x"`` (scaled variables, ``x_phys = x * layout.variable_scale``), ``"p"``
         (physical parameters), ``"f"`` (objective), ``"g"`` (rows = physical residual /
         ``layout.constraint_scale``).
+    rs_of, model_of : dict
+        Per wheel: shearing radius r_s = r + h_g (eq. (5.2)) and wheel model (the parameter
+        set's wheel, or its rim radius replaced by ``wheel_radius``).
+
+    Parameters
+    ----------
+    params, rover, exit_angle, trench_wheel, options
+        As :func:`get_problem`.
+    external : tuple of 3 float, optional
+        Constant body-frame pull ``(F_x, F_y, M_z about O)`` (N, N, N m), added to the balance
+        (:meth:`offline.rover.statics.FourWheelRocker.balance`); None: no term in the graph.
+    wheel_radius : tuple of 4 float, optional
+        Rim radius per wheel (FR, FL, RR, RL), m; None: the parameter set's on every wheel.
+        The variable scales stay those of the parameter set's wheel (within a few per cent).
     """
 
     def __init__(self, params: ParameterSet, rover: Rover, exit_angle: str = "classic",
-                 trench_wheel: str | None = None, options: SolverOptions | None = None) -> None:
+                 trench_wheel: str | None = None, options: SolverOptions | None = None,
+                 external: tuple[float, float, float] | None = None,
+                 wheel_radius: tuple[float, ...] | None = None) -> None:
         import casadi as ca
 
         t0 = time.perf_counter()
@@ -190,6 +221,13 @@ class SteadyStateProblem:
         self.model = WheelModel(params.soil, params.wheel, params.tuning, self.model_options)
         wheel = params.wheel
         self.rs = wheel.shearing_radius
+        self.external, self.wheel_radius = external, wheel_radius
+        wheel_of = {k: wheel if wheel_radius is None or wheel_radius[i] == wheel.radius
+                    else replace(wheel, radius=float(wheel_radius[i])) for i, k in enumerate(WHEELS)}
+        self.rs_of = {k: w.shearing_radius for k, w in wheel_of.items()}
+        self.radius_of = {k: w.radius for k, w in wheel_of.items()}
+        self.model_of = {k: self.model if w is wheel else WheelModel(params.soil, w, params.tuning, self.model_options)
+                         for k, w in wheel_of.items()}
         W = rover.weight
         self.torque_scale = W / 4 * self.rs
         self.layout = NlpLayout.build(
@@ -203,6 +241,8 @@ class SteadyStateProblem:
         self.gscale = L.constraint_scale
         self.ng = L.ng
         phys = PhysParams.from_sets(params.soil, wheel, params.tuning)
+        phys_of = {k: phys if w is wheel else PhysParams.from_sets(params.soil, w, params.tuning)
+                   for k, w in wheel_of.items()}
         xs = ca.SX.sym("x", L.nx)
         p = ca.SX.sym("p", L.np_)
         x = xs * ca.DM(self.xscale)
@@ -215,9 +255,9 @@ class SteadyStateProblem:
             om, b, Wi, hi, h0 = (x[L.var(v, k)] for v in WHEEL_VARIABLES)
             c = P[f"contact {k}"]
             vx, vy = self.statics.wheel_velocity(CASADI, speed, b)
-            w6, _ = wrench_core(CASADI, vx, vy, om, hi, h0, phys, self.model_options)
+            w6, _ = wrench_core(CASADI, vx, vy, om, hi, h0, phys_of[k], self.model_options)
             w6 = tuple(c * q for q in w6)
-            w0, _ = wrench_core(CASADI, vx, vy, speed / self.rs, h0, h0, phys, self.model_options)
+            w0, _ = wrench_core(CASADI, vx, vy, speed / self.rs_of[k], h0, h0, phys_of[k], self.model_options)
             wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
             rows[f"load {k}"] = w6[2] - Wi
             rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
@@ -226,12 +266,12 @@ class SteadyStateProblem:
             if k == trench_wheel:
                 from ..physics.soil_flow import trench_quantities
 
-                tq = trench_quantities(CASADI, hi, b, om, vx, _WheelView(phys), _SoilView(phys))
+                tq = trench_quantities(CASADI, hi, b, om, vx, _WheelView(phys_of[k]), _SoilView(phys_of[k]))
                 rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
                 rows[f"trench depth {k}"] = tq["d"]
                 rows[f"trench flat width {k}"] = tq["p"]
         bal = self.statics.balance(CASADI, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"],
-                                   P["cross_slope"], contact)
+                                   P["cross_slope"], contact, external)
         bal["My_right"], bal["My_left"] = self.statics.pivot_rows(bal, P["pivot_locked"])
         for n in BALANCE_NAMES:
             rows[f"balance {n}"] = bal[n]
@@ -257,14 +297,16 @@ class SteadyStateProblem:
 
     # ------------------------------------------------------------------ bounds
     def wheel_bounds(self, sc: Scenario, wheel: str) -> WheelBounds:
-        """Physical bounds of one wheel: the general bounds (7.2)-(7.5), then every failure kind."""
+        """Physical bounds of one wheel: the general bounds (7.2)-(7.5), then every failure kind
+        (steering angles in physical terms: :meth:`~offline.rover.scenario.Scenario.physical_failure`)."""
         w = self.params.wheel
-        hmin, hmax = w.grouser_height, 1.5 * w.radius + w.grouser_height
+        rs = self.rs_of[wheel]
+        hmin, hmax = w.grouser_height, 1.5 * self.radius_of[wheel] + w.grouser_height
         wb = WheelBounds(lo={"omega": 0.0, "beta": -BETA_LIMIT, "W": 0.0, "h": hmin, "h0": hmin},
-                         hi={"omega": self.options.max_rim_speed_factor * sc.speed / self.rs, "beta": BETA_LIMIT,
+                         hi={"omega": self.options.max_rim_speed_factor * sc.speed / rs, "beta": BETA_LIMIT,
                              "W": self.rover.weight / 2, "h": hmax, "h0": hmax},
-                         rim_radius=self.rs, speed=sc.speed)
-        for kind in sc.failure(wheel).kinds():
+                         rim_radius=rs, speed=sc.speed)
+        for kind in sc.physical_failure(wheel).kinds():
             kind.apply(wb)
         return wb
 
@@ -299,9 +341,16 @@ class SteadyStateProblem:
         zero-slip sinkage) solved from its load so the load constraints hold at the start."""
         om, b, W = (np.asarray(a, dtype=float) for a in (omega, beta, load))
         vx, vy = self.statics.wheel_velocity(NUMPY, sc.speed, b)
-        sol = self.model.sinkage_from_load(np.maximum(W, 1e-3), vx, vy, om)
-        h = np.where(sol.converged, sol.h, self.rs / 4)
-        h0 = np.where(sol.converged, sol.h_zero_slip, h)
+        if self.wheel_radius is None:
+            sol = self.model.sinkage_from_load(np.maximum(W, 1e-3), vx, vy, om)
+            h = np.where(sol.converged, sol.h, self.rs / 4)
+            h0 = np.where(sol.converged, sol.h_zero_slip, h)
+        else:  # one wheel model per radius
+            h, h0 = np.zeros(len(WHEELS)), np.zeros(len(WHEELS))
+            for i, k in enumerate(WHEELS):
+                si = self.model_of[k].sinkage_from_load(np.maximum(W[i:i + 1], 1e-3), vx[i:i + 1], vy[i:i + 1], om[i:i + 1])
+                h[i] = float(np.where(si.converged, si.h, self.rs / 4)[0])
+                h0[i] = float(np.where(si.converged, si.h_zero_slip, h[i])[0])
         x = np.zeros(self.layout.nx)
         for i, k in enumerate(WHEELS):
             for v, val in zip(WHEEL_VARIABLES, (om[i], b[i], W[i], h[i], h0[i])):
@@ -312,8 +361,9 @@ class SteadyStateProblem:
         """Symmetric start: straight wheels at a slip (negative: skid), equal loads, sinkage from load."""
         n = len(WHEELS)
         load = self.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
-        om = sc.speed / (self.rs * (1 - slip)) if slip >= 0 else sc.speed * (1 + slip) / self.rs
-        return self.guess(sc, [om] * n, [0.0] * n, [load] * n)
+        om = [sc.speed / (self.rs_of[k] * (1 - slip)) if slip >= 0 else sc.speed * (1 + slip) / self.rs_of[k]
+              for k in WHEELS]
+        return self.guess(sc, om, [0.0] * n, [load] * n)
 
     def physical(self, x: NDArray[np.float64]) -> dict[str, dict[str, float]]:
         """Physical variables by wheel: ``{wheel: {omega, beta, W, h, h0}}``."""
@@ -472,11 +522,11 @@ def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64
             out[k] = WheelSolution(k, 0.0, 0.0, float(b), 0.0, 0.0, 0.0, 0.0, float(b), 0.0, zero, f)
             continue
         vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, b)
-        w = pb.model.wrench(vx, vy, om, hi, h0)
+        w = pb.model_of[k].wrench(vx, vy, om, hi, h0)
         wrench = tuple(float(np.asarray(q).ravel()[0]) for q in w.as_array())
         torque = -wrench[4]
         power += torque * om
-        out[k] = WheelSolution(k, float(om), float(om * pb.rs), float(b), float(Wi), float(hi), float(h0),
+        out[k] = WheelSolution(k, float(om), float(om * pb.rs_of[k]), float(b), float(Wi), float(hi), float(h0),
                                float(np.asarray(w.slip).ravel()[0]), float(np.asarray(w.beta).ravel()[0]), torque, wrench, f)
     return out, power
 
@@ -495,12 +545,12 @@ def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np
         if contact[k] == 0.0:
             wr[k], fz0[k] = (0.0,) * 6, Wi
         else:
-            w = pb.model.wrench(vx, vy, om, hi, h0)
+            w = pb.model_of[k].wrench(vx, vy, om, hi, h0)
             wr[k] = tuple(float(np.asarray(q).ravel()[0]) * contact[k] for q in w.as_array())
-            fz0[k] = float(np.asarray(pb.model.wrench(vx, vy, P["speed"] / pb.rs, h0, h0).Fz).ravel()[0])
+            fz0[k] = float(np.asarray(pb.model_of[k].wrench(vx, vy, P["speed"] / pb.rs_of[k], h0, h0).Fz).ravel()[0])
         beta[k], h[k], load[k] = b, hi, Wi
     bal = free_body_residuals(pb.rover, wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"], P["mz_offset"],
-                              contact, pb.options.pitch_includes_wheel_torque)
+                              contact, pb.options.pitch_includes_wheel_torque, pb.external)
     if P["pivot_locked"]:
         bal["My_right"], bal["My_left"] = bal["My_right"] + bal["My_left"], 0.0
     return {"wrench": wr, "fz0": fz0, "balance": bal, "phys": xs, "P": P}
@@ -527,8 +577,8 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
             res[f"load {k}"] = num["wrench"][k][2] - ph["W"]
             res[f"zero-slip load {k}"] = num["fz0"][k] - ph["W"]
             tol[f"load {k}"] = tol[f"zero-slip load {k}"] = rtol * W
-        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
-        for kind in sc.failure(k).kinds():
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs_of[k], sc.speed)
+        for kind in sc.physical_failure(k).kinds():
             for name, (val, scale) in kind.check(view).items():
                 key = f"{name} {k}"
                 if not math.isfinite(scale):
@@ -738,8 +788,8 @@ def _jumps(pb: SteadyStateProblem, sc: Scenario, x_partial: NDArray[np.float64],
     out = [("jump from the continuation end", x_partial)]
     for s in (-0.05, 0.1):
         xj = x_partial.copy()
-        om = sc.speed / (pb.rs * (1 - s)) if s >= 0 else sc.speed * (1 + s) / pb.rs
         for k in WHEELS:
+            om = sc.speed / (pb.rs_of[k] * (1 - s)) if s >= 0 else sc.speed * (1 + s) / pb.rs_of[k]
             if sc.failure(k).nominal:
                 xj[L.var("omega", k)] = om / pb.xscale[L.var("omega", k)]
         out.append((f"jump with free wheels at {'skid' if s < 0 else 'slip'} {s:+.2f}", xj))
@@ -775,8 +825,15 @@ def mirror_scenario(sc: Scenario) -> Scenario:
     trench wheel moves to the other side)."""
     fails = {_MIRROR[k]: f.mirror() for k, f in sc.failures.items()}
     trench = sc.trench.mirror() if sc.trench else None
+    world: dict[str, Any] = {}
+    if sc.external is not None:
+        world["external"] = sc.external.mirror()
+    if sc.wheel_radius is not None:
+        world["wheel_radius"] = tuple(sc.wheel_radius[WHEELS.index(_MIRROR[k])] for k in WHEELS)
+    if sc.steer_offset is not None:
+        world["steer_offset"] = tuple(-sc.steer_offset[WHEELS.index(_MIRROR[k])] for k in WHEELS)
     return replace(sc, failures=fails, trench=trench, fy_offset=-sc.fy_offset, mz_offset=-sc.mz_offset,
-                   cross_slope=-sc.cross_slope, name=f"{sc.name} (mirror)")
+                   cross_slope=-sc.cross_slope, name=f"{sc.name} (mirror)", **world)
 
 
 def mirror_x(x: NDArray[np.float64], layout: NlpLayout | None = None) -> NDArray[np.float64]:
@@ -802,10 +859,10 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
     load = pb.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
     lo, hi = b["lbx"] * pb.xscale, b["ubx"] * pb.xscale
     om0 = sc.speed / (pb.rs * 0.85)
-    for k, f in sc.failures.items():
+    for k in sc.failures:
         hints: dict[str, float] = {}
         wb = pb.wheel_bounds(sc, k)
-        for kind in f.kinds():
+        for kind in sc.physical_failure(k).kinds():
             hints.update(kind.start(wb))
         if "beta" in hints:
             betas = [0.0] * n
@@ -860,7 +917,7 @@ _SEARCH_FIELDS = ("max_attempts", "max_iterations", "continue_rounds", "confirm"
 def _problem_for(sc: Scenario, options: SolverOptions) -> SteadyStateProblem:
     """The cached NLP; search budgets do not change the NLP, so they do not key the cache."""
     canon = replace(options, **{k: getattr(SolverOptions(), k) for k in _SEARCH_FIELDS})
-    return get_problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None, canon)
+    return get_problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None, canon, **world_of(sc))
 
 
 _NOMINAL_CACHE: dict[tuple[Any, ...], tuple[Any, ...]] = {}
@@ -871,7 +928,7 @@ def _nominal(pb: SteadyStateProblem, sc: Scenario, options: SolverOptions) -> tu
     attempts and iterations are charged again on a cache hit, so the budget accounting and
     the reported counts do not depend on what was solved before)."""
     key = (id(pb), sc.speed, sc.slope, sc.cross_slope, sc.fy_offset, sc.mz_offset, options.seed, options.max_iter,
-           options.continue_rounds)
+           options.continue_rounds) + ((sc.steer_offset,) if sc.steer_offset is not None else ())
     if key not in _NOMINAL_CACHE:
         s = _Search(pb, sc, replace(options, time_limit=None), options.max_attempts, options.max_iterations, time.perf_counter())
         try:
@@ -1088,8 +1145,8 @@ def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest
     parts = []
     for k in WHEELS:
         ph = num["phys"][k]
-        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
-        for kind in sc.failure(k).kinds():
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs_of[k], sc.speed)
+        for kind in sc.physical_failure(k).kinds():
             e = kind.evidence(view)
             if e:
                 parts.append(f"{k}: {e}")

@@ -21,6 +21,12 @@ File format
     lateral_force_offset_N = 0.0     # (7.27)
     grouser_volume_fraction = 1.0    # optional override of zeta (the dissertation trenches with 1)
     grouser_area_ratio = 0.5         # optional override of mu (Table 5.2: 0.5; published code: 0.1)
+    tether_force_N = 0.0             # constant pull along the rover's -x at the centre of mass O
+
+    [tether]                         # optional: a cable to an anchor (constant bearing in steady
+    tension_N = 2.0                  # straight driving, so a constant body-frame force)
+    bearing_deg = 180.0              # direction of the pull from the rover's +x, CCW (180: straight back)
+    attach_x_m = -0.1                # attachment on the body's x axis (negative: behind O)
 
     [wheels.RR]                      # any of FR, FL, RR, RL; any combination of keys
     rim_speed_max_m_s = 0.015        # (7.30)
@@ -32,6 +38,9 @@ File format
     torque_limit_Nm = 0.2            # |M_y| <= limit
     steer_min_deg = -90.0            # steering range of this wheel (default +-90)
     steer_max_deg = 0.0
+    radius_mm = 54.0                 # this wheel's rim radius (default: the parameter set's)
+    steer_offset_deg = 2.0           # true steer angle = encoder angle + offset; every steering
+                                     # key above (range, stuck angle) is in encoder terms
 
     [trench]
     wheel = "RR"
@@ -53,6 +62,19 @@ A failure kind is ONE object in :mod:`offline.rover.failures`:
    check, the evidence and the mirror image then use it; nothing else changes.
 3. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark
    (``tests/bench/bench_primitives.py``) and to ``tests/test_failures.py``.
+
+World terms (external pull, per-wheel radius, steering offset)
+--------------------------------------------------------------
+An external pull is a constant force in the body frame (:class:`ExternalForce`): the tether
+``tether_force_N`` pulls along -x at O; the anchored cable of ``[tether]`` pulls with its tension
+along ``bearing_deg`` from the attachment ``(attach_x_m, 0)`` on the body's x axis, so it adds
+``F_x = T cos(bearing)``, ``F_y = T sin(bearing)`` and a yaw moment ``attach_x F_y`` about O.
+Assumption: the cable is parallel to the terrain and attached at the height of O (where the
+body and its weight act), so it has no roll or pitch moment (the simulator's planar balances
+make the same assumption). The defaults (no pull, the parameter set's radius on every wheel,
+zero offsets) leave the scenario, its NLP and its table files exactly as before.
+A truth file (:mod:`offline.sim.truth`, e.g. the discrepancy tool's ``accepted_truth.toml``)
+applies to a scenario with :func:`scenario_with_world` (``offnominal tables build --world``).
 
 Units are checked where a value is implausible for its unit: ``speed_m_s = 3.0`` is refused
 with a hint that it looks like cm/s; slopes beyond 60 deg are refused (degrees expected).
@@ -92,8 +114,8 @@ from .failures import (
 )
 from .statics import WHEELS
 
-__all__ = ["ScenarioError", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
-           "ROVER_PRESETS", "example_scenarios", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
+__all__ = ["ScenarioError", "ExternalForce", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
+           "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "section_table", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
 
 
 def wheel_tables(path: Path, data: Mapping[str, Any], known: Iterable[str],
@@ -205,6 +227,53 @@ class WheelFailure:
 
 
 @dataclass(frozen=True)
+class ExternalForce:
+    """A constant external force on the rover in its body frame (tether, drawbar, anchored cable).
+
+    Attributes
+    ----------
+    fx, fy : float
+        Force on the rover along its x (forward) and y (left) axes, N (a pull from behind:
+        ``fx < 0``).
+    mz : float
+        Its yaw moment about the reference point O, N m (``attach_x * fy`` for a cable attached
+        at ``(attach_x, 0)``).
+    """
+
+    fx: float = 0.0
+    fy: float = 0.0
+    mz: float = 0.0
+
+    @property
+    def zero(self) -> bool:
+        """True when the force and moment are all zero."""
+        return self.fx == 0.0 and self.fy == 0.0 and self.mz == 0.0
+
+    def mirror(self) -> "ExternalForce":
+        """The left-right mirror image (lateral force and yaw moment negated)."""
+        return ExternalForce(self.fx, -self.fy, -self.mz)
+
+    def __add__(self, other: "ExternalForce") -> "ExternalForce":
+        """Both forces acting together."""
+        return ExternalForce(self.fx + other.fx, self.fy + other.fy, self.mz + other.mz)
+
+    @classmethod
+    def tether(cls, force: float) -> "ExternalForce":
+        """A pull of ``force`` N along the rover's -x at O (the simulator's ``tether_force``)."""
+        return cls(-float(force), 0.0, 0.0) if force else cls()
+
+    @classmethod
+    def cable(cls, tension: float, bearing: float, attach_x: float) -> "ExternalForce":
+        """A cable at ``tension`` N pulling along ``bearing`` rad (from the rover's +x, CCW) from
+        ``(attach_x, 0)`` m on the body's x axis."""
+        fy = tension * math.sin(bearing)
+        return cls(tension * math.cos(bearing), fy, attach_x * fy)
+
+
+_OMIT = {"omit_default": True}  # table encoding leaves the field out at its default (old files unchanged)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A steady straight-driving problem, SI units."""
 
@@ -222,10 +291,37 @@ class Scenario:
     source: str = ""
     cross_slope: float = 0.0
     """Roll of the terrain about the travel direction, rad, left side up positive."""
+    external: ExternalForce | None = field(default=None, metadata=_OMIT)
+    """Constant external pull in the body frame (None: none)."""
+    wheel_radius: tuple[float, ...] | None = field(default=None, metadata=_OMIT)
+    """Rim radius per wheel (FR, FL, RR, RL), m (None: the parameter set's on every wheel)."""
+    steer_offset: tuple[float, ...] | None = field(default=None, metadata=_OMIT)
+    """True minus encoder steer angle per wheel, rad (None: zero); steering failures are in encoder terms."""
 
     def failure(self, wheel: str) -> WheelFailure:
-        """The wheel's failures (nominal when none)."""
+        """The wheel's failures (nominal when none), steering angles in encoder terms."""
         return self.failures.get(wheel, WheelFailure())
+
+    def offset(self, wheel: str) -> float:
+        """The wheel's steering offset (true minus encoder angle), rad."""
+        return 0.0 if self.steer_offset is None else float(self.steer_offset[WHEELS.index(wheel)])
+
+    def physical_failure(self, wheel: str) -> WheelFailure:
+        """The wheel's failures with steering angles in physical terms (encoder + offset).
+
+        Without an offset the same object as :meth:`failure`. With one, the steering range
+        (the encoder's +-90 deg by default) and a stuck angle move by the offset.
+        """
+        f = self.failure(wheel)
+        d = self.offset(wheel)
+        if d == 0.0:
+            return f
+        stuck = None if f.steer_stuck is None else f.steer_stuck + d
+        return replace(f, steer_min=f.steer_min + d, steer_max=f.steer_max + d, steer_stuck=stuck)
+
+    def rim_radius(self, wheel: str) -> float | None:
+        """The wheel's rim radius, m (None: the parameter set's)."""
+        return None if self.wheel_radius is None else float(self.wheel_radius[WHEELS.index(wheel)])
 
     def with_(self, **kw: Any) -> "Scenario":
         """A copy with fields replaced (e.g. ``slope=...``)."""
@@ -234,8 +330,12 @@ class Scenario:
 
 _SCENARIO_KEYS = {"name": str, "description": str, "params": str, "rover": str, "exit_angle": str, "speed_m_s": float,
                   "slope_deg": float, "cross_slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
-                  "grouser_volume_fraction": float, "grouser_area_ratio": float}
-_WHEEL_KEYS: tuple[str, ...] = tuple(k for kind in KINDS for k in kind.TOML_KEYS)
+                  "grouser_volume_fraction": float, "grouser_area_ratio": float, "tether_force_N": float}
+_WORLD_WHEEL_KEYS = ("radius_mm", "steer_offset_deg")
+_WHEEL_KEYS: tuple[str, ...] = tuple(k for kind in KINDS for k in kind.TOML_KEYS) + _WORLD_WHEEL_KEYS
+_TETHER_KEYS = {"tension_N": float, "bearing_deg": float, "attach_x_m": float}
+MAX_TETHER_N = 1000.0
+"""Largest |tether force| accepted, N (beyond it: not a tether on a small rover, or wrong units)."""
 MAX_SPEED = 0.5
 """Largest plausible travel speed, m/s (planetary rovers drive at cm/s; 3.0 is a unit slip)."""
 MAX_SLOPE_DEG = 60.0
@@ -309,9 +409,10 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: no such scenario file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{p}: not valid TOML ({exc})") from None
-    unknown = sorted(set(data) - {"scenario", "wheels", "trench"})
+    unknown = sorted(set(data) - {"scenario", "wheels", "trench", "tether"})
     if unknown:
-        raise ScenarioError(f"{p}: unknown section(s) {unknown}; expected [scenario], [wheels.<FR|FL|RR|RL>], [trench]")
+        raise ScenarioError(f"{p}: unknown section(s) {unknown}; expected [scenario], [wheels.<FR|FL|RR|RL>], [trench], "
+                            "[tether]")
     sc = data.get("scenario")
     if not isinstance(sc, dict):
         raise ScenarioError(f"{p}: missing [scenario] section")
@@ -338,7 +439,24 @@ def load_scenario(path: str | Path) -> Scenario:
                              vals.get("grouser_area_ratio"))
     rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
     failures: dict[str, WheelFailure] = {}
+    radius: list[float | None] = [None] * len(WHEELS)
+    offset = [0.0] * len(WHEELS)
     for wname, tab in wheel_tables(p, data, _WHEEL_KEYS, ScenarioError):
+        i = WHEELS.index(wname)
+        if "radius_mm" in tab:
+            r = 1e-3 * _get(str(p), tab, "radius_mm", float, f"wheels.{wname}")
+            if not 0.5 * params.wheel.radius <= r <= 2.0 * params.wheel.radius:
+                raise ScenarioError(f"{p}: [wheels.{wname}] radius_mm = {1e3 * r:g} outside [0.5, 2] x the parameter "
+                                    f"set's {1e3 * params.wheel.radius:g} mm (millimetres expected)")
+            radius[i] = r
+        if "steer_offset_deg" in tab:
+            d = _get(str(p), tab, "steer_offset_deg", float, f"wheels.{wname}")
+            if not -30.0 <= d <= 30.0:
+                raise ScenarioError(f"{p}: [wheels.{wname}] steer_offset_deg = {d} outside [-30, 30] (degrees expected)")
+            offset[i] = math.radians(d)
+        tab = {k: v for k, v in tab.items() if k not in _WORLD_WHEEL_KEYS}
+        if not tab:
+            continue
         kinds = []
         for kind in KINDS:
             mine = {k: tab[k] for k in kind.TOML_KEYS if k in tab}
@@ -362,16 +480,8 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
     trench = None
     if "trench" in data:
-        t = data["trench"]
-        if not isinstance(t, dict):
-            raise ScenarioError(f"{p}: trench = {t!r}: the trench goal is a table, e.g. [trench] wheel = \"RR\", "
-                                "clean_side = true, min_depth_m = 0.02")
-        bad = sorted(set(t) - set(_TRENCH_KEYS))
-        if bad:
-            raise ScenarioError(f"{p}: [trench] unknown key(s) {bad}; known: {sorted(_TRENCH_KEYS)}")
-        if "wheel" not in t:
-            raise ScenarioError(f"{p}: [trench] missing key 'wheel'")
-        tv = {k: _get(str(p), t, k, typ, "trench") for k, typ in _TRENCH_KEYS.items() if k in t}
+        tv = _section(p, data["trench"], "trench", _TRENCH_KEYS, "wheel",
+                      "the trench goal is a table, e.g. [trench] wheel = \"RR\", clean_side = true, min_depth_m = 0.02")
         if tv["wheel"] not in WHEELS:
             raise ScenarioError(f"{p}: [trench] wheel = {tv['wheel']!r}; use one of {list(WHEELS)}")
         if failures.get(tv["wheel"], WheelFailure()).raised:
@@ -386,15 +496,97 @@ def load_scenario(path: str | Path) -> Scenario:
                 raise ScenarioError(f"{p}: [trench] {key} = {tv[key]} m outside [0, 2 r] (metres expected)")
         trench = TrenchGoal(tv["wheel"], tv.get("clean_side", False), min_depth, tv.get("min_flat_width_m", 0.0),
                             tv.get("target_depth_m"))
+    external = _external(p, vals.get("tether_force_N", 0.0), data.get("tether"))
     return Scenario(
         name=name, params=params, rover=rover, exit_angle=exit_angle, speed=speed, slope=math.radians(slope_deg),
         cross_slope=math.radians(cross_deg),
         mz_offset=vals.get("yaw_moment_offset_Nm", 0.0), fy_offset=vals.get("lateral_force_offset_N", 0.0),
         failures=failures, trench=trench, description=vals.get("description", ""), source=str(p),
+        external=external,
+        wheel_radius=(tuple(params.wheel.radius if r is None else r for r in radius)
+                      if any(r is not None and r != params.wheel.radius for r in radius) else None),
+        steer_offset=tuple(offset) if any(offset) else None,
     )
+
+
+def section_table(path: Path, t: Any, name: str, known: Iterable[str], required: str, what: str,
+                  error: Callable[[str], Exception]) -> dict[str, Any]:
+    """A ``[name]`` table of a parsed TOML file (scenario or truth), checked: a table, only
+    ``known`` keys, the ``required`` key. Raises ``error(message)`` naming ``path`` (``what``:
+    the hint when it is not a table)."""
+    if not isinstance(t, dict):
+        raise error(f"{path}: {name} = {t!r}: {what}")
+    bad = sorted(set(t) - set(known))
+    if bad:
+        raise error(f"{path}: [{name}] unknown key(s) {bad}; known: {sorted(known)}")
+    if required not in t:
+        raise error(f"{path}: [{name}] missing key {required!r}")
+    return t
+
+
+def _section(p: Path, t: Any, name: str, keys: Mapping[str, type], required: str, what: str) -> dict[str, Any]:
+    """A checked ``[name]`` table (:func:`section_table`) with its values typed (:func:`_get`)."""
+    t = section_table(p, t, name, keys, required, what, ScenarioError)
+    return {k: _get(str(p), t, k, typ, name) for k, typ in keys.items() if k in t}
+
+
+def _external(p: Path, tether: float, cable: Any) -> ExternalForce | None:
+    """The scenario's external pull: ``tether_force_N`` along -x plus the ``[tether]`` cable."""
+    if abs(tether) > MAX_TETHER_N:
+        raise ScenarioError(f"{p}: [scenario] tether_force_N = {tether} outside [-{MAX_TETHER_N:g}, {MAX_TETHER_N:g}] N "
+                            "(newtons expected)")
+    ext = ExternalForce.tether(tether)
+    if cable is not None:
+        tv = _section(p, cable, "tether", _TETHER_KEYS, "tension_N",
+                      "the cable is a table [tether] with tension_N, bearing_deg, attach_x_m")
+        if not 0.0 <= tv["tension_N"] <= MAX_TETHER_N:
+            raise ScenarioError(f"{p}: [tether] tension_N = {tv['tension_N']} outside [0, {MAX_TETHER_N:g}] N (a cable "
+                                "only pulls; newtons expected)")
+        if abs(tv.get("attach_x_m", 0.0)) > 2.0:
+            raise ScenarioError(f"{p}: [tether] attach_x_m = {tv['attach_x_m']} outside [-2, 2] m (metres expected)")
+        ext = ext + ExternalForce.cable(tv["tension_N"], math.radians(tv.get("bearing_deg", 180.0)),
+                                        tv.get("attach_x_m", 0.0))
+    return None if ext.zero else ext
 
 
 def example_scenarios() -> list[Path]:
     """The scenario files shipped in ``offline/scenarios``."""
     folder = Path(str(resources.files("offline").joinpath("scenarios")))
     return sorted(folder.glob("*.toml"))
+
+
+def scenario_with_world(sc: Scenario, world: Any) -> Scenario:
+    """The scenario in a world described by a truth file (``offnominal tables build --world``).
+
+    ``world`` is an :class:`offline.sim.truth.Truth` (read by the caller with
+    :func:`offline.sim.truth.load_truth`, e.g. the discrepancy tool's ``accepted_truth.toml``):
+
+    * soil: the world's (its ``soil_stiffness_scale`` and parameter file applied); wheel
+      geometry other than the radius and the contact tuning stay the scenario's;
+    * slope, cross slope: added to the scenario's own (a table's slope / cross-slope axes give
+      the absolute inclination at each grid point, as the rover's IMU reads it);
+    * ``tether_force_N`` and the anchored cable (``[tether_anchor]``: tension, bearing from the
+      rover's heading, attachment x; in steady straight driving a constant body-frame force):
+      added to the scenario's external pull (:class:`ExternalForce`);
+    * per-wheel rim radius and steering offset: replace the scenario's.
+
+    Raises
+    ------
+    ScenarioError
+        The world's radii are implausible for the scenario's wheel (outside 0.5-2 times it).
+    """
+    ps = replace(sc.params, soil=world.params.soil)
+    r0 = ps.wheel.radius
+    radii = tuple(float(r) for r in world.wheel_radius)
+    if not all(0.5 * r0 <= r <= 2.0 * r0 for r in radii):
+        raise ScenarioError(f"world {Path(world.source).name or '?'}: wheel radii {[1e3 * r for r in radii]} mm are not "
+                            f"within 0.5-2 x the scenario's {1e3 * r0:g} mm wheel")
+    ext = (sc.external or ExternalForce()) + ExternalForce.tether(float(world.tether_force))
+    anchor = getattr(world, "anchor", None)
+    if anchor is not None:
+        ext = ext + ExternalForce.cable(float(anchor["tension"]), float(anchor["bearing"]), float(anchor.get("attach_x", 0.0)))
+    offsets = tuple(float(o) for o in world.steer_offset)
+    return replace(sc, params=ps, slope=sc.slope + world.slope, cross_slope=sc.cross_slope + world.cross_slope,
+                   external=None if ext.zero else ext,
+                   wheel_radius=radii if any(r != r0 for r in radii) else None,
+                   steer_offset=offsets if any(offsets) else None)

@@ -45,6 +45,10 @@ axis). Compared with the printed equations:
   then roll gamma about x, left side up positive), so (7.13) gains ``- W cos(alpha) sin(gamma)``
   and (7.33) becomes ``sum W_i = W cos(alpha) cos(gamma)``. With the centre of mass at O the
   weight has no moment about O.
+* External pull (not in the dissertation; a tether, drawbar or anchored cable): a constant
+  body-frame force ``(F_x, F_y)`` at the height of O with yaw moment ``M_z`` about O adds to
+  (7.12), (7.13) and (7.18); attached at O's height and parallel to the terrain it has no
+  roll or pitch moment. Only built into the graph when given (``external``).
 * Roll of the body is neglected, as in the dissertation (section 7.2.2).
 * A raised wheel (stuck suspension, pivot locked): its rocker is held at the other
   rocker's angle (the locked body is one rigid frame), so its placeholder sinkage does not
@@ -85,7 +89,7 @@ class RoverStatics(Protocol):
     def balance(
         self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
         load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
-        contact: Mapping[str, Any] | None = None,
+        contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
     ) -> dict[str, Any]:
         """Residuals of the steady-state balance (zero at a driving primitive)."""
         ...
@@ -149,10 +153,13 @@ class FourWheelRocker:
     def balance(
         self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
         load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
-        contact: Mapping[str, Any] | None = None,
+        contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
     ) -> dict[str, Any]:
         """Residuals of (7.12)/(7.32), (7.13)/(7.27), (7.23)/(7.33), (7.15)-(7.17), (7.18)/(7.26),
         derived from the geometry (module docstring lists where they depart from print).
+
+        ``external``: a constant body-frame pull ``(F_x, F_y, M_z about O)`` (N, N, N m) added to
+        the x, y and yaw rows; None builds exactly the balance without it.
 
         ``wrench`` holds each wheel's soil wrench in its own wheel frame (about the wheel
         centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
@@ -180,6 +187,10 @@ class FourWheelRocker:
                 my_l = my_l + pitch
             mz = mz + wmz + rx * fy - ry * fx
         res.update(Mx=mx, My_right=my_r, My_left=my_l, Mz=mz)
+        if external is not None:
+            res["Fx"] = res["Fx"] + external[0]
+            res["Fy"] = res["Fy"] + external[1]
+            res["Mz"] = res["Mz"] + external[2]
         return {n: res[n] for n in BALANCE_NAMES}
 
     @staticmethod
@@ -212,7 +223,8 @@ def rotation_z(a: float) -> NDArray[np.float64]:
 def free_body_residuals(rover: Rover, wrench: Mapping[str, Sequence[float]], beta: Mapping[str, float],
                         h: Mapping[str, float], load: Mapping[str, float], slope: float, cross_slope: float = 0.0,
                         fy_offset: float = 0.0, mz_offset: float = 0.0, contact: Mapping[str, float] | None = None,
-                        include_wheel_torque: bool = True) -> dict[str, float]:
+                        include_wheel_torque: bool = True,
+                        external: tuple[float, float, float] | None = None) -> dict[str, float]:
     """Independent free-body balance of the rover (numpy, 3-D vectors, rotation matrices).
 
     Each wheel's wrench (about its centre, wheel frame) is rotated into the terrain frame by
@@ -222,7 +234,9 @@ def free_body_residuals(rover: Rover, wrench: Mapping[str, Sequence[float]], bet
     it to its pivot at ``y = -+w_r/2``; gravity ``R_x(gamma)^T R_y(-alpha)^T (0, 0, -W)`` acts at
     the reference point O. Returns the same rows as :meth:`FourWheelRocker.balance`:
     net force (with ``Fz`` from the loads, (7.23)), net moment about O, and each rocker's
-    moment about its pivot axis (the y axis through O).
+    moment about its pivot axis (the y axis through O). ``external``: a body-frame pull
+    ``(F_x, F_y, M_z)`` (N, N, N m about O) at the height of O, added to the net force and
+    moment (module notes).
     """
     lr, hr, wr, W = rover.rocker_length, rover.pivot_height, rover.track_width, rover.weight
     contact = contact or {k: 1.0 for k in WHEELS}
@@ -249,5 +263,8 @@ def free_body_residuals(rover: Rover, wrench: Mapping[str, Sequence[float]], bet
         moment += mk
         pitch[side] += mk[1] if include_wheel_torque else mk[1] - m[1]
     force[2] = sum(load[k] for k in WHEELS) + gravity[2]
+    if external is not None:
+        force[:2] += np.asarray(external[:2], dtype=float)
+        moment[2] += float(external[2])
     return {"Fx": float(force[0]), "Fy": float(force[1] - fy_offset), "Fz": float(force[2]), "Mx": float(moment[0]),
             "My_right": float(pitch["R"]), "My_left": float(pitch["L"]), "Mz": float(moment[2] - mz_offset)}

@@ -69,7 +69,7 @@ __all__ = [
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
-    "CODE_SOURCES", "code_hash",
+    "CODE_SOURCES", "code_hash", "world_header",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -118,9 +118,12 @@ class BuildError(ValueError):
 # ------------------------------------------------------------------------------ JSON coding
 def encode(obj: Any) -> Any:
     """JSON-able form of scenario data: frozen dataclasses tagged with their class (only
-    classes of :mod:`offline` are accepted back), tuples tagged, non-finite floats as strings."""
+    classes of :mod:`offline` are accepted back), tuples tagged, non-finite floats as strings.
+    A field marked ``omit_default`` in its metadata is left out at its default (the scenario's
+    world terms: files without them stay byte-identical)."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        d = {f.name: encode(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+        d = {f.name: encode(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+             if f.init and not (f.metadata.get("omit_default") and getattr(obj, f.name) == f.default)}
         return {"__class__": f"{type(obj).__module__}.{type(obj).__qualname__}", **d}
     if isinstance(obj, (bool, str, type(None))):
         return obj
@@ -366,8 +369,12 @@ def _file_record(path: Path) -> dict[str, str]:
 
 
 def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", build: BuildOptions | None = None,
-               solver: Any = None, refine: Any = None) -> TableSpec:
+               solver: Any = None, refine: Any = None, world: Any = None) -> TableSpec:
     """Read a scenario file and make the spec of its table (default grid, overridden by ``grid``).
+
+    ``world``: an :class:`offline.sim.truth.Truth` (``--world accepted_truth.toml``) whose terms
+    the scenario takes (:func:`offline.rover.scenario.scenario_with_world`); its file's name and
+    sha256 go to the header's ``sources["world_file"]``.
 
     Raises
     ------
@@ -392,6 +399,15 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         sources["params_file"] = _file_record(p.parent / ref)
     elif isinstance(ref, str):
         sources["params_preset"] = ref
+    if world is not None:
+        from .scenario import scenario_with_world
+
+        try:
+            sc = scenario_with_world(sc, world)
+        except ScenarioError as exc:
+            raise BuildError(str(exc)) from None
+        wp = Path(world.source) if getattr(world, "source", "") else None
+        sources["world_file"] = _file_record(wp) if wp is not None and wp.is_file() else {"name": "(in memory)"}
     sc = replace(sc, source=p.name)
     if solver is None:
         from .primitives import SolverOptions
@@ -447,7 +463,7 @@ def _problem(sc: Any, solver: Any) -> Any:
     from . import primitives as P
 
     return P.get_problem(sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None,
-                         solver if solver is not None else P.SolverOptions())
+                         solver if solver is not None else P.SolverOptions(), **P.world_of(sc))
 
 
 def _active_codes(v: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64], lam: NDArray[np.float64],
@@ -527,8 +543,6 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         "objective": np.float64(f.item()),
     }
     # per wheel: wrench and its exact Jacobian (AD graph), slip, slip angle, torque, power
-    model = pb.model
-    fj = model.casadi_function(jacobian=True)
     nw = len(lay.wheels)
     wr, wj = np.zeros((nw, 6)), np.zeros((nw, 6, 5))
     slip, sang, torque, power = (np.zeros(nw) for _ in range(4))
@@ -539,7 +553,8 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             sang[k] = beta
             continue
         vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, beta)
-        w6, J = fj(np.array([vx, vy, om, h, h0], dtype=float))
+        model = pb.model_of[wname]
+        w6, J = model.casadi_function(jacobian=True)(np.array([vx, vy, om, h, h0], dtype=float))
         wr[k], wj[k] = np.asarray(w6).ravel(), np.asarray(J)
         d = model.wrench(vx, vy, om, h, h0)
         slip[k], sang[k] = float(d.slip), float(d.beta)
@@ -549,7 +564,6 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
     # steering controllers of section 7.2.4: +-offset re-solves minus the primitive, per unit offset
     ctl = np.zeros((len(CONTROLLER_NAMES), nw, 2))
     src = np.zeros(len(CONTROLLER_NAMES), dtype=np.int8)
-    rs = pb.rs
     for c, name in enumerate(CONTROLLER_NAMES):
         par = "mz_offset" if name.startswith("Mz") else "fy_offset"
         mag = spec.build.mz_offset if par == "mz_offset" else spec.build.fy_offset
@@ -564,7 +578,7 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             dx = out["dx_dp"][:, lay.index(par)]
             src[c] = 1
         for k, wname in enumerate(lay.wheels):
-            ctl[c, k] = (dx[lay.var("omega", wname)] * rs, dx[lay.var("beta", wname)])
+            ctl[c, k] = (dx[lay.var("omega", wname)] * pb.rs_of[wname], dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
     out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s, out["x"],
@@ -1329,7 +1343,28 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
     }
     if refinement is not None:
         header["refinement"] = refinement
+    world = world_header(sc, pb)
+    if world:
+        header["world"] = world
     return header, arrays
+
+
+def world_header(sc: Any, pb: Any) -> dict[str, Any]:
+    """The table header's ``world`` record of a scenario's world terms (empty without them):
+    ``wheel_radius_m`` / ``shearing_radius_m`` per wheel (rtctl converts omega to rim speed
+    with the latter), ``steer_offset_rad`` per wheel (true minus encoder angle: rtctl commands
+    ``beta - offset``), ``external_force`` (body frame ``fx_N``, ``fy_N``, ``mz_Nm`` about O)."""
+    out: dict[str, Any] = {}
+    if getattr(sc, "wheel_radius", None) is not None:
+        out["wheel_radius_m"] = [float(pb.radius_of[k]) for k in pb.layout.wheels]
+        out["shearing_radius_m"] = [float(pb.rs_of[k]) for k in pb.layout.wheels]
+    if getattr(sc, "steer_offset", None) is not None:
+        out["steer_offset_rad"] = [float(sc.offset(k)) for k in pb.layout.wheels]
+    if getattr(sc, "external", None) is not None:
+        out["external_force"] = {"fx_N": sc.external.fx, "fy_N": sc.external.fy, "mz_Nm": sc.external.mz}
+    if out:
+        out["order"] = list(pb.layout.wheels)
+    return out
 
 
 def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:

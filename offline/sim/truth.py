@@ -22,6 +22,24 @@ File format (every key optional; units in the key names)
     [wheels.RR]
     radius_mm = 54.0                 # default: the parameter set's wheel radius
     steer_offset_deg = 2.0           # true steer = encoder steer + offset
+
+    [tether_anchor]                  # a cable to a fixed anchor (offline.fit.drive_candidates.AnchoredTether)
+    tension_N = 2.0                  # required in this section
+    bearing_deg = 180.0              # anchor direction from the start heading (default 180: behind)
+    inverse_distance_per_m = 0.0     # 1 / anchor distance from the start (0: far away)
+    attach_x_m = 0.0                 # attachment on the body's x axis
+    spring_rate_N_per_m = 0.0        # tension gained per metre paid out
+
+    [hub_contact]                    # hub / body face bulldozing (offline.fit.drive_candidates.HubContact)
+    clearance_mm = 4.0               # required in this section
+    face_width_mm = 40.0
+    arm_mm = 20.0
+
+The last two are disturbance hooks (contract C5): :attr:`Truth.anchor` and :attr:`Truth.hub`
+carry their parameters (SI); ``offnominal drive --truth`` applies them through
+:func:`offline.fit.drive_candidates.disturbance_from_terms`, and the table builder takes the
+anchored tether (``--world``; a constant bearing in steady straight driving). The simulator
+itself takes them as its ``disturbance`` argument.
 """
 
 from __future__ import annotations
@@ -36,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
-from ..rover.scenario import PARAM_PRESETS, wheel_tables
+from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
@@ -84,6 +102,11 @@ class Truth:
     wheel_inertia: float = 0.0
     source: str = ""
     notes: dict[str, Any] = field(default_factory=dict)
+    anchor: dict[str, float] | None = None
+    """Anchored tether (SI: ``tension`` N, ``bearing`` rad, ``inverse_distance`` 1/m, ``attach_x`` m,
+    ``spring_rate`` N/m), or None."""
+    hub: dict[str, float] | None = None
+    """Hub contact (SI: ``clearance``, ``face_width``, ``arm``, m), or None."""
 
     @classmethod
     def nominal(cls, params: ParameterSet, rover: Rover, **kw: Any) -> "Truth":
@@ -107,6 +130,8 @@ class Truth:
             "tether_force_N": self.tether_force, "mass_kg": self.mass, "yaw_inertia_kg_m2": self.yaw_inertia,
             "wheel_inertia_kg_m2": self.wheel_inertia,
             "source": Path(self.source).name if self.source else "",
+            **({"tether_anchor_SI": dict(self.anchor)} if self.anchor is not None else {}),
+            **({"hub_contact_SI": dict(self.hub)} if self.hub is not None else {}),
         }
 
 
@@ -116,6 +141,30 @@ _RANGES = {"soil_stiffness_scale": (0.05, 20.0), "slope_deg": (-40.0, 40.0), "cr
            "tether_force_N": (-100.0, 100.0), "mass_kg": (0.01, 1e4), "yaw_inertia_kg_m2": (1e-6, 1e4),
            "wheel_inertia_kg_m2": (0.0, 1e2)}
 _WHEEL_KEYS = {"radius_mm": (10.0, 2000.0), "steer_offset_deg": (-30.0, 30.0)}
+_HOOKS: dict[str, tuple[str, dict[str, tuple[str, float, float, float]]]] = {
+    # section -> (required key, {key: (SI name, factor to SI, lo, hi) in file units})
+    "tether_anchor": ("tension_N", {"tension_N": ("tension", 1.0, 0.0, 100.0),
+                                    "bearing_deg": ("bearing", math.pi / 180, -360.0, 360.0),
+                                    "inverse_distance_per_m": ("inverse_distance", 1.0, 0.0, 100.0),
+                                    "attach_x_m": ("attach_x", 1.0, -2.0, 2.0),
+                                    "spring_rate_N_per_m": ("spring_rate", 1.0, 0.0, 1e3)}),
+    "hub_contact": ("clearance_mm", {"clearance_mm": ("clearance", 1e-3, 0.0, 500.0),
+                                     "face_width_mm": ("face_width", 1e-3, 0.0, 2000.0),
+                                     "arm_mm": ("arm", 1e-3, 0.0, 500.0)}),
+}
+
+
+def _hook(path: Path, data: dict[str, Any], section: str) -> dict[str, float] | None:
+    """A disturbance-hook section (:data:`_HOOKS`) in SI, or None when absent."""
+    if section not in data:
+        return None
+    required, keys = _HOOKS[section]
+    tab = section_table(path, data[section], section, keys, required, f"must be a table with keys {sorted(keys)}",
+                        TruthError)
+    out = {si: f * _num(path, section, k, tab[k], lo, hi) for k, (si, f, lo, hi) in keys.items() if k in tab}
+    if section == "tether_anchor":
+        out.setdefault("bearing", math.pi)
+    return out
 
 
 def _num(path: Path, where: str, key: str, v: Any, lo: float, hi: float) -> float:
@@ -142,9 +191,10 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         raise TruthError(f"{p}: no such truth file") from None
     except tomllib.TOMLDecodeError as exc:
         raise TruthError(f"{p}: not valid TOML ({exc})") from None
-    bad = sorted(set(data) - {"truth", "wheels"})
+    bad = sorted(set(data) - {"truth", "wheels", *_HOOKS})
     if bad:
-        raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth] and [wheels.<FR|FL|RR|RL>]")
+        raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth], [wheels.<FR|FL|RR|RL>], [tether_anchor], "
+                         "[hub_contact]")
     t = data.get("truth", {})
     bad = sorted(set(t) - set(_TRUTH_KEYS))
     if bad:
@@ -187,6 +237,7 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
         yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)),
         wheel_inertia=vals.get("wheel_inertia_kg_m2", default_wheel_inertia(ps)), source=str(p),
+        anchor=_hook(p, data, "tether_anchor"), hub=_hook(p, data, "hub_contact"),
     )
 
 

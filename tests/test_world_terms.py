@@ -1,0 +1,272 @@
+"""World terms the table builder takes (issue 14): external pull (tether, anchored cable),
+per-wheel rim radius, per-wheel steering offset, and the discrepancy tool's truth file
+(``--world accepted_truth.toml``) through to the table header and rtctl's commands.
+
+Physics as physics: force and yaw balances with the pull (independent free-body balance),
+the sign of the drive torque, the wheel speed of a smaller wheel, physical angles unchanged
+by an encoder offset, a stuck angle given in encoder terms honoured physically. Small grids
+(one point) so the module stays well under a minute.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from offline.physics.backend import NUMPY
+from offline.rover.primitives import _problem_for, solve_primitive
+from offline.rover.scenario import ExternalForce, ScenarioError, load_scenario, scenario_with_world
+from offline.rover.statics import FourWheelRocker, free_body_residuals
+from offline.rover.table_builder import BuildOptions, build_table, encode, table_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = ROOT / "tables" / "scenarios" / "nominal.toml"
+STUCK = ROOT / "tables" / "scenarios" / "rr_steer_stuck.toml"
+FAST = BuildOptions(trust_steps=(0.0625,), trust_search=(0.0625, 1.0), polish_sweeps=0)
+
+
+@pytest.fixture(scope="module")
+def flat():
+    """The nominal scenario on flat ground and its primitive."""
+    sc = load_scenario(NOMINAL)
+    r = solve_primitive(sc)
+    assert r.ok
+    return sc, r
+
+
+def _rover_frame_forces(r):
+    """Sum of the wheels' F_x, F_y in the rover frame (wheel wrenches turned by the steer angle)."""
+    fx = fy = 0.0
+    for w in r.wheels.values():
+        c, s = math.cos(w.steer), math.sin(w.steer)
+        fx += c * w.wrench[0] - s * w.wrench[1]
+        fy += s * w.wrench[0] + c * w.wrench[1]
+    return fx, fy
+
+
+def _free_body(r, sc):
+    """Independent free-body residuals (numpy, rotation matrices) of a primitive, pull included."""
+    ext = None if sc.external is None else (sc.external.fx, sc.external.fy, sc.external.mz)
+    ws = r.wheels
+    return free_body_residuals(sc.rover, {k: w.wrench for k, w in ws.items()}, {k: w.steer for k, w in ws.items()},
+                               {k: w.sinkage for k, w in ws.items()}, {k: w.load for k, w in ws.items()}, sc.slope,
+                               sc.cross_slope, sc.fy_offset, sc.mz_offset, external=ext)
+
+
+def test_tether_from_behind_is_balanced_by_more_drive_force_and_torque(flat):
+    """A 2 N pull along -x: the wheels' net F_x equals the pull (force balance, flat ground), the
+    free-body balance with the pull closes, every wheel needs more drive torque and slips more."""
+    sc, r0 = flat
+    st = replace(sc, external=ExternalForce.tether(2.0))
+    r1 = solve_primitive(st)
+    assert r1.ok
+    fx, fy = _rover_frame_forces(r1)
+    assert fx == pytest.approx(2.0, abs=1e-6 * sc.rover.weight)
+    assert abs(fy) < 1e-6 * sc.rover.weight
+    res = _free_body(r1, st)
+    W, lr = sc.rover.weight, sc.rover.rocker_length
+    for n, v in res.items():
+        assert abs(v) <= 1e-6 * (W if n.startswith("F") else W * lr), (n, v)
+    # the same primitive does not balance without the pull: the term is really in the NLP
+    assert abs(_free_body(r1, sc)["Fx"]) == pytest.approx(2.0, rel=1e-6)
+    for k in r0.wheels:
+        assert r1.wheels[k].torque > r0.wheels[k].torque + 0.01
+        assert r1.wheels[k].slip > r0.wheels[k].slip
+    # a push from behind (negative tether) needs less torque than none: the sign is physical
+    r2 = solve_primitive(replace(sc, external=ExternalForce.tether(-1.0)))
+    assert r2.ok and all(r2.wheels[k].torque < r0.wheels[k].torque for k in r0.wheels)
+
+
+def test_cable_at_a_bearing_has_the_yaw_moment_of_its_attachment(flat):
+    """A cable pulling 2 N at 150 deg from the rover's heading from 0.1 m behind O: F_y = T sin(150
+    deg) = 1 N and a yaw moment attach_x F_y about O (cross product, computed here). The wheels'
+    net F_y, and their yaw moment about O, balance it (the independent free-body residuals)."""
+    sc, _ = flat
+    ext = ExternalForce.cable(2.0, math.radians(150.0), -0.1)
+    r_att, f = np.array([-0.1, 0.0, 0.0]), np.array([2.0 * math.cos(math.radians(150.0)), 1.0, 0.0])
+    assert ext.mz == pytest.approx(np.cross(r_att, f)[2], abs=1e-12)
+    assert (ext.fx, ext.fy) == pytest.approx((f[0], f[1]), abs=1e-12)
+    st = replace(sc, external=ext)
+    r = solve_primitive(st)
+    assert r.ok
+    fx, fy = _rover_frame_forces(r)
+    assert fx == pytest.approx(-ext.fx, abs=1e-6 * sc.rover.weight)
+    assert fy == pytest.approx(-ext.fy, abs=1e-6 * sc.rover.weight)
+    res = _free_body(r, st)
+    assert abs(res["Mz"]) <= 1e-6 * sc.rover.weight * sc.rover.rocker_length
+    # without the moment the yaw row is off by exactly attach_x F_y
+    no_m = _free_body(r, replace(st, external=ExternalForce(ext.fx, ext.fy, 0.0)))
+    assert no_m["Mz"] == pytest.approx(-ext.mz, rel=1e-6)
+
+
+def test_balance_graph_is_unchanged_without_external_terms(flat):
+    """The statics without ``external`` and with it None give the same rows (the NLP of every
+    shipped table is the old one); with a pull only F_x, F_y and M_z change, by the pull."""
+    sc, r = flat
+    st = FourWheelRocker(sc.rover)
+    ws = r.wheels
+    args = ({k: w.wrench for k, w in ws.items()}, {k: w.steer for k, w in ws.items()},
+            {k: w.sinkage for k, w in ws.items()}, {k: w.load for k, w in ws.items()}, 0.1, 0.0, 0.0, 0.05)
+    a = st.balance(NUMPY, *args)
+    b = st.balance(NUMPY, *args, None, (1.0, -2.0, 0.3))
+    for n in a:
+        d = {"Fx": 1.0, "Fy": -2.0, "Mz": 0.3}.get(n, 0.0)
+        assert b[n] - a[n] == pytest.approx(d, abs=1e-12)
+    enc = encode(sc)  # the table header's scenario record: no new keys at the defaults
+    assert not {"external", "wheel_radius", "steer_offset"} & set(enc)
+    assert {"external", "wheel_radius"} <= set(encode(replace(sc, external=ExternalForce.tether(1.0), wheel_radius=(0.05,) * 4)))
+
+
+def test_smaller_wheel_spins_faster_at_about_the_same_slip(flat):
+    """Equal radii reproduce the old primitive exactly. The RR wheel 7 % smaller: omega_RR grows by
+    the shearing-radius ratio r_s / r_s' times (1 - s) / (1 - s'); a smaller wheel sinks deeper
+    (eq. 5.6 over a shorter contact) and slips a little more, so the growth is above the radius
+    ratio but within 5 % of it (the rover's total drawbar pull is unchanged); the wheel's slip is
+    measured on its own radius (rim speed (1 - s) = travel speed cos(beta), eq. (5.1)); the other
+    wheels change by under 2 %."""
+    sc, r0 = flat
+    r = sc.params.wheel.radius
+    same = solve_primitive(replace(sc, wheel_radius=(r,) * 4))
+    np.testing.assert_array_equal(same.x, r0.x)
+    small = replace(sc, wheel_radius=(r, r, 0.93 * r, r))
+    r1 = solve_primitive(small)
+    assert r1.ok
+    hg = sc.params.wheel.grouser_height
+    ratio = (r + hg) / (0.93 * r + hg)
+    a, b = r0.wheels["RR"], r1.wheels["RR"]
+    got = b.omega / a.omega
+    assert ratio < got < 1.05 * ratio
+    assert got == pytest.approx(ratio * (1 - a.slip) / (1 - b.slip), rel=1e-6)
+    assert b.sinkage > a.sinkage and b.slip > a.slip
+    assert b.rim_speed == pytest.approx(b.omega * (0.93 * r + hg), rel=1e-12)
+    assert b.rim_speed * (1 - b.slip) == pytest.approx(sc.speed * math.cos(b.steer), rel=1e-6)
+    for k in ("FR", "FL", "RL"):
+        assert r1.wheels[k].omega == pytest.approx(r0.wheels[k].omega, rel=0.02)
+
+
+def test_steering_offset_leaves_physics_and_moves_encoder_failures(flat):
+    """An offset changes nothing physical on flat ground (the NLP is the same), and a stuck angle
+    given in encoder terms (-50 deg) holds the wheel at -50 + offset physically."""
+    sc, r0 = flat
+    d = math.radians(3.0)
+    r1 = solve_primitive(replace(sc, steer_offset=(0.0, 0.0, d, 0.0)))
+    assert r1.ok
+    for k in r0.wheels:
+        assert r1.wheels[k].steer == pytest.approx(r0.wheels[k].steer, abs=1e-7)
+    stuck = load_scenario(STUCK)
+    stuck = replace(stuck, slope=0.0, failures={"RR": replace(stuck.failure("RR"), steer_stuck=math.radians(-50.0))},
+                    steer_offset=(0.0, 0.0, d, 0.0))
+    r2 = solve_primitive(stuck)
+    assert r2.ok
+    assert r2.wheels["RR"].steer == pytest.approx(math.radians(-47.0), abs=1e-9)
+
+
+def test_scenario_file_keys_and_their_errors(tmp_path):
+    p = tmp_path / "w.toml"
+    p.write_text('[scenario]\ntether_force_N = 1.5\n[tether]\ntension_N = 2.0\nbearing_deg = 90.0\nattach_x_m = -0.1\n'
+                 '[wheels.RR]\nradius_mm = 54.0\nsteer_offset_deg = 2.0\n[wheels.FL]\nlocked = true\n')
+    sc = load_scenario(p)
+    assert sc.external.fx == pytest.approx(-1.5 + 2.0 * math.cos(math.pi / 2))
+    assert sc.external.fy == pytest.approx(2.0) and sc.external.mz == pytest.approx(-0.2)
+    assert sc.wheel_radius[2] == pytest.approx(0.054) and sc.steer_offset[2] == pytest.approx(math.radians(2.0))
+    assert sc.failure("FL").locked and sc.failure("RR").nominal
+    for text, msg in (("[scenario]\ntether_force_N = 5000\n", "newtons"),
+                      ("[tether]\nbearing_deg = 10\n", "tension_N"),
+                      ("[tether]\ntension_N = -1\n", "only pulls"),
+                      ("[wheels.RR]\nradius_mm = 0.054\n", "millimetres"),
+                      ("[wheels.RR]\nsteer_offset_deg = 45\n", "degrees")):
+        p.write_text("[scenario]\n" + text.replace("[scenario]\n", ""))
+        with pytest.raises(ScenarioError, match=msg):
+            load_scenario(p)
+
+
+def _accepted_truth(tmp_path: Path) -> Path:
+    """accepted_truth.toml as the discrepancy tool writes it: a 2 N tether, RR 7 % smaller, RR
+    steering offset 3 deg, an anchored cable."""
+    from offline.fit.drive_candidates import write_truth_toml
+    from offline.sim.truth import Truth
+
+    sc = load_scenario(NOMINAL)
+    believed = Truth.nominal(sc.params, sc.rover)
+    r = sc.params.wheel.radius
+    truth = replace(believed, tether_force=2.0, wheel_radius=(r, r, 0.93 * r, r),
+                    steer_offset=(0.0, 0.0, math.radians(3.0), 0.0))
+    dist = {"anchor_tension_N": 0.5, "anchor_bearing_rad": math.radians(180.0), "anchor_inverse_distance_per_m": 0.2,
+            "anchor_attach_x_m": -0.1, "hub_clearance_m": 0.004}
+    params = str(ROOT / "offline" / "data" / "calibrated_grousered.toml")  # the scenario's parameter file
+    return write_truth_toml(tmp_path / "accepted_truth.toml", params, truth, believed, {}, None,
+                            {"test": "issue 14"}, dist)
+
+
+def test_truth_file_carries_anchor_and_hub_sections(tmp_path):
+    from offline.sim.truth import load_truth
+
+    sc = load_scenario(NOMINAL)
+    t = load_truth(_accepted_truth(tmp_path), sc.rover, sc.params)
+    assert t.anchor == pytest.approx({"tension": 0.5, "bearing": math.pi, "inverse_distance": 0.2, "attach_x": -0.1})
+    assert t.hub == pytest.approx({"clearance": 0.004})
+    w = scenario_with_world(sc, t)
+    assert w.external.fx == pytest.approx(-2.0 - 0.5) and w.external.mz == pytest.approx(0.0, abs=1e-12)
+    # offnominal drive --truth applies both hooks (the anchored cable pulls back at the start)
+    from offline.cli.sim import _truth_hooks
+    from offline.fit.drive_candidates import AnchoredTether, HubContact, Hooks
+
+    hooks = _truth_hooks(t, sc.rover)
+    assert isinstance(hooks, Hooks) and {type(h) for h in hooks.hooks} == {AnchoredTether, HubContact}
+    anchor = next(h for h in hooks.hooks if isinstance(h, AnchoredTether))
+    assert (anchor.tension, anchor.attach_x, anchor.inverse_distance) == pytest.approx((0.5, -0.1, 0.2))
+    assert _truth_hooks(replace(t, anchor=None, hub=None), sc.rover) is None
+    assert t.describe()["tether_anchor_SI"]["tension"] == pytest.approx(0.5)
+
+
+def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
+    """End to end: accepted_truth.toml -> a one-point table built with ``--world`` -> header shows
+    the terms; the primitive drives harder than nominal (the tether), the small RR wheel spins
+    faster; rtctl commands rim speed omega_i r_s,i and steer beta - offset, and reads encoders + offset."""
+    from offline.cli import main
+    from rtctl.config import ControllerConfig
+    from rtctl.controller import Controller
+    from rtctl.messages import Measurements
+    from rtctl.table import load_table
+
+    truth = _accepted_truth(tmp_path)
+    out = tmp_path / "tables"
+    assert main(["tables", "build", str(NOMINAL), "--grid", "slope=0;cross_slope=0;speed=3", "--world", str(truth),
+                 "--out", str(out), "--quiet", "--no-index"]) == 0
+    t = load_table(out / "nominal.npz")
+    world = t.header["world"]
+    r = load_scenario(NOMINAL).params.wheel.radius
+    hg = load_scenario(NOMINAL).params.wheel.grouser_height
+    assert world["wheel_radius_m"][2] == pytest.approx(0.93 * r)
+    assert world["steer_offset_rad"] == pytest.approx([0.0, 0.0, math.radians(3.0), 0.0])
+    assert world["external_force"]["fx_N"] == pytest.approx(-2.5)
+    assert t.header["sources"]["world_file"]["name"] == "accepted_truth.toml"
+    assert main(["tables", "info", str(out / "nominal.npz")]) == 0
+    assert "world terms: rim radius" in capsys.readouterr().out
+    # the stored Jacobians are those of each wheel's own model (radius) and of the NLP with the pull
+    from offline.rover.table_verify import check_jacobians, spec_from_table
+
+    errs = check_jacobians(t, spec_from_table(t), [0])
+    assert max(errs.values()) < 1e-5, errs
+    tp = t.at(slope=0.0, cross_slope=0.0, speed=0.03)
+    nom = solve_primitive(replace(load_scenario(NOMINAL), speed=0.03))
+    lay = t.layout
+    om = np.array([tp.x[lay.var("omega", k)] for k in lay.wheels])
+    assert np.all(tp.torque > np.array([w.torque for w in nom.wheels.values()]) + 0.01)
+    assert om[2] / nom.wheels["RR"].omega > 1.04
+    # rtctl: per-wheel radius and offset from the header
+    c = Controller({"w": t}, ControllerConfig())
+    rs = np.array(world["shearing_radius_m"])
+    np.testing.assert_allclose(c.wheel_radii, rs)
+    beta = np.array([tp.x[lay.var("beta", k)] for k in lay.wheels])
+    enc = tuple((beta - np.array(world["steer_offset_rad"])).tolist())
+    cmd, d = c.step(Measurements(t=0.2, seq=1, wheel_speed=tuple(om.tolist()), steer_angle=enc, yaw_rate=0.0))
+    assert d.mode == "qp"
+    np.testing.assert_allclose(cmd.rim_speed, om * rs, rtol=2e-3)
+    np.testing.assert_allclose(cmd.steer_angle, enc, atol=2e-3)
+    assert cmd.steer_angle[2] == pytest.approx(beta[2] - math.radians(3.0), abs=2e-3)
+    assert abs(rs[2] - (0.93 * r + hg)) < 1e-12

@@ -273,16 +273,27 @@ class Controller:
             raise ControllerError(f"steering offsets: tables give {sorted(offsets)}; build every table with the same "
                                   "[wheels.*] steer_offset_deg (or --world file)")
         self.wheel_radii = np.array(radii, dtype=float)
-        """Shearing radius per wheel, m: rim-speed command = omega x radius (eq. (5.2))."""
+        """Shearing radius per wheel, m: the wheels' own radii, for odometry (ground speed = omega x radius, eq. (5.2))."""
         self.steer_offset = np.array(offsets.pop(), dtype=float)
         """True minus encoder steering angle per wheel, rad: command = beta - offset, beta = reading + offset."""
         self._per_wheel = len(set(radii)) > 1
         self._offset_on = bool(np.any(self.steer_offset != 0.0))
-        self.wheel_radius = float(radii[0]) if not self._per_wheel else float(np.mean(radii))
+        if math.isfinite(rs):
+            self.wheel_radius = float(rs)
+        else:
+            cmd = {wheel_radius_of(t) for t in self.tables.values()}
+            cmd = {r for r in cmd if math.isfinite(r)}
+            if len(cmd) != 1:
+                raise ControllerError(f"command radius: tables give {sorted(cmd) or 'none'}; set [drive] wheel_radius in "
+                                      "the config")
+            self.wheel_radius = cmd.pop()
+        """Command radius, m: the parameter set's shearing radius, with which the rover's software turns a
+        rim-speed command into a wheel speed (rim-speed command = omega x this); a worn wheel's own radius
+        (:attr:`wheel_radii`) enters the odometry only."""
         self.reset()
 
     def _radii(self) -> float | NDArray[np.float64]:
-        """The radius the conversions use: the one radius, or per wheel (a table built with them)."""
+        """The radii of the odometry: the one radius, or per wheel (a table built with them)."""
         return self.wheel_radii if self._per_wheel else self.wheel_radius
 
     @classmethod
@@ -755,7 +766,7 @@ class Controller:
         act = self.config.actuators
         alloc = prep.allocator
         lay = alloc.layout
-        rs = self._radii()
+        rs = self.wheel_radius  # actuator limits and rates are on rim-speed commands
         off = self.steer_offset if self._offset_on else 0.0
         tlo, thi = alloc.table_bounds
         x0 = alloc.x0
@@ -789,7 +800,7 @@ class Controller:
                 lo[io] = hi[io] = 0.0
                 fixed[io] = True
             if (w, "rim_speed_cap") in f:
-                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / (rs[i] if self._per_wheel else rs))  # type: ignore[index]
+                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / rs)
                 lo[io] = min(lo[io], hi[io])
             j = ix.torque[i]
             if j >= 0 and ((w, "unpowered") in f or (w, "torque_limit") in f):
@@ -808,12 +819,12 @@ class Controller:
     def _x_of_commands(self, prep: _Prepared) -> NDArray[np.float64]:
         x = prep.allocator.x0
         rim, steer = self._prev_cmd
-        x[prep.idx.om] = np.array(rim) / self._radii()
+        x[prep.idx.om] = np.array(rim) / self.wheel_radius
         x[prep.idx.be] = np.array(steer) + self.steer_offset if self._offset_on else steer
         return x
 
     def _commands_from_x(self, prep: _Prepared, x: NDArray[np.float64]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        rim = tuple((x[prep.idx.om] * self._radii()).tolist())
+        rim = tuple((x[prep.idx.om] * self.wheel_radius).tolist())
         steer = tuple((x[prep.idx.be] - self.steer_offset if self._offset_on else x[prep.idx.be]).tolist())
         return rim, steer
 

@@ -226,7 +226,8 @@ def test_truth_file_carries_anchor_and_hub_sections(tmp_path):
 def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
     """End to end: accepted_truth.toml -> a one-point table built with ``--world`` -> header shows
     the terms; the primitive drives harder than nominal (the tether), the small RR wheel spins
-    faster; rtctl commands rim speed omega_i r_s,i and steer beta - offset, and reads encoders + offset."""
+    faster; rtctl commands rim speed omega_i r_s (the command radius; the per-wheel radii serve its
+    odometry) and steer beta - offset, and reads encoders + offset."""
     from offline.cli import main
     from rtctl.config import ControllerConfig
     from rtctl.controller import Controller
@@ -266,7 +267,17 @@ def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
     enc = tuple((beta - np.array(world["steer_offset_rad"])).tolist())
     cmd, d = c.step(Measurements(t=0.2, seq=1, wheel_speed=tuple(om.tolist()), steer_angle=enc, yaw_rate=0.0))
     assert d.mode == "qp"
-    np.testing.assert_allclose(cmd.rim_speed, om * rs, rtol=2e-3)
+    # rim-speed commands use the command radius (the parameter set's wheel, as the rover's software
+    # and the simulator's actuator convert them), not the worn wheel's own radius
+    assert c.wheel_radius == pytest.approx(r + hg) and c.wheel_radius != pytest.approx(rs[2])
+    np.testing.assert_allclose(cmd.rim_speed, om * (r + hg), rtol=2e-3)
+    # closed loop: the simulator's actuator (the rover's conversion) turns them into the table's omega,
+    # the worn RR wheel included
+    from offline.sim.actuators import ActuatorConfig, Actuators
+
+    act = Actuators(ActuatorConfig(max_rim_speed=1.0), {}, load_scenario(NOMINAL).params.wheel.shearing_radius)
+    act.command(cmd.rim_speed, cmd.steer_angle)
+    np.testing.assert_allclose(act.omega_cmd, om, rtol=2e-3)
     np.testing.assert_allclose(cmd.steer_angle, enc, atol=2e-3)
     assert cmd.steer_angle[2] == pytest.approx(beta[2] - math.radians(3.0), abs=2e-3)
     assert abs(rs[2] - (0.93 * r + hg)) < 1e-12

@@ -58,7 +58,10 @@ class WheelBounds:
     contact : float
         1 in ground contact, 0 raised.
     rim_radius : float
-        Shearing radius r_s, m (rim speed = omega r_s).
+        Command radius, m: the shearing radius r_s of the parameter set's wheel, with which the
+        rover's software turns a rim-speed command into a wheel speed (rim-speed command =
+        omega r_s), so a rim-speed cap (7.30) is a cap on the command. A wheel whose own radius
+        differs (``[wheels.X] radius_mm``) has it in its physics only.
     speed : float
         Travel speed, m/s.
     """
@@ -81,12 +84,12 @@ class SolutionView:
     load: float
     sinkage: float
     torque: float  # soil moment M_y about the axle (motor torque = -M_y), N m
-    rim_radius: float
+    rim_radius: float  # command radius (WheelBounds.rim_radius)
     speed: float
 
     @property
     def rim_speed(self) -> float:
-        """omega r_s, m/s."""
+        """Rim-speed command omega r_s (command radius), m/s."""
         return self.omega * self.rim_radius
 
 

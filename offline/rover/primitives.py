@@ -305,7 +305,7 @@ class SteadyStateProblem:
         wb = WheelBounds(lo={"omega": 0.0, "beta": -BETA_LIMIT, "W": 0.0, "h": hmin, "h0": hmin},
                          hi={"omega": self.options.max_rim_speed_factor * sc.speed / rs, "beta": BETA_LIMIT,
                              "W": self.rover.weight / 2, "h": hmax, "h0": hmax},
-                         rim_radius=rs, speed=sc.speed)
+                         rim_radius=self.rs, speed=sc.speed)  # command radius: caps are on rim-speed commands
         for kind in sc.physical_failure(wheel).kinds():
             kind.apply(wb)
         return wb
@@ -577,7 +577,7 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
             res[f"load {k}"] = num["wrench"][k][2] - ph["W"]
             res[f"zero-slip load {k}"] = num["fz0"][k] - ph["W"]
             tol[f"load {k}"] = tol[f"zero-slip load {k}"] = rtol * W
-        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs_of[k], sc.speed)
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
         for kind in sc.physical_failure(k).kinds():
             for name, (val, scale) in kind.check(view).items():
                 key = f"{name} {k}"
@@ -1145,7 +1145,7 @@ def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest
     parts = []
     for k in WHEELS:
         ph = num["phys"][k]
-        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs_of[k], sc.speed)
+        view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
         for kind in sc.physical_failure(k).kinds():
             e = kind.evidence(view)
             if e:

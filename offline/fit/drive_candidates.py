@@ -411,7 +411,7 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     "wheel_radius_all": "yes: the parameter file's wheel radius",
     "torque_saturation": "yes: a torque_limit_Nm failure on every wheel in the scenario file",
     **{f"wheel_radius_{w}": "yes: [wheels.<W>] radius_mm (--world): that wheel's radius in the NLP, the table header "
-                            "and rtctl's rim-speed conversion" for w in WHEELS},
+                            "and rtctl's odometry (rim-speed commands keep the command radius)" for w in WHEELS},
     **{f"steer_offset_{w}": "yes: [wheels.<W>] steer_offset_deg (--world): steering limits and stuck angles in encoder "
                             "terms, the table header and rtctl's commands (beta - offset)" for w in WHEELS},
     "tether": "yes: tether_force_N (--world): a constant pull along -x in the balance (7.12)",

@@ -43,7 +43,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Sequence, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -250,7 +250,7 @@ class SteadyStateProblem:
         speed = P["speed"]
         rows: dict[str, Any] = {}
         wr, beta, h, load, contact = {}, {}, {}, {}, {}
-        f = 0
+        f: Any = 0
         for k in WHEELS:
             om, b, Wi, hi, h0 = (x[L.var(v, k)] for v in WHEEL_VARIABLES)
             c = P[f"contact {k}"]
@@ -266,7 +266,7 @@ class SteadyStateProblem:
             if k == trench_wheel:
                 from ..physics.soil_flow import trench_quantities
 
-                tq = trench_quantities(CASADI, hi, b, om, vx, _WheelView(phys_of[k]), _SoilView(phys_of[k]))
+                tq = trench_quantities(CASADI, hi, b, om, vx, cast(Any, _WheelView(phys_of[k])), cast(Any, _SoilView(phys_of[k])))
                 rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
                 rows[f"trench depth {k}"] = tq["d"]
                 rows[f"trench flat width {k}"] = tq["p"]
@@ -394,6 +394,7 @@ class SteadyStateProblem:
         args = {"x0": x0, "p": b["p"], "lbx": b["lbx"], "ubx": b["ubx"], "lbg": b["lbg"], "ubg": b["ubg"]}
         warm = lam_x0 is not None or lam_g0 is not None
         mi = None if max_iter is None or int(max_iter) == self.options.max_iter else int(max_iter)
+        solver: Any
         if not warm and mi is None:
             solver = self.solver
         else:
@@ -537,7 +538,8 @@ def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np
     L = pb.layout
     P = {n: float(p[L.index(n)]) for n in L.parameter_names}
     xs = pb.physical(x)
-    wr, beta, h, load, contact, fz0 = {}, {}, {}, {}, {}, {}
+    wr: dict[str, tuple[float, ...]] = {}
+    beta, h, load, contact, fz0 = {}, {}, {}, {}, {}
     for k in WHEELS:
         om, b, Wi, hi, h0 = (xs[k][v] for v in WHEEL_VARIABLES)
         contact[k] = P[f"contact {k}"]
@@ -615,8 +617,8 @@ def _point_check(pb: SteadyStateProblem, x: NDArray[np.float64], b: dict[str, ND
         t = num["wrench"][k][4] / pb.gscale[j]
         if not b["lbg"][j] - pb.options.feasibility_tol <= t <= b["ubg"][j] + pb.options.feasibility_tol:
             return False, worst
-    g, _ = pb.eval_g(x, b["p"])
-    g = np.asarray(g).ravel()
+    g_dm, _ = pb.eval_g(x, b["p"])
+    g = np.asarray(g_dm).ravel()
     for j in pb.layout.rows("trench"):
         if not b["lbg"][j] - pb.options.feasibility_tol <= g[j] <= b["ubg"][j] + pb.options.feasibility_tol:
             return False, worst
@@ -887,9 +889,9 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
     res = []
     col = lambda v: [L.var(v, k) for k in WHEELS]  # noqa: E731
     for name, oms, betas in out:
-        oms = np.clip(oms, lo[col("omega")], hi[col("omega")])
-        betas = np.clip(betas, lo[col("beta")], hi[col("beta")])
-        g = pb.guess(sc, oms, betas, np.clip([load] * n, lo[col("W")], hi[col("W")]))
+        om_c = np.clip(oms, lo[col("omega")], hi[col("omega")]).tolist()
+        be_c = np.clip(betas, lo[col("beta")], hi[col("beta")]).tolist()
+        g = pb.guess(sc, om_c, be_c, np.clip([load] * n, lo[col("W")], hi[col("W")]).tolist())
         res.append((name, g))
     return res
 
@@ -1175,12 +1177,12 @@ def steering_controllers(sc: Scenario, primitive: PrimitiveResult, mz_offset: fl
         ``{"Mz+": {wheel: (d rim speed [m/s], d steer [rad])}, "Mz-": ..., "Fy+": ..., "Fy-": ...}``
         per unit of the applied offset (per N m or per N).
     """
-    out = {}
+    out: dict[str, Any] = {}
     for name, kw, mag in (("Mz+", {"mz_offset": sc.mz_offset + mz_offset}, mz_offset),
                           ("Mz-", {"mz_offset": sc.mz_offset - mz_offset}, mz_offset),
                           ("Fy+", {"fy_offset": sc.fy_offset + fy_offset}, fy_offset),
                           ("Fy-", {"fy_offset": sc.fy_offset - fy_offset}, fy_offset)):
-        r = solve_primitive(replace(sc, **kw), options, x0=primitive.x)
+        r = solve_primitive(replace(sc, **cast(dict[str, Any], kw)), options, x0=primitive.x)
         if not r.ok:
             out[name] = {}
             continue

@@ -87,7 +87,7 @@ class RoverStatics(Protocol):
         ...
 
     def balance(
-        self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
+        self, ops: Backend, wrench: Mapping[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
         load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
         contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
     ) -> dict[str, Any]:
@@ -151,7 +151,7 @@ class FourWheelRocker:
         return (c * fx - s * fy, s * fx + c * fy, fz, c * mx - s * my, s * mx + c * my, mz)
 
     def balance(
-        self, ops: Backend, wrench: dict[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
+        self, ops: Backend, wrench: Mapping[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
         load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
         contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
     ) -> dict[str, Any]:

@@ -98,7 +98,7 @@ _DEFAULT_DISPLAY = {
 MAX_RETRY_NEIGHBOURS = 3
 """An unsolved point is retried from at most this many solved neighbours (in axis order)."""
 
-TABLE_SOLVER_BUDGETS = {"max_attempts": 3, "max_iterations": 300, "confirm_starts": 1, "confirm_rounds": 1}
+TABLE_SOLVER_BUDGETS: dict[str, Any] = {"max_attempts": 3, "max_iterations": 300, "confirm_starts": 1, "confirm_rounds": 1}
 """Search budgets of the optimizer inside a table build (iterations and attempts, deterministic).
 
 Smaller than :class:`~offline.rover.primitives.SolverOptions`' defaults: a grid point is
@@ -736,7 +736,7 @@ def speed_twin(grid: GridSpec, flat: int) -> int | None:
     (None when ``flat`` is at the first speed or the grid has fewer than two speeds)."""
     if "speed" not in grid.names or len(grid.values("speed")) < 2:
         return None
-    idx = list(np.unravel_index(flat, grid.shape))
+    idx = [int(i) for i in np.unravel_index(flat, grid.shape)]
     a = grid.names.index("speed")
     if idx[a] == 0:
         return None
@@ -1061,11 +1061,11 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
             raise BuildError(f"{kf.parent}: a partial build of a different spec (grid, scenario or options changed); "
                              "delete this folder to start afresh, or rerun with the original options")
     ex, client = _executor(jobs, scheduler)
-    out = []
+    built: list[tuple[Path, dict[str, Any]]] = []
     try:
         for spec in specs:
             res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex)
-            out.append(res)
+            built.append(res)
             if on_done is not None:
                 on_done(*res)
     finally:
@@ -1073,7 +1073,7 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
             client.close()
         elif ex is not None:
             ex.shutdown()
-    return out
+    return built
 
 
 def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
@@ -1252,7 +1252,9 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         _run(tasks, ex, done)
         changed = {f for f, r in got.items() if r is not None}
         for f in sorted(changed):
-            recs[f] = got[f]
+            rec = got[f]
+            assert rec is not None  # noqa: S101  (changed holds only the points with a result)
+            recs[f] = rec
         total += len(changed)
         if not changed:
             break

@@ -79,10 +79,11 @@ def test_resimulation_reproduces_a_noise_free_drive(sc, nominal, tmp_path):
     pred, ok = m.predict(obs)
     assert ok.all()
     # below half the noise of a 5-tick segment mean of the benchmark sensors (torque 9 mN m, gyro
-    # 0.9 mrad/s, pose increments 4.2 mm); the measured worst errors (2.7 mN m, 0.05 mrad/s, 1.3 mm
-    # in dy_body in the segment after the crab left -> crab right switch: 114 deg of steering slew)
-    # sit at command steps, where the truth's 0.1 s body dynamics and the quasi-static re-simulation differ
-    tol = {"torque": 0.004, "omega": 1e-9, "yaw_rate": 0.1 * REALISTIC_SENSORS.gyro_noise,
+    # 0.9 mrad/s, pose increments 4.2 mm); the measured worst errors (at 3 cm/s 2.7 mN m, at the
+    # calibration drive's 4.5 cm/s 4.02 mN m; 0.05 mrad/s, 1.3 mm in dy_body in the segment after the
+    # crab left -> crab right switch: 114 deg of steering slew) sit at command steps, where the
+    # truth's 0.1 s body dynamics and the quasi-static re-simulation differ, growing with speed
+    tol = {"torque": 0.0045, "omega": 1e-9, "yaw_rate": 0.1 * REALISTIC_SENSORS.gyro_noise,
            "roll": 1e-4, "pitch": 1e-4, "dx_body": 1.5e-3, "dy_body": 1.5e-3, "dheading": 3e-3}
     for ch in obs.channels:
         err = np.abs(obs.measured[ch] - pred[ch]).max()

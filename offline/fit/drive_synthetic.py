@@ -36,7 +36,7 @@ from ..sim.sensors import SensorConfig
 from ..sim.simulator import RoverSimulator, TruthState
 from ..sim.truth import Truth
 
-__all__ = ["DriveSegment", "CALIBRATION_SEGMENTS", "calibration_drive", "record_drive", "REALISTIC_SENSORS",
+__all__ = ["DriveSegment", "CALIBRATION_SEGMENTS", "CALIBRATION_SPEED", "calibration_drive", "record_drive", "REALISTIC_SENSORS",
            "ActuatorPath", "SensorPath"]
 
 ActuatorPath = Callable[[Commands], Commands]
@@ -78,26 +78,39 @@ def _ackermann(radius: float, speed: float, half_length: float = 0.16, half_trac
     return tuple(rim), tuple(steer)  # type: ignore[return-value]
 
 
-_LEFT = _ackermann(0.35, 0.03)
-_RIGHT = _ackermann(-0.5, 0.04)
+CALIBRATION_SPEED = 0.045
+"""Travel speed of the calibration drive, m/s: 1.5 times the mini rover's 3 cm/s of Table 7.2
+(the rover's own limit, :class:`~offline.sim.actuators.ActuatorConfig` ``max_rim_speed``, is 0.36 m/s).
+
+A steering offset turns the rover at a yaw rate proportional to its travel speed, while the gyro
+noise that carries most of its information does not scale with speed, so its standard error falls
+as 1 / speed. Measured (``python tests/bench/bench_drive_discrepancy.py steer_seeds``, 40 s drives,
+:data:`REALISTIC_SENSORS`): at 3 cm/s the four offsets had standard errors 0.27-0.29 deg, honest
+(rms of error / standard error 0.95 over 100 fits of 20 seeds, no bias: noise-free fits within
+0.2 %), so a 3 deg offset was within 20 % only at 2.1 sigma (seed 3 missed it: 20.6 %); at
+4.5 cm/s 0.19-0.21 deg (3 sigma), at 6 cm/s 0.15-0.16 deg."""
+
+_LEFT = _ackermann(0.35, CALIBRATION_SPEED)
+_RIGHT = _ackermann(-0.5, 4.0 / 3.0 * CALIBRATION_SPEED)
+_V = CALIBRATION_SPEED
 CALIBRATION_SEGMENTS: tuple[DriveSegment, ...] = (
-    DriveSegment(0.0, 10.0, (0.03,) * 4, (0.0,) * 4, "straight"),
+    DriveSegment(0.0, 10.0, (_V,) * 4, (0.0,) * 4, "straight"),
     DriveSegment(10.0, 24.0, *_LEFT, "Ackermann left, 0.35 m radius"),
-    DriveSegment(24.0, 30.0, (0.03,) * 4, (0.0,) * 4, "straight"),
-    DriveSegment(30.0, 40.0, (0.03,) * 4, (1.0,) * 4, "crab left, 57 deg (separates the front wheels' steering)"),
-    DriveSegment(40.0, 50.0, (0.03,) * 4, (-1.0,) * 4, "crab right, 57 deg"),
+    DriveSegment(24.0, 30.0, (_V,) * 4, (0.0,) * 4, "straight"),
+    DriveSegment(30.0, 40.0, (_V,) * 4, (1.0,) * 4, "crab left, 57 deg (separates the front wheels' steering)"),
+    DriveSegment(40.0, 50.0, (_V,) * 4, (-1.0,) * 4, "crab right, 57 deg"),
     DriveSegment(50.0, 58.0, *_RIGHT, "Ackermann right, 0.5 m radius"),
-    DriveSegment(58.0, 62.0, (0.02,) * 4, (0.0,) * 4, "slow straight"),
-    DriveSegment(62.0, 70.0, (-0.03,) * 4, (0.0,) * 4, "reverse (last: the plant has no equilibrium through a reverse-to-forward change)"),
+    DriveSegment(58.0, 62.0, (2.0 / 3.0 * _V,) * 4, (0.0,) * 4, "slow straight"),
+    DriveSegment(62.0, 70.0, (-_V,) * 4, (0.0,) * 4, "reverse (last: the plant has no equilibrium through a reverse-to-forward change)"),
 )
 """The calibration drive (70 s, mini rover of Table 7.2; wheel order FR, FL, RR, RL), designed for
-identifiability.
+identifiability, at :data:`CALIBRATION_SPEED` (why not 3 cm/s: there).
 
 The crabs both ways at 57 deg separate one front wheel's steering offset from the other's: on
 straight and gently steered legs an offset on FL and one on FR give the same front-axle lateral
 force and yaw moment; with every wheel steered at ``s`` the offset's force on the wheel at
 ``(x, y)`` has a body-x component and a yaw moment ``F (x cos s + y sin s)``, whose ``y`` term
-flips sign between FL and FR (at 57 deg one of them has almost no moment). Measured on a 40 s
+flips sign between FL and FR (at 57 deg one of them has almost no moment). Measured at 3 cm/s on a 40 s
 drive with :data:`REALISTIC_SENSORS` (seed 3): FL/FR Jacobian correlation 0.90 and a chi-square
 separation of a 3 deg FL offset from the best FR fit of 19.6 with the former single 20 deg
 crab; 0.58 and 75.7 with these crabs (joint standard errors 0.68 / 0.64 deg -> 0.34 / 0.36 deg;

@@ -198,9 +198,12 @@ def _md(data: dict[str, Any]) -> str:
           "sensor paths). Held-out chi2: the engine's 5 contiguous time blocks (before -> after) and a second drive "
           "(seed + 100) scored with the parameters fitted on the first. 'right?': in library = named right and nothing "
           "else; OUT = not named confidently (unexplained / partly explained); negative = agree. The calibration drive "
-          "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (crabs both ways at 57 deg, no point "
-          "turn). Seconds depend on the machine's load (two groups ran at once, with tests and another helper's work: "
-          "load 3-5 on 2 cores); sims (re-simulations of the drive) do not.", ""]
+          "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (4.5 cm/s, crabs both ways at 57 deg, no point "
+          "turn). Levels: `DRIVE_ALPHA` 0.001 for the alarm tests, `DRIVE_ALPHA_AFTER` 0.01 for the checks after an "
+          "explanation. Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
+          "(sinkage, wheel torque; the believed soil's error in brackets), the Bekker pressure at one sinkage shown only. "
+          "Seconds depend on the machine's load (load averages per group below; two groups ran side by side on the 2 "
+          "cores); sims (re-simulations of the drive) do not.", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
                   f"{info['load_after']} after (shared 2-core machine)")

@@ -70,6 +70,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..files import write_text
+from ..physics.backend import NUMPY
+from ..physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, passive_force
 from ..physics.params import ParameterSet, Rover, Soil
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
@@ -206,8 +208,7 @@ class HubContact:
     def force(self, sinkage: NDArray[np.float64]) -> NDArray[np.float64]:
         """Drag magnitude per wheel (N) at the sinkages (m)."""
         e = np.maximum(np.asarray(sinkage, dtype=float) - self.clearance, 0.0)
-        kp = math.tan(math.pi / 4 + self.soil.friction_angle / 2) ** 2
-        return self.face_width * (0.5 * self.soil.unit_weight * kp * e * e + 2.0 * self.soil.cohesion * math.sqrt(kp) * e)
+        return np.asarray(passive_force(NUMPY, e, self.face_width, self.soil), dtype=float)
 
     def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
         """The forces over the next step (contract C5)."""
@@ -215,9 +216,9 @@ class HubContact:
         lr, wr = self.rover.rocker_length, self.rover.track_width
         xs, ys = np.array([lr, lr, -lr, -lr]) / 2, np.array([-wr, wr, -wr, wr]) / 2
         vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
-        norm = np.sqrt(vx * vx + vy * vy + 1e-6)
+        norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
         om = np.array(s.omega)
-        torque = f * self.arm * om / np.sqrt(om * om + 1e-4)
+        torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
         return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
                                  wheel_torque=tuple(float(x) for x in torque))
 

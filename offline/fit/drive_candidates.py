@@ -48,10 +48,13 @@ failures in encoder terms move by the offset, the header records it, rtctl comma
 ``beta - offset``), ``tether`` and ``tether_anchor`` (a constant body-frame force in the balance
 (7.12), (7.13), (7.18): in steady straight driving the anchored cable's bearing is constant; its
 anchor distance and spring rate, which make the pull vary along a drive, are not in the steady
-state) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel). Not taken:
-``hub_contact`` (not done: a sinkage-dependent drag is a new wheel term in the NLP, not a constant)
-and ``servo_lag`` (a dynamic effect the steady-state tables have no place for). ``imu_tilt`` and
-``gyro_scale`` act on the readings only and change no table.
+state), ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel) and ``hub_contact``
+(``[hub_contact]``: the same Rankine drag, :func:`offline.physics.hub_drag.hub_wrench`, added to
+each wheel's wrench in the NLP at the wheel's sinkage -- against its travel, with the torque
+``F arm`` against its spin -- and in the tables' stored wheel wrenches and Jacobians; the
+submerged depth is smoothed over 0.1 mm for IPOPT). Not taken: ``servo_lag`` (a dynamic effect
+the steady-state tables have no place for). ``imu_tilt`` and ``gyro_scale`` act on the readings
+only and change no table.
 
 Hub contact and the anchored tether travel as :class:`~offline.sim.simulator.DisturbanceForces`
 hooks (:func:`disturbance_from_terms`), which :class:`~offline.sim.simulator.RoverSimulator` takes;
@@ -416,7 +419,9 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     **{f"steer_offset_{w}": "yes: [wheels.<W>] steer_offset_deg (--world): steering limits and stuck angles in encoder "
                             "terms, the table header and rtctl's commands (beta - offset)" for w in WHEELS},
     "tether": "yes: tether_force_N (--world): a constant pull along -x in the balance (7.12)",
-    "hub_contact": "no (not done): a sinkage-dependent drag per wheel would be a new wheel term in the NLP",
+    "hub_contact": "yes: [hub_contact] (--world): a Rankine drag per wheel against its travel and a torque F arm against "
+                   "its spin in the NLP (offline.physics.hub_drag; depth smoothed over 0.1 mm), in the stored wheel "
+                   "wrenches and Jacobians and the table header",
     "tether_anchor": "yes: [tether_anchor] (--world): tension at its bearing from the attachment, a constant body-frame "
                      "force and yaw moment in the steady state (anchor distance and spring rate not used)",
     "servo_lag": "no: a dynamic effect; steady-state tables have no place for it",

@@ -74,8 +74,8 @@ from numpy.typing import NDArray
 
 from ..files import write_text
 from ..physics.backend import NUMPY
-from ..physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, passive_force
-from ..physics.params import ParameterSet, Rover, Soil
+from ..physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
+from ..physics.params import ParameterError, ParameterSet, Rover, Soil
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
@@ -185,12 +185,9 @@ class HubContact:
 
     Parameters
     ----------
-    clearance : float
-        Sinkage at which the face touches the soil, m.
-    face_width : float
-        Width of the face, m.
-    arm : float
-        Lever of the drag about the wheel axle, m (0: the face does not turn with the wheel).
+    clearance, face_width, arm : float
+        The face's geometry, m: as :class:`offline.physics.hub_drag.HubFace` (the NLP's and the
+        tables' term, :func:`offline.physics.hub_drag.hub_wrench`, with the same drag force).
     soil : Soil
     rover : Rover
         Wheel positions (rocker length, track width; order FR, FL, RR, RL).
@@ -203,10 +200,10 @@ class HubContact:
     rover: Rover
 
     def __post_init__(self) -> None:
-        for name in ("clearance", "face_width", "arm"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise DriveCandidateError(f"HubContact.{name} must be finite and >= 0 (m), got {v!r}")
+        try:
+            HubFace(self.clearance, self.face_width, self.arm)  # the one check of the face's geometry
+        except ParameterError as exc:
+            raise DriveCandidateError(str(exc).replace("HubFace.", "HubContact.")) from None
 
     def force(self, sinkage: NDArray[np.float64]) -> NDArray[np.float64]:
         """Drag magnitude per wheel (N) at the sinkages (m)."""

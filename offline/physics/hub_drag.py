@@ -82,10 +82,6 @@ class HubFace:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0.0):
                 raise ParameterError(f"HubFace.{name} must be a finite number >= 0 (m), got {v!r}")
 
-    def mirror(self) -> "HubFace":
-        """The left-right mirror image (the same face on every wheel: itself)."""
-        return self
-
 
 def passive_force(ops: Backend, e: Any, width: float, soil: Soil) -> Any:
     """Rankine passive force on a vertical face of ``width`` (m) submerged to depth ``e`` (m), N.

@@ -864,7 +864,7 @@ def _mirror_depth(sc: Scenario) -> int:
 def mirror_scenario(sc: Scenario) -> Scenario:
     """The left-right mirror image: wheels swapped with every failure kind mirrored (steer
     angles negated), lateral force and yaw moment offsets and the cross slope negated (a
-    trench wheel moves to the other side)."""
+    trench wheel moves to the other side; a hub contact, the same on every wheel, is kept)."""
     fails = {_MIRROR[k]: f.mirror() for k, f in sc.failures.items()}
     trench = sc.trench.mirror() if sc.trench else None
     world: dict[str, Any] = {}
@@ -872,8 +872,6 @@ def mirror_scenario(sc: Scenario) -> Scenario:
         world["external"] = sc.external.mirror()
     if sc.wheel_radius is not None:
         world["wheel_radius"] = tuple(sc.wheel_radius[WHEELS.index(_MIRROR[k])] for k in WHEELS)
-    if sc.hub_contact is not None:
-        world["hub_contact"] = sc.hub_contact.mirror()
     if sc.steer_offset is not None:
         world["steer_offset"] = tuple(-sc.steer_offset[WHEELS.index(_MIRROR[k])] for k in WHEELS)
     return replace(sc, failures=fails, trench=trench, fy_offset=-sc.fy_offset, mz_offset=-sc.mz_offset,

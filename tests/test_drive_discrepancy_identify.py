@@ -173,7 +173,7 @@ def test_hub_contact_candidate_reaches_the_simulator(sc, nominal, tmp_path):
     p = write_truth_toml(tmp_path / "t.toml", "dissertation-ch7", tr, nominal, meas, act, {},
                          {"clearance_m": hook.clearance, "face_width_m": hook.face_width, "arm_m": hook.arm})
     assert "#   clearance_m = 0.004" in p.read_text()
-    assert TABLE_BUILDER_TAKES["hub_contact"].startswith("no")
+    assert TABLE_BUILDER_TAKES["hub_contact"].startswith("yes")
     assert set(TABLE_BUILDER_TAKES) >= {x.key for x in DRIVE_CANDIDATES}
 
 

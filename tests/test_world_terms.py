@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from offline.physics.backend import NUMPY
-from offline.rover.primitives import _problem_for, solve_primitive
+from offline.physics.hub_drag import SPIN_SMOOTHING, HubFace, hub_wrench
+from offline.rover.primitives import SolverOptions, _problem_for, solve_primitive
 from offline.rover.scenario import ExternalForce, ScenarioError, load_scenario, scenario_with_world
 from offline.rover.statics import FourWheelRocker, free_body_residuals
 from offline.rover.table_builder import BuildOptions, build_table, encode, table_spec
@@ -281,3 +282,168 @@ def test_world_file_to_table_header_and_rtctl_commands(tmp_path, capsys):
     np.testing.assert_allclose(cmd.steer_angle, enc, atol=2e-3)
     assert cmd.steer_angle[2] == pytest.approx(beta[2] - math.radians(3.0), abs=2e-3)
     assert abs(rs[2] - (0.93 * r + hg)) < 1e-12
+
+
+# ------------------------------------------------------------------ hub contact
+HUB = HubFace(clearance=0.006, face_width=0.02, arm=0.02)
+"""A face 6 mm above the rim's lowest point, 20 mm wide, 20 mm lever: the nominal primitive sinks
+7.5-8.4 mm, so every wheel bulldozes 1.5-2.4 mm of soil."""
+
+
+@pytest.fixture(scope="module")
+def hub(flat):
+    """The nominal scenario with :data:`HUB` on every wheel and its primitive."""
+    sc, _ = flat
+    sh = replace(sc, hub_contact=HUB)
+    r = solve_primitive(sh)
+    assert r.ok, r.status
+    return sh, r
+
+
+def test_hub_contact_below_the_sinkage_needs_more_torque_and_balances_its_drag(flat, hub):
+    """Every wheel sinks past the clearance: each needs more drive torque than without the face;
+    the free-body balance closes with the drag in the wheel wrenches, and without it the wheels'
+    net F_x is exactly the total Rankine drag (the wheels push the faces through the soil); the
+    drag is the simulator hook's (HubContact) at the same sinkage."""
+    from offline.fit.drive_candidates import HubContact
+
+    sc, r0 = flat
+    sh, r1 = hub
+    for k in r0.wheels:
+        assert r1.wheels[k].sinkage > HUB.clearance + 1e-3
+        assert r1.wheels[k].torque > r0.wheels[k].torque + 0.005, k
+    W, lr = sc.rover.weight, sc.rover.rocker_length
+    for n, v in _free_body(r1, sh).items():
+        assert abs(v) <= 1e-6 * (W if n.startswith("F") else W * lr), (n, v)
+    pb = _problem_for(sh, SolverOptions())
+    soil_only = {}
+    for k, w in r1.wheels.items():
+        vx, vy = pb.statics.wheel_velocity(NUMPY, sh.speed, w.steer)
+        soil_only[k] = tuple(float(np.ravel(q)[0]) for q in pb.model_of[k].wrench(vx, vy, w.omega, w.sinkage, w.sinkage_zero_slip).as_array())
+    ws = r1.wheels
+    bare = free_body_residuals(sh.rover, soil_only, {k: w.steer for k, w in ws.items()}, {k: w.sinkage for k, w in ws.items()},
+                               {k: w.load for k, w in ws.items()}, sh.slope, sh.cross_slope)
+    sim = HubContact(HUB.clearance, HUB.face_width, HUB.arm, sh.params.soil, sh.rover)
+    drag = sim.force(np.array([w.sinkage for w in ws.values()]))
+    assert drag.sum() > 0.5
+    # the NLP's smooth depth exceeds the exact one by eps^2 / (4 d) < 2 um at d >= 1.5 mm: < 0.1 % of F
+    assert bare["Fx"] == pytest.approx(drag.sum(), rel=1e-3)
+    # the motor torque carries the face's torque on top of the soil's: -M_y,soil + F arm sgn(omega)
+    # (sgn smoothed over SPIN_SMOOTHING, as in the simulator hook)
+    for i, (k, w) in enumerate(ws.items()):
+        spin = w.omega / math.hypot(w.omega, SPIN_SMOOTHING)
+        assert w.torque == pytest.approx(-soil_only[k][4] + drag[i] * HUB.arm * spin, abs=1e-3 * drag[i] * HUB.arm)
+
+
+def test_hub_contact_above_every_sinkage_leaves_the_primitive(flat):
+    """A clearance of 30 mm (every wheel sinks 7.5-8.4 mm): the smooth depth is ~eps^2 / (4 |d|)
+    = 1e-7 m (a drag of 2e-8 N), so the primitive is the one without the face to solver tolerance
+    (two IPOPT runs to tol 1e-8 on the scaled problem agree to ~1e-5 relative here; the 6 mm face
+    of the test above moves the torques by ~4 %)."""
+    sc, r0 = flat
+    r = solve_primitive(replace(sc, hub_contact=HubFace(0.03, 0.02, 0.02)))
+    assert r.ok
+    for k, w0 in r0.wheels.items():
+        w = r.wheels[k]
+        for f in ("omega", "steer", "load", "sinkage", "sinkage_zero_slip", "torque"):
+            assert getattr(w, f) == pytest.approx(getattr(w0, f), rel=1e-4, abs=1e-9), (k, f)
+
+
+def test_hub_drag_derivative_in_the_wheel_jacobian_is_a_central_difference(hub):
+    """The table's wrench Jacobian with the face minus the soil model's alone is the drag's own
+    derivative: equal to a central difference of the numpy drag (F_x, F_y, M_y rows) and not
+    zero; the other rows are unchanged."""
+    sh, r = hub
+    pb = _problem_for(sh, SolverOptions())
+    for k, w in r.wheels.items():
+        vx, vy = pb.statics.wheel_velocity(NUMPY, sh.speed, w.steer)
+        z = np.array([vx, vy, w.omega, w.sinkage, w.sinkage_zero_slip])
+        full = np.asarray(pb.wheel_function(k)(z)[1])
+        soil = np.asarray(pb.model_of[k].casadi_function(jacobian=True)(z)[1])
+        step = 1e-6 * np.maximum(np.abs(z), 1e-3)
+        fd = np.zeros((3, 5))
+        for j in range(5):
+            dz = np.zeros(5)
+            dz[j] = step[j]
+            up = hub_wrench(NUMPY, HUB, sh.params.soil, *(z + dz)[:4])
+            dn = hub_wrench(NUMPY, HUB, sh.params.soil, *(z - dz)[:4])
+            fd[:, j] = (np.array(up) - np.array(dn)) / (2 * step[j])
+        drag = (full - soil)[[0, 1, 4]]
+        assert np.abs(drag[:, 3]).max() > 10.0  # dF/dh of a submerged face (N/m): the term is there
+        np.testing.assert_allclose(drag, fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
+        np.testing.assert_allclose((full - soil)[[2, 3, 5]], 0.0, atol=1e-12)
+
+
+def test_scenario_hub_contact_section_and_its_errors(tmp_path):
+    p = tmp_path / "h.toml"
+    p.write_text("[scenario]\n[hub_contact]\nclearance_mm = 6.0\nface_width_mm = 20\narm_mm = 20.0\n")
+    assert load_scenario(p).hub_contact == HubFace(0.006, 0.02, 0.02)
+    assert load_scenario(NOMINAL).hub_contact is None
+    for text, msg in (("[hub_contact]\nface_width_mm = 20.0\n", "clearance_mm"),
+                      ("[hub_contact]\nclearance_mm = 0.006\nface_width_mm = 5000\n", "millimetres"),
+                      ("[hub_contact]\nclearance_mm = 6\nwidth_mm = 20\n", "unknown key")):
+        p.write_text("[scenario]\n" + text)
+        with pytest.raises(ScenarioError, match=msg):
+            load_scenario(p)
+
+
+def test_world_file_with_hub_contact_to_table_header(tmp_path, capsys, hub):
+    """accepted_truth.toml with a [hub_contact] section -> a one-point table (--world): the header's
+    world record and tables info show the face, the stored torques are the hub primitive's, and
+    the stored wheel Jacobians (drag included) pass tables verify's central differences."""
+    from offline.cli import main
+    from offline.fit.drive_candidates import write_truth_toml
+    from offline.rover.table_verify import check_jacobians, spec_from_table
+    from offline.sim.truth import Truth
+    from rtctl.table import load_table
+
+    sc = load_scenario(NOMINAL)
+    believed = Truth.nominal(sc.params, sc.rover)
+    params = str(ROOT / "offline" / "data" / "calibrated_grousered.toml")
+    truth = write_truth_toml(tmp_path / "accepted_truth.toml", params, believed, believed, {}, None, {"test": "hub"},
+                             {"hub_clearance_m": HUB.clearance, "hub_face_width_m": HUB.face_width, "hub_arm_m": HUB.arm})
+    assert "[hub_contact]" in truth.read_text()
+    out = tmp_path / "tables"
+    assert main(["tables", "build", str(NOMINAL), "--grid", "slope=0;cross_slope=0;speed=3", "--world", str(truth),
+                 "--out", str(out), "--quiet", "--no-index"]) == 0
+    t = load_table(out / "nominal.npz")
+    assert t.header["world"]["hub_contact"] == pytest.approx({"clearance_m": 0.006, "face_width_m": 0.02, "arm_m": 0.02})
+    assert main(["tables", "info", str(out / "nominal.npz")]) == 0
+    assert "hub contact clearance 6.00 mm, face width 20.00 mm, arm 20.00 mm" in capsys.readouterr().out
+    _, r = hub
+    np.testing.assert_allclose(t.arrays["torque"].ravel(), [w.torque for w in r.wheels.values()], rtol=1e-5)
+    errs = check_jacobians(t, spec_from_table(t), [0])
+    assert max(errs.values()) < 1e-5, errs
+
+
+def test_hub_primitive_is_the_simulators_steady_state_under_the_hub_hook(flat):
+    """Two implementations of the same drag: the NLP's (hub_wrench in the wheel wrench) and the
+    simulator's disturbance hook (HubContact, a body-frame force at the wheel from the plant's
+    own statics). Driven at the hub primitive's rim speeds, the simulator settles at the travel
+    speed with the primitive's slips, loads and sinkages; the residual differences are the smooth
+    depth's eps^2 / (4 d) ~ 2 um (0.07 % of the drag). ``arm = 0``: the plant keeps the hook's
+    spin torque out of its rocker-pitch balance, the NLP includes it with the soil's M_y."""
+    from offline.fit.drive_candidates import HubContact
+    from offline.sim.simulator import RoverSimulator
+    from rtctl.messages import Commands
+
+    sc, r0 = flat
+    face = HubFace(0.006, 0.02, 0.0)
+    prim = solve_primitive(replace(sc, hub_contact=face))
+    assert prim.ok
+    ws = [prim.wheels[k] for k in ("FR", "FL", "RR", "RL")]
+    cmd = Commands(0.0, 0, tuple(w.rim_speed for w in ws), tuple(w.steer for w in ws))
+    sim = RoverSimulator(sc, seed=3, disturbance=HubContact(face.clearance, face.face_width, face.arm, sc.params.soil,
+                                                            sc.rover))
+    sim.start(cmd)
+    for _ in range(20):
+        sim.measure()
+        sim.apply(cmd)
+        sim.advance(0.2)
+    ts = sim.truth_state()
+    assert ts.u == pytest.approx(sc.speed, rel=1e-4)
+    for i, w in enumerate(ws):
+        assert w.slip > r0.wheels[w.name].slip + 0.03  # the drag makes every wheel slip more ...
+        assert ts.slip[i] == pytest.approx(w.slip, abs=1e-4)  # ... by the same amount in both
+        assert ts.load[i] == pytest.approx(w.load, rel=1e-4)
+        assert ts.sinkage[i] == pytest.approx(w.sinkage, rel=1e-4)

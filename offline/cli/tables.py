@@ -179,6 +179,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         if "external_force" in world:
             e = world["external_force"]
             parts.append(f"external pull Fx {e['fx_N']:+.3g} N, Fy {e['fy_N']:+.3g} N, Mz {e['mz_Nm']:+.3g} N m")
+        if "hub_contact" in world:
+            hc = world["hub_contact"]
+            parts.append(f"hub contact clearance {1e3 * hc['clearance_m']:.2f} mm, face width {1e3 * hc['face_width_m']:.2f} mm, "
+                         f"arm {1e3 * hc['arm_m']:.2f} mm")
         print("world terms: " + "; ".join(parts))
     for k, v in t.axes.items():
         a = h["axes"][k]
@@ -269,7 +273,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--world", metavar="TRUTH.toml",
                    help="a truth file (e.g. the discrepancy tool's accepted_truth.toml) whose terms every table takes: "
                         "soil, slope / cross-slope added, tether_force_N, [tether_anchor], per-wheel radius_mm and "
-                        "steer_offset_deg (recorded in the table header's 'world' and sources)")
+                        "steer_offset_deg, [hub_contact] (recorded in the table header's 'world' and sources)")
     b.add_argument("--refine-tol", type=float, metavar="X",
                    help="refine the grid: insert the midpoint of every axis cell whose midpoint error exceeds X "
                         "variable scales (needs --max-points)")

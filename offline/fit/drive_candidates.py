@@ -48,10 +48,13 @@ failures in encoder terms move by the offset, the header records it, rtctl comma
 ``beta - offset``), ``tether`` and ``tether_anchor`` (a constant body-frame force in the balance
 (7.12), (7.13), (7.18): in steady straight driving the anchored cable's bearing is constant; its
 anchor distance and spring rate, which make the pull vary along a drive, are not in the steady
-state) and ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel). Not taken:
-``hub_contact`` (not done: a sinkage-dependent drag is a new wheel term in the NLP, not a constant)
-and ``servo_lag`` (a dynamic effect the steady-state tables have no place for). ``imu_tilt`` and
-``gyro_scale`` act on the readings only and change no table.
+state), ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel) and ``hub_contact``
+(``[hub_contact]``: the same Rankine drag, :func:`offline.physics.hub_drag.hub_wrench`, added to
+each wheel's wrench in the NLP at the wheel's sinkage -- against its travel, with the torque
+``F arm`` against its spin -- and in the tables' stored wheel wrenches and Jacobians; the
+submerged depth is smoothed over 0.1 mm for IPOPT). Not taken: ``servo_lag`` (a dynamic effect
+the steady-state tables have no place for). ``imu_tilt`` and ``gyro_scale`` act on the readings
+only and change no table.
 
 Hub contact and the anchored tether travel as :class:`~offline.sim.simulator.DisturbanceForces`
 hooks (:func:`disturbance_from_terms`), which :class:`~offline.sim.simulator.RoverSimulator` takes;
@@ -70,7 +73,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..files import write_text
-from ..physics.params import ParameterSet, Rover, Soil
+from ..physics.backend import NUMPY
+from ..physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
+from ..physics.params import ParameterError, ParameterSet, Rover, Soil
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
@@ -180,12 +185,9 @@ class HubContact:
 
     Parameters
     ----------
-    clearance : float
-        Sinkage at which the face touches the soil, m.
-    face_width : float
-        Width of the face, m.
-    arm : float
-        Lever of the drag about the wheel axle, m (0: the face does not turn with the wheel).
+    clearance, face_width, arm : float
+        The face's geometry, m: as :class:`offline.physics.hub_drag.HubFace` (the NLP's and the
+        tables' term, :func:`offline.physics.hub_drag.hub_wrench`, with the same drag force).
     soil : Soil
     rover : Rover
         Wheel positions (rocker length, track width; order FR, FL, RR, RL).
@@ -198,16 +200,15 @@ class HubContact:
     rover: Rover
 
     def __post_init__(self) -> None:
-        for name in ("clearance", "face_width", "arm"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise DriveCandidateError(f"HubContact.{name} must be finite and >= 0 (m), got {v!r}")
+        try:
+            HubFace(self.clearance, self.face_width, self.arm)  # the one check of the face's geometry
+        except ParameterError as exc:
+            raise DriveCandidateError(str(exc).replace("HubFace.", "HubContact.")) from None
 
     def force(self, sinkage: NDArray[np.float64]) -> NDArray[np.float64]:
         """Drag magnitude per wheel (N) at the sinkages (m)."""
         e = np.maximum(np.asarray(sinkage, dtype=float) - self.clearance, 0.0)
-        kp = math.tan(math.pi / 4 + self.soil.friction_angle / 2) ** 2
-        return self.face_width * (0.5 * self.soil.unit_weight * kp * e * e + 2.0 * self.soil.cohesion * math.sqrt(kp) * e)
+        return np.asarray(passive_force(NUMPY, e, self.face_width, self.soil), dtype=float)
 
     def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
         """The forces over the next step (contract C5)."""
@@ -215,9 +216,9 @@ class HubContact:
         lr, wr = self.rover.rocker_length, self.rover.track_width
         xs, ys = np.array([lr, lr, -lr, -lr]) / 2, np.array([-wr, wr, -wr, wr]) / 2
         vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
-        norm = np.sqrt(vx * vx + vy * vy + 1e-6)
+        norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
         om = np.array(s.omega)
-        torque = f * self.arm * om / np.sqrt(om * om + 1e-4)
+        torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
         return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
                                  wheel_torque=tuple(float(x) for x in torque))
 
@@ -415,7 +416,9 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     **{f"steer_offset_{w}": "yes: [wheels.<W>] steer_offset_deg (--world): steering limits and stuck angles in encoder "
                             "terms, the table header and rtctl's commands (beta - offset)" for w in WHEELS},
     "tether": "yes: tether_force_N (--world): a constant pull along -x in the balance (7.12)",
-    "hub_contact": "no (not done): a sinkage-dependent drag per wheel would be a new wheel term in the NLP",
+    "hub_contact": "yes: [hub_contact] (--world): a Rankine drag per wheel against its travel and a torque F arm against "
+                   "its spin in the NLP (offline.physics.hub_drag; depth smoothed over 0.1 mm), in the stored wheel "
+                   "wrenches and Jacobians and the table header",
     "tether_anchor": "yes: [tether_anchor] (--world): tension at its bearing from the attachment, a constant body-frame "
                      "force and yaw moment in the steady state (anchor distance and spring rate not used)",
     "servo_lag": "no: a dynamic effect; steady-state tables have no place for it",

@@ -50,7 +50,8 @@ from numpy.typing import NDArray
 
 from rtctl.layout import PARAMETERS, WHEEL_VARIABLES, NlpLayout
 
-from ..physics.backend import CASADI, NUMPY
+from ..physics.backend import CASADI, NUMPY, Backend
+from ..physics.hub_drag import HubFace, hub_wrench
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
 from .failures import SolutionView, WheelBounds
@@ -154,21 +155,24 @@ class SolverOptions:
 @functools.lru_cache(maxsize=16)
 def get_problem(params: ParameterSet, rover: Rover, exit_angle: str = "classic", trench_wheel: str | None = None,
                 options: SolverOptions | None = None, external: tuple[float, float, float] | None = None,
-                wheel_radius: tuple[float, ...] | None = None) -> "SteadyStateProblem":
+                wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None) -> "SteadyStateProblem":
     """The (cached) NLP of one parameter set, rover, exit-angle model and trench wheel, with an
-    optional constant external pull and per-wheel rim radii (:class:`SteadyStateProblem`)."""
-    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions(), external, wheel_radius)
+    optional constant external pull, per-wheel rim radii and hub contact (:class:`SteadyStateProblem`)."""
+    return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions(), external, wheel_radius,
+                              hub)
 
 
 def world_of(sc: Scenario) -> dict[str, Any]:
     """The NLP-structure arguments of a scenario's world terms (:func:`get_problem`): ``external``
-    (body-frame ``(F_x, F_y, M_z)``) and ``wheel_radius``, each only when set, so a scenario
-    without them keys (and builds) exactly the NLP it always did."""
+    (body-frame ``(F_x, F_y, M_z)``), ``wheel_radius`` and ``hub`` (the hub contact), each only
+    when set, so a scenario without them keys (and builds) exactly the NLP it always did."""
     out: dict[str, Any] = {}
     if sc.external is not None and not sc.external.zero:
         out["external"] = (float(sc.external.fx), float(sc.external.fy), float(sc.external.mz))
     if sc.wheel_radius is not None:
         out["wheel_radius"] = tuple(float(r) for r in sc.wheel_radius)
+    if sc.hub_contact is not None:
+        out["hub"] = sc.hub_contact
     return out
 
 
@@ -204,12 +208,16 @@ class SteadyStateProblem:
     wheel_radius : tuple of 4 float, optional
         Rim radius per wheel (FR, FL, RR, RL), m; None: the parameter set's on every wheel.
         The variable scales stay those of the parameter set's wheel (within a few per cent).
+    hub : HubFace, optional
+        Hub contact on every wheel: the drag of :func:`offline.physics.hub_drag.hub_wrench`
+        (the parameter set's soil) added to each wheel's wrench (:meth:`with_hub`) in the graph,
+        the independent check and the tables' stored wrenches; None: no term in the graph.
     """
 
     def __init__(self, params: ParameterSet, rover: Rover, exit_angle: str = "classic",
                  trench_wheel: str | None = None, options: SolverOptions | None = None,
                  external: tuple[float, float, float] | None = None,
-                 wheel_radius: tuple[float, ...] | None = None) -> None:
+                 wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None) -> None:
         import casadi as ca
 
         t0 = time.perf_counter()
@@ -221,7 +229,8 @@ class SteadyStateProblem:
         self.model = WheelModel(params.soil, params.wheel, params.tuning, self.model_options)
         wheel = params.wheel
         self.rs = wheel.shearing_radius
-        self.external, self.wheel_radius = external, wheel_radius
+        self.external, self.wheel_radius, self.hub = external, wheel_radius, hub
+        self._wheel_functions: dict[str, Any] = {}
         wheel_of = {k: wheel if wheel_radius is None or wheel_radius[i] == wheel.radius
                     else replace(wheel, radius=float(wheel_radius[i])) for i, k in enumerate(WHEELS)}
         self.rs_of = {k: w.shearing_radius for k, w in wheel_of.items()}
@@ -256,7 +265,7 @@ class SteadyStateProblem:
             c = P[f"contact {k}"]
             vx, vy = self.statics.wheel_velocity(CASADI, speed, b)
             w6, _ = wrench_core(CASADI, vx, vy, om, hi, h0, phys_of[k], self.model_options)
-            w6 = tuple(c * q for q in w6)
+            w6 = tuple(c * q for q in self.with_hub(CASADI, w6, vx, vy, om, hi))
             w0, _ = wrench_core(CASADI, vx, vy, speed / self.rs_of[k], h0, h0, phys_of[k], self.model_options)
             wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
             rows[f"load {k}"] = w6[2] - Wi
@@ -284,6 +293,39 @@ class SteadyStateProblem:
         self._solvers: dict[tuple[bool, int | None], Any] = {}  # (warm start, max_iter) -> IPOPT instance
         self.eval_g = ca.Function("eval_g", [xs, p], [g, f])
         self.build_seconds = time.perf_counter() - t0
+
+    def with_hub(self, ops: Backend, w: Sequence[Any], vx: Any, vy: Any, omega: Any, h: Any) -> tuple[Any, ...]:
+        """A wheel's soil wrench (wheel frame, about its centre) plus the hub drag
+        (:func:`offline.physics.hub_drag.hub_wrench`: ``F_x``, ``F_y`` against the travel and
+        ``M_y`` against the spin); the wrench itself, unchanged, without hub contact. The one
+        place every path (NLP graph, independent check, tables) adds the term."""
+        if self.hub is None:
+            return tuple(w)
+        fx, fy, my = hub_wrench(ops, self.hub, self.params.soil, vx, vy, omega, h)
+        return (w[0] + fx, w[1] + fy, w[2], w[3], w[4] + my, w[5])
+
+    def wheel_wrench(self, wheel: str, vx: float, vy: float, omega: float, h: float,
+                     h0: float) -> tuple[tuple[float, ...], Any]:
+        """Numeric wrench of one wheel (numpy model of its own radius, hub drag included) and the
+        model's :class:`~offline.physics.terramechanics.Wrench` (slip, slip angle)."""
+        w = self.model_of[wheel].wrench(vx, vy, omega, h, h0)
+        soil = tuple(float(np.asarray(q).ravel()[0]) for q in w.as_array())
+        return tuple(float(np.asarray(q).ravel()[0]) for q in self.with_hub(NUMPY, soil, vx, vy, omega, h)), w
+
+    def wheel_function(self, wheel: str) -> Any:
+        """``casadi.Function`` ``(v_x, v_y, omega, h, h0) -> (w[6], J[6x5])`` of one wheel's wrench
+        with the hub drag (exact Jacobian); the wheel model's own function without hub contact."""
+        model = self.model_of[wheel]
+        if self.hub is None:
+            return model.casadi_function(jacobian=True)
+        if wheel not in self._wheel_functions:
+            import casadi as ca
+
+            z = ca.SX.sym("x", 5)
+            wr, _ = model.expressions(z[0], z[1], z[2], z[3], z[4])
+            w = ca.vertcat(*self.with_hub(CASADI, wr, z[0], z[1], z[2], z[3]))
+            self._wheel_functions[wheel] = ca.Function("wheel_wrench_hub_jac", [z], [w, ca.jacobian(w, z)], ["x"], ["w", "J"])
+        return self._wheel_functions[wheel]
 
     def _ipopt_options(self, warm: bool, max_iter: int | None = None) -> dict[str, Any]:
         o = self.options
@@ -523,8 +565,7 @@ def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64
             out[k] = WheelSolution(k, 0.0, 0.0, float(b), 0.0, 0.0, 0.0, 0.0, float(b), 0.0, zero, f)
             continue
         vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, b)
-        w = pb.model_of[k].wrench(vx, vy, om, hi, h0)
-        wrench = tuple(float(np.asarray(q).ravel()[0]) for q in w.as_array())
+        wrench, w = pb.wheel_wrench(k, vx, vy, om, hi, h0)
         torque = -wrench[4]
         power += torque * om
         out[k] = WheelSolution(k, float(om), float(om * pb.rs_of[k]), float(b), float(Wi), float(hi), float(h0),
@@ -547,8 +588,7 @@ def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np
         if contact[k] == 0.0:
             wr[k], fz0[k] = (0.0,) * 6, Wi
         else:
-            w = pb.model_of[k].wrench(vx, vy, om, hi, h0)
-            wr[k] = tuple(float(np.asarray(q).ravel()[0]) * contact[k] for q in w.as_array())
+            wr[k] = tuple(q * contact[k] for q in pb.wheel_wrench(k, vx, vy, om, hi, h0)[0])
             fz0[k] = float(np.asarray(pb.model_of[k].wrench(vx, vy, P["speed"] / pb.rs_of[k], h0, h0).Fz).ravel()[0])
         beta[k], h[k], load[k] = b, hi, Wi
     bal = free_body_residuals(pb.rover, wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"], P["mz_offset"],
@@ -824,7 +864,7 @@ def _mirror_depth(sc: Scenario) -> int:
 def mirror_scenario(sc: Scenario) -> Scenario:
     """The left-right mirror image: wheels swapped with every failure kind mirrored (steer
     angles negated), lateral force and yaw moment offsets and the cross slope negated (a
-    trench wheel moves to the other side)."""
+    trench wheel moves to the other side; a hub contact, the same on every wheel, is kept)."""
     fails = {_MIRROR[k]: f.mirror() for k, f in sc.failures.items()}
     trench = sc.trench.mirror() if sc.trench else None
     world: dict[str, Any] = {}

@@ -28,6 +28,11 @@ File format
     bearing_deg = 180.0              # direction of the pull from the rover's +x, CCW (180: straight back)
     attach_x_m = -0.1                # attachment on the body's x axis (negative: behind O)
 
+    [hub_contact]                    # optional: a face that bulldozes soil once a wheel sinks
+    clearance_mm = 4.0               # beyond the clearance (required in this section), of this
+    face_width_mm = 40.0             # width (default 0), with this lever about the axle against
+    arm_mm = 20.0                    # the spin (default 0); the same on every wheel
+
     [wheels.RR]                      # any of FR, FL, RR, RL; any combination of keys
     rim_speed_max_m_s = 0.015        # (7.30)
     steer_stuck_deg = -50.0          # (7.31)
@@ -63,16 +68,20 @@ A failure kind is ONE object in :mod:`offline.rover.failures`:
 3. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark
    (``tests/bench/bench_primitives.py``) and to ``tests/test_failures.py``.
 
-World terms (external pull, per-wheel radius, steering offset)
---------------------------------------------------------------
+World terms (external pull, per-wheel radius, steering offset, hub contact)
+--------------------------------------------------------------------------
 An external pull is a constant force in the body frame (:class:`ExternalForce`): the tether
 ``tether_force_N`` pulls along -x at O; the anchored cable of ``[tether]`` pulls with its tension
 along ``bearing_deg`` from the attachment ``(attach_x_m, 0)`` on the body's x axis, so it adds
 ``F_x = T cos(bearing)``, ``F_y = T sin(bearing)`` and a yaw moment ``attach_x F_y`` about O.
 Assumption: the cable is parallel to the terrain and attached at the height of O (where the
 body and its weight act), so it has no roll or pitch moment (the simulator's planar balances
-make the same assumption). The defaults (no pull, the parameter set's radius on every wheel,
-zero offsets) leave the scenario, its NLP and its table files exactly as before.
+make the same assumption). Hub contact (``[hub_contact]``, :class:`~offline.physics.hub_drag.HubFace`):
+each wheel sunk beyond the clearance meets a Rankine passive drag against its travel and a
+torque against its spin (:func:`offline.physics.hub_drag.hub_wrench`, added to the wheel's
+wrench in the NLP, the independent check and the tables' stored wrenches and Jacobians). The
+defaults (no pull, the parameter set's radius on every wheel, zero offsets, no hub contact)
+leave the scenario, its NLP and its table files exactly as before.
 A truth file (:mod:`offline.sim.truth`, e.g. the discrepancy tool's ``accepted_truth.toml``)
 applies to a scenario with :func:`scenario_with_world` (``offnominal tables build --world``).
 
@@ -89,6 +98,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
+from ..physics.hub_drag import HUB_KEYS, HubFace
 from ..physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
@@ -297,6 +307,8 @@ class Scenario:
     """Rim radius per wheel (FR, FL, RR, RL), m (None: the parameter set's on every wheel)."""
     steer_offset: tuple[float, ...] | None = field(default=None, metadata=_OMIT)
     """True minus encoder steer angle per wheel, rad (None: zero); steering failures are in encoder terms."""
+    hub_contact: HubFace | None = field(default=None, metadata=_OMIT)
+    """Hub contact on every wheel (None: none; :mod:`offline.physics.hub_drag`)."""
 
     def failure(self, wheel: str) -> WheelFailure:
         """The wheel's failures (nominal when none), steering angles in encoder terms."""
@@ -409,10 +421,10 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ScenarioError(f"{p}: no such scenario file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{p}: not valid TOML ({exc})") from None
-    unknown = sorted(set(data) - {"scenario", "wheels", "trench", "tether"})
+    unknown = sorted(set(data) - {"scenario", "wheels", "trench", "tether", "hub_contact"})
     if unknown:
         raise ScenarioError(f"{p}: unknown section(s) {unknown}; expected [scenario], [wheels.<FR|FL|RR|RL>], [trench], "
-                            "[tether]")
+                            "[tether], [hub_contact]")
     sc = data.get("scenario")
     if not isinstance(sc, dict):
         raise ScenarioError(f"{p}: missing [scenario] section")
@@ -506,6 +518,7 @@ def load_scenario(path: str | Path) -> Scenario:
         wheel_radius=(tuple(params.wheel.radius if r is None else r for r in radius)
                       if any(r is not None and r != params.wheel.radius for r in radius) else None),
         steer_offset=tuple(offset) if any(offset) else None,
+        hub_contact=_hub_contact(p, data["hub_contact"]) if "hub_contact" in data else None,
     )
 
 
@@ -528,6 +541,19 @@ def _section(p: Path, t: Any, name: str, keys: Mapping[str, type], required: str
     """A checked ``[name]`` table (:func:`section_table`) with its values typed (:func:`_get`)."""
     t = section_table(p, t, name, keys, required, what, ScenarioError)
     return {k: _get(str(p), t, k, typ, name) for k, typ in keys.items() if k in t}
+
+
+def _hub_contact(p: Path, t: Any) -> HubFace:
+    """The ``[hub_contact]`` section (keys and ranges: :data:`offline.physics.hub_drag.HUB_KEYS`)."""
+    tv = _section(p, t, "hub_contact", {k: float for k in HUB_KEYS}, "clearance_mm",
+                  "the hub contact is a table [hub_contact] with clearance_mm, face_width_mm, arm_mm")
+    si = {}
+    for key, v in tv.items():
+        name, factor, lo, hi = HUB_KEYS[key]
+        if not lo <= v <= hi:
+            raise ScenarioError(f"{p}: [hub_contact] {key} = {v} outside [{lo:g}, {hi:g}] (millimetres expected)")
+        si[name] = factor * v
+    return HubFace(**si)
 
 
 def _external(p: Path, tether: float, cable: Any) -> ExternalForce | None:
@@ -568,7 +594,8 @@ def scenario_with_world(sc: Scenario, world: Any) -> Scenario:
     * ``tether_force_N`` and the anchored cable (``[tether_anchor]``: tension, bearing from the
       rover's heading, attachment x; in steady straight driving a constant body-frame force):
       added to the scenario's external pull (:class:`ExternalForce`);
-    * per-wheel rim radius and steering offset: replace the scenario's.
+    * per-wheel rim radius and steering offset: replace the scenario's;
+    * hub contact (``[hub_contact]``): replaces the scenario's (its drag takes the world's soil).
 
     Raises
     ------
@@ -586,7 +613,9 @@ def scenario_with_world(sc: Scenario, world: Any) -> Scenario:
     if anchor is not None:
         ext = ext + ExternalForce.cable(float(anchor["tension"]), float(anchor["bearing"]), float(anchor.get("attach_x", 0.0)))
     offsets = tuple(float(o) for o in world.steer_offset)
+    hub = getattr(world, "hub", None)
     return replace(sc, params=ps, slope=sc.slope + world.slope, cross_slope=sc.cross_slope + world.cross_slope,
                    external=None if ext.zero else ext,
                    wheel_radius=radii if any(r != r0 for r in radii) else None,
-                   steer_offset=offsets if any(offsets) else None)
+                   steer_offset=offsets if any(offsets) else None,
+                   hub_contact=sc.hub_contact if hub is None else HubFace(**hub))

@@ -553,10 +553,9 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
             sang[k] = beta
             continue
         vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, beta)
-        model = pb.model_of[wname]
-        w6, J = model.casadi_function(jacobian=True)(np.array([vx, vy, om, h, h0], dtype=float))
+        w6, J = pb.wheel_function(wname)(np.array([vx, vy, om, h, h0], dtype=float))  # hub drag included
         wr[k], wj[k] = np.asarray(w6).ravel(), np.asarray(J)
-        d = model.wrench(vx, vy, om, h, h0)
+        d = pb.model_of[wname].wrench(vx, vy, om, h, h0)
         slip[k], sang[k] = float(d.slip), float(d.beta)
         torque[k] = -wr[k, 4]
         power[k] = torque[k] * om
@@ -1355,7 +1354,10 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
     """The table header's ``world`` record of a scenario's world terms (empty without them):
     ``wheel_radius_m`` / ``shearing_radius_m`` per wheel (rtctl converts omega to rim speed
     with the latter), ``steer_offset_rad`` per wheel (true minus encoder angle: rtctl commands
-    ``beta - offset``), ``external_force`` (body frame ``fx_N``, ``fy_N``, ``mz_Nm`` about O)."""
+    ``beta - offset``), ``external_force`` (body frame ``fx_N``, ``fy_N``, ``mz_Nm`` about O),
+    ``hub_contact`` (``clearance_m``, ``face_width_m``, ``arm_m``: the drag of
+    :func:`offline.physics.hub_drag.hub_wrench`, included in the stored ``wrench`` and
+    ``wrench_jac``)."""
     out: dict[str, Any] = {}
     if getattr(sc, "wheel_radius", None) is not None:
         out["wheel_radius_m"] = [float(pb.radius_of[k]) for k in pb.layout.wheels]
@@ -1364,6 +1366,9 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
         out["steer_offset_rad"] = [float(sc.offset(k)) for k in pb.layout.wheels]
     if getattr(sc, "external", None) is not None:
         out["external_force"] = {"fx_N": sc.external.fx, "fy_N": sc.external.fy, "mz_Nm": sc.external.mz}
+    hub = getattr(sc, "hub_contact", None)
+    if hub is not None:
+        out["hub_contact"] = {"clearance_m": hub.clearance, "face_width_m": hub.face_width, "arm_m": hub.arm}
     if out:
         out["order"] = list(pb.layout.wheels)
     return out

@@ -109,8 +109,8 @@ def check_jacobians(t: Table, spec: TableSpec, flats: list[int]) -> dict[str, fl
             om, beta, _, h, h0 = (x[lay.var(v, w)] for v in ("omega", "beta", "W", "h", "h0"))
             vx, vy = pb.statics.wheel_velocity(NUMPY, sc.speed, beta)
             s = np.array([vx, vy, om, h, h0], dtype=float)
-            model = pb.model_of[w]  # the wheel's own radius (a table built with per-wheel radii)
-            num = _central(lambda z, m=model: m.wrench(*z).as_array().ravel(), s, 1e-6 * np.maximum(np.abs(s), 1e-3))
+            # numpy path of the wheel's own model (its radius) plus the hub drag, if any
+            num = _central(lambda z, w=w: np.array(pb.wheel_wrench(w, *z)[0]), s, 1e-6 * np.maximum(np.abs(s), 1e-3))
             errs["wrench_jac"] = max(errs["wrench_jac"], _rel(t.arrays["wrench_jac"][idx][k], num))
         g_phys = lambda z: np.asarray(d.gfun(z / xsc, p)).ravel() * csc  # noqa: E731
         jx = _central(g_phys, x, 1e-6 * xsc)

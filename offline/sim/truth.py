@@ -38,7 +38,8 @@ File format (every key optional; units in the key names)
 The last two are disturbance hooks (contract C5): :attr:`Truth.anchor` and :attr:`Truth.hub`
 carry their parameters (SI); ``offnominal drive --truth`` applies them through
 :func:`offline.fit.drive_candidates.disturbance_from_terms`, and the table builder takes the
-anchored tether (``--world``; a constant bearing in steady straight driving). The simulator
+anchored tether (``--world``; a constant bearing in steady straight driving) and the hub contact
+(``--world``; a drag per wheel in the NLP, :mod:`offline.physics.hub_drag`). The simulator
 itself takes them as its ``disturbance`` argument.
 """
 
@@ -53,6 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..physics.hub_drag import HUB_KEYS
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
 from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
@@ -148,9 +150,7 @@ _HOOKS: dict[str, tuple[str, dict[str, tuple[str, float, float, float]]]] = {
                                     "inverse_distance_per_m": ("inverse_distance", 1.0, 0.0, 100.0),
                                     "attach_x_m": ("attach_x", 1.0, -2.0, 2.0),
                                     "spring_rate_N_per_m": ("spring_rate", 1.0, 0.0, 1e3)}),
-    "hub_contact": ("clearance_mm", {"clearance_mm": ("clearance", 1e-3, 0.0, 500.0),
-                                     "face_width_mm": ("face_width", 1e-3, 0.0, 2000.0),
-                                     "arm_mm": ("arm", 1e-3, 0.0, 500.0)}),
+    "hub_contact": ("clearance_mm", HUB_KEYS),
 }
 
 

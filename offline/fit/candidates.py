@@ -285,7 +285,7 @@ class Candidate:
     key: str
     physics: str
     params: tuple[tuple[str, str, float, float, float, float], ...]
-    build: Callable[[NDArray[np.float64], ParameterSet], Extension]
+    build: Callable[[NDArray[np.float64], ParameterSet], Any]  # the model's extension type (Extension, RoverExtension)
     channels: tuple[str, ...] = ("Fx", "Fy", "sinkage")
     family: str = ""
     kind: str = "term"

@@ -67,7 +67,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -101,7 +101,7 @@ class DriveCandidateError(ValueError):
     """An extension carries an unknown rover term or a value the simulator cannot take."""
 
 
-class RoverTerms(dict):  # type: ignore[type-arg]
+class RoverTerms(dict[str, float]):
     """Rover terms of one extension: ``{key: value}`` over :data:`ROVER_KEYS` (absent = no change)."""
 
     def physics_key(self) -> tuple[tuple[str, float], ...]:
@@ -220,7 +220,7 @@ class HubContact:
         om = np.array(s.omega)
         torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
         return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
-                                 wheel_torque=tuple(float(x) for x in torque))
+                                 wheel_torque=cast(tuple[float, float, float, float], tuple(float(x) for x in torque)))
 
 
 PosePath = Any
@@ -324,7 +324,7 @@ def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rov
     t = rover_terms(ext)
     hooks: list[Any] = []
     if "hub_clearance" in t:
-        soil = replace(params.soil, **ext.soil) if ext is not None and ext.soil else params.soil
+        soil = replace(params.soil, **dict[str, Any](ext.soil)) if ext is not None and ext.soil else params.soil
         hooks.append(HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover))
     if "anchor_tension" in t:
         hooks.append(AnchoredTether(t["anchor_tension"], t.get("anchor_bearing", math.pi), t.get("anchor_inverse_distance", 0.0),
@@ -334,19 +334,26 @@ def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rov
     return hooks[0] if len(hooks) == 1 else Hooks(tuple(hooks))
 
 
+def _term_build(key: str, base: float) -> Callable[[NDArray[np.float64], ParameterSet], RoverExtension]:
+    """The build of a one-parameter rover term: ``{key: base + theta}``."""
+    def build(t: NDArray[np.float64], p: ParameterSet) -> RoverExtension:
+        return RoverExtension(terms={key: base + float(t[0])})
+    return build
+
+
 def _wheel_candidates() -> list[Candidate]:
     out = []
     for w in WHEELS:
         out.append(Candidate(
             f"wheel_radius_{w}", f"the {w} wheel's radius differs from the believed one (wear, a flat, mis-measured)",
             (("radius_change", "%", -20.0, 20.0, 0.0, 1e-2),),
-            (lambda t, p, w=w: RoverExtension(terms={f"radius_scale.{w}": 1.0 + float(t[0])})),
+            _term_build(f"radius_scale.{w}", 1.0),
             (f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body"), family=f"radius_{w}", null=(0.0,)))
     for w in WHEELS:
         out.append(Candidate(
             f"steer_offset_{w}", f"the {w} wheel points elsewhere than its steering encoder says (true = encoder + offset)",
             (("offset", "deg", -10.0, 10.0, 0.0, _D),),
-            (lambda t, p, w=w: RoverExtension(terms={f"steer_offset.{w}": float(t[0])})),
+            _term_build(f"steer_offset.{w}", 0.0),
             (f"torque_{w}", "yaw_rate", "dheading", "dy_body"), family=f"steer_{w}", null=(0.0,)))
     return out
 
@@ -468,10 +475,12 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
         ``imu_roll``, ``imu_pitch`` (rad), ``gyro_scale`` (relative).
     """
     t = rover_terms(ext)
-    ps = params if not ext.soil else replace(params, soil=replace(params.soil, **ext.soil))
+    ps = params if not ext.soil else replace(params, soil=replace(params.soil, **dict[str, Any](ext.soil)))
     r_all = t.get("radius_scale_all", 1.0)
-    radius = tuple(base.wheel_radius[i] * r_all * t.get(f"radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS))
-    offset = tuple(base.steer_offset[i] + t.get(f"steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS))
+    radius = cast(tuple[float, float, float, float],
+                  tuple(base.wheel_radius[i] * r_all * t.get(f"radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS)))
+    offset = cast(tuple[float, float, float, float],
+                  tuple(base.steer_offset[i] + t.get(f"steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS)))
     if min(radius) <= ps.wheel.grouser_height:
         raise DriveCandidateError(f"wheel radii {radius} m do not exceed the grouser height")
     truth = replace(base, params=ps, wheel_radius=radius, steer_offset=offset,

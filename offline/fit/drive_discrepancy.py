@@ -746,7 +746,7 @@ class DriveModel:
             sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0, disturbance=hook)
             hd = d.pose[:, 2] + heading_offset
             sim.heading = float(hd[0])
-            sim.start(Commands(0.0, 0, tuple(d.rim_cmd[0]), tuple(d.steer_cmd[0])))  # type: ignore[arg-type]
+            sim.start(Commands(0.0, 0, tuple(d.rim_cmd[0]), tuple(d.steer_cmd[0])))
 
             servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
             failed = np.zeros(n, dtype=bool)
@@ -763,34 +763,34 @@ class DriveModel:
 
             record(0)
             cmd = np.hstack([d.rim_cmd, d.steer_cmd])
-            act = sim.act
+            acts = sim.act
             solved, settled = [0], True
             for k in range(1, n):
                 c = d.rim_cmd[k - 1], d.steer_cmd[k - 1]
-                sim.apply(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))  # type: ignore[arg-type]
+                sim.apply(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))
                 steady = settled and (k < 2 or bool(np.all(cmd[k - 1] == cmd[k - 2])))
                 last_of_regime = k < n - 1 and bool(np.any(cmd[k] != cmd[k - 1]))
                 if steady and not last_of_regime and k % self.stride and k != n - 1:
-                    act.advance(d.period)  # actuators follow every tick; the plant is solved where needed
-                    servo[k] = act.omega_servo
+                    acts.advance(d.period)  # actuators follow every tick; the plant is solved where needed
+                    servo[k] = acts.omega_servo
                     continue
                 sim.heading = float(hd[k])
                 clock[0] = float(d.t[k])
-                steer_before = act.steer.copy()
+                steer_before = acts.steer.copy()
                 try:
                     _step(sim, d.period)
                 except SimulationError:
                     # no equilibrium (e.g. a wheel speed through zero with a slow servo): this tick
                     # is lost and the plant restarts from the steady state of these commands
                     failed[k] = True
-                    sim.start(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))  # type: ignore[arg-type]
+                    sim.start(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))
                     settled = False
                     continue
                 sim.heading = float(hd[k])
                 record(k)
                 solved.append(k)
-                settled = bool(np.allclose(act.steer, steer_before, rtol=0, atol=1e-9)
-                               and np.allclose(act.omega_servo, act.omega_cmd, rtol=1e-3, atol=1e-6))
+                settled = bool(np.allclose(acts.steer, steer_before, rtol=0, atol=1e-9)
+                               and np.allclose(acts.omega_servo, acts.omega_cmd, rtol=1e-3, atol=1e-6))
             for ch, v in ticks.items():
                 ticks[ch] = np.interp(np.arange(n), solved, v[solved])
             for i, w in enumerate(WHEELS):  # wheel speed: the servo's every tick, plus what the plant changed
@@ -987,7 +987,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
                    "rover_terms": dict(rover_terms(ext)), "soil_changes": dict(ext.soil),
                    "truth_file": truth_file.name if truth_file else None, "simulations": model.simulations,
                    "table_builder_takes": ({k: TABLE_BUILDER_TAKES.get(k, "not known") for k in v.chosen.keys}
-                                           if truth_file else {})}
+                                           if truth_file and v.chosen is not None else {})}
     write_text(out / "verdict.json", json.dumps(vj, indent=2, default=float))
     return out
 

@@ -334,11 +334,9 @@ def steer_seeds(sc: Any, seeds: tuple[int, ...] = STEER_SEEDS) -> int:
     how many seeds miss 20 %; then the same drive without sensor noise (the generator's actuator
     path against the candidate's plant offset: model mismatch) and the fit of each term on the
     seed-3 drive with no effect at all (what seed 3's noise alone makes of the term). Both for the
-    calibration drive (3 cm/s, Table 7.2's travel speed) and the same drive 1.5 times faster (a
-    steering offset's yaw rate scales with speed, the gyro noise does not). The faster drive is not
-    adopted: on it the noise-free re-simulation misses a torque at a command step by 4.02 mN m, over
-    the 4 mN m of ``tests/test_drive_discrepancy.py::test_resimulation_reproduces_a_noise_free_drive``
-    (the truth's body dynamics against the quasi-static re-simulation grow with speed)."""
+    calibration drive (4.5 cm/s, :data:`~offline.fit.drive_synthetic.CALIBRATION_SPEED`) and the
+    same drive at Table 7.2's 3 cm/s (2/3 of every rim speed): a steering offset's yaw rate scales
+    with speed, the gyro noise does not; this comparison is why the calibration drive is faster."""
     import numpy as np
 
     from offline.fit.discrepancy import _ext_of
@@ -389,7 +387,7 @@ def steer_seeds(sc: Any, seeds: tuple[int, ...] = STEER_SEEDS) -> int:
              "group's values). z = (fitted - truth) / reported standard error: an honest uncertainty gives rms z = 1.", "",
              "| drive | case, term | truth | mean | scatter (sd) | mean reported se | rms z | largest error | seeds beyond 20 % | "
              "noise-free drive | no effect, seed 3 |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    drives = (("3 cm/s (the calibration drive)", CALIBRATION_SEGMENTS), ("4.5 cm/s (1.5 x faster)", _scaled_segments(1.5)))
+    drives = (("3 cm/s (Table 7.2's speed)", _scaled_segments(2.0 / 3.0)), ("4.5 cm/s (the calibration drive)", CALIBRATION_SEGMENTS))
     pooled = []
     for label, segs in drives:
         all_z: list[float] = []

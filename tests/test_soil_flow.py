@@ -16,7 +16,7 @@ from offline.physics.params import (
     WHEEL_K10_MINI_T42,
     WHEEL_SMOOTH_T52,
 )
-from offline.physics.soil_flow import (
+from rtctl.physics.soil_flow import (
     HIGH_ANGLE,
     LOW_ANGLE,
     _regime_profile,

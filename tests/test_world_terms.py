@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from offline.physics.backend import NUMPY
-from offline.physics.hub_drag import SPIN_SMOOTHING, HubFace, hub_wrench
+from rtctl.physics.hub_drag import SPIN_SMOOTHING, HubFace, hub_wrench
 from offline.rover.primitives import SolverOptions, _problem_for, solve_primitive
 from offline.rover.scenario import ExternalForce, ScenarioError, load_scenario, scenario_with_world
 from offline.rover.statics import FourWheelRocker, free_body_residuals

@@ -89,7 +89,7 @@ def parameter_set_or_fail(path: str | None) -> tuple[Any, Path]:
 def soil_flow_available() -> bool:
     """True when the soil-flow model (chapter 4) can be imported."""
     try:
-        from ..physics import soil_flow  # noqa: F401
+        from rtctl.physics import soil_flow  # noqa: F401
     except ImportError:
         return False
     return True

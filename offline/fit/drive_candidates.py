@@ -49,7 +49,7 @@ failures in encoder terms move by the offset, the header records it, rtctl comma
 (7.12), (7.13), (7.18): in steady straight driving the anchored cable's bearing is constant; its
 anchor distance and spring rate, which make the pull vary along a drive, are not in the steady
 state), ``torque_saturation`` (a ``torque_limit_Nm`` failure on every wheel) and ``hub_contact``
-(``[hub_contact]``: the same Rankine drag, :func:`offline.physics.hub_drag.hub_wrench`, added to
+(``[hub_contact]``: the same Rankine drag, :func:`rtctl.physics.hub_drag.hub_wrench`, added to
 each wheel's wrench in the NLP at the wheel's sinkage -- against its travel, with the torque
 ``F arm`` against its spin -- and in the tables' stored wheel wrenches and Jacobians; the
 submerged depth is smoothed over 0.1 mm for IPOPT). Not taken: ``servo_lag`` (a dynamic effect
@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 
 from ..files import write_text
 from ..physics.backend import NUMPY
-from ..physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
+from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil
 from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
@@ -186,8 +186,8 @@ class HubContact:
     Parameters
     ----------
     clearance, face_width, arm : float
-        The face's geometry, m: as :class:`offline.physics.hub_drag.HubFace` (the NLP's and the
-        tables' term, :func:`offline.physics.hub_drag.hub_wrench`, with the same drag force).
+        The face's geometry, m: as :class:`rtctl.physics.hub_drag.HubFace` (the NLP's and the
+        tables' term, :func:`rtctl.physics.hub_drag.hub_wrench`, with the same drag force).
     soil : Soil
     rover : Rover
         Wheel positions (rocker length, track width; order FR, FL, RR, RL).
@@ -424,7 +424,7 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
                             "terms, the table header and rtctl's commands (beta - offset)" for w in WHEELS},
     "tether": "yes: tether_force_N (--world): a constant pull along -x in the balance (7.12)",
     "hub_contact": "yes: [hub_contact] (--world): a Rankine drag per wheel against its travel and a torque F arm against "
-                   "its spin in the NLP (offline.physics.hub_drag; depth smoothed over 0.1 mm), in the stored wheel "
+                   "its spin in the NLP (rtctl.physics.hub_drag; depth smoothed over 0.1 mm), in the stored wheel "
                    "wrenches and Jacobians and the table header",
     "tether_anchor": "yes: [tether_anchor] (--world): tension at its bearing from the attachment, a constant body-frame "
                      "force and yaw moment in the steady state (anchor distance and spring rate not used)",

@@ -59,8 +59,7 @@ __all__ = [
 ]
 
 
-class ParameterError(ValueError):
-    """A parameter is missing, non-finite, out of its physical range or in the wrong unit."""
+from rtctl.physics.parameters import ParameterError  # noqa: E402  (one class on both sides)
 
 
 def _check_finite(owner: str, name: str, value: float) -> None:

@@ -18,7 +18,7 @@ from matplotlib.colors import ListedColormap  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from .params import SOIL_DISSERTATION_T42, WHEEL_K10_MINI_T42, Soil, Wheel  # noqa: E402
-from .soil_flow import SHAPES, trench_profile, wheel_state_from_slip  # noqa: E402
+from rtctl.physics.soil_flow import SHAPES, trench_profile, wheel_state_from_slip  # noqa: E402
 
 __all__ = ["plot_phase_map", "plot_sweep"]
 
@@ -83,7 +83,7 @@ def plot_phase_map(
     ax.contourf(s_grid, b_grid, clean.astype(float), levels=[0.5, 1.5], colors="none", hatches=["///"])
     for ang in (10.0, 80.0):
         ax.axhline(ang, color="k", lw=0.8, ls="--")
-    from .soil_flow import tan_rule_angle
+    from rtctl.physics.soil_flow import tan_rule_angle
 
     bt = math.degrees(float(tan_rule_angle(h0, wheel)))
     ax.axhline(bt, color="k", lw=0.8, ls=":")

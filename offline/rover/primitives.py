@@ -50,8 +50,10 @@ from numpy.typing import NDArray
 
 from rtctl.layout import PARAMETERS, WHEEL_VARIABLES, NlpLayout
 
+from rtctl.physics.hub_drag import HubFace
+from rtctl.physics.steady_state import SteadyStateModel, steady_state_rows, with_hub
+
 from ..physics.backend import CASADI, NUMPY, Backend
-from ..physics.hub_drag import HubFace, hub_wrench
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
 from .failures import SolutionView, WheelBounds
@@ -209,7 +211,7 @@ class SteadyStateProblem:
         Rim radius per wheel (FR, FL, RR, RL), m; None: the parameter set's on every wheel.
         The variable scales stay those of the parameter set's wheel (within a few per cent).
     hub : HubFace, optional
-        Hub contact on every wheel: the drag of :func:`offline.physics.hub_drag.hub_wrench`
+        Hub contact on every wheel: the drag of :func:`rtctl.physics.hub_drag.hub_wrench`
         (the parameter set's soil) added to each wheel's wrench (:meth:`with_hub`) in the graph,
         the independent check and the tables' stored wrenches; None: no term in the graph.
     """
@@ -256,36 +258,13 @@ class SteadyStateProblem:
         p = ca.SX.sym("p", L.np_)
         x = xs * ca.DM(self.xscale)
         P = {n: p[L.index(n)] for n in L.parameter_names}
-        speed = P["speed"]
-        rows: dict[str, Any] = {}
-        wr, beta, h, load, contact = {}, {}, {}, {}, {}
-        f: Any = 0
-        for k in WHEELS:
-            om, b, Wi, hi, h0 = (x[L.var(v, k)] for v in WHEEL_VARIABLES)
-            c = P[f"contact {k}"]
-            vx, vy = self.statics.wheel_velocity(CASADI, speed, b)
-            w6, _ = wrench_core(CASADI, vx, vy, om, hi, h0, phys_of[k], self.model_options)
-            w6 = tuple(c * q for q in self.with_hub(CASADI, w6, vx, vy, om, hi))
-            w0, _ = wrench_core(CASADI, vx, vy, speed / self.rs_of[k], h0, h0, phys_of[k], self.model_options)
-            wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
-            rows[f"load {k}"] = w6[2] - Wi
-            rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
-            rows[f"wheel torque {k}"] = w6[4]
-            f = f + w6[4] * w6[4]
-            if k == trench_wheel:
-                from ..physics.soil_flow import trench_quantities
-
-                tq = trench_quantities(CASADI, hi, b, om, vx, cast(Any, _WheelView(phys_of[k])), cast(Any, _SoilView(phys_of[k])))
-                rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
-                rows[f"trench depth {k}"] = tq["d"]
-                rows[f"trench flat width {k}"] = tq["p"]
-        bal = self.statics.balance(CASADI, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"],
-                                   P["cross_slope"], contact, external)
-        bal["My_right"], bal["My_left"] = self.statics.pivot_rows(bal, P["pivot_locked"])
-        for n in BALANCE_NAMES:
-            rows[f"balance {n}"] = bal[n]
+        self.steady_state = SteadyStateModel(
+            tuple(WHEELS), tuple(phys_of[k] for k in WHEELS), tuple(self.rs_of[k] for k in WHEELS), self.model_options,
+            self.statics, params.soil, hub, external, trench_wheel, self.torque_scale)
+        """The rows' definition shared with the rover's exact residual (:mod:`rtctl.physics.steady_state`)."""
+        xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in WHEELS}
+        rows, f, _ = steady_state_rows(CASADI, self.steady_state, xw, P)
         g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
-        f = f / self.torque_scale ** 2
         self.symbols = {"x": xs, "p": p, "f": f, "g": g}
         self.g_names = L.constraint_names
         self._nlp = {"x": xs, "p": p, "f": f, "g": g}
@@ -296,13 +275,10 @@ class SteadyStateProblem:
 
     def with_hub(self, ops: Backend, w: Sequence[Any], vx: Any, vy: Any, omega: Any, h: Any) -> tuple[Any, ...]:
         """A wheel's soil wrench (wheel frame, about its centre) plus the hub drag
-        (:func:`offline.physics.hub_drag.hub_wrench`: ``F_x``, ``F_y`` against the travel and
+        (:func:`rtctl.physics.hub_drag.hub_wrench`: ``F_x``, ``F_y`` against the travel and
         ``M_y`` against the spin); the wrench itself, unchanged, without hub contact. The one
         place every path (NLP graph, independent check, tables) adds the term."""
-        if self.hub is None:
-            return tuple(w)
-        fx, fy, my = hub_wrench(ops, self.hub, self.params.soil, vx, vy, omega, h)
-        return (w[0] + fx, w[1] + fy, w[2], w[3], w[4] + my, w[5])
+        return with_hub(ops, self.steady_state, w, vx, vy, omega, h)
 
     def wheel_wrench(self, wheel: str, vx: float, vy: float, omega: float, h: float,
                      h0: float) -> tuple[tuple[float, ...], Any]:
@@ -627,7 +603,7 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
                     scale = W * lr if "torque" in name else W
                 res[key], tol[key] = float(val), rtol * scale
     if sc.trench is not None:
-        from ..physics.soil_flow import trench_profile
+        from rtctl.physics.soil_flow import trench_profile
 
         ph = num["phys"][sc.trench.wheel]
         tp = trench_profile(ph["h"], ph["beta"], ph["omega"], sc.speed * math.cos(ph["beta"]), pb.params.wheel, pb.params.soil)
@@ -1134,7 +1110,7 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
     wheels, power = _wheel_solutions(pb, sc, x)
     trench = None
     if sc.trench is not None:
-        from ..physics.soil_flow import trench_profile
+        from rtctl.physics.soil_flow import trench_profile
 
         w = wheels[sc.trench.wheel]
         vx = sc.speed * math.cos(w.steer)
@@ -1193,7 +1169,7 @@ def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest
             if e:
                 parts.append(f"{k}: {e}")
     if sc.trench is not None:
-        from ..physics.soil_flow import trench_profile
+        from rtctl.physics.soil_flow import trench_profile
 
         ph = num["phys"][sc.trench.wheel]
         tp = trench_profile(ph["h"], ph["beta"], ph["omega"], sc.speed * math.cos(ph["beta"]), pb.params.wheel,

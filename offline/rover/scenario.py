@@ -76,9 +76,9 @@ along ``bearing_deg`` from the attachment ``(attach_x_m, 0)`` on the body's x ax
 ``F_x = T cos(bearing)``, ``F_y = T sin(bearing)`` and a yaw moment ``attach_x F_y`` about O.
 Assumption: the cable is parallel to the terrain and attached at the height of O (where the
 body and its weight act), so it has no roll or pitch moment (the simulator's planar balances
-make the same assumption). Hub contact (``[hub_contact]``, :class:`~offline.physics.hub_drag.HubFace`):
+make the same assumption). Hub contact (``[hub_contact]``, :class:`~rtctl.physics.hub_drag.HubFace`):
 each wheel sunk beyond the clearance meets a Rankine passive drag against its travel and a
-torque against its spin (:func:`offline.physics.hub_drag.hub_wrench`, added to the wheel's
+torque against its spin (:func:`rtctl.physics.hub_drag.hub_wrench`, added to the wheel's
 wrench in the NLP, the independent check and the tables' stored wrenches and Jacobians). The
 defaults (no pull, the parameter set's radius on every wheel, zero offsets, no hub contact)
 leave the scenario, its NLP and its table files exactly as before.
@@ -98,7 +98,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
-from ..physics.hub_drag import HUB_KEYS, HubFace
+from rtctl.physics.hub_drag import HUB_KEYS, HubFace
 from ..physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
@@ -308,7 +308,7 @@ class Scenario:
     steer_offset: tuple[float, ...] | None = field(default=None, metadata=_OMIT)
     """True minus encoder steer angle per wheel, rad (None: zero); steering failures are in encoder terms."""
     hub_contact: HubFace | None = field(default=None, metadata=_OMIT)
-    """Hub contact on every wheel (None: none; :mod:`offline.physics.hub_drag`)."""
+    """Hub contact on every wheel (None: none; :mod:`rtctl.physics.hub_drag`)."""
 
     def failure(self, wheel: str) -> WheelFailure:
         """The wheel's failures (nominal when none), steering angles in encoder terms."""
@@ -544,7 +544,7 @@ def _section(p: Path, t: Any, name: str, keys: Mapping[str, type], required: str
 
 
 def _hub_contact(p: Path, t: Any) -> HubFace:
-    """The ``[hub_contact]`` section (keys and ranges: :data:`offline.physics.hub_drag.HUB_KEYS`)."""
+    """The ``[hub_contact]`` section (keys and ranges: :data:`rtctl.physics.hub_drag.HUB_KEYS`)."""
     tv = _section(p, t, "hub_contact", {k: float for k in HUB_KEYS}, "clearance_mm",
                   "the hub contact is a table [hub_contact] with clearance_mm, face_width_mm, arm_mm")
     si = {}

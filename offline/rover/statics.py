@@ -63,143 +63,15 @@ from typing import Any, Mapping, Protocol, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.backend import Backend
+from rtctl.physics.statics import BALANCE_NAMES, WHEELS, FourWheelRocker, RoverStatics
+
 from ..physics.params import Rover
 
 __all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES", "free_body_residuals", "rotation_x",
            "rotation_y", "rotation_z"]
 
-WHEELS: tuple[str, ...] = ("FR", "FL", "RR", "RL")
-"""Wheel order (front right, front left, rear right, rear left); same as :data:`rtctl.layout.WHEELS`."""
-BALANCE_NAMES: tuple[str, ...] = ("Fx", "Fy", "Fz", "Mx", "My_right", "My_left", "Mz")
-"""Balance rows; same as :data:`rtctl.layout.BALANCE_ROWS`."""
 _SIDE = {"FR": "R", "RR": "R", "FL": "L", "RL": "L"}
 _FRONT = {"FR": True, "FL": True, "RR": False, "RL": False}
-
-
-class RoverStatics(Protocol):
-    """What the steady-state optimizer needs from a rover layout."""
-
-    wheels: tuple[str, ...]
-
-    def wheel_velocity(self, ops: Backend, speed: Any, beta: Any) -> tuple[Any, Any]:
-        """Wheel-frame velocity of a wheel steered by ``beta`` on a rover moving straight."""
-        ...
-
-    def balance(
-        self, ops: Backend, wrench: Mapping[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
-        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
-        contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
-    ) -> dict[str, Any]:
-        """Residuals of the steady-state balance (zero at a driving primitive)."""
-        ...
-
-
-@dataclass(frozen=True)
-class FourWheelRocker:
-    """The mini rover of Table 7.2 and any rover of that layout.
-
-    Parameters
-    ----------
-    rover : Rover
-        Rocker length l_r, pivot height h_r above the wheel centres, track width w_r,
-        weight, nominal speed.
-    pitch_includes_wheel_torque : bool
-        Include the soil moments M_y about the wheel axles in the rocker pitch balances
-        (default; ``False`` reproduces the printed (7.16)-(7.17) in this respect).
-    wheels : tuple of str
-        Wheel names in the order of every per-wheel array (FR, FL, RR, RL).
-    """
-
-    rover: Rover
-    pitch_includes_wheel_torque: bool = True
-    wheels: tuple[str, ...] = WHEELS
-
-    def wheel_velocity(self, ops: Backend, speed: Any, beta: Any) -> tuple[Any, Any]:
-        """Eqs. (7.6)-(7.7) with v_x,rover = speed, v_y,rover = 0."""
-        return speed * ops.cos(beta), -speed * ops.sin(beta)
-
-    def rocker_angles(self, ops: Backend, h: Mapping[str, Any], contact: Mapping[str, Any] | None = None) -> tuple[Any, Any]:
-        """Eqs. (7.10)-(7.11): nose-up angles phi_R, phi_L from the sinkage difference along each rocker.
-
-        ``contact`` (1 on the ground, 0 raised; smooth in the casadi graph): a rocker with a
-        raised wheel takes the other rocker's angle (pivot locked, module docstring).
-        """
-        lr = self.rover.rocker_length
-        pr = ops.arcsin((h["RR"] - h["FR"]) / lr)
-        pl = ops.arcsin((h["RL"] - h["FL"]) / lr)
-        if contact is None:
-            return pr, pl
-        cr = contact["FR"] * contact["RR"]
-        cl = contact["FL"] * contact["RL"]
-        return cr * pr + (1 - cr) * pl, cl * pl + (1 - cl) * pr
-
-    def wheel_centre(self, ops: Backend, wheel: str, phi: Any) -> tuple[Any, Any, Any]:
-        """Wheel centre relative to the reference point O for a nose-up rocker angle ``phi``
-        (module docstring)."""
-        lr, hr, wr = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
-        c, s = ops.cos(phi), ops.sin(phi)
-        sx = 1.0 if _FRONT[wheel] else -1.0
-        y = -wr / 2 if _SIDE[wheel] == "R" else wr / 2
-        return sx * c * lr / 2 + s * hr, y, sx * s * lr / 2 - c * hr
-
-    @staticmethod
-    def to_rover_frame(ops: Backend, w: Sequence[Any], beta: Any) -> tuple[Any, ...]:
-        """Rotate a wheel wrench (Fx, Fy, Fz, Mx, My, Mz) by the steer angle about z."""
-        c, s = ops.cos(beta), ops.sin(beta)
-        fx, fy, fz, mx, my, mz = w
-        return (c * fx - s * fy, s * fx + c * fy, fz, c * mx - s * my, s * mx + c * my, mz)
-
-    def balance(
-        self, ops: Backend, wrench: Mapping[str, Sequence[Any]], beta: dict[str, Any], h: dict[str, Any],
-        load: dict[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any = 0.0,
-        contact: Mapping[str, Any] | None = None, external: tuple[float, float, float] | None = None,
-    ) -> dict[str, Any]:
-        """Residuals of (7.12)/(7.32), (7.13)/(7.27), (7.23)/(7.33), (7.15)-(7.17), (7.18)/(7.26),
-        derived from the geometry (module docstring lists where they depart from print).
-
-        ``external``: a constant body-frame pull ``(F_x, F_y, M_z about O)`` (N, N, N m) added to
-        the x, y and yaw rows; None builds exactly the balance without it.
-
-        ``wrench`` holds each wheel's soil wrench in its own wheel frame (about the wheel
-        centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
-        pitch moments of each rocker about its pivot axis.
-        """
-        W = self.rover.weight
-        F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
-        phi_r, phi_l = self.rocker_angles(ops, h, contact)
-        phi = {"R": phi_r, "L": phi_l}
-        res: dict[str, Any] = {
-            "Fx": sum(F[k][0] for k in self.wheels) - W * ops.sin(slope),
-            "Fy": sum(F[k][1] for k in self.wheels) - W * ops.cos(slope) * ops.sin(cross_slope) - fy_offset,
-            "Fz": sum(load[k] for k in self.wheels) - W * ops.cos(slope) * ops.cos(cross_slope),
-        }
-        mx = my_r = my_l = 0.0
-        mz = -mz_offset
-        for k in self.wheels:
-            fx, fy, fz, wmx, wmy, wmz = F[k]
-            rx, ry, rz = self.wheel_centre(ops, k, phi[_SIDE[k]])
-            mx = mx + wmx + ry * fz - rz * fy
-            pitch = rz * fx - rx * fz + (wmy if self.pitch_includes_wheel_torque else 0.0)
-            if _SIDE[k] == "R":
-                my_r = my_r + pitch
-            else:
-                my_l = my_l + pitch
-            mz = mz + wmz + rx * fy - ry * fx
-        res.update(Mx=mx, My_right=my_r, My_left=my_l, Mz=mz)
-        if external is not None:
-            res["Fx"] = res["Fx"] + external[0]
-            res["Fy"] = res["Fy"] + external[1]
-            res["Mz"] = res["Mz"] + external[2]
-        return {n: res[n] for n in BALANCE_NAMES}
-
-    @staticmethod
-    def pivot_rows(res: Mapping[str, Any], pivot_locked: Any) -> tuple[Any, Any]:
-        """The two pitch rows of the NLP. Pivot free (``pivot_locked = 0``): each rocker's
-        balance (7.16), (7.17). Locked (``1``, a stuck suspension): the whole rover's pitch
-        balance in the first row (the pivot carries the difference) and 0 in the second."""
-        r, l_ = res["My_right"], res["My_left"]
-        return r + pivot_locked * l_, (1.0 - pivot_locked) * l_
 
 
 def rotation_x(a: float) -> NDArray[np.float64]:

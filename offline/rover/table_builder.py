@@ -143,6 +143,10 @@ def encode(obj: Any) -> Any:
     return str(obj)
 
 
+_MOVED_MODULES = {"offline.physics.hub_drag": "rtctl.physics.hub_drag", "offline.physics.soil_flow": "rtctl.physics.soil_flow"}
+"""Modules whose classes moved to the shared physics (headers written before the move name the old path)."""
+
+
 def decode(obj: Any) -> Any:
     """Inverse of :func:`encode`."""
     if isinstance(obj, list):
@@ -155,8 +159,10 @@ def decode(obj: Any) -> Any:
         return tuple(decode(v) for v in obj["__tuple__"])
     if "__class__" in obj:
         mod, _, name = obj["__class__"].rpartition(".")
-        if not mod.startswith("offline."):
-            raise BuildError(f"table header names class {obj['__class__']!r}: only offline classes are rebuilt")
+        mod = _MOVED_MODULES.get(mod, mod)
+        if not mod.startswith(("offline.", "rtctl.physics.")):
+            raise BuildError(f"table header names class {obj['__class__']!r}: only offline and rtctl.physics classes "
+                             "are rebuilt")
         cls = getattr(importlib.import_module(mod), name)
         names = {f.name for f in dataclasses.fields(cls) if f.init}
         return cls(**{k: decode(v) for k, v in obj.items() if k in names})
@@ -1356,7 +1362,7 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
     with the latter), ``steer_offset_rad`` per wheel (true minus encoder angle: rtctl commands
     ``beta - offset``), ``external_force`` (body frame ``fx_N``, ``fy_N``, ``mz_Nm`` about O),
     ``hub_contact`` (``clearance_m``, ``face_width_m``, ``arm_m``: the drag of
-    :func:`offline.physics.hub_drag.hub_wrench`, included in the stored ``wrench`` and
+    :func:`rtctl.physics.hub_drag.hub_wrench`, included in the stored ``wrench`` and
     ``wrench_jac``)."""
     out: dict[str, Any] = {}
     if getattr(sc, "wheel_radius", None) is not None:

@@ -225,7 +225,7 @@ def trench_metrics(truth: Sequence[TruthState], sc: Scenario, params: Any = None
     pile height in mm, and the fraction of ticks whose trench is clean-sided (pile <= 0.5 mm,
     the goal's tolerance). Empty without a trench goal. ``params``: the truth's parameter set
     (default: the scenario's)."""
-    from ..physics.soil_flow import trench_profile
+    from rtctl.physics.soil_flow import trench_profile
 
     tr = sc.trench
     if tr is None or not truth:

@@ -39,7 +39,7 @@ The last two are disturbance hooks (contract C5): :attr:`Truth.anchor` and :attr
 carry their parameters (SI); ``offnominal drive --truth`` applies them through
 :func:`offline.fit.drive_candidates.disturbance_from_terms`, and the table builder takes the
 anchored tether (``--world``; a constant bearing in steady straight driving) and the hub contact
-(``--world``; a drag per wheel in the NLP, :mod:`offline.physics.hub_drag`). The simulator
+(``--world``; a drag per wheel in the NLP, :mod:`rtctl.physics.hub_drag`). The simulator
 itself takes them as its ``disturbance`` argument.
 """
 
@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.hub_drag import HUB_KEYS
+from rtctl.physics.hub_drag import HUB_KEYS
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
 from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia

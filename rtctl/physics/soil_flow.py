@@ -120,7 +120,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .backend import NUMPY, Backend
-from .params import Soil, Wheel
+from .parameters import SoilLike as Soil, WheelLike as Wheel
 
 __all__ = [
     "LOW_ANGLE",

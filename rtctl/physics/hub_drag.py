@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .backend import Backend
-from .params import ParameterError, Soil
+from .parameters import ParameterError, SoilLike as Soil
 
 __all__ = ["HubFace", "HUB_KEYS", "passive_force", "hub_wrench", "EXCESS_SMOOTHING", "SPEED_SMOOTHING",
            "SPIN_SMOOTHING"]

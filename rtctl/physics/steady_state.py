@@ -1,0 +1,308 @@
+"""The rows and objective of the steady-state problem (7.25), written once for both sides.
+
+:func:`steady_state_rows` builds every constraint row of the NLP (per wheel: load (5.34) /
+(7.23), zero-slip load, wheel torque, the trench rows (7.28)-(7.29); the balance
+(7.12)-(7.18), (7.26)-(7.27), (7.32)-(7.33) with the pivot rows) and the objective (7.24)
+against :class:`rtctl.physics.backend.Backend`:
+
+* the ground side calls it with casadi's backend to build the NLP graph that IPOPT solves and
+  the table builder differentiates (``offline.rover.primitives.SteadyStateProblem``);
+* the rover calls it with :data:`~rtctl.physics.backend.NUMPY` for each tick's exact residual
+  and objective gradient at the current iterate and the measured parameters
+  (:class:`SteadyStateResidual`), so a point between grid values, or beyond a table's axes, is
+  judged by the physics itself, not by interpolated table values.
+
+With numpy the wheels are evaluated in one batched call of
+:func:`~rtctl.physics.terramechanics.wrench_core` (every wheel's wrench and zero-slip wrench,
+and with :meth:`SteadyStateResidual.evaluate` ``gradient=True`` the forward-difference
+perturbations of each wheel's own variables too: the cost of the numpy physics is in the number
+of array operations, almost not in the batch size).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .backend import NUMPY, Backend
+from .hub_drag import HubFace, hub_wrench
+from .parameters import ParameterError, Record, SoilLike, record
+from .statics import BALANCE_NAMES, FourWheelRocker
+from .terramechanics import ModelOptions, PhysParams, _SoilView, _WheelView, wrench_core
+
+__all__ = ["SteadyStateModel", "steady_state_rows", "with_hub", "SteadyStateResidual", "WHEEL_VARIABLES"]
+
+WHEEL_VARIABLES: tuple[str, ...] = ("omega", "beta", "W", "h", "h0")
+"""Per-wheel decision variables, as :data:`rtctl.layout.WHEEL_VARIABLES`."""
+
+_SOIL_KEYS = ("k", "n0", "n1", "n2", "friction_angle", "unit_weight", "cohesion", "shear_modulus", "repose_angle")
+_WHEEL_KEYS = ("radius", "width", "grouser_height", "grouser_area_ratio", "grouser_volume_fraction")
+_TUNING_KEYS = ("a0", "a1", "b0", "b1", "a0_per_rad", "a1_per_rad", "b0_per_rad", "b1_per_rad")
+_ROVER_KEYS = ("rocker_length", "pivot_height", "track_width", "weight")
+
+
+@dataclass(frozen=True)
+class SteadyStateModel:
+    """Everything besides ``x`` and ``p`` that defines the rows of (7.25).
+
+    Attributes
+    ----------
+    wheels : tuple of str
+        Wheel names in layout order.
+    phys : tuple of PhysParams
+        Per wheel: the physics parameters (its own rim radius where the wheels differ).
+    shearing_radius : tuple of float
+        Per wheel r_s = r + h_g, m (the zero-slip wheel speed is ``speed / r_s``).
+    options : ModelOptions
+        Exit-angle model and smoothings of the wheel model.
+    statics : FourWheelRocker
+        Balance (7.12)-(7.18).
+    soil : SoilLike
+        The soil (for the hub drag).
+    hub : HubFace or None
+        Hub contact on every wheel (:func:`rtctl.physics.hub_drag.hub_wrench`); None: no term.
+    external : (F_x, F_y, M_z) or None
+        Constant body-frame pull, N, N, N m; None: no term.
+    trench_wheel : str or None
+        The wheel whose trench rows (7.28)-(7.29) the layout holds.
+    torque_scale : float
+        ``W / 4 r_s``, N m: the objective is ``sum M_y^2 / torque_scale^2`` (7.24).
+    """
+
+    wheels: tuple[str, ...]
+    phys: tuple[PhysParams, ...]
+    shearing_radius: tuple[float, ...]
+    options: ModelOptions
+    statics: FourWheelRocker
+    soil: SoilLike
+    hub: HubFace | None = None
+    external: tuple[float, float, float] | None = None
+    trench_wheel: str | None = None
+    torque_scale: float = 1.0
+
+    @classmethod
+    def from_table_header(cls, header: Mapping[str, Any], wheels: Sequence[str]) -> "SteadyStateModel":
+        """The model a table was built with, from its header (``params``, ``rover``,
+        ``scenario``, ``solver_options``, ``world``): the rover's exact residual uses it.
+
+        Raises
+        ------
+        ParameterError
+            A record or key the model needs is missing or not a finite number (naming it).
+        """
+        params = header.get("params")
+        if not isinstance(params, Mapping):
+            raise ParameterError("table header: no 'params' record (soil, wheel, tuning): rebuild the table")
+        soil = record(params.get("soil") or {}, _SOIL_KEYS, "params.soil")
+        wheel = record(params.get("wheel") or {}, _WHEEL_KEYS, "params.wheel")
+        tuning = record(params.get("tuning") or {}, _TUNING_KEYS, "params.tuning")
+        rover = record(header.get("rover") or {}, _ROVER_KEYS, "rover")
+        sc = header.get("scenario") or {}
+        so = header.get("solver_options") or {}
+        world = header.get("world") or {}
+        exit_angle = str(sc.get("exit_angle", "classic"))
+        smooth = so.get("shear_direction_smoothing")
+        mo = ModelOptions(exit_angle=exit_angle)  # type: ignore[arg-type]
+        if isinstance(smooth, (int, float)):
+            mo = replace(mo, shear_direction_smoothing=float(smooth))
+        radii = world.get("wheel_radius_m")
+        wheels = tuple(wheels)
+        base = PhysParams.from_sets(soil, wheel, tuning)
+        if isinstance(radii, list) and len(radii) == len(wheels):
+            wheel_of = [wheel if float(r) == float(wheel.radius) else Record({**wheel.values, "radius": float(r)})
+                        for r in radii]
+        else:
+            wheel_of = [wheel] * len(wheels)
+        phys = tuple(base if w is wheel else PhysParams.from_sets(soil, w, tuning) for w in wheel_of)
+        rs = tuple(float(w.shearing_radius) for w in wheel_of)
+        ext = world.get("external_force")
+        external = None
+        if isinstance(ext, Mapping):
+            external = (float(ext.get("fx_N", 0.0)), float(ext.get("fy_N", 0.0)), float(ext.get("mz_Nm", 0.0)))
+        hubd = world.get("hub_contact")
+        hub = None
+        if isinstance(hubd, Mapping):
+            hub = HubFace(clearance=float(hubd["clearance_m"]), face_width=float(hubd["face_width_m"]),
+                          arm=float(hubd["arm_m"]))
+        trench = sc.get("trench")
+        tw = trench.get("wheel") if isinstance(trench, Mapping) else None
+        pitch = bool(so.get("pitch_includes_wheel_torque", True))
+        ts = float(rover.weight) / 4 * float(wheel.shearing_radius)
+        return cls(wheels, phys, rs, mo, FourWheelRocker(rover, pitch, wheels), soil, hub, external,
+                   tw if tw in wheels else None, ts)
+
+
+def with_hub(ops: Backend, model: SteadyStateModel, w: Sequence[Any], vx: Any, vy: Any, omega: Any,
+              h: Any) -> tuple[Any, ...]:
+    """A wheel's soil wrench (wheel frame, about its centre) plus the hub drag
+    (:func:`rtctl.physics.hub_drag.hub_wrench`: F_x, F_y against the travel, M_y against the
+    spin); the wrench itself, unchanged, without hub contact. The one place every path (NLP
+    graph, independent check, tables, the rover's residual) adds the term."""
+    if model.hub is None:
+        return tuple(w)
+    fx, fy, my = hub_wrench(ops, model.hub, model.soil, vx, vy, omega, h)
+    return (w[0] + fx, w[1] + fy, w[2], w[3], w[4] + my, w[5])
+
+
+def _stack_params(phys: Sequence[PhysParams], counts: Sequence[int]) -> PhysParams:
+    """One PhysParams for a batch of wheel blocks (equal wheels: the shared one)."""
+    if all(p is phys[0] or p == phys[0] for p in phys):
+        return phys[0]
+    cols = []
+    for i, _ in enumerate(PhysParams._fields):
+        cols.append(np.concatenate([np.full((n, 1), float(p[i])) for p, n in zip(phys, counts)]))
+    return PhysParams(*cols)
+
+
+def _wrenches(ops: Backend, model: SteadyStateModel, blocks: Sequence[tuple[int, Any, Any, Any, Any, Any]]
+              ) -> list[tuple[Any, ...]]:
+    """Soil wrenches of several wheel-state blocks ``(wheel index, vx, vy, omega, h, h0)``:
+    one batched :func:`wrench_core` call with numpy, one graph each with casadi."""
+    if ops is not NUMPY:
+        return [wrench_core(ops, vx, vy, om, h, h0, model.phys[i], model.options)[0] for i, vx, vy, om, h, h0 in blocks]
+    cols = []
+    for blk in blocks:
+        arrs = [np.asarray(v, dtype=float) for v in blk[1:]]
+        shape = np.broadcast_shapes(*(a.shape for a in arrs))
+        cols.append([np.broadcast_to(a, shape).reshape(-1, 1) for a in arrs])
+    counts = [c[0].shape[0] for c in cols]
+    cat = [np.concatenate([c[j] for c in cols]) for j in range(5)]
+    w, _ = wrench_core(ops, cat[0], cat[1], cat[2], cat[3], cat[4], _stack_params([model.phys[b[0]] for b in blocks], counts),
+                       model.options)
+    out, a = [], 0
+    for n in counts:
+        out.append(tuple(q[a:a + n] for q in w))
+        a += n
+    return out
+
+
+def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Sequence[Any]],
+                      P: Mapping[str, Any]) -> tuple[dict[str, Any], Any, dict[str, tuple[Any, ...]]]:
+    """Constraint rows (physical residuals, by layout row name) and objective of (7.25).
+
+    Parameters
+    ----------
+    ops : Backend
+        NUMPY (every value an array of shape ``(B, 1)`` or a float) or casadi's.
+    model : SteadyStateModel
+    x : mapping wheel -> (omega, beta, W, h, h0)
+        Physical decision variables.
+    P : mapping parameter name -> value
+        ``speed``, ``slope``, ``cross_slope``, ``fy_offset``, ``mz_offset``, ``contact <wheel>``,
+        ``pivot_locked`` (:data:`rtctl.layout.PARAMETERS`).
+
+    Returns
+    -------
+    rows : dict
+        Row name (:class:`rtctl.layout.NlpLayout` constraint names) -> physical residual.
+    f : value
+        Objective (7.24), ``sum_i M_y,i^2 / torque_scale^2`` (with each wheel's contact factor).
+    wrench : dict
+        Per wheel, the six-component wrench (contact factor and hub drag included).
+    """
+    speed = P["speed"]
+    rows: dict[str, Any] = {}
+    wr, beta, h, load, contact = {}, {}, {}, {}, {}
+    st = model.statics
+    vel = {k: st.wheel_velocity(ops, speed, x[k][1]) for k in model.wheels}
+    blocks = []
+    for i, k in enumerate(model.wheels):
+        om, b, Wi, hi, h0 = x[k]
+        vx, vy = vel[k]
+        blocks.append((i, vx, vy, om, hi, h0))
+        blocks.append((i, vx, vy, speed / model.shearing_radius[i], h0, h0))
+    ws = _wrenches(ops, model, blocks)
+    f: Any = 0
+    for i, k in enumerate(model.wheels):
+        om, b, Wi, hi, h0 = x[k]
+        vx, vy = vel[k]
+        c = P[f"contact {k}"]
+        w6 = tuple(c * q for q in with_hub(ops, model, ws[2 * i], vx, vy, om, hi))
+        w0 = ws[2 * i + 1]
+        wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
+        rows[f"load {k}"] = w6[2] - Wi
+        rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
+        rows[f"wheel torque {k}"] = w6[4]
+        f = f + w6[4] * w6[4]
+        if k == model.trench_wheel:
+            from .soil_flow import trench_quantities
+
+            ph = model.phys[i]
+            tq = trench_quantities(ops, hi, b, om, vx, _WheelView(ph), _SoilView(ph))  # type: ignore[arg-type]
+            rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
+            rows[f"trench depth {k}"] = tq["d"]
+            rows[f"trench flat width {k}"] = tq["p"]
+    bal = st.balance(ops, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"], P["cross_slope"], contact,
+                     model.external)
+    bal["My_right"], bal["My_left"] = st.pivot_rows(bal, P["pivot_locked"])
+    for n in BALANCE_NAMES:
+        rows[f"balance {n}"] = bal[n]
+    return rows, f / model.torque_scale ** 2, wr
+
+
+class SteadyStateResidual:
+    """Exact residual and objective gradient of (7.25) on the rover, in a table's layout (numpy).
+
+    Parameters
+    ----------
+    model : SteadyStateModel
+    layout : rtctl.layout.NlpLayout
+        The table's layout: variable and row order, scales (``g`` is returned physical, i.e.
+        ``row value``, not divided by the row scale, as the table's ``g``).
+    fd_step : float
+        Forward-difference step of the objective gradient, relative to each variable's scale
+        (``1e-7``: truncation ~1e-7 and rounding ~1e-9 of the gradient's scale; the objective is
+        smooth in every wheel's variables where the wheel model is, section 5 of the module
+        notes of :mod:`rtctl.physics.terramechanics`).
+    """
+
+    def __init__(self, model: SteadyStateModel, layout: Any, fd_step: float = 1e-7) -> None:
+        self.model, self.layout = model, layout
+        self.nx, self.ng = int(layout.nx), int(layout.ng)
+        self._names = list(layout.constraint_names)
+        self._var = {(v, w): int(layout.var(v, w)) for w in layout.wheels for v in WHEEL_VARIABLES}
+        self._pnames = list(layout.parameter_names)
+        self._sx = np.asarray(layout.variable_scale, dtype=float)
+        self._fd = float(fd_step)
+        # gradient perturbations: the objective depends on omega, beta, h, h0 of each wheel (not W)
+        self._grad_vars = ("omega", "beta", "h", "h0")
+
+    def evaluate(self, x: NDArray[np.float64], p: NDArray[np.float64], gradient: bool = True
+                 ) -> tuple[NDArray[np.float64], float, NDArray[np.float64] | None]:
+        """``(g, f, grad_f)`` at physical ``x`` (nx,) and parameters ``p`` (np,).
+
+        ``g`` is every row's physical residual in layout order (as the table's ``g``), ``f`` the
+        objective (7.24) and ``grad_f`` its gradient in the physical variables (forward
+        differences of the same batched evaluation; None when ``gradient`` is False).
+        """
+        model = self.model
+        P = {n: float(p[i]) for i, n in enumerate(self._pnames)}
+        wheels = model.wheels
+        ncol = 1 + (len(self._grad_vars) if gradient else 0)
+        X = np.repeat(np.asarray(x, dtype=float)[None, :], ncol, axis=0)
+        if gradient:
+            for j, v in enumerate(self._grad_vars):
+                for w in wheels:
+                    i = self._var[(v, w)]
+                    X[1 + j, i] += self._fd * self._sx[i]
+        xs = {w: tuple(X[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
+        rows, f, wr = steady_state_rows(NUMPY, model, xs, P)
+        g = np.array([float(np.asarray(rows[n]).ravel()[0]) for n in self._names])
+        fv = np.asarray(f, dtype=float).ravel()
+        grad = None
+        if gradient:
+            grad = np.zeros(self.nx)
+            ts2 = model.torque_scale ** 2
+            for w in wheels:
+                my = np.broadcast_to(np.asarray(wr[w][4], dtype=float).reshape(-1), (ncol,))
+                # column 1 + j moved variable j of every wheel at once; the objective is a sum of
+                # per-wheel terms M_y,i^2 and each wheel's wrench depends on its own variables only,
+                # so each wheel's term changes by its own share
+                for j, v in enumerate(self._grad_vars):
+                    i = self._var[(v, w)]
+                    grad[i] = (my[1 + j] ** 2 - my[0] ** 2) / ts2 / (self._fd * self._sx[i])
+        return g, float(fv[0]), grad

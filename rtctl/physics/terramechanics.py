@@ -1,0 +1,453 @@
+"""3D rigid-wheel terramechanics for any slip ratio and slip angle (dissertation ch. 5).
+
+One implementation, two uses. :func:`wrench_core` is written against
+:class:`rtctl.physics.backend.Backend`; with ``NUMPY`` it evaluates batched wheel states (on the
+ground and on the rover, for each tick's exact residual), with the ground side's ``CASADI`` it
+builds an ``SX`` graph with exact derivatives. ``offline.physics.terramechanics.WheelModel``
+wraps both (validated batched evaluation, casadi functions with Jacobians, sinkage from load).
+
+Frame and signs (Fig. 5.1): x forward along the wheel heading, y out of the wheel face,
+z up; forces and moments are exerted by the soil on the wheel, moments about the wheel
+centre. ``beta = -atan(v_y / v_x)`` (5.1); slip ratio (5.2) with ``r_s = r + h_g``; rim
+angles measured from the downward vertical, positive toward the front. ``M_y`` is the soil
+torque about +y (eq. 5.31): the motor must supply ``-M_y``.
+
+Departures from the printed text (each also noted where it happens)
+-------------------------------------------------------------------
+* (5.2) prints ``(r_s w - v) / (r w)`` for slip; the denominator is ``r_s w`` (published code).
+* (5.17) is garbled (``v_jT = v_y``). Rear skid region (theta < theta_0) has the slip shear
+  velocity (5.13) (as the text says), and the front region (5.18) follows from (5.16) with
+  ``K_v`` fixed by ``j_T(theta_0) = 0``; both integrate to (5.20) (pinned by a test).
+* (5.30), (5.32) print the lateral-shear moment with the opposite sign to the bulldozing
+  moment, although both forces act in +y below the axle. Moments here are ``r x F`` about
+  the wheel centre for every stress, which reproduces (5.31) exactly. The bulldozing lever
+  arm is the true depth of the centre of pressure below the axle,
+  ``r_s cos(theta) - h_b + h_COP``, with ``h_COP`` the first moment of the pressure (5.22)-(5.23)
+  over the blade depth; (5.33) as printed halves the cohesive terms of that ratio.
+* Locked wheel (w = 0): the deformations (5.20)-(5.21) diverge as 1/w. They are evaluated
+  as ``w j`` (finite) and ``1 - exp(-|w j| / (|w| K))`` with ``|w|`` floored at
+  ``OMEGA_FLOOR``, which gives the analytic limit ``tau = c + sigma tan(phi)`` with no
+  division by zero, in value and derivative.
+* Counter-rotation (w r_s < 0 while travelling forward, s < -1): outside the model's
+  domain. Numeric evaluation raises; the symbolic graph clips s to -1 in the empirical
+  terms (n, theta_0) and keeps the exact kinematics.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .backend import Backend, gauss_legendre, smooth_abs
+from .parameters import ParameterError, SoilLike, TuningLike, WheelLike
+
+__all__ = ["ModelOptions", "PhysParams", "wrench_core", "bulldozing_resistance", "shear_kinematics", "WRENCH_NAMES",
+           "STATE_NAMES", "DIAG_NAMES", "OMEGA_FLOOR", "SPEED_FLOOR", "SHEAR_VELOCITY_REL_EPS"]
+
+WRENCH_NAMES = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+STATE_NAMES = ("vx", "vy", "omega", "h", "h_zero_slip")
+DIAG_NAMES = ("slip", "beta", "theta_f", "theta_m", "theta_r", "theta_0", "n")
+
+OMEGA_FLOOR = 1e-9
+"""rad/s; |omega| is evaluated as sqrt(omega^2 + OMEGA_FLOOR^2) in the shear-deformation
+exponent only. At the testbed's slowest driven rim speed (3 mm/s, omega = 0.05 rad/s) the
+relative change is 2e-16."""
+
+SPEED_FLOOR = 1e-12
+"""m/s; guards v = |(v_x, v_y)| in the slip-ratio denominator (a wheel at rest)."""
+
+SHEAR_VELOCITY_REL_EPS = 1e-6
+"""Relative floor of |v_j| in the shear-direction ratio of eq. (5.11), scaled by
+(v + |r_s w|): removes the 0/0 where both shear velocities vanish. Changes tau by less than
+5e-13 relative wherever |v_j| > 1e-3 (v + |r_s w|)."""
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    """Model variant switches.
+
+    Parameters
+    ----------
+    exit_angle : {"classic", "soil_flow"}
+        theta_r from eq. (5.4) with b0, b1, or from the soil-flow trench (section 5.2.1).
+    bulldozing : {"pavlov", "hegedus", "ishigami"}
+        ``pavlov``: R_b of eq. (5.24), integrated by (5.27) (the dissertation's model);
+        ``hegedus``: the [66] form of R_b (times |sin beta|), integrated by (5.27);
+        ``ishigami``: the [58] form, integrated by (5.29) (Ishigami 2007 sidewall);
+        ``none``: no sidewall force (to study what the term contributes).
+    bulldozing_scale : float
+        Multiplier on the sidewall bulldozing resistance (1 = the published form); used by
+        the discrepancy tool to fit how much sidewall force the data ask for.
+    sidewall_projection : {"printed", "single"}
+        The inclination factor of the sidewall force in (5.27): ``|sin b| sin b`` as printed
+        (R_b of (5.24) already holds |sin b|), or a single ``sin b`` (the face normal is the
+        wheel's y axis, so the second factor only carries the sign). Ignored for ishigami.
+    nodes_per_segment : int
+        Gauss-Legendre nodes on each of the six segments between theta_r, theta_f and the
+        sorted breakpoints theta_m, theta_0 and the zeros of the tangential shear velocity
+        (the kinks and jumps of the integrand).
+    beta_smoothing : float
+        rad; |beta| in the tuning (7.8)-(7.9) is sqrt(beta^2 + eps^2) so the linear a(beta)
+        fit has no kink at beta = 0. Only matters when the tuning has beta slopes.
+    soil_flow_smoothing_deg : float
+        Width of the blend across soil-flow regime switches (passed to
+        :func:`rtctl.physics.soil_flow.exit_angle`).
+    shear_direction_smoothing : float
+        Relative floor ``eps`` of the shear-velocity magnitude in the direction ratio of
+        eq. (5.11), ``v_ji / sqrt(v_jT^2 + v_jL^2 + (eps (v + |r_s w|))^2)``. The ratio makes the
+        shear direction switch abruptly where a shear velocity crosses zero (near free rolling
+        a tiny slip angle turns most of the shear sideways), which is a near-discontinuity for
+        an optimizer; a larger ``eps`` rounds it over that velocity width.
+    """
+
+    exit_angle: Literal["classic", "soil_flow"] = "classic"
+    bulldozing: Literal["pavlov", "hegedus", "ishigami", "none"] = "pavlov"
+    bulldozing_scale: float = 1.0
+    sidewall_projection: Literal["printed", "single"] = "printed"
+    nodes_per_segment: int = 8
+    beta_smoothing: float = 1e-3
+    soil_flow_smoothing_deg: float = 1.0
+    shear_direction_smoothing: float = SHEAR_VELOCITY_REL_EPS
+
+    def __post_init__(self) -> None:
+        if self.exit_angle not in ("classic", "soil_flow"):
+            raise ValueError(f"ModelOptions.exit_angle must be 'classic' or 'soil_flow', got {self.exit_angle!r}")
+        if self.bulldozing not in ("pavlov", "hegedus", "ishigami", "none"):
+            raise ValueError(
+                f"ModelOptions.bulldozing must be 'pavlov', 'hegedus', 'ishigami' or 'none', got {self.bulldozing!r}"
+            )
+        if self.sidewall_projection not in ("printed", "single"):
+            raise ValueError(f"ModelOptions.sidewall_projection must be 'printed' or 'single', got {self.sidewall_projection!r}")
+        if not (math.isfinite(self.bulldozing_scale) and 0.0 <= self.bulldozing_scale <= 100.0):
+            raise ValueError(f"ModelOptions.bulldozing_scale must be in [0, 100], got {self.bulldozing_scale!r}")
+        if not (isinstance(self.nodes_per_segment, int) and 2 <= self.nodes_per_segment <= 200):
+            raise ValueError(f"ModelOptions.nodes_per_segment must be an int in [2, 200], got {self.nodes_per_segment!r}")
+        if not 0.0 < self.shear_direction_smoothing < 0.5:
+            raise ValueError(f"ModelOptions.shear_direction_smoothing must be in (0, 0.5), got {self.shear_direction_smoothing!r}")
+        if not 0.0 <= self.beta_smoothing < 0.1:
+            raise ValueError(f"ModelOptions.beta_smoothing must be in [0, 0.1) rad, got {self.beta_smoothing!r}")
+
+
+class PhysParams(NamedTuple):
+    """Flat parameter vector of the physics; entries may be floats or casadi symbols.
+
+    Built from the dataclasses by :meth:`from_sets`; calibration replaces entries by
+    symbols to differentiate with respect to them.
+    """
+
+    k: Any
+    n0: Any
+    n1: Any
+    n2: Any
+    phi: Any
+    rho: Any
+    c: Any
+    K: Any
+    repose: Any
+    r: Any
+    b: Any
+    hg: Any
+    mu: Any
+    zeta: Any
+    a0: Any
+    a1: Any
+    b0: Any
+    b1: Any
+    a0_beta: Any
+    a1_beta: Any
+    b0_beta: Any
+    b1_beta: Any
+
+    @classmethod
+    def from_sets(cls, soil: SoilLike, wheel: WheelLike, tuning: TuningLike | Any) -> "PhysParams":
+        """Collect the SI values of ``soil``, ``wheel`` and ``tuning``.
+
+        A :class:`~offline.physics.params.TuningTable` has no single a0..b1 and raises its
+        :class:`~rtctl.physics.parameters.ParameterError` saying to take ``tuning_at(abs_beta)``."""
+        if hasattr(tuning, "tuning_at"):  # offline.physics.params.TuningTable: one tuning per slip angle
+            raise ParameterError(f"TuningTable {getattr(tuning, 'name', '?')!r} holds one tuning per slip angle, not a single a0..b1: "
+                                 "build the model from tuning.tuning_at(abs_beta) (a ContactTuning)")
+        return cls(
+            soil.k, soil.n0, soil.n1, soil.n2, soil.friction_angle, soil.unit_weight, soil.cohesion,
+            soil.shear_modulus, soil.repose_angle, wheel.radius, wheel.width, wheel.grouser_height,
+            wheel.grouser_area_ratio, wheel.grouser_volume_fraction, tuning.a0, tuning.a1, tuning.b0,
+            tuning.b1, tuning.a0_per_rad, tuning.a1_per_rad, tuning.b0_per_rad, tuning.b1_per_rad,
+        )
+
+
+def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
+    """Bulldozing resistance of a unit-width blade of depth ``h_b`` (section 5.2.4), N/m.
+
+    .. math::
+        R_b^{\\mathrm{pavlov}} = \\tfrac12 \\rho h_b^2 \\cot^2 X_c (1 + \\tfrac12 \\cot X_c \\tan\\phi) + 2 h_b c \\cot X_c
+
+    (eq. (5.24) without its |sin beta| factor), ``hegedus`` [66] has ``(1 + cot X_c tan phi)``
+    and ``ishigami`` [58] twice the first term of [66]. ``X_c = pi/4 - phi/2``.
+    """
+    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
+    tphi = ops.tan(phi)
+    coh = 2.0 * h_b * c * cot_x
+    if form == "pavlov":
+        return 0.5 * rho * h_b**2 * cot_x**2 * (1.0 + 0.5 * cot_x * tphi) + coh
+    if form == "hegedus":
+        return 0.5 * rho * h_b**2 * cot_x**2 * (1.0 + cot_x * tphi) + coh
+    if form == "ishigami":
+        return rho * h_b**2 * cot_x**2 * (1.0 + cot_x * tphi) + coh
+    raise ValueError(f"unknown bulldozing form {form!r}")
+
+
+def _centre_of_pressure_depth(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
+    """Depth below the soil surface of the centre of bulldozing pressure, m.
+
+    First moment of the linear pressure ``sigma_b(z) = A z + C`` over ``0 <= z <= h_b``:
+    ``(A h^2 / 3 + C h / 2) / (A h / 2 + C)``; ``A``, ``C`` match the chosen R_b form so
+    that the moment is consistent with the force. (5.33) as printed uses ``C / 2``.
+    """
+    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
+    tphi = ops.tan(phi)
+    if form == "pavlov":
+        a = rho * cot_x**2 * (1.0 + 0.5 * cot_x * tphi)
+    elif form == "hegedus":
+        a = rho * cot_x**2 * (1.0 + cot_x * tphi)
+    else:
+        a = 2.0 * rho * cot_x**2 * (1.0 + cot_x * tphi)
+    cc = 2.0 * c * cot_x
+    return (a * h_b**2 / 3.0 + cc * h_b / 2.0) / (a * h_b / 2.0 + cc + 1e-30)
+
+
+@functools.lru_cache(maxsize=8)
+def _gauss_legendre_cached(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    return gauss_legendre(n)
+
+
+def shear_kinematics(
+    ops: Backend, th: Any, ct: Any, st: Any, theta_f: Any, theta_0: Any, sin_f: Any, sin_0: Any, S: Any,
+    skid: Any, vx: Any, rw: Any, vy: Any,
+) -> tuple[Any, Any, Any, Any]:
+    """Shear velocities and ``omega``-scaled deformations at rim angles ``th``.
+
+    Tangential shear velocity (soil relative to rim), eqs. (5.13), (5.16)-(5.18):
+
+    * slip, and skid rear region ``theta < theta_0``: ``v_jT = r_s w - v_x cos(theta)``
+      (the printed (5.17) ``v_jT = v_y`` is garbled; the text says the rear region is as in slip);
+    * skid front region ``theta > theta_0``: ``v_jT = v_x (S - cos(theta))`` with
+      ``S = (sin theta_f - sin theta_0) / (theta_f - theta_0)``, i.e. (5.16) with
+      ``K_v v_x = S v_x - r_s w`` fixed by ``j_T(theta_0) = 0``;
+    * lateral, (5.14): ``v_jL = -v_y``.
+
+    Deformations from (5.12) with ``d theta = -w dt``, multiplied by ``w`` so a locked
+    wheel stays finite (5.20)-(5.21):
+
+    * rear: ``w j_T = r_s w (theta_0 - theta) - v_x (sin theta_0 - sin theta)``
+      (slip: theta_0 = theta_f),
+    * front: ``w j_T = v_x (S (theta_f - theta) - (sin theta_f - sin theta))``,
+    * ``w j_L = (theta_f - theta) v_y`` (sign irrelevant: only |j| enters (5.11)).
+
+    So ``d(w j_T)/d theta = -v_jT`` in each region, ``j_T(theta_f) = 0`` and ``j_T`` is
+    continuous (zero) at ``theta_0`` (tests pin all three).
+
+    Returns
+    -------
+    vjT, vjL, jt_w, jl_w
+    """
+    front = skid * (th > theta_0)  # logical and, valid for numpy bools and casadi 0/1
+    vct = vx * ct  # shared node arrays (fewer temporaries on the numpy path)
+    vst = vx * st
+    dth = theta_f - th
+    vjT = ops.where(front, vx * S - vct, rw - vct)
+    vjL = -vy  # per state; broadcasts against the nodes
+    jt_w = ops.where(front, (vx * S) * dth - vx * sin_f + vst, rw * (theta_0 - th) - vx * sin_0 + vst)
+    jl_w = dth * vy
+    return vjT, vjL, jt_w, jl_w
+
+
+def wrench_core(
+    ops: Backend,
+    vx: Any,
+    vy: Any,
+    omega: Any,
+    h: Any,
+    h_zero_slip: Any,
+    p: PhysParams,
+    options: ModelOptions,
+) -> tuple[tuple[Any, ...], dict[str, Any]]:
+    """Six-component soil wrench on a rigid wheel, eqs. (5.1)-(5.33), backend-generic.
+
+    Parameters
+    ----------
+    ops : Backend
+        :data:`offline.physics.backend.NUMPY` (arguments of shape ``(B, 1)``) or ``CASADI``
+        (scalar ``SX``).
+    vx, vy : array or SX
+        Wheel-frame velocity of the wheel centre, m/s.
+    omega : array or SX
+        Wheel angular speed, rad/s (positive rolls the wheel toward +x).
+    h : array or SX
+        Sinkage at the shearing radius, m (theta_f = acos(1 - h / r_s)).
+    h_zero_slip : array or SX
+        Sinkage the wheel would have at zero slip under the same load; fixes
+        ``theta_f0`` and hence theta_m0 and theta_r0 in skid (eqs. 5.3-5.4).
+    p : PhysParams
+        Parameters (floats or casadi symbols).
+    options : ModelOptions
+
+    Returns
+    -------
+    wrench : tuple
+        ``(Fx, Fy, Fz, Mx, My, Mz)`` in N and N m.
+    diagnostics : dict
+        ``slip``, ``beta``, ``theta_f``, ``theta_m``, ``theta_r``, ``theta_0``, ``n``.
+    """
+    rs = p.r + p.hg
+    # Travel toward -x is the x-mirror image of travel toward +x (F_x, M_y, M_z flip sign).
+    sgn = ops.where(vx < 0, -1.0, 1.0)
+    vxp = sgn * vx
+    wp = sgn * omega
+    v = ops.sqrt(vxp * vxp + vy * vy + SPEED_FLOOR**2)
+    beta = ops.arctan2(-vy, vxp)  # eq. (5.1)
+    sin_b = -vy / v
+    abs_b = smooth_abs(ops, beta, options.beta_smoothing)
+
+    # Slip ratio, eq. (5.2) (denominator r_s w in slip, see module notes).
+    rw = rs * wp
+    skid = rw < v
+    s_raw = ops.where(skid, (rw - v) / v, (rw - v) / ops.fmax(rw, SPEED_FLOOR))
+    s = ops.fmax(s_raw, -1.0)
+
+    # Sinkage exponent, eq. (5.6).
+    n = p.n0 + ops.where(skid, -p.n2 * s, p.n1 * s)
+
+    # Contact angles, eqs. (5.3)-(5.4).
+    theta_f = ops.arccos(1.0 - h / rs)
+    theta_f0 = ops.arccos(1.0 - h_zero_slip / rs)
+    a0 = p.a0 + p.a0_beta * abs_b
+    a1 = p.a1 + p.a1_beta * abs_b
+    b0 = p.b0 + p.b0_beta * abs_b
+    b1 = p.b1 + p.b1_beta * abs_b
+    theta_m = ops.where(skid, a0 * theta_f0, theta_f * (a0 + a1 * s))
+    if options.exit_angle == "classic":
+        theta_r = ops.where(skid, b0 * theta_f0, theta_f * (b0 + b1 * s))
+    else:
+        from .soil_flow import exit_angle  # local: soil flow is only needed for this variant
+
+        theta_r = exit_angle(
+            ops, h, beta, wp, vxp, _WheelView(p), _SoilView(p), smoothing_deg=options.soil_flow_smoothing_deg
+        )
+    theta_r = ops.fmin(theta_r, 0.0)
+    # Keep theta_r < theta_m < theta_f (a tuning can push theta_m0 past a shallower skid theta_f).
+    span = theta_f - theta_r
+    theta_m = ops.fmin(ops.fmax(theta_m, theta_r + 1e-6 * span), theta_f - 1e-6 * span)
+
+    # Skid transition angle, eq. (5.15): theta_0 = theta_f (1 + (w r_s - v) / (2 v)).
+    theta_0 = ops.where(skid, theta_f * (1.0 + 0.5 * s), theta_f)
+    d0 = theta_f - theta_0
+    sin_f = ops.sin(theta_f)
+    sin_0 = ops.sin(theta_0)
+    cos_f = ops.cos(theta_f)
+    # S = (sin theta_f - sin theta_0) / (theta_f - theta_0) of (5.18); -> cos theta_f as d0 -> 0.
+    big = d0 > 1e-7
+    S = ops.where(big, (sin_f - sin_0) / ops.where(big, d0, 1.0), cos_f + 0.5 * sin_f * d0)  # mean of cos: > cos_f
+
+    # Quadrature: Gauss-Legendre segments split at every kink and jump of the integrand:
+    # theta_m (5.8), theta_0 (5.15), and the zeros of v_jT, where tau_T ~ v_jT / |v_j|
+    # changes sign (a jump when v_y = 0): acos(S) in the skid front region and
+    # +/- acos(r_s w / v_x) in the rear region (absent in slip, where r_s w > v_x).
+    one = 1.0 - 1e-12
+    theta_1 = ops.where(skid, ops.arccos(ops.clip(S, -one, one)), theta_f)
+    ratio = rw / ops.fmax(vxp, SPEED_FLOOR)
+    theta_star = ops.arccos(ops.clip(ratio, -one, one))
+    breaks = [theta_m, theta_0, theta_1, theta_star, -theta_star]
+    breaks = [ops.fmin(ops.fmax(b_, theta_r), theta_f) for b_ in breaks]
+    for i in range(len(breaks)):  # sorting network (bubble) of fmin/fmax: continuous, differentiable a.e.
+        for j in range(len(breaks) - 1 - i):
+            lo_, hi_ = ops.fmin(breaks[j], breaks[j + 1]), ops.fmax(breaks[j], breaks[j + 1])
+            breaks[j], breaks[j + 1] = lo_, hi_
+    x_gl, w_gl = _gauss_legendre_cached(options.nodes_per_segment)
+    xn, wn = ops.nodes(x_gl), ops.nodes(w_gl)
+    thetas, weights = [], []
+    edges = [theta_r, *breaks, theta_f]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        half = 0.5 * (hi - lo)
+        thetas.append(0.5 * (hi + lo) + half * xn)
+        weights.append(half * wn)
+    th = ops.cat(thetas)
+    wq = ops.cat(weights)
+    ct = ops.cos(th)
+    st = ops.sin(th)
+
+    # Normal stress, eqs. (5.7)-(5.9).
+    theta_e = ops.where(th >= theta_m, th, theta_f - (th - theta_r) / (theta_m - theta_r) * (theta_f - theta_m))
+    # floors keep second derivatives finite at quadrature nodes that coincide with theta_f
+    # (zero-length segments): 1e-300 made log''/sqrt'' overflow to inf, and 0 * inf = NaN in
+    # IPOPT's Hessian. sigma ~ base^n, so the 1e-12 floor changes stresses by < 1e-15 Pa.
+    base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-12)
+    radial = p.mu * ops.exp(n * ops.log(rs)) + (1.0 - p.mu) * ops.exp(n * ops.log(p.r))
+    sigma = p.k * radial * ops.exp(n * ops.log(base))
+
+    # Shear velocities (5.13)-(5.19) and deformations (5.20)-(5.21), both multiplied by w.
+    vjT, vjL, jt_w, jl_w = shear_kinematics(ops, th, ct, st, theta_f, theta_0, sin_f, sin_0, S, skid, vxp, rw, vy)
+    j_w = ops.sqrt(jt_w * jt_w + jl_w * jl_w + 1e-24)  # floor 1e-12 m/s (w j), see above
+    w_abs = ops.sqrt(wp * wp + OMEGA_FLOOR**2)
+    shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
+    eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
+    vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
+    tau_max = (p.c + sigma * ops.tan(p.phi)) * shear_fraction / vj
+    tauT = vjT * tau_max
+    tauL = vjL * tau_max
+
+    # Sidewall bulldozing, eqs. (5.22)-(5.25).
+    sin_r = ops.sin(theta_r)
+    cos_r = ops.cos(theta_r)
+    h_b = (st - sin_r) / (sin_f - sin_r + 1e-15) * (cos_r - cos_f) * rs - (cos_r - ct) * rs
+    h_b = ops.fmax(h_b, 0.0)
+    form = "pavlov" if options.bulldozing == "none" else options.bulldozing
+    scale = 0.0 if options.bulldozing == "none" else options.bulldozing_scale
+    if form == "ishigami":
+        # eq. (5.29) with Ishigami 2007's blade depth: the local sinkage below the entry
+        # height, h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
+        h_b = ops.fmax(rs * (ct - cos_f), 0.0)
+        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        dfy_bull = (1.0 - h_b * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
+    else:
+        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        # eq. (5.27) with R_b of (5.24) including its |sin beta| ("printed"), or the face
+        # normal's single sin(beta) ("single")
+        proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b
+        dfy_bull = r_b * proj * ct
+    h_cop = _centre_of_pressure_depth(ops, h_b, p.rho, p.c, p.phi, form)
+    arm_x = rs * ct - h_b + h_cop  # depth of the centre of pressure below the axle
+
+    area = rs * p.b
+    Fx = area * ops.qsum(wq * (-sigma * st + tauT * ct))  # (5.26)
+    Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28)
+    Fy = area * ops.qsum(wq * tauL) + rs * ops.qsum(wq * dfy_bull)  # (5.27) / (5.29)
+    My = -rs * area * ops.qsum(wq * tauT)  # (5.31)
+    Mx = rs * area * ops.qsum(wq * tauL * ct) + rs * ops.qsum(wq * dfy_bull * arm_x)  # r x F, cf. (5.30)
+    Mz = rs * area * ops.qsum(wq * tauL * st) + rs * ops.qsum(wq * dfy_bull * rs * st)  # r x F, cf. (5.32)
+
+    wrench = (sgn * Fx, Fy, Fz, Mx, sgn * My, sgn * Mz)
+    diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,
+            "theta_0": theta_0, "n": n}
+    return wrench, diag
+
+
+class _WheelView:
+    """Duck-typed Wheel whose fields may be symbolic (for the soil-flow exit angle)."""
+
+    def __init__(self, p: PhysParams) -> None:
+        self.radius, self.width, self.grouser_height = p.r, p.b, p.hg
+        self.grouser_area_ratio, self.grouser_volume_fraction = p.mu, p.zeta
+        self.shearing_radius = p.r + p.hg
+
+
+class _SoilView:
+    """Duck-typed Soil whose fields may be symbolic (for the soil-flow exit angle)."""
+
+    def __init__(self, p: PhysParams) -> None:
+        self.repose_angle, self.friction_angle, self.cohesion = p.repose, p.phi, p.c
+        self.unit_weight = p.rho

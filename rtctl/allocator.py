@@ -374,6 +374,84 @@ class QpAllocator:
         return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
                           slack, float(res.info.obj_val))
 
+    def solve_at(self, x_lin: NDArray[np.float64], g: NDArray[np.float64], grad_f: NDArray[np.float64],
+                 jac_g_x: NDArray[np.float64] | None, box: tuple[NDArray[np.float64], NDArray[np.float64]],
+                 lbg: NDArray[np.float64] | None = None, ubg: NDArray[np.float64] | None = None,
+                 x_ref: NDArray[np.float64] | None = None) -> Allocation:
+        """One real-time iteration of (7.25): the QP linearised at the iterate ``x_lin``.
+
+        The residual ``g`` (every row, physical), the objective gradient ``grad_f`` and, if
+        given, the rows' Jacobian ``jac_g_x`` are the exact ones at ``x_lin`` and the measured
+        parameters (:class:`rtctl.physics.steady_state.SteadyStateResidual`); the Hessian is the
+        prepared table point's (:meth:`prepare`), and so is the Jacobian where ``jac_g_x`` is
+        None. The step ``z = (x - x_lin) / s_x`` solves
+
+        .. math::
+
+            \\min\\ \\tfrac12 z^T \\bar H z + \\bar g(x_{lin})^T z + \\text{slack penalties}
+                + w\\,\\|z_c - z_{c,ref}\\|^2
+            \\quad\\text{s.t.}\\quad l_g \\le \\frac{g(x_{lin}, p) + J\\, S_x z}{s_g} - \\sigma^+ + \\sigma^- \\le u_g,
+
+        so its fixed point (``z = 0``, zero slack) is a KKT point of the NLP itself whenever the
+        Jacobian is exact, wherever the table's grid is; the slack is zero only when the exact
+        residual of the linearised step is met. Returns the new iterate ``x_lin + S_x z``.
+        """
+        if not self._prepared:
+            raise AllocatorError("solve_at() before prepare(): load a table point first")
+        s = self.settings
+        sx, sg = self.sx, self.sg
+        x_lin = np.asarray(x_lin, dtype=float)
+        g = np.asarray(g, dtype=float)
+        grad = np.asarray(grad_f, dtype=float)
+        if x_lin.shape != (self.nx,) or g.shape != (self.ng,) or grad.shape != (self.nx,):
+            raise AllocatorError(f"solve_at: x, g, grad_f of shapes {x_lin.shape}, {g.shape}, {grad.shape}; expected "
+                                 f"({self.nx},), ({self.ng},), ({self.nx},)")
+        zlo = (np.asarray(box[0], dtype=float) - x_lin) / sx
+        zhi = (np.asarray(box[1], dtype=float) - x_lin) / sx
+        lg = (self._lbg if lbg is None else np.asarray(lbg, dtype=float) / sg) - g / sg
+        ug = (self._ubg if ubg is None else np.asarray(ubg, dtype=float) / sg) - g / sg
+        finite = math.isfinite(float(x_lin.sum() + g.sum() + grad.sum()))
+        if jac_g_x is not None:
+            J = np.asarray(jac_g_x, dtype=float)
+            finite = finite and J.shape == (self.ng, self.nx) and math.isfinite(float(J.sum()))
+        if not (finite and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
+            return self._refused("bad QP data (non-finite iterate, residual or Jacobian, or empty box)")
+        if jac_g_x is not None:
+            Ax = self._a_data.copy()
+            Ax[self._a_jac_pos_arr] = (J * self._sx_over_sg).T.ravel()
+            self._Ax = Ax
+            self._solver.update(Ax=Ax)
+        q = self._q_base.copy()
+        q[:self.nx] = sx * grad / self._cf
+        if x_ref is not None:
+            zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - x_lin) / sx)
+            q[:self.nx] -= 2.0 * self._w * zr
+        l = np.concatenate([lg, zlo, self._l_tail])
+        u = np.concatenate([ug, zhi, self._u_tail])
+        np.clip(l, -_INF, _INF, out=l)
+        np.clip(u, -_INF, _INF, out=u)
+        self._solver.update(q=q, l=l, u=u)
+        zw = np.concatenate([np.clip(np.zeros(self.nx), zlo, zhi), np.zeros(2 * self.ng)])
+        self._solver.warm_start(x=zw, y=self._last_y)
+        self._q, self._l, self._u = q, l, u
+        res = self._solver.solve(raise_error=False)
+        self.last_solution = np.array(res.x, dtype=float) if res.x is not None else np.full(self.n, np.nan)
+        status = str(res.info.status)
+        it = int(res.info.iter)
+        zf = res.x
+        if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or zf is None or not np.all(np.isfinite(zf)):
+            self._last_y = None
+            return Allocation(x_lin.copy(), np.zeros(self.nx), False, f"OSQP: {status}", it, math.inf, math.nan)
+        z = np.clip(zf[:self.nx], zlo, zhi)
+        sig = np.maximum(zf[self.nx:], 0.0)
+        slack = float(np.max(sig[:self.ng] + sig[self.ng:])) if self.ng else 0.0
+        dx = z * sx
+        x = x_lin + dx
+        self._last_y = np.asarray(res.y, dtype=float).copy()
+        ok = slack <= s.balance_tolerance
+        return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
+                          slack, float(res.info.obj_val))
+
     def _refused(self, why: str, iterations: int = 0) -> Allocation:
         return Allocation(self._x0.copy(), np.zeros(self.nx), False, why, iterations, math.inf, math.nan)
 

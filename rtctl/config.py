@@ -271,8 +271,6 @@ class QpSettings:
         matches the table's own sensitivity dx*/dp to ~0.2 % (1 % at 1e-2).
     command_weight : float
         Weight on the change of the commanded variables from the previous command (smoothness).
-    trust_scale : float
-        Multiplier of the table's verified trust radius.
     max_iter : int
         OSQP iteration budget per solve. 4000: the warm-started ADMM needs more than 1000 on the
         strongly slipping primitives of the rim-speed cap tables (measured: 196 of 253 ticks fell
@@ -283,22 +281,32 @@ class QpSettings:
         Largest accepted slack of a model row (scaled units: 0.5 = half the rover's weight in a
         force row) before the step is refused and the fallback used; smaller slacks (a rate limit
         that keeps the balance out of reach for a tick) are commanded and reported.
+    step_limit : float
+        Trust region of one real-time iteration: the largest step of each variable from the
+        iterate, in variable scales (the step in x is limited; the measured parameters never are).
+    exact_jacobian : bool
+        Linearise the rows with their exact Jacobian at the iterate (structured forward
+        differences of the shared physics, :class:`rtctl.physics.steady_state.SteadyStateResidual`):
+        the iteration's fixed point is then the NLP's KKT point anywhere. False: the table's
+        interpolated Jacobian (exact residual and gradient still; the fixed point is then off by
+        the Jacobian's interpolation error times the multipliers).
     """
 
     slack_l1: float = 10.0
     slack_l2: float = 100.0
     regularization: float = 1e-3
     command_weight: float = 1e-3
-    trust_scale: float = 1.0
     max_iter: int = 4000
     eps: float = 1e-6
     balance_tolerance: float = 0.5
+    step_limit: float = 0.5
+    exact_jacobian: bool = True
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
-            "trust_scale": _key("trust_scale", check=_pos),
             "max_iter": _key("max_iter", check=lambda v: None if (v >= 10 and v == int(v)) else "must be an integer >= 10"),
-            "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos)}
+            "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos),
+            "step_limit": _key("step_limit", check=_pos), "exact_jacobian": _key("exact_jacobian")}
 
 
 _SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
@@ -412,6 +420,11 @@ def _section(klass: type, table: Any, sec: str, source: str) -> Any:
     names = {f.name for f in fields(klass)}
     for tkey, value in table.items():
         attr, s = by_toml[tkey]
+        if attr in names and isinstance(getattr(klass(), attr), bool):  # a switch: true or false only
+            if not isinstance(value, bool):
+                raise ConfigError(f"{source}: [{sec}] {tkey} = {value!r}: expected true or false")
+            kw[attr] = value
+            continue
         raw = _number(value, sec, tkey, source)
         v = s["conv"](raw) if s["conv"] else raw
         err = s["check"](v) if s["check"] else None
@@ -475,10 +488,11 @@ slack_l1 = 10.0
 slack_l2 = 100.0
 regularization = 1e-3
 command_weight = 1e-3
-trust_scale = 1.0
 max_iter = 4000
 eps = 1e-6
 balance_tolerance = 0.5
+step_limit = 0.5            # variable scales: the real-time iteration's step in x (never the parameters)
+exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 
 [timing]
 period = 0.2

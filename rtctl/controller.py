@@ -4,33 +4,44 @@
 the same sequence of measurements gives the same commands bit for bit; there is no clock, no
 randomness and no global state (the 5 Hz clock and the deadline are :mod:`rtctl.runner`'s).
 
-Each tick is split as in real-time-iteration NMPC (acados' SQP-RTI):
+Each tick is one real-time iteration of the steady-state problem (7.25) (acados' SQP-RTI), split
+as there:
 
 * **feedback** (:meth:`Controller.feedback`, on the new measurement): input checks, EKF predict
-  and update, outer loop, the QP's vectors, one warm-started OSQP solve, command checks;
+  and update, outer loop, then the QP linearised at the current iterate ``x_k`` and the
+  *measured* parameters ``p`` (speed, slope, cross slope, the offsets of (7.26)-(7.27)): the
+  residual of every row, the objective gradient and the rows' Jacobian are evaluated exactly
+  there with the shared numpy physics (:class:`rtctl.physics.steady_state.SteadyStateResidual`,
+  the same rows the NLP is built from), one warm-started OSQP solve gives ``x_{k+1}``, which
+  is commanded and carried to the next tick;
 * **preparation** (:meth:`Controller.prepare`, after the commands are out, for the next tick):
   table choice from the declared failures and the operator's task (``Measurements.task``, e.g.
   ``Task("trench", "RR", 0.02)``: the trench table of that wheel, read at that depth), table
-  interpolation at the operating point (measured slope and cross slope, the travel speed shifted
-  by the EKF's slip, the failure's or task's own parameter), the QP's matrix values and OSQP's
-  refactorisation.
+  interpolation at the operating point (measured slope and cross slope clamped into the table's
+  axes, the travel speed shifted by the EKF's slip, the failure's or task's own parameter): the
+  table supplies the Lagrangian Hessian, bounds and active-set hints, and the starting iterate
+  when a table is (re)entered.
 
-:meth:`Controller.step` is feedback then preparation.
+:meth:`Controller.step` is feedback then preparation. At a constant operating point the
+iterates converge to the NLP's optimum at that point, between grid points and beyond a table's
+axes alike (a parameter outside the axes is never clipped: it enters through the exact
+residual; only the step in ``x`` is limited, by ``[qp] step_limit`` variable scales). A table
+whose header does not define the model (no ``params`` / ``rover`` records: a hand-made table)
+is driven on its own first-order model at the iterate, flagged on every tick.
 
 Outer loop (section 7.2.4): the heading error and the cross-track error to a straight reference
-line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27); the QP turns them
-into wheel changes through the table's parameter Jacobian, which to first order *is* the table's
-steering controller (the re-solve with an offset minus the primitive). By default the gains
-reach the offsets at which the table's steering controllers were computed (the table's
-``controller_offsets``; Table 7.2's +/-0.2 N m and +/-1 N if it does not say) at 5 deg of
-heading error and 5 cm of cross-track error. The offsets are clamped to the configured maxima;
-the other parameters (speed, slope, cross slope) to the table's verified trust radius. The
-trust region of the step is ``|dx*/dp|`` times those ranges (plus 10 % of each variable's
-scale), i.e. as far as the verified linear model moves the primitive.
+line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27), which enter the
+balance rows exactly; by default the gains reach the offsets at which the table's steering
+controllers were computed (the table's ``controller_offsets``; Table 7.2's +/-0.2 N m and
++/-1 N if it does not say) at 5 deg of heading error and 5 cm of cross-track error. The offsets
+are clamped to the configured maxima.
 
-Slip correction: where the EKF's slip departs from the primitive's, the model is corrected
-rather than ignored. (a) Operating-point shift: the table is read at the speed ``v (1 - s0) /
-(1 - s_hat)``, whose primitive makes the real rover (slipping at ``s_hat``) travel at ``v``.
+Slip correction: where the EKF's slip departs from the model's, the model is corrected rather
+than ignored. (a) Operating-point shift: the speed parameter is ``v (1 - s_k) / (1 - s_hat)``,
+with ``s_k`` the rover-level slip of the *iterate* (the model at the measured slope and cross
+slope), so that the real rover, slipping at ``s_hat``, travels at ``v``. (Before the real-time
+iteration this used the slip of the table's grid primitive at cross slope 0: on a 6 deg cross
+slope the real rover slips more than that primitive, and the shift sped the rover up by 16-33 %.)
 (b) Force bias: a steady crab ``alpha_hat`` means the real rover balances with a lateral speed
 ``v tan(alpha_hat)`` the model does not have; the model's lateral force and yaw moment at that
 speed (from the wheels' wrench Jacobians, eqs. (7.6)-(7.7) and (7.13), (7.18)) are added to the
@@ -61,6 +72,8 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
+from .physics.parameters import ParameterError
+from .physics.steady_state import SteadyStateModel, SteadyStateResidual
 from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
 _Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
@@ -213,8 +226,9 @@ class _Prepared:
     point: Any
     allocator: QpAllocator
     idx: _Index
-    trust_dp: NDArray[np.float64]
-    trust_box: NDArray[np.float64]
+    residual: SteadyStateResidual | None
+    free_rows: NDArray[np.bool_]
+    step_box: NDArray[np.float64]
     gains: tuple[float, float]
     crab_sensitivity: tuple[float, float]
     primitive_slip: float
@@ -251,6 +265,18 @@ class Controller:
         self.config = config
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
+        self._residuals: dict[str, SteadyStateResidual | None] = {}
+        self._no_model: dict[str, str] = {}
+        for k, t in self.tables.items():
+            try:
+                self._residuals[k] = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, t.layout.wheels),
+                                                         t.layout)
+            except (ParameterError, KeyError, TypeError, ValueError) as exc:
+                # a table without the model's record (a hand-made or synthetic table): driven on its own
+                # linearisation, always flagged (module docstring)
+                self._residuals[k] = None
+                self._no_model[k] = (f"table {k}: no exact residual ({exc}); the QP's residual is the table's "
+                                     "first-order model at the iterate")
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = "nominal" if "nominal" in nominal else (nominal[0] if nominal else next(iter(self.tables)))
         if config.default_table:
@@ -326,6 +352,10 @@ class Controller:
         self._prep: _Prepared | None = None
         self._table_error = ""
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
+        self._iterate: NDArray[np.float64] | None = None
+        """The real-time iteration's iterate (physical x of the prepared table), carried from tick to tick."""
+        self._iterate_table = ""
+        self._last_p: NDArray[np.float64] | None = None
         self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
         if self._prep is None:
@@ -386,22 +416,18 @@ class Controller:
             self._count("table_point_refused")
             self._table_error = str(exc)
             return
-        trust = np.asarray(tp.trust_radius, dtype=float) * cfg.qp.trust_scale
-        if trust.shape != (lay.np_,):
-            trust = np.full(lay.np_, np.inf)
         ix = self._index[name]
-        ol = cfg.outer_loop
-        trust = trust.copy()
-        trust[ix.mz], trust[ix.fy] = ol.max_mz_offset, ol.max_fy_offset  # the outer loop's own clamp
-        varying = ix.varying
-        dxdp = np.abs(np.asarray(tp.dx_dp, dtype=float))[:, varying]
-        r = trust[varying]
-        box = dxdp @ np.where(np.isfinite(r), r, 0.0) + 0.1 * alloc.sx
-        box = np.where(np.any((dxdp > 0) & ~np.isfinite(r)[None, :], axis=1), np.inf, box)
+        lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
+        free = (lbg <= -1e20) & (ubg >= 1e20)  # rows that constrain nothing (see _BoundedRows)
+        free[[int(j) for j in ix.torque if j >= 0]] = False
+        if self._iterate_table != name or self._iterate is None:  # a new table: start from its primitive
+            self._iterate, self._iterate_table = alloc.x0, name
         gains = self._gains(table)
-        self._prep = _Prepared(name, tp, alloc, ix, trust, box, gains, self._crab_sensitivity(table, tp, ix),
-                               self._primitive_slip(tp, ix), factor, tuple(sorted(tp.operating_point.items())),
-                               self.signatures[name], tuple(flags))
+        if name in self._no_model:
+            flags.append(self._no_model[name])
+        self._prep = _Prepared(name, tp, alloc, ix, self._residuals[name], free, cfg.qp.step_limit * alloc.sx, gains,
+                               self._crab_sensitivity(table, tp, ix), self._primitive_slip(self._iterate, tp, ix),
+                               factor, tuple(sorted(tp.operating_point.items())), self.signatures[name], tuple(flags))
 
     def _operating_point(self, table: Any, v: float, flags: list[str]) -> dict[str, float]:
         """The table's axes at table speed ``v``: filtered IMU slope and cross slope, the declared
@@ -497,12 +523,13 @@ class Controller:
         return [not any((w, k) in self._failures for k in ("locked", "unpowered", "raised")) and (w, "trench") != task
                 for w in WHEELS]
 
-    def _primitive_slip(self, tp: Any, ix: _Index) -> float:
-        """Rover-level slip of the primitive, by the EKF's own odometry definition."""
-        x = tp.x
+    def _primitive_slip(self, x: NDArray[np.float64], tp: Any, ix: _Index) -> float:
+        """Rover-level slip of the model's solution ``x`` (the real-time iteration's iterate: the
+        model at the measured slope and cross slope, not the table's grid primitive), by the
+        EKF's own odometry definition, at the travel speed of the table point."""
         om, be = x[ix.om].tolist(), x[ix.be].tolist()
         v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self._radii(), 1.0)
-        v = float(tp.p[ix.speed])
+        v = float(self._last_p[ix.speed]) if self._last_p is not None and x is self._iterate else float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
     def _crab_sensitivity(self, table: Any, tp: Any, ix: _Index) -> tuple[float, float]:
@@ -629,16 +656,28 @@ class Controller:
         p[ix.cross] = self._cross
         p[ix.fy] = fy + fy_bias
         p[ix.mz] = mz + mz_bias
-        p0 = prep.allocator.p0
-        dp = np.clip(p - p0, -prep.trust_dp, prep.trust_dp)
-        p = p0 + dp
-        box, lbg, ubg = self._bounds(prep, dt)
-        res = prep.allocator.solve(p, box, lbg, ubg, x_ref=self._x_of_commands(prep))
+        # one real-time iteration of (7.25) at the measured parameters (never clipped to the
+        # table: a parameter beyond the axes enters through the exact residual)
+        xk = self._iterate if self._iterate is not None and self._iterate_table == prep.table else prep.allocator.x0
+        box, lbg, ubg = self._bounds(prep, dt, xk)
+        if prep.residual is not None:
+            g, _, grad, jac = prep.residual.evaluate(xk, p, jacobian=self.config.qp.exact_jacobian)
+        else:
+            self._count("linearised_residual_ticks")
+            g, grad, jac = _linearised(prep.point, xk, p)
+        if prep.free_rows.any():
+            g = np.where(prep.free_rows, 0.0, g)
+            if jac is not None:
+                jac = np.where(prep.free_rows[:, None], 0.0, jac)
+        res = prep.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
         self._last_qp = (prep.allocator, prep.allocator.snapshot())
+        self._last_p = p
         if not res.ok:
             self._count("qp_fallbacks")
+            self._iterate = None  # restart from the table's primitive at the next preparation
             return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
                                   float(p[ix.fy]), verdict, res)
+        self._iterate, self._iterate_table = res.x, prep.table
         rim, steer = self._commands_from_x(prep, res.x)
         rim, steer = self._limit(rim, steer, dt)
         cmd = Commands(t, seq, rim, steer)
@@ -759,17 +798,18 @@ class Controller:
         fy = k_y * e_y + ol.crosstrack_integral * self._int_y
         return min(max(mz, -mz_max), mz_max), min(max(fy, -fy_max), fy_max)
 
-    def _bounds(self, prep: _Prepared, dt: float) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]],
-                                                           NDArray[np.float64], NDArray[np.float64]]:
-        """Physical box on x (failures > actuators > table > rate limits > trust region) and
-        the constraint bounds with the declared torque failures."""
+    def _bounds(self, prep: _Prepared, dt: float, xk: NDArray[np.float64] | None = None
+                ) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64], NDArray[np.float64]]:
+        """Physical box on x (failures > actuators > table > rate limits > step limit around the
+        iterate ``xk``, default the table's primitive) and the constraint bounds with the
+        declared torque failures."""
         act = self.config.actuators
         alloc = prep.allocator
         lay = alloc.layout
         rs = self.wheel_radius  # actuator limits and rates are on rim-speed commands
         off = self.steer_offset if self._offset_on else 0.0
         tlo, thi = alloc.table_bounds
-        x0 = alloc.x0
+        x0 = alloc.x0 if xk is None else xk
         nx = lay.nx
         alo, ahi = np.full(nx, -np.inf), np.full(nx, np.inf)
         rlo, rhi = np.full(nx, -np.inf), np.full(nx, np.inf)
@@ -811,13 +851,13 @@ class Controller:
                 else:
                     lbg[j], ubg[j] = -f[(w, "torque_limit")], f[(w, "torque_limit")]
         rlo[fixed], rhi[fixed] = -np.inf, np.inf
-        tb = prep.trust_box
+        tb = prep.step_box
         zlo, zhi = np.where(fixed, -np.inf, x0 - tb), np.where(fixed, np.inf, x0 + tb)
         lo, hi = merge_bounds(lo, hi, (rlo, rhi), (zlo, zhi))
         return (lo, hi), lbg, ubg
 
-    def _x_of_commands(self, prep: _Prepared) -> NDArray[np.float64]:
-        x = prep.allocator.x0
+    def _x_of_commands(self, prep: _Prepared, base: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        x = prep.allocator.x0 if base is None else np.array(base, dtype=float)
         rim, steer = self._prev_cmd
         x[prep.idx.om] = np.array(rim) / self.wheel_radius
         x[prep.idx.be] = np.array(steer) + self.steer_offset if self._offset_on else steer
@@ -903,6 +943,19 @@ class Controller:
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
             counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
+
+
+def _linearised(tp: Any, x: NDArray[np.float64], p: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], None]:
+    """The table point's first-order model of the residual and objective gradient at ``(x, p)``
+    (for a table whose header does not define the physics; flagged by the caller)."""
+    dx, dp = x - np.asarray(tp.x, dtype=float), p - np.asarray(tp.p, dtype=float)
+    g = np.asarray(tp.g, dtype=float) + np.asarray(tp.jac_g_x, dtype=float) @ dx + np.asarray(tp.jac_g_p, dtype=float) @ dp
+    grad = np.asarray(tp.grad_f, dtype=float) + np.asarray(tp.hess_lag, dtype=float) @ dx
+    hxp = getattr(tp, "hess_lag_xp", None)
+    if hxp is not None:
+        grad = grad + np.asarray(hxp, dtype=float) @ dp
+    return g, grad, None
 
 
 def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:

@@ -31,7 +31,8 @@ def _casadi_reference(t):
 
     spec = spec_from_table(t)
     pb = _problem(spec.scenario, spec.solver)
-    grad = ca.Function("grad", [pb.symbols["x"], pb.symbols["p"]], [ca.gradient(pb.symbols["f"], pb.symbols["x"])])
+    xs, ps = pb.symbols["x"], pb.symbols["p"]
+    grad = ca.Function("grad", [xs, ps], [ca.gradient(pb.symbols["f"], xs), ca.jacobian(pb.symbols["g"], xs)])
     return pb, grad
 
 
@@ -41,6 +42,8 @@ def test_numpy_residual_equals_the_nlp_graph_off_the_grid(name):
     lay = t.layout
     res = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, lay.wheels), lay)
     pb, grad = _casadi_reference(t)
+    free = (t.at(**t.grid_point(tuple(np.argwhere(t.feasible)[0]))).lbg <= -1e20)  # rows without bounds
+    free &= t.at(**t.grid_point(tuple(np.argwhere(t.feasible)[0]))).ubg >= 1e20
     xsc, gsc = np.asarray(lay.variable_scale), np.asarray(lay.constraint_scale)
     rng = np.random.default_rng(7)
     feas = np.argwhere(t.feasible)
@@ -54,13 +57,22 @@ def test_numpy_residual_equals_the_nlp_graph_off_the_grid(name):
         p[lay.index("cross_slope")] += np.radians(6.0)  # beyond a table built at cross slope 0
         p[lay.index("fy_offset")] = 0.4
         p[lay.index("mz_offset")] = -0.07
-        g, f, gf = res.evaluate(x, p)
+        g, f, gf, jac = res.evaluate(x, p, jacobian=True)
+        g1, f1 = res.residual(x, p)
+        assert np.array_equal(g, g1) and f == f1  # the batched differences' base column is the plain evaluation
         g_ref, f_ref = (np.asarray(v, dtype=float).ravel() for v in pb.eval_g(x / xsc, p))
         g_ref = g_ref * gsc
         # same expressions in the same order: agreement to rounding, row by row in its own scale
         assert np.max(np.abs(g - g_ref) / gsc) < 1e-9, (name, np.abs(g - g_ref) / gsc)
         assert f == pytest.approx(float(f_ref[0]), rel=1e-10)
-        gf_ref = np.asarray(grad(x / xsc, p), dtype=float).ravel() / xsc  # d f / d x_phys
+        gf_ref, jac_ref = (np.asarray(v, dtype=float) for v in grad(x / xsc, p))
+        gf_ref = gf_ref.ravel() / xsc  # d f / d x_phys
+        jac_ref = jac_ref * gsc[:, None] / xsc[None, :]  # d g_phys / d x_phys
+        # the rows' Jacobian by the structured differences, in each row's and variable's scale
+        # (rows without bounds constrain nothing and are dropped by the controller: the trench's
+        # flat width has a kink at the pointy/flat switch)
+        err = np.abs(jac - jac_ref) * xsc[None, :] / gsc[:, None]
+        assert np.max(err[~free]) < 1e-4, (name, np.unravel_index(np.argmax(err), err.shape))
         # forward differences of step 1e-7 variable scales: ~1e-6 of the gradient's largest entry
         assert np.max(np.abs(gf - gf_ref)) <= 2e-6 * np.max(np.abs(gf_ref)), (gf, gf_ref)
         # and it is not the table: the interpolated g of the grid point is ~0 on the equality rows

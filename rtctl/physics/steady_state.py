@@ -181,7 +181,8 @@ def _wrenches(ops: Backend, model: SteadyStateModel, blocks: Sequence[tuple[int,
 
 
 def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Sequence[Any]],
-                      P: Mapping[str, Any]) -> tuple[dict[str, Any], Any, dict[str, tuple[Any, ...]]]:
+                      P: Mapping[str, Any], wrenches: Sequence[tuple[Any, ...]] | None = None
+                      ) -> tuple[dict[str, Any], Any, dict[str, tuple[Any, ...]]]:
     """Constraint rows (physical residuals, by layout row name) and objective of (7.25).
 
     Parameters
@@ -194,6 +195,10 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
     P : mapping parameter name -> value
         ``speed``, ``slope``, ``cross_slope``, ``fy_offset``, ``mz_offset``, ``contact <wheel>``,
         ``pivot_locked`` (:data:`rtctl.layout.PARAMETERS`).
+    wrenches : sequence, optional
+        The soil wrenches (hub drag not included) of the blocks ``[wheel 0, its zero-slip
+        state, wheel 1, ...]`` if already evaluated (the structured differences of
+        :meth:`SteadyStateResidual.evaluate`); None evaluates them here.
 
     Returns
     -------
@@ -215,7 +220,7 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
         vx, vy = vel[k]
         blocks.append((i, vx, vy, om, hi, h0))
         blocks.append((i, vx, vy, speed / model.shearing_radius[i], h0, h0))
-    ws = _wrenches(ops, model, blocks)
+    ws = _wrenches(ops, model, blocks) if wrenches is None else list(wrenches)
     f: Any = 0
     for i, k in enumerate(model.wheels):
         om, b, Wi, hi, h0 = x[k]
@@ -271,38 +276,77 @@ class SteadyStateResidual:
         # gradient perturbations: the objective depends on omega, beta, h, h0 of each wheel (not W)
         self._grad_vars = ("omega", "beta", "h", "h0")
 
-    def evaluate(self, x: NDArray[np.float64], p: NDArray[np.float64], gradient: bool = True
-                 ) -> tuple[NDArray[np.float64], float, NDArray[np.float64] | None]:
-        """``(g, f, grad_f)`` at physical ``x`` (nx,) and parameters ``p`` (np,).
+    def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+        """``(g, f)`` at physical ``x`` (nx,) and parameters ``p`` (np,): every row's physical
+        residual in layout order (as the table's ``g``) and the objective (7.24)."""
+        P = {n: float(p[i]) for i, n in enumerate(self._pnames)}
+        x = np.asarray(x, dtype=float)
+        xs = {w: tuple(np.array([[x[self._var[(v, w)]]]]) for v in WHEEL_VARIABLES) for w in self.model.wheels}
+        rows, f, _ = steady_state_rows(NUMPY, self.model, xs, P)
+        g = np.array([float(np.asarray(rows[n]).ravel()[0]) for n in self._names])
+        return g, float(np.asarray(f, dtype=float).ravel()[0])
+
+    def evaluate(self, x: NDArray[np.float64], p: NDArray[np.float64], jacobian: bool = False
+                 ) -> tuple[NDArray[np.float64], float, NDArray[np.float64], NDArray[np.float64] | None]:
+        """``(g, f, grad_f, jac_g_x)`` at physical ``x`` (nx,) and parameters ``p`` (np,).
 
         ``g`` is every row's physical residual in layout order (as the table's ``g``), ``f`` the
-        objective (7.24) and ``grad_f`` its gradient in the physical variables (forward
-        differences of the same batched evaluation; None when ``gradient`` is False).
+        objective (7.24), ``grad_f`` its gradient and ``jac_g_x`` the rows' Jacobian in the
+        physical variables (forward differences, step ``fd_step`` variable scales; None unless
+        ``jacobian``).
+
+        Structured differences: a wheel's wrench depends on its own ``omega, beta, h, h0`` only
+        (not on its load ``W`` nor on other wheels), so the wrenches are evaluated for the base
+        point and four columns that move one variable kind on every wheel at once (one batched
+        call of 4 wheels x 2 states x 5 columns); the rows are then assembled for the base and
+        every single-variable column from those wrenches, so each column is an exact
+        one-variable difference of the full rows and objective.
         """
         model = self.model
         P = {n: float(p[i]) for i, n in enumerate(self._pnames)}
+        x = np.asarray(x, dtype=float)
         wheels = model.wheels
-        ncol = 1 + (len(self._grad_vars) if gradient else 0)
-        X = np.repeat(np.asarray(x, dtype=float)[None, :], ncol, axis=0)
-        if gradient:
-            for j, v in enumerate(self._grad_vars):
-                for w in wheels:
-                    i = self._var[(v, w)]
-                    X[1 + j, i] += self._fd * self._sx[i]
-        xs = {w: tuple(X[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
-        rows, f, wr = steady_state_rows(NUMPY, model, xs, P)
-        g = np.array([float(np.asarray(rows[n]).ravel()[0]) for n in self._names])
-        fv = np.asarray(f, dtype=float).ravel()
-        grad = None
-        if gradient:
-            grad = np.zeros(self.nx)
-            ts2 = model.torque_scale ** 2
+        kinds = self._grad_vars
+        nk = 1 + len(kinds)
+        # wrenches: base + one column per variable kind moved on every wheel
+        Xk = np.repeat(x[None, :], nk, axis=0)
+        for j, v in enumerate(kinds):
             for w in wheels:
-                my = np.broadcast_to(np.asarray(wr[w][4], dtype=float).reshape(-1), (ncol,))
-                # column 1 + j moved variable j of every wheel at once; the objective is a sum of
-                # per-wheel terms M_y,i^2 and each wheel's wrench depends on its own variables only,
-                # so each wheel's term changes by its own share
-                for j, v in enumerate(self._grad_vars):
-                    i = self._var[(v, w)]
-                    grad[i] = (my[1 + j] ** 2 - my[0] ** 2) / ts2 / (self._fd * self._sx[i])
-        return g, float(fv[0]), grad
+                i = self._var[(v, w)]
+                Xk[1 + j, i] += self._fd * self._sx[i]
+        xk = {w: tuple(Xk[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
+        speed = P["speed"]
+        blocks: list[tuple[int, Any, Any, Any, Any, Any]] = []
+        for i, w in enumerate(wheels):
+            om, b, _, hi, h0 = xk[w]
+            vx, vy = model.statics.wheel_velocity(NUMPY, speed, b)
+            blocks.append((i, vx, vy, om, hi, h0))
+            blocks.append((i, vx, vy, speed / model.shearing_radius[i], h0, h0))
+        ws = _wrenches(NUMPY, model, blocks)
+        # columns: base, then every variable alone (the gradient needs only the wrench kinds)
+        cols = list(range(self.nx)) if jacobian else [self._var[(v, w)] for w in wheels for v in kinds]
+        nc = 1 + len(cols)
+        X = np.repeat(x[None, :], nc, axis=0)
+        steps = self._fd * self._sx[cols]
+        X[np.arange(1, nc), cols] += steps
+        sel = np.zeros((len(wheels), nc), dtype=np.intp)  # per wheel: which wrench column each row uses
+        for c, i in enumerate(cols, start=1):
+            for kw, w in enumerate(wheels):
+                for j, v in enumerate(kinds):
+                    if self._var[(v, w)] == i:
+                        sel[kw, c] = 1 + j
+        wsel = []
+        for kw in range(len(wheels)):
+            for blk in (ws[2 * kw], ws[2 * kw + 1]):
+                wsel.append(tuple(np.asarray(q)[sel[kw]] for q in blk))
+        xs = {w: tuple(X[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
+        rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
+        G = np.stack([np.broadcast_to(np.asarray(rows[n], dtype=float).reshape(-1), (nc,)) for n in self._names])
+        fv = np.broadcast_to(np.asarray(f, dtype=float).reshape(-1), (nc,))
+        g = G[:, 0].copy()
+        grad = np.zeros(self.nx)
+        grad[cols] = (fv[1:] - fv[0]) / steps
+        jac = None
+        if jacobian:
+            jac = (G[:, 1:] - G[:, :1]) / steps[None, :]
+        return g, float(fv[0]), grad, jac

@@ -72,8 +72,7 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
-from .physics.parameters import ParameterError
-from .physics.steady_state import SteadyStateModel, SteadyStateResidual
+from .rti import RealTimeIteration
 from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
 _Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
@@ -186,30 +185,6 @@ class _Index:
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
 
 
-class _BoundedRows:
-    """A table point whose rows without bounds (``lbg = -inf``, ``ubg = +inf`` in the table, and
-    not a wheel-torque row, which a declared failure bounds) have zero value and Jacobian.
-
-    Such a row constrains nothing, so the QP is the same; but its Jacobian can be huge (the trench
-    flat width ``p`` of ch. 4 near the pointy/flat switch: 1.3e5 in the QP's scaled units against
-    <= 8 for every other row), and that ruins OSQP's conditioning (measured on the trench table:
-    the QP stops at its iteration budget on most ticks)."""
-
-    def __init__(self, tp: Any, keep: Any) -> None:
-        self._tp = tp
-        lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
-        free = (lbg <= -1e20) & (ubg >= 1e20)
-        free[[int(j) for j in keep if j >= 0]] = False
-        self._free = free if bool(free.any()) else None
-
-    def __getattr__(self, name: str) -> Any:
-        v = getattr(self._tp, name)
-        if self._free is not None and name in ("g", "jac_g_x", "jac_g_p"):
-            v = np.array(v, dtype=float)
-            v[self._free] = 0.0
-        return v
-
-
 def load_tables(index_path: str | Path) -> dict[str, Any]:
     """Every table of a table index (``tables/index.json``), each checked against the hash the
     index lists (:func:`rtctl.table.load_index`); raises :class:`rtctl.table.TableError`."""
@@ -226,8 +201,7 @@ class _Prepared:
     point: Any
     allocator: QpAllocator
     idx: _Index
-    residual: SteadyStateResidual | None
-    free_rows: NDArray[np.bool_]
+    rti: RealTimeIteration
     step_box: NDArray[np.float64]
     gains: tuple[float, float]
     crab_sensitivity: tuple[float, float]
@@ -265,18 +239,7 @@ class Controller:
         self.config = config
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
-        self._residuals: dict[str, SteadyStateResidual | None] = {}
-        self._no_model: dict[str, str] = {}
-        for k, t in self.tables.items():
-            try:
-                self._residuals[k] = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, t.layout.wheels),
-                                                         t.layout)
-            except (ParameterError, KeyError, TypeError, ValueError) as exc:
-                # a table without the model's record (a hand-made or synthetic table): driven on its own
-                # linearisation, always flagged (module docstring)
-                self._residuals[k] = None
-                self._no_model[k] = (f"table {k}: no exact residual ({exc}); the QP's residual is the table's "
-                                     "first-order model at the iterate")
+
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = "nominal" if "nominal" in nominal else (nominal[0] if nominal else next(iter(self.tables)))
         if config.default_table:
@@ -335,7 +298,7 @@ class Controller:
         cfg = self.config
         self.ekf = SlipHeadingEKF(cfg, self.wheel_radius)
         self.ekf.reset(0.0, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
-        self._allocators: dict[str, QpAllocator] = {}
+        self._rtis: dict[str, RealTimeIteration] = {}
         self._last_t: float | None = None
         self._last_seq: int | None = None
         self._pose_seen = False
@@ -352,9 +315,6 @@ class Controller:
         self._prep: _Prepared | None = None
         self._table_error = ""
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
-        self._iterate: NDArray[np.float64] | None = None
-        """The real-time iteration's iterate (physical x of the prepared table), carried from tick to tick."""
-        self._iterate_table = ""
         self._last_p: NDArray[np.float64] | None = None
         self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
@@ -407,26 +367,25 @@ class Controller:
             self._count("table_errors")
             self._table_error = str(exc)
             return
-        alloc = self._allocators.get(name)
-        if alloc is None:
-            alloc = self._allocators[name] = QpAllocator(lay, cfg.qp)
+        rti = self._rtis.get(name)
+        if rti is None:
+            rti = self._rtis[name] = RealTimeIteration(table, cfg.qp, self._index[name].torque)
+        if prev is None or prev.table != name:  # a new table: the iterate starts at its primitive
+            rti.iterate = None
+        alloc = rti.allocator
         try:
-            alloc.prepare(_BoundedRows(tp, self._index[name].torque))
+            rti.prepare(tp)
         except AllocatorError as exc:
             self._count("table_point_refused")
             self._table_error = str(exc)
             return
         ix = self._index[name]
-        lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
-        free = (lbg <= -1e20) & (ubg >= 1e20)  # rows that constrain nothing (see _BoundedRows)
-        free[[int(j) for j in ix.torque if j >= 0]] = False
-        if self._iterate_table != name or self._iterate is None:  # a new table: start from its primitive
-            self._iterate, self._iterate_table = alloc.x0, name
         gains = self._gains(table)
-        if name in self._no_model:
-            flags.append(self._no_model[name])
-        self._prep = _Prepared(name, tp, alloc, ix, self._residuals[name], free, cfg.qp.step_limit * alloc.sx, gains,
-                               self._crab_sensitivity(table, tp, ix), self._primitive_slip(self._iterate, tp, ix),
+        if rti.no_model:
+            flags.append(rti.no_model)
+        xk = rti.iterate if rti.iterate is not None else alloc.x0
+        self._prep = _Prepared(name, tp, alloc, ix, rti, cfg.qp.step_limit * alloc.sx, gains,
+                               self._crab_sensitivity(table, tp, ix), self._primitive_slip(xk, tp, ix, prev is not None),
                                factor, tuple(sorted(tp.operating_point.items())), self.signatures[name], tuple(flags))
 
     def _operating_point(self, table: Any, v: float, flags: list[str]) -> dict[str, float]:
@@ -523,13 +482,14 @@ class Controller:
         return [not any((w, k) in self._failures for k in ("locked", "unpowered", "raised")) and (w, "trench") != task
                 for w in WHEELS]
 
-    def _primitive_slip(self, x: NDArray[np.float64], tp: Any, ix: _Index) -> float:
+    def _primitive_slip(self, x: NDArray[np.float64], tp: Any, ix: _Index, carried: bool = False) -> float:
         """Rover-level slip of the model's solution ``x`` (the real-time iteration's iterate: the
         model at the measured slope and cross slope, not the table's grid primitive), by the
         EKF's own odometry definition, at the travel speed of the table point."""
         om, be = x[ix.om].tolist(), x[ix.be].tolist()
         v_odo, _ = wheel_odometry(om, be, self._odometry_wheels(), self._radii(), 1.0)
-        v = float(self._last_p[ix.speed]) if self._last_p is not None and x is self._iterate else float(tp.p[ix.speed])
+        # the iterate solves the model at the speed parameter of the last feedback
+        v = float(self._last_p[ix.speed]) if carried and self._last_p is not None else float(tp.p[ix.speed])
         return 1.0 - v / v_odo if (math.isfinite(v_odo) and v_odo > 1e-9) else 0.0
 
     def _crab_sensitivity(self, table: Any, tp: Any, ix: _Index) -> tuple[float, float]:
@@ -658,26 +618,18 @@ class Controller:
         p[ix.mz] = mz + mz_bias
         # one real-time iteration of (7.25) at the measured parameters (never clipped to the
         # table: a parameter beyond the axes enters through the exact residual)
-        xk = self._iterate if self._iterate is not None and self._iterate_table == prep.table else prep.allocator.x0
+        rti = prep.rti
+        xk = rti.iterate if rti.iterate is not None else prep.allocator.x0
         box, lbg, ubg = self._bounds(prep, dt, xk)
-        if prep.residual is not None:
-            g, _, grad, jac = prep.residual.evaluate(xk, p, jacobian=self.config.qp.exact_jacobian)
-        else:
-            self._count("linearised_residual_ticks")
-            g, grad, jac = _linearised(prep.point, xk, p)
-        if prep.free_rows.any():
-            g = np.where(prep.free_rows, 0.0, g)
-            if jac is not None:
-                jac = np.where(prep.free_rows[:, None], 0.0, jac)
-        res = prep.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
+        if rti.no_model:
+            self._count("first_order_model_ticks")
+        res = rti.step(p, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
         self._last_qp = (prep.allocator, prep.allocator.snapshot())
         self._last_p = p
-        if not res.ok:
+        if not res.ok:  # the iterate restarts from the table's primitive at the next preparation
             self._count("qp_fallbacks")
-            self._iterate = None  # restart from the table's primitive at the next preparation
             return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
                                   float(p[ix.fy]), verdict, res)
-        self._iterate, self._iterate_table = res.x, prep.table
         rim, steer = self._commands_from_x(prep, res.x)
         rim, steer = self._limit(rim, steer, dt)
         cmd = Commands(t, seq, rim, steer)
@@ -943,19 +895,6 @@ class Controller:
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
             counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
-
-
-def _linearised(tp: Any, x: NDArray[np.float64], p: NDArray[np.float64]
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64], None]:
-    """The table point's first-order model of the residual and objective gradient at ``(x, p)``
-    (for a table whose header does not define the physics; flagged by the caller)."""
-    dx, dp = x - np.asarray(tp.x, dtype=float), p - np.asarray(tp.p, dtype=float)
-    g = np.asarray(tp.g, dtype=float) + np.asarray(tp.jac_g_x, dtype=float) @ dx + np.asarray(tp.jac_g_p, dtype=float) @ dp
-    grad = np.asarray(tp.grad_f, dtype=float) + np.asarray(tp.hess_lag, dtype=float) @ dx
-    hxp = getattr(tp, "hess_lag_xp", None)
-    if hxp is not None:
-        grad = grad + np.asarray(hxp, dtype=float) @ dp
-    return g, grad, None
 
 
 def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:

@@ -160,7 +160,8 @@ def test_unbounded_rows_dropped_give_the_same_qp(tables):
 
     from rtctl.allocator import QpAllocator, solve_with_qpsolvers
     from rtctl.config import QpSettings
-    from rtctl.controller import _BoundedRows, _Index
+    from rtctl.controller import _Index
+    from rtctl.rti import BoundedRows as _BoundedRows
 
     t = tables["rr_trench_clean"]
     tp = t.at(slope=0.0, speed=0.03, trench_depth=0.025)

@@ -1,0 +1,142 @@
+"""One table's real-time iteration of the steady-state problem (7.25) (acados' SQP-RTI).
+
+:class:`RealTimeIteration` joins the table (Hessian, bounds, active-set hints, the starting
+iterate), the shared physics (exact residual, objective gradient and Jacobian at the iterate and
+the measured parameters: :class:`rtctl.physics.steady_state.SteadyStateResidual`) and the QP
+(:meth:`rtctl.allocator.QpAllocator.solve_at`). Each :meth:`RealTimeIteration.step` is one SQP
+iteration; the iterate is carried to the next, so at a constant operating point the iterates
+converge to the NLP's KKT point there (with the exact Jacobian), wherever the table's grid
+points are. The controller (:mod:`rtctl.controller`) adds the measurements, the outer loop,
+actuator and rate limits and the declared failures; the benchmark
+``tests/bench/bench_online_step.py`` drives this class alone against the NLP.
+
+A table whose header does not define the physics (no ``params`` / ``rover`` records, as in a
+hand-made table) is iterated on its own first-order model at the iterate
+(:attr:`RealTimeIteration.no_model`: why; callers flag it).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .allocator import Allocation, QpAllocator
+from .config import QpSettings
+from .physics.parameters import ParameterError
+from .physics.steady_state import SteadyStateModel, SteadyStateResidual
+
+__all__ = ["RealTimeIteration", "BoundedRows", "free_rows"]
+
+
+def free_rows(lbg: NDArray[np.float64], ubg: NDArray[np.float64], keep: Sequence[int] = ()) -> NDArray[np.bool_]:
+    """Rows without bounds (``lbg = -inf``, ``ubg = +inf``), except the rows in ``keep`` (the
+    wheel-torque rows, which a declared failure bounds)."""
+    free = (np.asarray(lbg, dtype=float) <= -1e20) & (np.asarray(ubg, dtype=float) >= 1e20)
+    free[[int(j) for j in keep if j >= 0]] = False
+    return free
+
+
+class BoundedRows:
+    """A table point whose rows without bounds (:func:`free_rows`) have zero value and Jacobian.
+
+    Such a row constrains nothing, so the QP is the same; but its Jacobian can be huge (the trench
+    flat width ``p`` of ch. 4 near the pointy/flat switch: 1.3e5 in the QP's scaled units against
+    <= 8 for every other row), and that ruins OSQP's conditioning (measured on the trench table:
+    the QP stops at its iteration budget on most ticks)."""
+
+    def __init__(self, tp: Any, keep: Sequence[int]) -> None:
+        self._tp = tp
+        free = free_rows(tp.lbg, tp.ubg, keep)
+        self._free = free if bool(free.any()) else None
+
+    def __getattr__(self, name: str) -> Any:
+        v = getattr(self._tp, name)
+        if self._free is not None and name in ("g", "jac_g_x", "jac_g_p"):
+            v = np.array(v, dtype=float)
+            v[self._free] = 0.0
+        return v
+
+
+class RealTimeIteration:
+    """The real-time iteration of one table (module docstring).
+
+    Parameters
+    ----------
+    table : rtctl.table.Table
+        Its header defines the physics (``params``, ``rover``, ``scenario``, ``solver_options``,
+        ``world``) and its layout the variables and rows.
+    settings : QpSettings
+        QP penalties and budgets; ``exact_jacobian`` chooses the Jacobian of the rows.
+    keep_rows : sequence of int
+        Rows kept even without bounds (the wheel-torque rows a declared failure bounds).
+    """
+
+    def __init__(self, table: Any, settings: QpSettings, keep_rows: Sequence[int] = ()) -> None:
+        self.table = table
+        self.settings = settings
+        self.allocator = QpAllocator(table.layout, settings)
+        self.keep_rows = tuple(int(j) for j in keep_rows)
+        self.residual: SteadyStateResidual | None = None
+        self.no_model = ""
+        """Empty when the header defines the physics; else why not (the first-order model is used)."""
+        try:
+            self.residual = SteadyStateResidual(SteadyStateModel.from_table_header(table.header, table.layout.wheels),
+                                                table.layout)
+        except (ParameterError, KeyError, TypeError, ValueError) as exc:
+            self.no_model = (f"table {getattr(table, 'name', '?')}: no exact residual ({exc}); the QP's residual is the "
+                             "table's first-order model at the iterate")
+        self.iterate: NDArray[np.float64] | None = None
+        """The physical iterate carried from step to step (None: start from the next prepared primitive)."""
+        self._point: Any = None
+        self._free: NDArray[np.bool_] = np.zeros(table.layout.ng, dtype=bool)
+
+    def prepare(self, tp: Any) -> None:
+        """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
+        the iterate starts at its primitive when there is none."""
+        self.allocator.prepare(BoundedRows(tp, self.keep_rows))
+        self._point = tp
+        self._free = free_rows(tp.lbg, tp.ubg, self.keep_rows)
+        if self.iterate is None:
+            self.iterate = self.allocator.x0
+
+    def linearise(self, x: NDArray[np.float64], p: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+        """Residual, objective gradient and (with ``exact_jacobian``) the rows' Jacobian at
+        ``(x, p)``; rows without bounds zeroed. Without a model: the table point's first-order
+        model (Jacobian None: the prepared table's)."""
+        if self.residual is not None:
+            g, _, grad, jac = self.residual.evaluate(x, p, jacobian=self.settings.exact_jacobian)
+        else:
+            g, grad, jac = first_order_model(self._point, x, p)
+        if self._free.any():
+            g = np.where(self._free, 0.0, g)
+            if jac is not None:
+                jac = np.where(self._free[:, None], 0.0, jac)
+        return g, grad, jac
+
+    def step(self, p: NDArray[np.float64], box: tuple[NDArray[np.float64], NDArray[np.float64]],
+             lbg: NDArray[np.float64] | None = None, ubg: NDArray[np.float64] | None = None,
+             x_ref: NDArray[np.float64] | None = None) -> Allocation:
+        """One SQP iteration at the measured parameters ``p`` from the carried iterate (the
+        feedback phase); the new iterate is carried when the QP succeeded, else the next
+        preparation restarts from the table's primitive."""
+        xk = self.iterate if self.iterate is not None else self.allocator.x0
+        g, grad, jac = self.linearise(xk, p)
+        res = self.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=x_ref)
+        self.iterate = res.x.copy() if res.ok else None
+        return res
+
+
+def first_order_model(tp: Any, x: NDArray[np.float64], p: NDArray[np.float64]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], None]:
+    """The table point's first-order model of the residual and objective gradient at ``(x, p)``
+    (for a table whose header does not define the physics)."""
+    dx, dp = x - np.asarray(tp.x, dtype=float), p - np.asarray(tp.p, dtype=float)
+    g = np.asarray(tp.g, dtype=float) + np.asarray(tp.jac_g_x, dtype=float) @ dx + np.asarray(tp.jac_g_p, dtype=float) @ dp
+    grad = np.asarray(tp.grad_f, dtype=float) + np.asarray(tp.hess_lag, dtype=float) @ dx
+    hxp = getattr(tp, "hess_lag_xp", None)
+    if hxp is not None:
+        grad = grad + np.asarray(hxp, dtype=float) @ dp
+    return g, grad, None

@@ -307,6 +307,36 @@ class QpAllocator:
         return self._p0.copy()
 
     @property
+    def hessian(self) -> NDArray[np.float64]:
+        """The QP's Hessian of the Lagrangian in scaled variables, *not* normalised (``S_x H S_x``
+        after convexification; the QP uses it divided by :attr:`objective_scale`), copy."""
+        return self._H * self._cf
+
+    @property
+    def objective_scale(self) -> float:
+        """``c_f``, the normalisation of the QP's objective (module docstring)."""
+        return float(self._cf)
+
+    def set_hessian(self, H: NDArray[np.float64]) -> None:
+        """Replace the QP's Hessian (scaled variables, not normalised: as :attr:`hessian`) by a
+        symmetric positive definite ``H`` (a quasi-Newton update); OSQP refactorises."""
+        H = np.asarray(H, dtype=float)
+        if H.shape != (self.nx, self.nx) or not math.isfinite(float(H.sum())):
+            raise AllocatorError(f"set_hessian: expected a finite ({self.nx}, {self.nx}) matrix, got shape {H.shape}")
+        self._H = 0.5 * (H + H.T) / self._cf
+        self._Px = self._p_values()
+        self._solver.update(Px=self._Px)
+
+    @property
+    def row_duals(self) -> NDArray[np.float64] | None:
+        """Multipliers of the model rows of the last successful :meth:`solve_at`, in physical
+        units of the objective (7.24) per unit of each row's physical residual; None after a
+        refused solve."""
+        if self._last_y is None:
+            return None
+        return self._last_y[:self.ng] * self._cf / self.sg
+
+    @property
     def table_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The table's variable bounds at the point (physical)."""
         return self._lbx.copy(), self._ubx.copy()

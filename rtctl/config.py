@@ -290,6 +290,11 @@ class QpSettings:
         the iteration's fixed point is then the NLP's KKT point anywhere. False: the table's
         interpolated Jacobian (exact residual and gradient still; the fixed point is then off by
         the Jacobian's interpolation error times the multipliers).
+    quasi_newton : bool
+        Improve the table's Lagrangian Hessian from tick to tick by damped BFGS updates with the
+        exact Lagrangian gradients (:meth:`rtctl.rti.RealTimeIteration.step`); needs
+        ``exact_jacobian``. Between grid points and beyond the axes the table's Hessian is
+        another point's: with it alone the iterates approach the optimum only linearly.
     """
 
     slack_l1: float = 10.0
@@ -301,12 +306,14 @@ class QpSettings:
     balance_tolerance: float = 0.5
     step_limit: float = 0.5
     exact_jacobian: bool = True
+    quasi_newton: bool = True
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
             "max_iter": _key("max_iter", check=lambda v: None if (v >= 10 and v == int(v)) else "must be an integer >= 10"),
             "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos),
-            "step_limit": _key("step_limit", check=_pos), "exact_jacobian": _key("exact_jacobian")}
+            "step_limit": _key("step_limit", check=_pos), "exact_jacobian": _key("exact_jacobian"),
+            "quasi_newton": _key("quasi_newton")}
 
 
 _SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
@@ -493,6 +500,7 @@ eps = 1e-6
 balance_tolerance = 0.5
 step_limit = 0.5            # variable scales: the real-time iteration's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
+quasi_newton = true         # damped BFGS updates of the table's Hessian from tick to tick
 
 [timing]
 period = 0.2

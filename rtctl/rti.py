@@ -17,6 +17,7 @@ hand-made table) is iterated on its own first-order model at the iterate
 
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -89,6 +90,10 @@ class RealTimeIteration:
                              "table's first-order model at the iterate")
         self.iterate: NDArray[np.float64] | None = None
         """The physical iterate carried from step to step (None: start from the next prepared primitive)."""
+        self._H: NDArray[np.float64] | None = None  # quasi-Newton Hessian (scaled, not normalised)
+        self._prev: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+        self.hessian_updates = 0
+        """Quasi-Newton updates applied since the iterate last restarted (diagnostics)."""
         self._point: Any = None
         self._free: NDArray[np.bool_] = np.zeros(table.layout.ng, dtype=bool)
 
@@ -100,6 +105,9 @@ class RealTimeIteration:
         self._free = free_rows(tp.lbg, tp.ubg, self.keep_rows)
         if self.iterate is None:
             self.iterate = self.allocator.x0
+            self._H, self._prev, self.hessian_updates = None, None, 0
+        elif self._H is not None:  # the iteration goes on: keep what it learnt of the curvature
+            self.allocator.set_hessian(self._H)
 
     def linearise(self, x: NDArray[np.float64], p: NDArray[np.float64]
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
@@ -124,9 +132,50 @@ class RealTimeIteration:
         preparation restarts from the table's primitive."""
         xk = self.iterate if self.iterate is not None else self.allocator.x0
         g, grad, jac = self.linearise(xk, p)
+        if self.settings.quasi_newton and jac is not None:
+            self._update_hessian(xk, grad, jac)
         res = self.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=x_ref)
-        self.iterate = res.x.copy() if res.ok else None
+        if res.ok:
+            self.iterate = res.x.copy()
+            y = self.allocator.row_duals
+            self._prev = (xk.copy(), self._lagrangian_gradient(grad, jac, y), y) if (jac is not None and y is not None) else None
+        else:
+            self.iterate, self._prev = None, None
         return res
+
+    @staticmethod
+    def _lagrangian_gradient(grad: NDArray[np.float64], jac: NDArray[np.float64] | None,
+                             y: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        return grad if (jac is None or y is None) else grad + jac.T @ y
+
+    def _update_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64]) -> None:
+        """Powell-damped BFGS update of the QP's Hessian from the last step (Nocedal & Wright,
+        Numerical Optimization, 2nd ed., procedure 18.2): ``s`` the step, ``y`` the change of the
+        Lagrangian's gradient ``grad f + J^T lambda`` (exact, with the last QP's multipliers),
+        both in scaled variables. Damping keeps the matrix positive definite; the table's
+        Hessian is the start, so on a grid point at its own parameters nothing changes."""
+        if self._prev is None:
+            return
+        x0, gl0, lam = self._prev
+        sx = self.allocator.sx
+        s = (x - x0) / sx
+        if not np.any(s):
+            return
+        yv = (self._lagrangian_gradient(grad, jac, lam) - gl0) * sx
+        H = self.allocator.hessian if self._H is None else self._H
+        Hs = H @ s
+        sHs = float(s @ Hs)
+        sy = float(s @ yv)
+        if not (math.isfinite(sHs) and math.isfinite(sy)) or sHs <= 0.0:
+            return
+        if sy < 0.2 * sHs:
+            theta = 0.8 * sHs / (sHs - sy)
+            yv = theta * yv + (1.0 - theta) * Hs
+            sy = float(s @ yv)
+        H = H + np.outer(yv, yv) / sy - np.outer(Hs, Hs) / sHs
+        self._H = 0.5 * (H + H.T)
+        self.allocator.set_hessian(self._H)
+        self.hessian_updates += 1
 
 
 def first_order_model(tp: Any, x: NDArray[np.float64], p: NDArray[np.float64]

@@ -1,0 +1,389 @@
+"""The online step against the NLP solved at the same point (issue 20), and its step time.
+
+One command each; results go to ``tests/bench/results_online_step_<part>.md`` and ``.json``::
+
+    python tests/bench/bench_online_step.py accuracy [--points 20] [--seed 0] [--tables a,b]
+    python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000]
+
+``accuracy``: on every shipped table with primitives, ``--points`` seeded operating points
+strictly inside cells whose corners all hold primitives (every axis between two grid values),
+plus cross slopes of 3, 4.5, 6 and 8 deg on ``rr_steer_stuck`` (built at cross slope 0 only:
+beyond its axis). At each point the reference is the NLP (7.25) solved there
+(:func:`offline.rover.primitives.solve_primitive`, its own multi-start strategy started from the
+table's interpolated primitive; a point is used only where the result passes the optimizer's
+independent check). The online step (:class:`rtctl.rti.RealTimeIteration`, the controller's own
+iteration, here without the rover's rate limits) starts from the table's interpolated primitive
+and runs at the point's exact parameters; after one tick its iterate's residual is judged by the
+independent check (:func:`offline.rover.primitives.check_solution`: numpy wheel model, free-body
+balance with explicit 3-D geometry), after five its wheel speeds, steering and objective are
+compared with the NLP optimum. The interpolated primitive itself (what the QP of the previous
+design converged to between grid points, since it took the interpolated residual as exact) is
+judged the same way, as the baseline column.
+
+``timing``: the controller's ``step`` in closed loop with the kinematic rover of
+``tests/test_rtctl_controller.py`` on ``rr_steer_stuck`` (RR stuck at -50 deg), thread CPU time per
+step, for this tree and for ``--baseline`` (a commit, checked out into a temporary worktree) run
+one after the other in the same invocation, so the machine cancels out; the shares of the new step
+(exact linearisation, QP solve, preparation, the rest) are measured with the same clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+
+DEG = math.pi / 180
+
+
+def _meta() -> dict[str, Any]:
+    rev = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True).stdout.strip())
+    return {"commit": rev + ("+changes" if dirty else ""), "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count()}
+
+
+_TAG = ""
+
+
+def _write(part: str, md: str, data: dict[str, Any]) -> None:
+    sys.path.insert(0, str(ROOT))
+    from offline.files import write_text
+
+    name = f"results_online_step_{part}{'_' + _TAG if _TAG else ''}"
+    write_text(HERE / f"{name}.md", md)
+    write_text(HERE / f"{name}.json", json.dumps(data, indent=1, sort_keys=True) + "\n")
+    print(f"wrote tests/bench/{name}.md and .json")
+
+
+# ---------------------------------------------------------------------------------- accuracy
+def _inner_points(t: Any, n: int, rng: np.random.Generator) -> list[dict[str, float]]:
+    """``n`` operating points strictly inside cells whose corners are all feasible."""
+    multi = [i for i, m in enumerate(t.shape) if m > 1]
+    cells = []
+    for c in np.ndindex(*[max(m - 1, 1) for m in t.shape]):
+        ok = True
+        for b in range(2 ** len(multi)):
+            k = list(c)
+            for j, a in enumerate(multi):
+                k[a] += (b >> j) & 1
+            ok = ok and bool(t.feasible[tuple(k)])
+        if ok:
+            cells.append(c)
+    out: list[dict[str, float]] = []
+    if not cells:
+        return out
+    for _ in range(n):
+        c = cells[int(rng.integers(len(cells)))]
+        op = {}
+        for i, k in enumerate(t.axis_order):
+            ax = t.axes[k]
+            if len(ax) == 1:
+                op[k] = float(ax[0])
+            else:
+                u = float(rng.uniform(0.2, 0.8))  # between grid values, never on one
+                op[k] = float(ax[c[i]] + u * (ax[c[i] + 1] - ax[c[i]]))
+        out.append(op)
+    return out
+
+
+def _judge(pb: Any, sc: Any, x: np.ndarray, xsc: np.ndarray) -> dict[str, float]:
+    from offline.rover.primitives import check_solution
+
+    res, _ = check_solution(pb, sc, x / xsc)
+    force = max(abs(v) for k, v in res.items() if k in ("balance Fx", "balance Fy", "balance Fz"))
+    moment = max(abs(v) for k, v in res.items() if k.startswith("balance M"))
+    load = max([abs(v) for k, v in res.items() if k.startswith(("load ", "zero-slip load "))] or [0.0])
+    return {"force_N": force, "moment_Nm": moment, "load_N": load}
+
+
+def _compare(lay: Any, x: np.ndarray, xstar: np.ndarray, f: float, fstar: float) -> dict[str, float]:
+    om = np.array([lay.var("omega", w) for w in lay.wheels])
+    be = np.array([lay.var("beta", w) for w in lay.wheels])
+    floor = 0.05 * lay.variable_scale[om]  # a locked wheel's speed is compared absolutely
+    dw = np.abs(x[om] - xstar[om]) / np.maximum(np.abs(xstar[om]), floor)
+    return {"wheel_speed_rel": float(dw.max()), "steer_deg": float(np.abs(x[be] - xstar[be]).max() / DEG),
+            "objective_rel": float(abs(f - fstar) / max(abs(fstar), 1e-12))}
+
+
+def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] | None = None,
+             ticks_n: int = 5) -> None:
+    sys.path.insert(0, str(ROOT))
+    from offline.rover.primitives import check_solution, solve_primitive
+    from offline.rover.table_builder import _problem, scenario_at
+    from offline.rover.table_verify import spec_from_table
+    from rtctl.allocator import merge_bounds
+    from rtctl.config import QpSettings
+    from rtctl.rti import RealTimeIteration
+    from rtctl.table import load_index
+
+    idx = load_index(ROOT / "tables" / "index.json")
+    rng = np.random.default_rng(seed)
+    rows: list[dict[str, Any]] = []
+    t_start = time.perf_counter()
+    for name, info in sorted(idx.items()):
+        if only and name not in only:
+            continue
+        t = info.load()
+        if not t.feasible.any():
+            print(f"{name}: no primitive in the table, skipped")
+            continue
+        spec = spec_from_table(t)
+        pb = _problem(spec.scenario, spec.solver)
+        lay = t.layout
+        xsc = np.asarray(lay.variable_scale)
+        ops = [("between grid values", op) for op in _inner_points(t, points, rng)]
+        if name == "rr_steer_stuck":
+            for cs in (3.0, 4.5, 6.0, 8.0):
+                base = _inner_points(t, 1, rng)[0]
+                ops.append((f"cross slope {cs:g} deg (beyond the axis)", {**base, "cross_slope": cs * DEG}))
+        for kind, op in ops:
+            sc = scenario_at(spec.scenario, spec.family, op)
+            tp = t.at(**op)
+            t0 = time.perf_counter()
+            r = solve_primitive(sc, spec.solver, x0=tp.x / xsc)
+            nlp_s = time.perf_counter() - t0
+            row: dict[str, Any] = {"table": name, "kind": kind, "op": {k: round(v, 6) for k, v in op.items()},
+                                   "nlp_status": r.status, "nlp_seconds": round(nlp_s, 2)}
+            if r.status != "optimal":
+                rows.append(row)
+                print(f"{name} {kind}: NLP {r.status}, point not used")
+                continue
+            xstar = np.asarray(r.x, dtype=float) * xsc
+            # the optimum of the table's own branch: one local IPOPT solve from the interpolated
+            # primitive (the multi-start reference above may sit in another basin of this nonconvex NLP)
+            loc = pb.solve(pb.bounds(sc), tp.x / xsc)
+            xloc = np.asarray(loc["x"], dtype=float) * xsc if loc["success"] else None
+            if xloc is not None and not check_solution(pb, sc, loc["x"])[1]:
+                xloc = None
+            settings = replace(QpSettings(), **(qp or {}))
+            rti = RealTimeIteration(t, settings, [lay.index(f"wheel torque {w}") for w in lay.wheels])
+            rti.prepare(tp)
+            p = np.array(tp.p, dtype=float)
+            for k in ("speed", "slope", "cross_slope"):
+                if k in op:
+                    p[lay.index(k)] = op[k]
+            _, fstar = rti.residual.residual(xstar, p) if rti.residual else (None, math.nan)
+            floc = rti.residual.residual(xloc, p)[1] if (rti.residual and xloc is not None) else math.nan
+            row["baseline_interpolated"] = {**_judge(pb, sc, tp.x, xsc),
+                                            **_compare(lay, tp.x, xstar, rti.residual.residual(tp.x, p)[1], fstar)}
+            ticks = []
+            for k in range(ticks_n):
+                x = rti.iterate if rti.iterate is not None else rti.allocator.x0
+                sl = settings.step_limit
+                box = merge_bounds(tp.lbx, tp.ubx, (x - sl * xsc, x + sl * xsc))
+                res = rti.step(p, box)
+                if not res.ok:
+                    row["rti_refused"] = f"tick {k + 1}: {res.status}"
+                    break
+                f = rti.residual.residual(res.x, p)[1]
+                tick = {**_judge(pb, sc, res.x, xsc), **_compare(lay, res.x, xstar, f, fstar),
+                        "slack": res.slack, "qp_iterations": res.iterations}
+                if xloc is not None:
+                    tick["local"] = _compare(lay, res.x, xloc, f, floc)
+                ticks.append(tick)
+            row["ticks"] = ticks
+            row["local_reference"] = xloc is not None
+            row["local_is_best"] = bool(xloc is not None and floc <= fstar * (1 + 1e-6))
+            rows.append(row)
+            last = ticks[-1] if ticks else {}
+            print(f"{name} {kind}: NLP {nlp_s:.1f} s; tick 1 force {ticks[0]['force_N'] if ticks else float('nan'):.2g} N; "
+                  f"tick 5 speeds {last.get('wheel_speed_rel', float('nan')):.2%}, steer {last.get('steer_deg', float('nan')):.3f} deg, "
+                  f"objective {last.get('objective_rel', float('nan')):.2%}", flush=True)
+    used = [r for r in rows if r.get("ticks")]
+    refused = [r for r in rows if r.get("rti_refused")]
+    lim1 = {"force_N": 0.1, "moment_Nm": 0.01, "load_N": 0.2}
+    lim5 = {"wheel_speed_rel": 0.02, "steer_deg": 0.3, "objective_rel": 0.005}
+
+    def ok1(r: dict[str, Any]) -> bool:
+        return bool(r["ticks"]) and all(r["ticks"][0][k] <= v for k, v in lim1.items())
+
+    def ok5(r: dict[str, Any]) -> bool:
+        return len(r["ticks"]) >= 5 and all(r["ticks"][4][k] <= v for k, v in lim5.items())
+
+    def ok5_local(r: dict[str, Any]) -> bool:
+        return (len(r["ticks"]) >= 5 and "local" in r["ticks"][4]
+                and all(r["ticks"][4]["local"][k] <= v for k, v in lim5.items()))
+
+    def base_ok1(r: dict[str, Any]) -> bool:
+        return all(r["baseline_interpolated"][k] <= v for k, v in lim1.items())
+
+    def base_ok5(r: dict[str, Any]) -> bool:
+        return all(r["baseline_interpolated"][k] <= v for k, v in lim5.items())
+
+    lines = ["# The online step against the NLP at the same point (issue 20)", "",
+             f"`python tests/bench/bench_online_step.py accuracy --points {points} --seed {seed}"
+             + (f" --qp {','.join(f'{k}={v}' for k, v in (qp or {}).items())}" if qp else "") + "`; "
+             f"{_meta()['commit']}, {_meta()['date']}, {time.perf_counter() - t_start:.0f} s.", "",
+             "Targets: after 1 tick the iterate's residual by the independent check <= 0.1 N force, 0.01 N m moment, "
+             "0.2 N load; after 5 ticks wheel speeds within 2 %, steering within 0.3 deg, objective within 0.5 % of "
+             "the NLP optimum. Baseline: the table's interpolated primitive (the previous design's answer between "
+             "grid points).", "",
+             f"Points: {len(rows)} drawn, {len(used)} with a verified NLP optimum used, {len(refused)} where the "
+             f"online step's QP was refused.", "",
+             "| table | points | tick-1 residual within targets | tick-5 within targets | tick-5 within targets of the "
+             "table branch's local optimum | worst tick-1 force / moment / load "
+             "| worst tick-5 speed / steer / objective | baseline: residual within / optimum within |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name in sorted({r["table"] for r in used}):
+        rs = [r for r in used if r["table"] == name]
+        for kind in sorted({r["kind"] for r in rs}, key=lambda s: (s != "between grid values", s)):
+            sub = [r for r in rs if r["kind"] == kind]
+            t1 = [r["ticks"][0] for r in sub]
+            t5 = [r["ticks"][min(4, len(r["ticks"]) - 1)] for r in sub]
+            lines.append(
+                f"| {name} ({kind}) | {len(sub)} | {sum(ok1(r) for r in sub)}/{len(sub)} | {sum(ok5(r) for r in sub)}/{len(sub)} | "
+                f"{sum(ok5_local(r) for r in sub)}/{sum(bool(r.get('local_reference')) for r in sub)} | "
+                f"{max(a['force_N'] for a in t1):.2g} N / {max(a['moment_Nm'] for a in t1):.2g} N m / "
+                f"{max(a['load_N'] for a in t1):.2g} N | {max(a['wheel_speed_rel'] for a in t5):.2%} / "
+                f"{max(a['steer_deg'] for a in t5):.3f} deg / {max(a['objective_rel'] for a in t5):.3%} | "
+                f"{sum(base_ok1(r) for r in sub)}/{len(sub)} / {sum(base_ok5(r) for r in sub)}/{len(sub)} |")
+    lines += ["", f"All: tick-1 {sum(ok1(r) for r in used)}/{len(used)}, tick-5 {sum(ok5(r) for r in used)}/{len(used)} "
+              f"(against the local optimum of the table's branch {sum(ok5_local(r) for r in used)}/"
+              f"{sum(bool(r.get('local_reference')) for r in used)}; the local optimum is the best found at "
+              f"{sum(bool(r.get('local_is_best')) for r in used)} points); "
+              f"baseline {sum(base_ok1(r) for r in used)}/{len(used)} and {sum(base_ok5(r) for r in used)}/{len(used)}.", ""]
+    if refused:
+        lines += ["Refused: " + "; ".join(f"{r['table']} {r['op']}: {r['rti_refused']}" for r in refused), ""]
+    _write("accuracy", "\n".join(lines), {"meta": _meta(), "rows": rows})
+
+
+# ---------------------------------------------------------------------------------- timing
+_TIMING_SCRIPT = r'''
+import json, math, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1] + "/tests")
+sys.path.insert(0, sys.argv[1])
+from rtctl.config import ControllerConfig
+from rtctl.controller import Controller
+from rtctl.messages import FailureDeclaration, Measurements, Pose
+from rtctl.table import load_index
+steps = int(sys.argv[2])
+tables = {k: v.load() for k, v in load_index(sys.argv[3]).items()}
+ctl = Controller(tables, ControllerConfig())
+shares = {}
+probe = sys.argv[4] == "1"
+if probe:
+    import rtctl.rti as R, rtctl.allocator as A, rtctl.controller as C
+    def wrap(obj, name, key):
+        f = getattr(obj, name)
+        def g(*a, **k):
+            t0 = time.thread_time_ns(); out = f(*a, **k); shares[key] = shares.get(key, 0) + time.thread_time_ns() - t0
+            return out
+        setattr(obj, name, g)
+    wrap(R.RealTimeIteration, "linearise", "exact linearisation")
+    wrap(A.QpAllocator, "solve_at", "QP (update, warm start, solve)")
+    wrap(C.Controller, "prepare", "preparation (table read, Hessian, factorisation)")
+fail = (FailureDeclaration("RR", "steer_stuck", math.radians(-50.0)),)
+rng = np.random.default_rng(0)
+beta = [0.0, 0.0, math.radians(-50.0), 0.0]
+om = [0.03 / 0.063 * 1.1] * 4
+t = 0.0; x = y = psi = 0.0
+times = []
+for k in range(steps):
+    t += 0.2
+    x += 0.2 * 0.03 * math.cos(psi); y += 0.2 * 0.03 * math.sin(psi)
+    pose = Pose(t - 0.4, x + rng.normal(0, 0.003), y + rng.normal(0, 0.003), psi + rng.normal(0, 0.01)) if k % 5 == 0 else None
+    m = Measurements(t=t, seq=k, wheel_speed=tuple(w + rng.normal(0, 0.01) for w in om), steer_angle=tuple(beta),
+                     yaw_rate=rng.normal(0, 0.002), pitch=0.0, roll=math.radians(3.0), pose=pose, failures=fail)
+    t0 = time.thread_time_ns()
+    cmd, d = ctl.step(m)
+    times.append(time.thread_time_ns() - t0)
+    om = [c / 0.063 for c in cmd.rim_speed]
+    beta = list(cmd.steer_angle)
+    psi += 0.2 * 0.0
+times = np.array(times[50:]) / 1e6
+print(json.dumps({"p50": float(np.percentile(times, 50)), "p99": float(np.percentile(times, 99)),
+                  "max": float(times.max()), "mean": float(times.mean()), "n": int(times.size),
+                  "shares": {k: v / 1e6 / steps for k, v in shares.items()}}))
+'''
+
+
+def timing(baseline: str, steps: int) -> None:
+    out: dict[str, Any] = {"meta": _meta(), "baseline": baseline, "steps": steps}
+    index = str(ROOT / "tables" / "index.json")
+    with tempfile.TemporaryDirectory() as tmp:
+        wt = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(wt), baseline], check=True,
+                       capture_output=True)
+        try:
+            runs = {}
+            for label, tree, probe in (("baseline", wt, "0"), ("new", ROOT, "0"), ("baseline (again)", wt, "0"),
+                                       ("new (again)", ROOT, "0"), ("new, shares", ROOT, "1")):
+                env = {**os.environ, "PYTHONPATH": str(tree)}
+                r = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(tree), str(steps), index, probe],
+                                   capture_output=True, text=True, env=env, cwd=str(tree))
+                if r.returncode != 0:
+                    raise SystemExit(f"{label} run failed:\n{r.stderr[-3000:]}")
+                runs[label] = json.loads(r.stdout.strip().splitlines()[-1])
+                print(label, runs[label], flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], capture_output=True)
+    out["runs"] = runs
+    b = min(runs["baseline"]["p99"], runs["baseline (again)"]["p99"])
+    n = min(runs["new"]["p99"], runs["new (again)"]["p99"])
+    sh = runs["new, shares"]["shares"]
+    tot = runs["new, shares"]["mean"]
+    lines = ["# Step time of the online step against the previous design (issue 20)", "",
+             f"`python tests/bench/bench_online_step.py timing --baseline {baseline} --steps {steps}`; "
+             f"{out['meta']['commit']}, {out['meta']['date']}, {out['meta']['machine']}, {out['meta']['cpus']} cpus.", "",
+             "Thread CPU time per `Controller.step` (feedback + preparation), closed loop, RR stuck at -50 deg on "
+             "rr_steer_stuck with 3 deg of roll, first 50 steps dropped; each tree run twice, alternating, in this "
+             "invocation (the better of the two kept).", "",
+             "| run | p50 [ms] | p99 [ms] | max [ms] | mean [ms] |", "|---|---|---|---|---|"]
+    for k, v in runs.items():
+        lines.append(f"| {k} | {v['p50']:.3f} | {v['p99']:.3f} | {v['max']:.3f} | {v['mean']:.3f} |")
+    lines += ["", f"p99 ratio new / baseline: **{n / b:.2f}** (target <= 0.5).", "",
+              "Shares of the new step (mean per step, same clock; the probe's own overhead is in the mean):", "",
+              "| part | ms | share |", "|---|---|---|"]
+    for k, v in sorted(sh.items(), key=lambda kv: -kv[1]):
+        lines.append(f"| {k} | {v:.3f} | {v / tot:.0%} |")
+    rest = tot - sum(sh.values())
+    lines.append(f"| the rest (EKF, outer loop, bounds, checks) | {rest:.3f} | {rest / tot:.0%} |")
+    _write("timing", "\n".join(lines) + "\n", out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="part", required=True)
+    a = sub.add_parser("accuracy", help="the online step against the NLP at off-grid points")
+    a.add_argument("--points", type=int, default=20)
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--tables", default="", help="comma list of table names (default: all shipped)")
+    a.add_argument("--qp", default="", help="QP settings to override, e.g. step_limit=1,regularization=1e-4")
+    a.add_argument("--ticks", type=int, default=5, help="ticks per point (targets are judged at ticks 1 and 5)")
+    a.add_argument("--tag", default="", help="suffix of the results file names")
+    t = sub.add_parser("timing", help="step time against a baseline commit, side by side")
+    t.add_argument("--baseline", default="40a08e8")
+    t.add_argument("--steps", type=int, default=3000)
+    args = ap.parse_args()
+    if args.part == "accuracy":
+        qp: dict[str, Any] = {}
+        for item in (s for s in args.qp.split(",") if s):
+            k, _, v = item.partition("=")
+            qp[k] = v.lower() == "true" if v.lower() in ("true", "false") else float(v)
+        global _TAG
+        _TAG = args.tag
+        accuracy(args.points, args.seed, [s for s in args.tables.split(",") if s] or None, qp, args.ticks)
+    else:
+        timing(args.baseline, args.steps)
+
+
+if __name__ == "__main__":
+    main()

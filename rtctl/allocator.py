@@ -204,6 +204,7 @@ class QpAllocator:
         self._p_slack = np.full(len(self._p_rows), 2.0 * settings.slack_l2)
         self._l_tail, self._u_tail = np.zeros(2 * ng), np.full(2 * ng, _INF)
         self._solver: Any = None
+        self._pending: dict[str, NDArray[np.float64]] = {}  # matrix values for OSQP's next update
         self._prepared = False
         self._x0 = np.zeros(nx)
         self._p0 = np.zeros(layout.np_)
@@ -213,9 +214,11 @@ class QpAllocator:
         self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
 
     # ------------------------------------------------------------------ preparation phase
-    def prepare(self, tp: TablePointLike) -> None:
+    def prepare(self, tp: TablePointLike, hessian: NDArray[np.float64] | None = None) -> None:
         """Load a table point: matrix values (convexified Hessian, scaled Jacobian) and OSQP's
-        refactorisation. Needs no measurement (the preparation phase)."""
+        refactorisation. Needs no measurement (the preparation phase). ``hessian``: use this
+        positive definite matrix (scaled, not normalised, as :attr:`hessian`) instead of the
+        table point's (a quasi-Newton iteration that goes on)."""
         nx, ng, npar = self.nx, self.ng, self.layout.np_
         shapes = {"x": (nx,), "p": (npar,), "g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, npar), "grad_f": (nx,),
                   "hess_lag": (nx, nx), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,)}
@@ -242,15 +245,20 @@ class QpAllocator:
         cf = max(float(np.abs(H).max()), float(np.abs(g).max()), 1e-12)
         H /= cf
         g /= cf
-        Hr = H.copy()
-        Hr.flat[::nx + 1] += s.regularization
-        try:  # convex (the usual case: (7.24) is a sum of squares): H + reg I is all we need
-            np.linalg.cholesky(Hr)
-            H = Hr
-        except np.linalg.LinAlgError:  # indefinite Lagrangian Hessian: floor the eigenvalues
-            w, V = np.linalg.eigh(H)
-            H = (V * np.maximum(w, s.regularization)) @ V.T
-            H.flat[::nx + 1] += s.regularization
+        if hessian is not None:
+            H = np.asarray(hessian, dtype=float) / cf
+            if H.shape != (nx, nx) or not math.isfinite(float(H.sum())):
+                raise AllocatorError(f"prepare: hessian must be a finite ({nx}, {nx}) matrix, got shape {H.shape}")
+        else:
+            Hr = H.copy()
+            Hr.flat[::nx + 1] += s.regularization
+            try:  # convex (the usual case: (7.24) is a sum of squares): H + reg I is all we need
+                np.linalg.cholesky(Hr)
+                H = Hr
+            except np.linalg.LinAlgError:  # indefinite Lagrangian Hessian: floor the eigenvalues
+                w, V = np.linalg.eigh(H)
+                H = (V * np.maximum(w, s.regularization)) @ V.T
+                H.flat[::nx + 1] += s.regularization
         self._H = 0.5 * (H + H.T)
         self._g = g
         self._cf = cf
@@ -274,8 +282,8 @@ class QpAllocator:
         self._Ax = Ax
         if self._solver is None:
             self._setup()
-        else:
-            self._solver.update(Px=self._Px, Ax=Ax)
+        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
+            self._pending = {"Px": self._Px, "Ax": Ax}
         self._prepared = True
 
     def _p_values(self) -> NDArray[np.float64]:
@@ -325,7 +333,7 @@ class QpAllocator:
             raise AllocatorError(f"set_hessian: expected a finite ({self.nx}, {self.nx}) matrix, got shape {H.shape}")
         self._H = 0.5 * (H + H.T) / self._cf
         self._Px = self._p_values()
-        self._solver.update(Px=self._Px)
+        self._pending["Px"] = self._Px
 
     @property
     def row_duals(self) -> NDArray[np.float64] | None:
@@ -381,7 +389,8 @@ class QpAllocator:
         u = np.concatenate([ug, zhi, self._u_tail])
         np.clip(l, -_INF, _INF, out=l)
         np.clip(u, -_INF, _INF, out=u)
-        self._solver.update(q=q, l=l, u=u)
+        self._solver.update(q=q, l=l, u=u, **self._pending)
+        self._pending = {}
         if self._last_z is not None:
             zw = np.concatenate([np.clip(self._last_z, zlo, zhi), np.zeros(2 * self.ng)])
             self._solver.warm_start(x=zw, y=self._last_y)
@@ -450,7 +459,7 @@ class QpAllocator:
             Ax = self._a_data.copy()
             Ax[self._a_jac_pos_arr] = (J * self._sx_over_sg).T.ravel()
             self._Ax = Ax
-            self._solver.update(Ax=Ax)
+            self._pending["Ax"] = Ax
         q = self._q_base.copy()
         q[:self.nx] = sx * grad / self._cf
         if x_ref is not None:
@@ -460,7 +469,8 @@ class QpAllocator:
         u = np.concatenate([ug, zhi, self._u_tail])
         np.clip(l, -_INF, _INF, out=l)
         np.clip(u, -_INF, _INF, out=u)
-        self._solver.update(q=q, l=l, u=u)
+        self._solver.update(q=q, l=l, u=u, **self._pending)  # one refactorisation for the tick's matrices
+        self._pending = {}
         zw = np.concatenate([np.clip(np.zeros(self.nx), zlo, zhi), np.zeros(2 * self.ng)])
         self._solver.warm_start(x=zw, y=self._last_y)
         self._q, self._l, self._u = q, l, u

@@ -100,14 +100,14 @@ class RealTimeIteration:
     def prepare(self, tp: Any) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
         the iterate starts at its primitive when there is none."""
-        self.allocator.prepare(BoundedRows(tp, self.keep_rows))
+        if self.iterate is None:
+            self._H, self._prev, self.hessian_updates = None, None, 0
+        # the iteration goes on: keep what it learnt of the curvature (else the table's, convexified)
+        self.allocator.prepare(BoundedRows(tp, self.keep_rows), hessian=self._H)
         self._point = tp
         self._free = free_rows(tp.lbg, tp.ubg, self.keep_rows)
         if self.iterate is None:
             self.iterate = self.allocator.x0
-            self._H, self._prev, self.hessian_updates = None, None, 0
-        elif self._H is not None:  # the iteration goes on: keep what it learnt of the curvature
-            self.allocator.set_hessian(self._H)
 
     def linearise(self, x: NDArray[np.float64], p: NDArray[np.float64]
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:

@@ -275,6 +275,47 @@ class SteadyStateResidual:
         self._fd = float(fd_step)
         # gradient perturbations: the objective depends on omega, beta, h, h0 of each wheel (not W)
         self._grad_vars = ("omega", "beta", "h", "h0")
+        wheels, kinds = model.wheels, self._grad_vars
+        self._wheel_cols = {w: tuple(self._var[(v, w)] for v in WHEEL_VARIABLES) for w in wheels}
+        kr, kc = [], []
+        for j, v in enumerate(kinds):
+            for w in wheels:
+                kr.append(1 + j)
+                kc.append(self._var[(v, w)])
+        self._kind_rows, self._kind_cols = np.array(kr), np.array(kc)
+        self._kind_steps = self._fd * self._sx[self._kind_cols]
+        kind_of = {self._var[(v, w)]: (kw, 1 + j) for kw, w in enumerate(wheels) for j, v in enumerate(kinds)}
+
+        def columns(cols: list[int]) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+            sel = np.zeros((len(wheels), 1 + len(cols)), dtype=np.intp)  # per wheel: its wrench column of each column
+            for c, i in enumerate(cols, start=1):
+                if i in kind_of:
+                    kw, j = kind_of[i]
+                    sel[kw, c] = j
+            return np.array(cols, dtype=np.intp), sel, self._fd * self._sx[cols]
+
+        self._jac_cols, self._jac_sel, self._jac_steps = columns(list(range(self.nx)))
+        self._grad_cols, self._grad_sel, self._grad_steps = columns([self._var[(v, w)] for w in wheels for v in kinds])
+        self._iv = {v: np.array([self._var[(v, w)] for w in wheels]) for v in WHEEL_VARIABLES}
+        self._inv_rs = 1.0 / np.asarray(model.shearing_radius, dtype=float)
+        nk = 1 + len(kinds)
+        self._params = _stack_params(model.phys, [2 * nk] * len(wheels))
+
+    def _batched_wrenches(self, Xk: NDArray[np.float64], speed: float) -> list[tuple[tuple[NDArray[np.float64], ...], ...]]:
+        """Soil wrenches of every wheel and its zero-slip state at the ``nk`` rows of ``Xk``, in one
+        :func:`wrench_core` call: per wheel ``(main, zero-slip)``, each six arrays of length nk."""
+        nw, nk = len(self.model.wheels), Xk.shape[0]
+        OM, B, H, H0 = (Xk[:, self._iv[v]].T for v in ("omega", "beta", "h", "h0"))  # (nw, nk)
+        VX, VY = self.model.statics.wheel_velocity(NUMPY, speed, B)
+        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], OM.shape)
+
+        def pair(a: Any, b: Any) -> NDArray[np.float64]:
+            return np.stack([a, b], axis=1).reshape(-1, 1)  # wheel-major, then (main, zero-slip), then rows
+
+        w, _ = wrench_core(NUMPY, pair(VX, VX), pair(VY, VY), pair(OM, OM0), pair(H, H0), pair(H0, H0), self._params,
+                           self.model.options)
+        qs = [np.asarray(q, dtype=float).reshape(nw, 2, nk) for q in w]
+        return [(tuple(q[kw, 0] for q in qs), tuple(q[kw, 1] for q in qs)) for kw in range(nw)]
 
     def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """``(g, f)`` at physical ``x`` (nx,) and parameters ``p`` (np,): every row's physical
@@ -310,38 +351,23 @@ class SteadyStateResidual:
         nk = 1 + len(kinds)
         # wrenches: base + one column per variable kind moved on every wheel
         Xk = np.repeat(x[None, :], nk, axis=0)
-        for j, v in enumerate(kinds):
-            for w in wheels:
-                i = self._var[(v, w)]
-                Xk[1 + j, i] += self._fd * self._sx[i]
-        xk = {w: tuple(Xk[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
-        speed = P["speed"]
-        blocks: list[tuple[int, Any, Any, Any, Any, Any]] = []
-        for i, w in enumerate(wheels):
-            om, b, _, hi, h0 = xk[w]
-            vx, vy = model.statics.wheel_velocity(NUMPY, speed, b)
-            blocks.append((i, vx, vy, om, hi, h0))
-            blocks.append((i, vx, vy, speed / model.shearing_radius[i], h0, h0))
-        ws = _wrenches(NUMPY, model, blocks)
+        Xk[self._kind_rows, self._kind_cols] += self._kind_steps
+        ws = self._batched_wrenches(Xk, P["speed"])
         # columns: base, then every variable alone (the gradient needs only the wrench kinds)
-        cols = list(range(self.nx)) if jacobian else [self._var[(v, w)] for w in wheels for v in kinds]
+        cols, sel, steps = (self._jac_cols, self._jac_sel, self._jac_steps) if jacobian else \
+            (self._grad_cols, self._grad_sel, self._grad_steps)
         nc = 1 + len(cols)
         X = np.repeat(x[None, :], nc, axis=0)
-        steps = self._fd * self._sx[cols]
         X[np.arange(1, nc), cols] += steps
-        sel = np.zeros((len(wheels), nc), dtype=np.intp)  # per wheel: which wrench column each row uses
-        for c, i in enumerate(cols, start=1):
-            for kw, w in enumerate(wheels):
-                for j, v in enumerate(kinds):
-                    if self._var[(v, w)] == i:
-                        sel[kw, c] = 1 + j
         wsel = []
         for kw in range(len(wheels)):
-            for blk in (ws[2 * kw], ws[2 * kw + 1]):
-                wsel.append(tuple(np.asarray(q)[sel[kw]] for q in blk))
-        xs = {w: tuple(X[:, self._var[(v, w)]].reshape(-1, 1) for v in WHEEL_VARIABLES) for w in wheels}
+            for blk in ws[kw]:
+                wsel.append(tuple(q[sel[kw]].reshape(-1, 1) for q in blk))
+        xs = {w: tuple(X[:, i].reshape(-1, 1) for i in self._wheel_cols[w]) for w in wheels}
         rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
-        G = np.stack([np.broadcast_to(np.asarray(rows[n], dtype=float).reshape(-1), (nc,)) for n in self._names])
+        G = np.empty((len(self._names), nc))
+        for r, n in enumerate(self._names):
+            G[r] = np.asarray(rows[n], dtype=float).reshape(-1)
         fv = np.broadcast_to(np.asarray(f, dtype=float).reshape(-1), (nc,))
         g = G[:, 0].copy()
         grad = np.zeros(self.nx)

@@ -193,6 +193,24 @@ def load_tables(index_path: str | Path) -> dict[str, Any]:
     return {name: info.load() for name, info in load_index(index_path).items()}
 
 
+def load_tables_tolerant(index_path: str | Path, names: Any = None) -> tuple[dict[str, Any], dict[str, str]]:
+    """The tables of an index that load, and why each other one did not (a missing or corrupt
+    file, a hash that differs from the index): ``(tables, {name: reason})``. The index itself
+    must be readable (:class:`rtctl.table.TableError` otherwise)."""
+    from .table import TableError, load_index
+
+    tables: dict[str, Any] = {}
+    gaps: dict[str, str] = {}
+    for name, info in load_index(index_path).items():
+        if names is not None and name not in names:
+            continue
+        try:
+            tables[name] = info.load()
+        except (TableError, OSError, ValueError, KeyError) as exc:
+            gaps[name] = str(exc).splitlines()[0][:300]
+    return tables, gaps
+
+
 @dataclass
 class _Prepared:
     """Everything the preparation phase leaves for the next feedback phase."""
@@ -230,13 +248,17 @@ class Controller:
     config : ControllerConfig
     """
 
-    def __init__(self, tables: Any, config: ControllerConfig) -> None:
+    def __init__(self, tables: Any, config: ControllerConfig, unavailable: Mapping[str, str] | None = None) -> None:
         if hasattr(tables, "at"):
             tables = {str(getattr(tables, "name", "table")): tables}
         if not isinstance(tables, Mapping) or not tables:
             raise ControllerError("tables: expected a Table or a non-empty mapping name -> Table")
         self.tables = dict(sorted(tables.items()))
         self.config = config
+        self.unavailable = dict(sorted((unavailable or {}).items()))
+        """Tables of the index that did not load at start-up (name -> why): flagged on every tick."""
+        self._gap_flags = tuple(f"table {k} unavailable since start-up ({v}); failures it served are imposed on "
+                                "another table" for k, v in self.unavailable.items())
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
 
@@ -290,7 +312,10 @@ class Controller:
         """A controller on the tables of ``config.tables_index`` (``[tables] index`` in the TOML)."""
         if not config.tables_index:
             raise ControllerError("[tables] index is empty: give the path of the table index (tables/index.json)")
-        return cls(load_tables(config.tables_index), config)
+        tables, gaps = load_tables_tolerant(config.tables_index)
+        if not tables:
+            raise ControllerError(f"no table of {config.tables_index} loads: " + "; ".join(f"{k}: {v}" for k, v in gaps.items()))
+        return cls(tables, config, gaps)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -340,6 +365,10 @@ class Controller:
         if self._task is not None:
             flags.append(f"no table for the declared task {self._task.kind} {self._task.wheel} with failures "
                          f"{sorted(self._failures) or 'none'}: driving on table {self.default_table}")
+        if self._failures:
+            self._count("unmatched_failure_preparations")
+            flags.append(f"no table for the declared failures {_describe_failures(self._failures)}: driving on table "
+                         f"{self.default_table} with {_imposed(self._failures)}")
         return self.default_table, flags
 
     def prepare(self) -> None:
@@ -844,6 +873,8 @@ class Controller:
                 a = 0.0
             else:
                 a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
+                if (w, "rim_speed_cap") in self._failures:  # a declared cap holds at once, like a lock
+                    a = min(a, self._failures[(w, "rim_speed_cap")])
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
         return (out_r[0], out_r[1], out_r[2], out_r[3]), (out_s[0], out_s[1], out_s[2], out_s[3])
@@ -894,7 +925,23 @@ class Controller:
             heading_error=e_psi, crosstrack_error=e_y, mz_offset=mz, fy_offset=fy,
             speed_factor=prep.speed_factor if prep else 1.0, state=tuple(float(v) for v in x),
             state_sigma=tuple(float(v) for v in np.sqrt(np.diag(P))), pose_verdict=verdict,
-            counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used, flags=(prep.flags if prep else ()) + tuple(self._tick_flags))
+            counters=tuple(sorted(counters.items())), crab_commanded=self._crab_used,
+            flags=self._gap_flags + (prep.flags if prep else ()) + tuple(self._tick_flags))
+
+
+_IMPOSED = {"steer_stuck": "its steering fixed at the measured (else declared) angle",
+            "locked": "its wheel speed fixed at 0", "rim_speed_cap": "its wheel speed capped at the declared rim speed",
+            "unpowered": "its wheel torque row fixed at 0", "torque_limit": "its wheel torque row bounded by the declared limit",
+            "raised": "NOTHING imposed (a raised wheel changes the model's contact and pivot: it needs a table)"}
+
+
+def _describe_failures(failures: Mapping[tuple[str, str], float]) -> str:
+    return ", ".join(f"{w} {k}" + (f" {v:.4g}" if math.isfinite(v) else "") for (w, k), v in sorted(failures.items()))
+
+
+def _imposed(failures: Mapping[tuple[str, str], float]) -> str:
+    """What :meth:`Controller._bounds` imposes for each declared failure (said in the flag)."""
+    return "; ".join(f"{w} {k}: {_IMPOSED.get(k, 'nothing imposed (unknown kind)')}" for (w, k) in sorted(failures))
 
 
 def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:

@@ -49,19 +49,21 @@ def load_controller(tables: str, config: str | None = None, names: Sequence[str]
     from pathlib import Path
 
     from .config import ControllerConfig
-    from .controller import Controller
-    from .table import load_index, load_table
+    from .controller import Controller, load_tables_tolerant
+    from .table import TableError, load_table
 
     p = Path(tables)
     if p.is_dir():
         p = p / "index.json"
+    gaps: dict[str, str] = {}
     if p.suffix == ".json":
-        index = load_index(p)
-        loaded = {n: info.load() for n, info in index.items() if names is None or n in names}
+        loaded, gaps = load_tables_tolerant(p, names)
+        if not loaded:
+            raise TableError(f"{p}: no table loads: " + "; ".join(f"{k}: {v}" for k, v in gaps.items()))
     else:
         loaded = {p.stem: load_table(p)}
     cfg = ControllerConfig.from_toml(config) if config else ControllerConfig()
-    return Controller(loaded, cfg)
+    return Controller(loaded, cfg, gaps)
 
 
 def _serve(conn: Any, factory: Callable[[], Any]) -> None:

@@ -205,6 +205,7 @@ class QpAllocator:
         self._l_tail, self._u_tail = np.zeros(2 * ng), np.full(2 * ng, _INF)
         self._solver: Any = None
         self._pending: dict[str, NDArray[np.float64]] = {}  # matrix values for OSQP's next update
+        self._res_y: NDArray[np.float64] | None = None
         self._prepared = False
         self._x0 = np.zeros(nx)
         self._p0 = np.zeros(layout.np_)
@@ -387,31 +388,42 @@ class QpAllocator:
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
+        zw = None if self._last_z is None else np.clip(self._last_z, zlo, zhi)
+        solved, status, it, zf, z, slack, obj = self._osqp(q, l, u, zlo, zhi, zw)
+        if not solved:
+            self._last_z = self._last_y = self._last_x = None
+            return self._refused(f"OSQP: {status}", it)
+        dx = z * sx
+        x = self._x0 + dx
+        self._last_z, self._last_y, self._last_x = zf[:self.nx].copy(), self._res_y, x.copy()
+        ok = slack <= s.balance_tolerance
+        return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
+                          slack, obj)
+
+    def _osqp(self, q: NDArray[np.float64], l: NDArray[np.float64], u: NDArray[np.float64], zlo: NDArray[np.float64],
+              zhi: NDArray[np.float64], z_warm: NDArray[np.float64] | None
+              ) -> tuple[bool, str, int, NDArray[np.float64], NDArray[np.float64], float, float]:
+        """One OSQP solve with the pending matrix values and these vectors (warm-started at
+        ``z_warm`` and the last duals): ``(solved, status, iterations, raw answer, step clipped into
+        the box, largest model-row slack, objective)``."""
         np.clip(l, -_INF, _INF, out=l)
         np.clip(u, -_INF, _INF, out=u)
-        self._solver.update(q=q, l=l, u=u, **self._pending)
+        self._solver.update(q=q, l=l, u=u, **self._pending)  # one refactorisation for the tick's matrices
         self._pending = {}
-        if self._last_z is not None:
-            zw = np.concatenate([np.clip(self._last_z, zlo, zhi), np.zeros(2 * self.ng)])
-            self._solver.warm_start(x=zw, y=self._last_y)
+        if z_warm is not None:
+            self._solver.warm_start(x=np.concatenate([z_warm, np.zeros(2 * self.ng)]), y=self._last_y)
         self._q, self._l, self._u = q, l, u
         res = self._solver.solve(raise_error=False)
         self.last_solution = np.array(res.x, dtype=float) if res.x is not None else np.full(self.n, np.nan)
-        status = str(res.info.status)
-        it = int(res.info.iter)
-        zf = res.x
+        status, it, zf = str(res.info.status), int(res.info.iter), res.x
         if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or zf is None or not np.all(np.isfinite(zf)):
-            self._last_z = self._last_y = self._last_x = None
-            return self._refused(f"OSQP: {status}", it)
+            return False, status, it, self.last_solution, np.zeros(self.nx), math.inf, math.nan
+        zf = np.asarray(zf, dtype=float)
         z = np.clip(zf[:self.nx], zlo, zhi)
         sig = np.maximum(zf[self.nx:], 0.0)
         slack = float(np.max(sig[:self.ng] + sig[self.ng:])) if self.ng else 0.0
-        dx = z * sx
-        x = self._x0 + dx
-        self._last_z, self._last_y, self._last_x = zf[:self.nx].copy(), np.asarray(res.y, dtype=float).copy(), x.copy()
-        ok = slack <= s.balance_tolerance
-        return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
-                          slack, float(res.info.obj_val))
+        self._res_y = np.asarray(res.y, dtype=float).copy()
+        return True, status, it, zf, z, slack, float(res.info.obj_val)
 
     def solve_at(self, x_lin: NDArray[np.float64], g: NDArray[np.float64], grad_f: NDArray[np.float64],
                  jac_g_x: NDArray[np.float64] | None, box: tuple[NDArray[np.float64], NDArray[np.float64]],
@@ -467,30 +479,16 @@ class QpAllocator:
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
-        np.clip(l, -_INF, _INF, out=l)
-        np.clip(u, -_INF, _INF, out=u)
-        self._solver.update(q=q, l=l, u=u, **self._pending)  # one refactorisation for the tick's matrices
-        self._pending = {}
-        zw = np.concatenate([np.clip(np.zeros(self.nx), zlo, zhi), np.zeros(2 * self.ng)])
-        self._solver.warm_start(x=zw, y=self._last_y)
-        self._q, self._l, self._u = q, l, u
-        res = self._solver.solve(raise_error=False)
-        self.last_solution = np.array(res.x, dtype=float) if res.x is not None else np.full(self.n, np.nan)
-        status = str(res.info.status)
-        it = int(res.info.iter)
-        zf = res.x
-        if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or zf is None or not np.all(np.isfinite(zf)):
+        solved, status, it, _, z, slack, obj = self._osqp(q, l, u, zlo, zhi, np.clip(np.zeros(self.nx), zlo, zhi))
+        if not solved:
             self._last_y = None
             return Allocation(x_lin.copy(), np.zeros(self.nx), False, f"OSQP: {status}", it, math.inf, math.nan)
-        z = np.clip(zf[:self.nx], zlo, zhi)
-        sig = np.maximum(zf[self.nx:], 0.0)
-        slack = float(np.max(sig[:self.ng] + sig[self.ng:])) if self.ng else 0.0
         dx = z * sx
         x = x_lin + dx
-        self._last_y = np.asarray(res.y, dtype=float).copy()
+        self._last_y = self._res_y
         ok = slack <= s.balance_tolerance
         return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
-                          slack, float(res.info.obj_val))
+                          slack, obj)
 
     def _refused(self, why: str, iterations: int = 0) -> Allocation:
         return Allocation(self._x0.copy(), np.zeros(self.nx), False, why, iterations, math.inf, math.nan)

@@ -1,37 +1,12 @@
-"""3D rigid-wheel terramechanics for any slip ratio and slip angle (dissertation ch. 5).
+"""3D rigid-wheel terramechanics for any slip ratio and slip angle (dissertation ch. 5): the ground side.
 
-One implementation, two uses. :func:`wrench_core` is written against
-:class:`offline.physics.backend.Backend`; with ``NUMPY`` it evaluates batched wheel states, with
-``CASADI`` it builds an ``SX`` graph with exact derivatives. :class:`WheelModel` wraps both:
-validated batched evaluation (:meth:`WheelModel.wrench`), casadi functions with Jacobians
-(:meth:`WheelModel.casadi_function`), and sinkage from load, eq. (5.34)
-(:meth:`WheelModel.sinkage_from_load`).
-
-Frame and signs (Fig. 5.1): x forward along the wheel heading, y out of the wheel face,
-z up; forces and moments are exerted by the soil on the wheel, moments about the wheel
-centre. ``beta = -atan(v_y / v_x)`` (5.1); slip ratio (5.2) with ``r_s = r + h_g``; rim
-angles measured from the downward vertical, positive toward the front. ``M_y`` is the soil
-torque about +y (eq. 5.31): the motor must supply ``-M_y``.
-
-Departures from the printed text (each also noted where it happens)
--------------------------------------------------------------------
-* (5.2) prints ``(r_s w - v) / (r w)`` for slip; the denominator is ``r_s w`` (published code).
-* (5.17) is garbled (``v_jT = v_y``). Rear skid region (theta < theta_0) has the slip shear
-  velocity (5.13) (as the text says), and the front region (5.18) follows from (5.16) with
-  ``K_v`` fixed by ``j_T(theta_0) = 0``; both integrate to (5.20) (pinned by a test).
-* (5.30), (5.32) print the lateral-shear moment with the opposite sign to the bulldozing
-  moment, although both forces act in +y below the axle. Moments here are ``r x F`` about
-  the wheel centre for every stress, which reproduces (5.31) exactly. The bulldozing lever
-  arm is the true depth of the centre of pressure below the axle,
-  ``r_s cos(theta) - h_b + h_COP``, with ``h_COP`` the first moment of the pressure (5.22)-(5.23)
-  over the blade depth; (5.33) as printed halves the cohesive terms of that ratio.
-* Locked wheel (w = 0): the deformations (5.20)-(5.21) diverge as 1/w. They are evaluated
-  as ``w j`` (finite) and ``1 - exp(-|w j| / (|w| K))`` with ``|w|`` floored at
-  ``OMEGA_FLOOR``, which gives the analytic limit ``tau = c + sigma tan(phi)`` with no
-  division by zero, in value and derivative.
-* Counter-rotation (w r_s < 0 while travelling forward, s < -1): outside the model's
-  domain. Numeric evaluation raises; the symbolic graph clips s to -1 in the empirical
-  terms (n, theta_0) and keeps the exact kinematics.
+The physics itself, :func:`wrench_core` with its parameters and options, lives in
+:mod:`rtctl.physics.terramechanics` (re-exported here; its module docstring lists frames, signs
+and every departure from the printed text), written once against the array backends: numpy on
+both sides, casadi (:data:`offline.physics.backend.CASADI`) here. :class:`WheelModel` wraps
+both: validated batched evaluation (:meth:`WheelModel.wrench`), casadi functions with
+Jacobians (:meth:`WheelModel.casadi_function`), compiled C functions, and sinkage from load,
+eq. (5.34) (:meth:`WheelModel.sinkage_from_load`).
 """
 
 from __future__ import annotations

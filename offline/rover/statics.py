@@ -1,58 +1,10 @@
-"""Rover statics for steady straight driving (dissertation section 7.2.2), derived from the geometry.
+"""Rover statics for steady straight driving (dissertation section 7.2.2): the independent check.
 
-The 4-wheel rocker rover of Table 7.2: two rockers joined by a passive pivot, independent
-steer and drive on every wheel. :class:`FourWheelRocker` implements the wheel kinematics
-(7.6)-(7.7), the rocker angles (7.10)-(7.11) and the balance (7.12)-(7.18) with the load
-constraint (7.23), the steering offsets (7.26)-(7.27), the slope (7.32)-(7.33) and a cross
-slope, backend-generic like the wheel physics (numpy for checking a solution, casadi for the
-NLP). :func:`free_body_residuals` computes the same balance independently (numpy, explicit
-3-D positions and rotation matrices, cross products); the optimizer's independent check
-uses it.
-
-Frames: terrain frame x forward (travel direction), y left, z along the terrain normal
-(Fig. 7.2); the wheel forces and moments are expressed in it (the wheel model sees flat
-ground), each wheel's wrench about its wheel centre. A wheel steered by ``beta`` has its
-heading rotated by ``beta`` about z (positive toward +y, i.e. left); for a rover driving
-straight the steer angle equals the wheel's slip angle (5.1). The right rear wheel
-"pointed outwards" is at a negative angle (Fig. 7.11: stuck at -50 deg).
-
-Geometry (derived here; where it departs from the printed equations)
---------------------------------------------------------------------
-Each rocker carries its front and rear wheel centres at ``+-l_r/2`` along the rocker and
-``h_r`` below its pivot; the pivots sit at ``y = -+w_r/2`` of the reference point O (the
-body at pivot height, where the weight acts: the rover's centre of mass is taken at O, as
-the printed moment equations imply by having no weight terms). The rocker angle ``phi``
-is the nose-up angle of (7.10)-(7.11): ``phi_R = asin((h_RR - h_FR) / l_r)`` is positive
-when the rear wheel sinks deeper (its centre ``r - h`` is lower). A nose-up angle is a
-rotation by ``-phi`` about +y, so the wheel centres relative to O are::
-
-    front: ( cos(phi) l_r/2 + sin(phi) h_r,  -+w_r/2,  sin(phi) l_r/2 - cos(phi) h_r)
-    rear:  (-cos(phi) l_r/2 + sin(phi) h_r,  -+w_r/2, -sin(phi) l_r/2 - cos(phi) h_r)
-
-and the balance is ``sum(r x F + M) = 0`` about O (pitch of each rocker: about its pivot
-axis). Compared with the printed equations:
-
-* (7.15)-(7.17): the ``sin(phi)`` terms have the opposite sign. The printed signs put the
-  front axle lower for a positive angle (nose down), which contradicts (7.10)-(7.11)
-  (nose up when the rear sinks more). Here the signs follow the geometry.
-* (7.18): the yaw balance gains ``(F_y,F + F_y,R) h_r sin(phi)`` per rocker, the lever arm
-  of the lateral forces along x that a tilted rocker gives its wheel centres (omitted in
-  the printed equation).
-* (7.16)-(7.17): the soil moments ``M_y`` about the wheel axles act on the rocker-plus-wheel
-  body (the motor torque is internal) and are included (``pitch_includes_wheel_torque``).
-* Cross slope ``gamma`` (not in the dissertation): gravity in the terrain frame is
-  ``W (-sin(alpha), -cos(alpha) sin(gamma), -cos(alpha) cos(gamma))`` (pitch alpha about y,
-  then roll gamma about x, left side up positive), so (7.13) gains ``- W cos(alpha) sin(gamma)``
-  and (7.33) becomes ``sum W_i = W cos(alpha) cos(gamma)``. With the centre of mass at O the
-  weight has no moment about O.
-* External pull (not in the dissertation; a tether, drawbar or anchored cable): a constant
-  body-frame force ``(F_x, F_y)`` at the height of O with yaw moment ``M_z`` about O adds to
-  (7.12), (7.13) and (7.18); attached at O's height and parallel to the terrain it has no
-  roll or pitch moment. Only built into the graph when given (``external``).
-* Roll of the body is neglected, as in the dissertation (section 7.2.2).
-* A raised wheel (stuck suspension, pivot locked): its rocker is held at the other
-  rocker's angle (the locked body is one rigid frame), so its placeholder sinkage does not
-  enter any angle.
+The balance the NLP and the rover evaluate is :class:`rtctl.physics.statics.FourWheelRocker`
+(re-exported here; its module docstring derives the geometry and lists where it departs from
+the printed equations). :func:`free_body_residuals` computes the same balance independently
+(numpy, explicit 3-D positions and rotation matrices, cross products); the optimizer's
+independent check uses it, so the two are never the same code.
 """
 
 from __future__ import annotations

@@ -8,9 +8,11 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.table`: lookup tables (load, hash/schema check, interpolation at an operating point);
 * :mod:`rtctl.config`: the controller's TOML configuration (actuator limits, noise, gains, QP settings);
 * :mod:`rtctl.estimator`: EKF on heading, position, slip, crab angle and gyro bias (filterpy);
-* :mod:`rtctl.allocator`: the QP around the tabulated primitive (OSQP, set up once per table);
+* :mod:`rtctl.allocator`: the QP of one SQP step of (7.25) (OSQP, set up once per table);
+* :mod:`rtctl.rti`: one table's real-time iteration (exact linearisation at the carried iterate, the QP);
+* :mod:`rtctl.physics`: the wheel-soil physics both sides share (numpy here, for the exact residual);
 * :mod:`rtctl.controller`: ``Controller(tables, config).step(measurements) -> (commands, diagnostics)``;
 * :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count.
 """
 
-__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "controller", "runner"]
+__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "rti", "physics", "controller", "runner"]

@@ -246,6 +246,10 @@ class Controller:
         depth), clamped into the axis and flagged when outside. A table with no feasible point
         cannot be interpolated: the last good preparation is kept and ``table_errors`` counts it.
     config : ControllerConfig
+    unavailable : mapping name -> str, optional
+        Tables of the index that did not load at start-up and why
+        (:func:`load_tables_tolerant`): flagged on every tick; a failure they served is imposed
+        on another table, and said.
     """
 
     def __init__(self, tables: Any, config: ControllerConfig, unavailable: Mapping[str, str] | None = None) -> None:

@@ -33,7 +33,8 @@ def test_import_check_can_fail():
     assert subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 1
 
 
-RTCTL_MODULES = [*(f"rtctl.{m}" for m in importlib.import_module("rtctl").__all__)]
+RTCTL_MODULES = [*(f"rtctl.{m}" for m in importlib.import_module("rtctl").__all__),
+                 *(f"rtctl.physics.{m}" for m in importlib.import_module("rtctl.physics").__all__)]
 
 
 @pytest.mark.parametrize("name", RTCTL_MODULES)

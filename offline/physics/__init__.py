@@ -1,6 +1,9 @@
-"""Physics layer: parameters, the numpy/casadi backend, soil flow (ch. 4) and 3D terramechanics (ch. 5).
+"""Physics layer, ground side: parameters, the casadi backend and the validated wheel model (ch. 5).
+
+The physics itself (soil flow of ch. 4, the terramechanics of ch. 5, the statics of ch. 7) lives
+in :mod:`rtctl.physics`, which the rover imports too; this layer builds on it.
 
 Knows nothing of rovers, fitting or simulation (arrows point down only).
 """
 
-__all__ = ["backend", "params", "soil_flow", "terramechanics", "plots_soil_flow"]
+__all__ = ["backend", "params", "terramechanics", "plots_soil_flow"]

@@ -10,9 +10,10 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.estimator`: EKF on heading, position, slip, crab angle and gyro bias (filterpy);
 * :mod:`rtctl.allocator`: the QP of one SQP step of (7.25) (OSQP, set up once per table);
 * :mod:`rtctl.rti`: one table's real-time iteration (exact linearisation at the carried iterate, the QP);
+* :mod:`rtctl.mirror`: the left-right mirror of a table (a rear-right table serves rear-left);
 * :mod:`rtctl.physics`: the wheel-soil physics both sides share (numpy here, for the exact residual);
 * :mod:`rtctl.controller`: ``Controller(tables, config).step(measurements) -> (commands, diagnostics)``;
 * :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count.
 """
 
-__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "rti", "physics", "controller", "runner"]
+__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "rti", "mirror", "physics", "controller", "runner"]

@@ -72,6 +72,7 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .layout import WHEELS
+from .mirror import MIRROR_WHEEL, MirrorError, mirror_table
 from .rti import RealTimeIteration
 from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
@@ -250,13 +251,37 @@ class Controller:
         Tables of the index that did not load at start-up and why
         (:func:`load_tables_tolerant`): flagged on every tick; a failure they served is imposed
         on another table, and said.
+    mirror : bool
+        Add the left-right mirror of every failure table whose mirrored failures no loaded table
+        serves (a rear-right table serves rear-left; :mod:`rtctl.mirror`); a drive on one is
+        flagged with the table it mirrors.
     """
 
-    def __init__(self, tables: Any, config: ControllerConfig, unavailable: Mapping[str, str] | None = None) -> None:
+    def __init__(self, tables: Any, config: ControllerConfig, unavailable: Mapping[str, str] | None = None,
+                 mirror: bool = True) -> None:
         if hasattr(tables, "at"):
             tables = {str(getattr(tables, "name", "table")): tables}
         if not isinstance(tables, Mapping) or not tables:
             raise ControllerError("tables: expected a Table or a non-empty mapping name -> Table")
+        tables = dict(tables)
+        self.mirrored: dict[str, str] = {}
+        """Tables added as the left-right mirror of a loaded one (mirror name -> original), where no
+        loaded table serves the mirrored failures (:func:`rtctl.mirror.mirror_table`)."""
+        if mirror:
+            sigs = {table_signature(t) for t in tables.values()}
+            for name, t in sorted(tables.items()):
+                sig = table_signature(t)
+                msig = frozenset((MIRROR_WHEEL.get(w, w), k) for w, k in sig)
+                if not sig or msig in sigs:
+                    continue
+                try:
+                    m = mirror_table(t)
+                except MirrorError:  # a trench table: its mirror must be built
+                    continue
+                if m.name not in tables:
+                    tables[m.name] = m
+                    sigs.add(msig)
+                    self.mirrored[m.name] = name
         self.tables = dict(sorted(tables.items()))
         self.config = config
         self.unavailable = dict(sorted((unavailable or {}).items()))
@@ -416,6 +441,8 @@ class Controller:
         gains = self._gains(table)
         if rti.no_model:
             flags.append(rti.no_model)
+        if name in self.mirrored:
+            flags.append(f"table {name} is the left-right mirror of table {self.mirrored[name]}")
         xk = rti.iterate if rti.iterate is not None else alloc.x0
         self._prep = _Prepared(name, tp, alloc, ix, rti, cfg.qp.step_limit * alloc.sx, gains,
                                self._crab_sensitivity(table, tp, ix), self._primitive_slip(xk, tp, ix, prev is not None),

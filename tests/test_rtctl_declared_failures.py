@@ -42,7 +42,7 @@ def _ticks(ctl, failures, n=3, steer=(0.0, 0.0, 0.0, 0.0)):
 @pytest.mark.parametrize("decl, imposed", [
     (FailureDeclaration("FR", "raised", 1.0), "NOTHING imposed"),
     (FailureDeclaration("FL", "steer_stuck", -30 * DEG), "steering fixed"),
-    (FailureDeclaration("RL", "unpowered", 1.0), "torque row fixed at 0"),
+    (FailureDeclaration("FL", "unpowered", 1.0), "torque row fixed at 0"),  # RL: served by the mirror of rr_unpowered
 ])
 def test_unmatched_failure_is_flagged_and_counted(tables, decl, imposed):
     ctl = Controller(tables, ControllerConfig())

@@ -1,0 +1,216 @@
+"""Left-right mirror of a lookup table: a rear-right table serves rear-left (part of issue 21).
+
+The mini rover (Table 7.2) and the wheel model are symmetric under reflection in the rover's
+x-z plane. Reflection swaps the right and left wheels (FR <-> FL, RR <-> RL) and flips the
+sign of every lateral quantity: steering and slip angles (``beta``), the cross slope, the
+offsets of (7.26)-(7.27), the balance rows in F_y, M_x and M_z (the two rocker pitch rows
+swap), and each wheel's F_y, M_x, M_z and its Jacobian in v_y. :func:`mirror_table` applies that
+to every field of every grid point (a signed permutation ``x_m = M_x x``: Jacobians
+``M_g J M_x^T``, Hessians ``M_x H M_x^T``; a bound whose variable flips sign swaps lower and
+upper; active-set codes and multipliers follow), reverses the axes that flip sign (cross slope,
+a stuck steering angle), and rewrites the header (failures and family on the mirrored wheel,
+stuck angles and steering ranges negated, per-wheel world records swapped, the lateral pull
+negated), so that the rover's exact residual (:mod:`rtctl.physics.steady_state`) of the
+mirrored table is the mirrored rover's. The steering controllers of section 7.2.4 map as
+``Mz+ <- -M(Mz-)`` (a positive offset in the mirror is a negative one in the original, per unit
+offset).
+
+A trench table is not mirrored (:class:`MirrorError`): which side of the trench is clean is
+part of the soil-flow model's convention, not checked here to be symmetric.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .table import CONTROLLER_NAMES, Table, content_hash
+
+__all__ = ["MirrorError", "MIRROR_WHEEL", "mirror_table", "mirror_name"]
+
+MIRROR_WHEEL = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+"""The wheel each wheel becomes in the mirror."""
+_LATERAL_PARAMETERS = ("cross_slope", "fy_offset", "mz_offset")
+_LATERAL_ROWS = ("balance Fy", "balance Mx", "balance Mz")
+_FLIPPED_AXES = ("cross_slope", "steer_stuck")
+_WRENCH_SIGN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # Fx, Fy, Fz, Mx, My, Mz
+_STATE_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0])  # vx, vy, omega, h, h0
+
+
+class MirrorError(ValueError):
+    """A table that cannot be mirrored (its name says why)."""
+
+
+def mirror_name(name: str) -> str:
+    """``rr_steer_stuck`` -> ``rl_steer_stuck`` (a wheel prefix swapped), else ``<name>_mirror``."""
+    head, _, rest = name.partition("_")
+    w = head.upper()
+    return f"{MIRROR_WHEEL[w].lower()}_{rest}" if w in MIRROR_WHEEL and rest else f"{name}_mirror"
+
+
+def _names_map(names: list[str]) -> NDArray[np.intp]:
+    """Index of each name's mirror in the same list (``'load RR'`` <-> ``'load RL'``, ...)."""
+    out = []
+    for n in names:
+        parts = n.split(" ")
+        m = " ".join(MIRROR_WHEEL.get(p, p) for p in parts)
+        m = {"balance My_right": "balance My_left", "balance My_left": "balance My_right"}.get(m, m)
+        out.append(names.index(m))
+    return np.array(out, dtype=np.intp)
+
+
+def _signed_permutation(names: list[str], flipped: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """``(source index, sign)`` per entry: entry ``i`` of the mirror is ``sign[i] * v[src[i]]``."""
+    src = _names_map(names)
+    sign = np.array([-1.0 if flipped(names[j]) else 1.0 for j in src])
+    return src, sign
+
+
+def mirror_table(t: Table) -> Table:
+    """The mirror image of ``t`` (module docstring), a new in-memory :class:`Table`.
+
+    Raises
+    ------
+    MirrorError
+        For a trench table, or a layout whose names have no mirror.
+    """
+    h = t.header
+    sc = h.get("scenario") or {}
+    if isinstance(sc.get("trench"), dict):
+        raise MirrorError(f"table {t.name}: a trench table is not mirrored (the clean side is a convention of the "
+                          "soil-flow model); build the mirrored trench table")
+    lay = t.layout
+    try:
+        vs, vsign = _signed_permutation(list(lay.variable_names), lambda n: n.startswith("beta "))
+        ps, psign = _signed_permutation(list(lay.parameter_names), lambda n: n in _LATERAL_PARAMETERS)
+        gs, gsign = _signed_permutation(list(lay.constraint_names), lambda n: n in _LATERAL_ROWS)
+    except ValueError as exc:
+        raise MirrorError(f"table {t.name}: a name of its layout has no mirror ({exc})") from None
+    wheels = list(lay.wheels)
+    ws = np.array([wheels.index(MIRROR_WHEEL[w]) for w in wheels])
+    flip_axes = [i for i, k in enumerate(t.axis_order) if k in _FLIPPED_AXES and len(t.axes[k]) > 1]
+    nd = len(t.shape)
+
+    def grid(a: NDArray[Any]) -> NDArray[Any]:  # reverse the axes whose values flip sign
+        for i in flip_axes:
+            a = np.flip(a, axis=i)
+        return np.ascontiguousarray(a)
+
+    def vec(a: NDArray[Any], src: NDArray[np.intp], sign: NDArray[np.float64], axis: int) -> NDArray[Any]:
+        a = np.take(a, src, axis=nd + axis)
+        shape = [1] * a.ndim
+        shape[nd + axis] = len(sign)
+        return a * sign.reshape(shape)
+
+    def bounds(lo: NDArray[Any], hi: NDArray[Any], src: NDArray[np.intp], sign: NDArray[np.float64]
+               ) -> tuple[NDArray[Any], NDArray[Any]]:
+        a, b = vec(lo, src, sign, 0), vec(hi, src, sign, 0)
+        neg = (sign < 0).reshape((1,) * nd + (-1,))
+        return np.where(neg, b, a), np.where(neg, a, b)
+
+    def active(code: NDArray[Any], src: NDArray[np.intp], sign: NDArray[np.float64]) -> NDArray[Any]:
+        c = np.take(code, src, axis=nd)
+        neg = (sign < 0).reshape((1,) * nd + (-1,))
+        return np.where(neg & (np.abs(c) == 1), -c, c).astype(code.dtype)
+
+    A = {k: np.asarray(v) for k, v in t.arrays.items()}
+    out: dict[str, NDArray[Any]] = {}
+    out["x"] = vec(A["x"], vs, vsign, 0)
+    out["lbx"], out["ubx"] = bounds(A["lbx"], A["ubx"], vs, vsign)
+    out["lam_x"] = vec(A["lam_x"], vs, vsign, 0)
+    out["grad_f"] = vec(A["grad_f"], vs, vsign, 0)
+    out["p"] = vec(A["p"], ps, psign, 0)
+    out["trust_radius"] = vec(A["trust_radius"], ps, np.abs(psign), 0)
+    out["trust_unverified"] = vec(A["trust_unverified"], ps, np.abs(psign), 0)
+    out["g"] = vec(A["g"], gs, gsign, 0)
+    out["lbg"], out["ubg"] = bounds(A["lbg"], A["ubg"], gs, gsign)
+    out["lam_g"] = vec(A["lam_g"], gs, gsign, 0)
+    out["jac_g_x"] = vec(vec(A["jac_g_x"], gs, gsign, 0), vs, vsign, 1)
+    out["jac_g_p"] = vec(vec(A["jac_g_p"], gs, gsign, 0), ps, psign, 1)
+    out["hess_lag"] = vec(vec(A["hess_lag"], vs, vsign, 0), vs, vsign, 1)
+    out["hess_lag_xp"] = vec(vec(A["hess_lag_xp"], vs, vsign, 0), ps, psign, 1)
+    out["dx_dp"] = vec(vec(A["dx_dp"], vs, vsign, 0), ps, psign, 1)
+    one = np.ones(len(wheels))
+    out["wrench"] = vec(vec(A["wrench"], ws, one, 0), np.arange(6), _WRENCH_SIGN, 1)
+    out["wrench_jac"] = vec(vec(vec(A["wrench_jac"], ws, one, 0), np.arange(6), _WRENCH_SIGN, 1), np.arange(5), _STATE_SIGN, 2)
+    out["slip"] = vec(A["slip"], ws, one, 0)
+    out["slip_angle"] = vec(A["slip_angle"], ws, -one, 0)
+    out["torque"] = vec(A["torque"], ws, one, 0)
+    out["power"] = vec(A["power"], ws, one, 0)
+    # controllers (4, wheels, (d rim, d steer)) per unit offset: Mz+ of the mirror is -(mirrored Mz-)
+    c = vec(vec(A["controllers"], ws, one, 1), np.arange(2), np.array([1.0, -1.0]), 2)
+    order = [CONTROLLER_NAMES.index(n) for n in ("Mz-", "Mz+", "Fy-", "Fy+")]
+    out["controllers"] = -np.take(c, order, axis=nd)
+    out["objective"] = A["objective"]
+    out["status"] = A["status"]
+    out["active_x"] = active(A["active_x"], vs, vsign)
+    out["active_g"] = active(A["active_g"], gs, gsign)
+    shape = t.shape
+
+    def flat_index(k: int) -> int:  # a grid point's flat index in the mirror
+        idx = list(np.unravel_index(int(k), shape))
+        for i in flip_axes:
+            idx[i] = shape[i] - 1 - idx[i]
+        return int(np.ravel_multi_index(tuple(idx), shape))
+
+    for k, v in A.items():  # the builder's per-point diagnostics
+        if k in out:
+            continue
+        if k == "controller_source" and v.shape == shape + (len(CONTROLLER_NAMES),):
+            out[k] = np.take(v, order, axis=nd)
+        elif k in ("polished_from", "retried_from") and v.shape == shape:
+            out[k] = np.vectorize(lambda i: flat_index(i) if i >= 0 else i, otypes=[v.dtype])(v) if v.size else v
+        elif v.shape[:nd] == shape and v.ndim == nd:
+            out[k] = v
+        else:
+            raise MirrorError(f"table {t.name}: array {k!r} of shape {v.shape} has no known mirror")
+    arrays = {k: grid(np.asarray(v)) for k, v in out.items()}
+
+    hm = copy.deepcopy(h)
+    name = mirror_name(t.name)
+    hm["name"] = name
+    hm["description"] = f"Left-right mirror of table {t.name} (rtctl.mirror): {h.get('description', '')}"
+    hm["mirror_of"] = {"name": t.name, "content_hash": h.get("content_hash")}
+    for k in _FLIPPED_AXES:
+        if k in hm.get("axes", {}):
+            hm["axes"][k]["values"] = [-float(v) for v in reversed(hm["axes"][k]["values"])]
+    fam = hm.get("family")
+    if isinstance(fam, dict) and fam.get("wheel") in MIRROR_WHEEL:
+        fam["wheel"] = MIRROR_WHEEL[fam["wheel"]]
+    scm = hm.get("scenario")
+    if isinstance(scm, dict):
+        scm["name"] = name
+        for key in ("cross_slope", "fy_offset", "mz_offset"):
+            if isinstance(scm.get(key), (int, float)):
+                scm[key] = -float(scm[key])
+        fails = scm.get("failures")
+        if isinstance(fails, dict):
+            new = {}
+            for w, f in fails.items():
+                if isinstance(f, dict):
+                    f = dict(f)
+                    lo, hi = f.get("steer_min"), f.get("steer_max")
+                    if isinstance(lo, (int, float)) and isinstance(hi, (int, float)):
+                        f["steer_min"], f["steer_max"] = -float(hi), -float(lo)
+                    if isinstance(f.get("steer_stuck"), (int, float)):
+                        f["steer_stuck"] = -float(f["steer_stuck"])
+                new[MIRROR_WHEEL.get(w, w)] = f
+            scm["failures"] = new
+    world = hm.get("world")
+    if isinstance(world, dict):
+        for key in ("wheel_radius_m", "shearing_radius_m", "steer_offset_rad"):
+            wv = world.get(key)
+            if isinstance(wv, list) and len(wv) == len(wheels):
+                world[key] = [(-1.0 if key == "steer_offset_rad" else 1.0) * float(wv[int(j)]) for j in ws]
+        ext = world.get("external_force")
+        if isinstance(ext, dict):
+            for key in ("fy_N", "mz_Nm"):
+                if isinstance(ext.get(key), (int, float)):
+                    ext[key] = -float(ext[key])
+    hm["evidence"] = {str(flat_index(int(k))): v for k, v in (h.get("evidence") or {}).items()}
+    hm.pop("content_hash", None)
+    hm["content_hash"] = content_hash(hm, arrays)
+    return Table(hm, arrays, source=f"mirror of {t.source}")

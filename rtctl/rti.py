@@ -139,6 +139,12 @@ class RealTimeIteration:
             self.iterate = res.x.copy()
             y = self.allocator.row_duals
             self._prev = (xk.copy(), self._lagrangian_gradient(grad, jac, y), y) if (jac is not None and y is not None) else None
+        elif math.isfinite(res.slack) and np.all(np.isfinite(res.x)):
+            # solved, but the linearised balance was out of reach this tick (slack above the
+            # tolerance: the caller commands its fallback): the step still went toward it, so the
+            # iteration goes on from there (restarting from the table's primitive each time made the
+            # rover alternate between the QP and the fallback, measured with a front wheel capped)
+            self.iterate, self._prev = res.x.copy(), None
         else:
             self.iterate, self._prev = None, None
         return res

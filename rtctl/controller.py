@@ -282,6 +282,10 @@ class Controller:
                     tables[m.name] = m
                     sigs.add(msig)
                     self.mirrored[m.name] = name
+        for name, t in tables.items():  # mirrors handed in already built (a controller rebuilt from another's tables)
+            of = (t.header.get("mirror_of") or {}).get("name") if isinstance(t.header.get("mirror_of"), dict) else None
+            if of and name not in self.mirrored:
+                self.mirrored[name] = str(of)
         self.tables = dict(sorted(tables.items()))
         self.config = config
         self.unavailable = dict(sorted((unavailable or {}).items()))

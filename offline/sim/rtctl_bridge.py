@@ -75,6 +75,6 @@ def _at_speed(base: Any, speed: float) -> Any:
     cfg = base.config
     if abs(cfg.drive.speed - speed) > 1e-12:
         cfg = replace(cfg, drive=replace(cfg.drive, speed=speed))
-    ctl = Controller(base.tables, cfg)
+    ctl = Controller(base.tables, cfg, getattr(base, "unavailable", None))
     setattr(ctl, "name", "rtctl")  # the label experiments.drive reads with getattr(controller, "name", ...)
     return ctl

@@ -139,6 +139,32 @@ def test_probes_change_what_they_say(recording):
     assert mirrored.vx == pytest.approx(recording.vx)
 
 
+def test_folds_interleave_every_slip_level_at_every_angle(recording):
+    """Issue 24: each fold must hold rows of every slip level (locked wheel, free rolling,
+    driving...) and every commanded angle, in near-equal numbers. The old interleave shifted by
+    round(deg(beta)) % 5, 0 for 0/15/30/45/60 deg: one fold held every locked-wheel row and
+    another only zero-slip rows."""
+    k = 5
+    folds = recording.folds(k)
+    slip = np.round(recording.features["slip"], 1)
+    beta = np.round(np.degrees(recording.beta_cmd))
+    assert sorted(np.bincount(folds, minlength=k)) == [len(recording) // k] * k
+    for level in np.unique(slip):
+        rows = slip == level
+        if rows.sum() >= k:  # a level recorded at k or more angles is spread over every fold
+            assert len(set(folds[rows].tolist())) == k, (level, folds[rows])
+    for f in range(k):
+        held = folds == f
+        assert np.ptp(recording.features["slip"][held]) > 1.5  # spans skid to drive
+        assert len(set(beta[held].tolist())) >= 4
+    # a recording with fewer angles than folds: each slip level still spread over all its angles
+    sub = recording.subset(np.flatnonzero(beta <= 30))
+    fs = sub.folds(k)
+    s_sub = np.round(sub.features["slip"], 1)
+    for level in np.unique(s_sub):
+        assert len(set(fs[s_sub == level].tolist())) == (s_sub == level).sum()
+
+
 def test_too_few_rows_is_an_error(recording, params):
     with pytest.raises(DiscrepancyError, match="rows"):
         diagnose(recording.subset(np.arange(5)), params)

@@ -911,7 +911,8 @@ def diagnose_drives(
     obs = replace(DriveRecording.build(drives, model, segment), family_alpha=alpha)
     return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                     n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
-                    forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha))
+                    forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
+                    polish_nfev=0)
 
 
 def accepted_extension(v: Verdict) -> RoverExtension:

@@ -973,9 +973,9 @@ def diagnose(
         before = float((r_noise(np.array(chosen.values)) ** 2).sum())
         fp = fit(r_noise, lo, hi, [np.array(chosen.values)], nc, max_nfev=polish_nfev, tol=fit_tol)
         if fp.chi2 < before:
-            xs = np.array(fp.x)
-            chosen = _with(chosen, values=tuple(float(v) for v in xs), std_errors=tuple(float(e) for e in fp.std_errors),
-                           chi2_in=float((resid_fn(cands)(xs) ** 2).sum()), covariance=fp.covariance,
+            x_pol = np.asarray(fp.x, dtype=float)
+            chosen = _with(chosen, values=tuple(float(v) for v in x_pol), std_errors=tuple(float(e) for e in fp.std_errors),
+                           chi2_in=float((resid_fn(cands)(x_pol) ** 2).sum()), covariance=fp.covariance,
                            nfev=chosen.nfev + fp.nfev)
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]

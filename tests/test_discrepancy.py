@@ -248,7 +248,8 @@ def test_effect_outside_the_library_is_never_explained_with_confidence(recording
     """Told: recording and parameters. Not told: an extra resistance only while skidding,
     proportional to the skid ratio (2.5 N at full skid), a mechanism no candidate has. The
     verdict must be "unexplained" or "partly explained" (never "explained" or "parameters
-    off"), and the remaining region must be shown in the skid range."""
+    off"), the region located in the skid range, and what a partial explanation leaves shown
+    (a region after it in the skid range, or an F_x misfit in noise units)."""
     data = skid_drag(recording, params, 2.5, seed=25)
     v = diagnose(data, params)
     assert v.status in ("unexplained", "partly_explained"), v.summary()
@@ -257,8 +258,14 @@ def test_effect_outside_the_library_is_never_explained_with_confidence(recording
     if v.misfit_after:
         assert v.excess_removed < 1.0, v.summary()
         assert "100 % of the excess" not in v.summary() and "a misfit above noise remains" in v.summary()
-    shown = v.regions_after if v.status == "partly_explained" else v.regions
-    assert any(r.channel == "Fx" and r.bounds.get("slip", (-1, 1))[0] < 0 for r in shown), v.summary()
+    def skid(regions):
+        return any(r.channel == "Fx" and r.bounds.get("slip", (-1, 1))[0] < 0 for r in regions)
+
+    # located in the skid range, and what the partial explanation leaves is shown: a region after
+    # it in the skid range, or (the rest too spread for the region test) the F_x misfit after it
+    assert skid(v.regions), v.summary()
+    if v.status == "partly_explained":
+        assert skid(v.regions_after) or any(ch == "Fx" for ch, *_ in v.misfit_after), v.summary()
 
 
 @pytest.mark.parametrize("seed", [101, 102])

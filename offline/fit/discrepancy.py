@@ -670,7 +670,8 @@ def diagnose(
         ``max_tries`` best by the score test), also starts from the best new term when a change
         of the model's parameters was preferred to it, and searches the first term's threshold
         again from its own starts; a subset of the model's parameters plus a new term gives way
-        to the full recalibration when that explains as much.
+        to the full recalibration when that explains as much; and the null's training-fold fits
+        damped as the observed score's step is (:func:`~offline.fit.significance.tangent_null`).
     polish_nfev : int
         The accepted explanation is fitted again from its values with this many iterations
         before its parameters, its remaining misfit and ``recalibrated.toml`` are reported (0 or
@@ -774,7 +775,8 @@ def diagnose(
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
         pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
         tangents.append(pts)
-    null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None))
+    null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None),
+                        damping=1e-3 if forward_extra else 0.0)
     observed = np.array([s.delta_cv for s in singles])
     _, p_adj = adjusted_p(observed, null)
     # a threshold candidate's one-step screening score can be far off its refit score (the step

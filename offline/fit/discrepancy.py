@@ -1028,6 +1028,15 @@ def diagnose(
         recal = model.parameter_set(ext, note=f"recalibrated by the discrepancy tool ({chosen.label})")
     crit = CRITERION.format(k_folds=k_folds, n_boot=n_boot, n_points=n_points, alpha=alpha, alpha_after=alpha_after, keep=100 * (1 - equal_fraction),
                             tries=max_tries)
+    if forward_extra:
+        crit += (" The null's training-fold fits are damped as the observed score's step is. The forward step also tries "
+                 "the best significant term on its own, also starts from the best new term when a change of the model's "
+                 "own parameters was preferred to it, and searches the first term's threshold again from its own starts; "
+                 "a second new term whose parameters the joint fit does not determine (Wald test at 95 %, or a 95 % "
+                 "interval wider than half its range) is not added; a subset of the model's parameters plus a new term "
+                 "gives way to the full recalibration when that fits the held-out rows as well (Vuong V < 2 and at least "
+                 f"{100 * (1 - equal_fraction):.0f} % of the pair's improvement). The accepted fit is continued for "
+                 f"{polish_nfev} iterations in noise units before its remaining misfit is judged.")
     zb = np.concatenate([res0[ch] / obs.noise[ch] for ch in chans])
     za = np.concatenate([res1[ch] / obs.noise[ch] for ch in chans])
     fin = np.isfinite(zb) & np.isfinite(za)

@@ -36,6 +36,9 @@ SoftPatch                  a band of loose drift across the path:       none (ou
 Undulation                 sinusoidal terrain height along world X:     none (out of library)    yes
                            gravity and IMU tilt from the local normal
 GyroBiasStep               the gyro bias steps at a time of the drive   none (out of library)    yes
+WheelSpeedServoShortfall   one wheel's speed servo reaches a fraction    speed_shortfall_<W>      NO: same law
+                           of its command (actuator path)                (per-wheel actuator      (parameter
+                                                                         library)                 recovery)
 =========================  ===========================================  ======================  ===========
 
 Every force effect keeps the mean of what it applied (``applied_mean``) so a test compares a
@@ -64,7 +67,7 @@ from offline.sim.truth import WHEELS, Truth
 from rtctl.messages import Commands, Measurements
 
 __all__ = ["TerrainPlane", "TetherToAnchor", "SteeringEncoderMisaligned", "WornWheel", "LooserSoil", "HubDrag",
-           "SoftPatch", "Undulation", "GyroBiasStep", "Effect", "Combined", "record_concealed", "LOOSE_SOIL",
+           "SoftPatch", "Undulation", "GyroBiasStep", "WheelSpeedServoShortfall", "Effect", "Combined", "record_concealed", "LOOSE_SOIL",
            "terrain_frame", "gravity_and_tilt", "WHEEL_XY", "soil_pressure_check", "true_mean_sinkage",
            "soil_behaviour_check"]
 
@@ -413,6 +416,33 @@ class GyroBiasStep(Effect):
 
     def sensor_path(self, m: Measurements, s: Any) -> Measurements:
         return replace(m, yaw_rate=m.yaw_rate + (self.bias if m.t >= self.t_step else 0.0))
+
+
+@dataclass
+class WheelSpeedServoShortfall(Effect):
+    """A wheel-speed servo that reaches only ``fraction`` of its command once the command's
+    magnitude passes ``above`` (m/s rim speed): issue 24's concealed case (the rear-left servo at
+    80 % of its command). Produced in the actuator path (the servo receives the reduced command;
+    the recording keeps the commanded one). The per-wheel ``speed_shortfall_<W>`` candidate has
+    the same law (a constant fraction), so naming it is PARAMETER RECOVERY, not discovery
+    (``independent = False``); without the per-wheel actuator terms in the library no candidate
+    has it. (A smooth saturation ``rim / (1 + |rim| / knee)`` was tried first: the truth
+    simulator's quasi-static plant finds no equilibrium for it in the calibration drive's crab.)"""
+
+    wheel: str = "RL"
+    fraction: float = 0.8
+    above: float = 0.005
+    name: str = "wheel_speed_servo_shortfall"
+    physics: str = "one wheel-speed servo reaches only a fraction of its command"
+    independent = False
+
+    def actuator_path(self, c: Commands) -> Commands:
+        i = WHEELS.index(self.wheel)
+        rim = tuple(v * self.fraction if j == i and abs(v) > self.above else v for j, v in enumerate(c.rim_speed))
+        return replace(c, rim_speed=rim)
+
+    def expect(self) -> dict[str, dict[str, float]]:
+        return {f"speed_shortfall_{self.wheel}": {"fraction": self.fraction}}
 
 
 @dataclass

@@ -104,6 +104,14 @@ def miscalibrated_sensor(recording, params, offset, crosstalk, seed):
     return noisy(recording, t, seed)
 
 
+def constant_drawbar(recording, truth, pull):
+    """A constant drawbar pull ``pull`` (N) resisting the travel, from a rig that holds the
+    wheel back along its travel direction (not a candidate's formula: the travel direction
+    from the wheel-frame velocity)."""
+    ux, uy = travel_unit_vector(recording)
+    return {**truth, "Fx": truth["Fx"] - pull * ux, "Fy": truth["Fy"] - pull * uy}
+
+
 def recalibration_error(recording, candidate_params, truth):
     """rms over rows and channels of (prediction - noiseless truth) / noise."""
     pred, ok = predict_recording(candidate_params, ModelOptions(), recording)
@@ -121,12 +129,14 @@ def skid_drag(recording, params, per_unit_skid, seed):
 
 
 # ----------------------------------------------------------------- effect cases
-def test_localised_deep_sinkage_drag_is_named_hub_drag(recording, params):
+@pytest.mark.parametrize("seed", [21, 31, 32])
+def test_localised_deep_sinkage_drag_is_named_hub_drag(recording, params, seed):
     """Told: the recording (45 conditions) and the believed parameters. Not told: that a drag
     acts only where sinkage passes 45 mm (8 of 45 conditions, 6 above twice the noise), its 1.5-power form. Must
     name hub_drag with a clearance within 6 mm of 45 mm and explain > 60 % of the held-out
-    excess chi2 (the power-1.5 form is not the candidate's)."""
-    data, n_rows = rut_edge_drag(recording, params, 0.045, 3.0e3, seed=21)
+    excess chi2 (the power-1.5 form is not the candidate's), on every noise seed (issue 24:
+    the old folds and screening named it on two seeds of three)."""
+    data, n_rows = rut_edge_drag(recording, params, 0.045, 3.0e3, seed=seed)
     assert 3 <= n_rows <= 10
     v = diagnose(data, params)
     assert v.status == "explained", v.summary()
@@ -134,6 +144,25 @@ def test_localised_deep_sinkage_drag_is_named_hub_drag(recording, params):
     clearance = v.chosen.values[v.chosen.names.index("clearance")]
     assert abs(clearance - 45.0) < 6.0, clearance
     assert v.explained_fraction > 0.6 and v.chosen.chi2_cv < 0.7 * v.chi2_cv_base
+
+
+def test_deep_sinkage_drag_and_a_constant_drawbar_are_both_named(recording, params):
+    """Told: recording and parameters. Not told: the deep-sinkage drag above (1.5 power beyond
+    45 mm) AND a constant 1 N drawbar pull resisting the travel. Must name both, hub_drag and
+    tether (issue 24: "grouser radius + tilt" or "grouser radius + hub", the drawbar missed),
+    the clearance within 6 mm of 45 mm, the pull within 30 % of 1 N, along the travel (azimuth
+    within 15 deg of 0), and the summary must say the explanation holds new terms."""
+    t = believed(recording, params)
+    t["Fx"] = t["Fx"] - 3.0e3 * np.maximum(t["sinkage"] - 0.045, 0.0) ** 1.5 * travel_unit_vector(recording)[0]
+    t["Fy"] = t["Fy"] - 3.0e3 * np.maximum(t["sinkage"] - 0.045, 0.0) ** 1.5 * travel_unit_vector(recording)[1]
+    v = diagnose(noisy(recording, constant_drawbar(recording, t, 1.0), seed=41), params)
+    assert v.status in ("explained", "partly_explained"), v.summary()
+    assert set(v.missing_physics) == {"hub_drag", "tether"}, v.summary()
+    val = dict(zip(v.chosen.names, v.chosen.values))
+    assert abs(val["clearance"] - 45.0) < 6.0, v.summary()
+    assert -val["force"] == pytest.approx(1.0, rel=0.3) and abs(val["azimuth"]) < 15.0, v.summary()
+    assert "holds the new term(s) hub_drag, tether" in v.summary()
+    assert "parameters are off" not in v.summary()
 
 
 def test_spring_tether_in_a_fixed_direction_is_named_tether(recording, params, tmp_path):
@@ -174,6 +203,27 @@ def test_sensor_offset_with_crosstalk_is_named_or_reported_with_its_look_alike(r
         assert any(sep.b == s.label or sep.a == s.label for sep in v.separations)
 
 
+@pytest.mark.parametrize("seed", [24, 44])
+def test_no_cohesion_and_a_doubled_shear_modulus_is_parameters_off(recording, params, seed):
+    """Told: recording and parameters. Not told: the truth is the same model with cohesion 0
+    and the shear modulus K doubled (issue 24: "cohesion + a load offset" was answered). Must
+    answer "parameters off" (recalibration wins whenever it explains as much), say that the
+    explanation holds no new term, and the recalibrated cohesion and K be within 20 % of the
+    truth (cohesion: within 20 % of the believed value of 0)."""
+    truth = replace(params, soil=replace(params.soil, cohesion=0.0, shear_modulus=2.0 * params.soil.shear_modulus))
+    pred, ok = predict_recording(truth, ModelOptions(), recording)
+    assert ok.all()
+    v = diagnose(noisy(recording, pred, seed=seed), params)
+    assert v.status == "parameters_off", v.summary()
+    assert all(k == "parameters" for k in v.chosen.kinds), v.summary()
+    assert "holds no new term" in v.summary()
+    val = dict(zip(v.chosen.names, v.chosen.values))
+    if "K" in val:
+        assert val["K"] == pytest.approx(2e3 * params.soil.shear_modulus, rel=0.2), v.summary()
+    if "c" in val:
+        assert val["c"] < 0.2 * params.soil.cohesion / 1e3, v.summary()
+
+
 def test_two_wrong_parameters_give_parameters_off_and_a_recalibrated_file(recording, params, tmp_path):
     """Told: recording and parameters. Not told: the truth is the same model with the shear
     modulus K x1.6 and the friction angle +3 deg (no missing term). Must answer "parameters
@@ -198,12 +248,24 @@ def test_effect_outside_the_library_is_never_explained_with_confidence(recording
     """Told: recording and parameters. Not told: an extra resistance only while skidding,
     proportional to the skid ratio (2.5 N at full skid), a mechanism no candidate has. The
     verdict must be "unexplained" or "partly explained" (never "explained" or "parameters
-    off"), and the remaining region must be shown in the skid range."""
+    off"), the region located in the skid range, and what a partial explanation leaves shown
+    (a region after it in the skid range, or an F_x misfit in noise units)."""
     data = skid_drag(recording, params, 2.5, seed=25)
     v = diagnose(data, params)
     assert v.status in ("unexplained", "partly_explained"), v.summary()
-    shown = v.regions_after if v.status == "partly_explained" else v.regions
-    assert any(r.channel == "Fx" and r.bounds.get("slip", (-1, 1))[0] < 0 for r in shown), v.summary()
+    # one set of units: a residual misfit significant in noise units is never printed beside
+    # "100 % of the excess removed" (issue 24); the share is in the misfit test's units
+    if v.misfit_after:
+        assert v.excess_removed < 1.0, v.summary()
+        assert "100 % of the excess" not in v.summary() and "a misfit above noise remains" in v.summary()
+    def skid(regions):
+        return any(r.channel == "Fx" and r.bounds.get("slip", (-1, 1))[0] < 0 for r in regions)
+
+    # located in the skid range, and what the partial explanation leaves is shown: a region after
+    # it in the skid range, or (the rest too spread for the region test) the F_x misfit after it
+    assert skid(v.regions), v.summary()
+    if v.status == "partly_explained":
+        assert skid(v.regions_after) or any(ch == "Fx" for ch, *_ in v.misfit_after), v.summary()
 
 
 @pytest.mark.parametrize("seed", [101, 102])

@@ -74,6 +74,24 @@ def test_tangent_null_equals_the_exact_linear_held_out_improvement():
     assert null[0] == pytest.approx(direct, rel=1e-9, abs=1e-9)
 
 
+def test_damped_null_does_not_overfit_barely_determined_directions():
+    """Issue 24: the observed held-out score steps with damping 1e-3 in column-normalised
+    coordinates; a null without it fits nearly collinear directions exactly and is far more
+    negative, so noise beat it. The damped null of nearly collinear columns must be less
+    negative than the undamped one, and for well-conditioned columns agree with it."""
+    rng = np.random.default_rng(4)
+    n, nc, B = 45, 3, 400
+    base = rng.normal(size=(n * nc, 3))
+    collinear = np.hstack([base, base + 1e-4 * rng.normal(size=base.shape)])
+    folds = np.arange(n) % 5
+    und = tangent_null([[collinear]], folds, nc, B, np.random.default_rng(9))
+    damp = tangent_null([[collinear]], folds, nc, B, np.random.default_rng(9), damping=1e-3)
+    assert damp.mean() > und.mean() + 3 * und.std() / math.sqrt(B)
+    good_u = tangent_null([[base]], folds, nc, B, np.random.default_rng(9))
+    good_d = tangent_null([[base]], folds, nc, B, np.random.default_rng(9), damping=1e-3)
+    assert good_d[0] == pytest.approx(good_u[0], abs=0.02 * float(np.abs(good_u).mean()))
+
+
 def test_min_p_adjustment_keeps_the_family_wise_error_rate():
     """Ten candidates, data drawn from the null 400 times: P(any p_adj < 0.05) must be ~0.05
     (binomial 3-sigma band), where unadjusted p would give ~40 %."""
@@ -137,6 +155,32 @@ def test_probes_change_what_they_say(recording):
     mirrored = next(o for d, o in p.items() if "mirror" in d)
     assert mirrored.vy == pytest.approx(-recording.vy, abs=1e-15)
     assert mirrored.vx == pytest.approx(recording.vx)
+
+
+def test_folds_interleave_every_slip_level_at_every_angle(recording):
+    """Issue 24: each fold must hold rows of every slip level (locked wheel, free rolling,
+    driving...) and every commanded angle, in near-equal numbers. The old interleave shifted by
+    round(deg(beta)) % 5, 0 for 0/15/30/45/60 deg: one fold held every locked-wheel row and
+    another only zero-slip rows."""
+    k = 5
+    folds = recording.folds(k)
+    slip = np.round(recording.features["slip"], 1)
+    beta = np.round(np.degrees(recording.beta_cmd))
+    assert sorted(np.bincount(folds, minlength=k)) == [len(recording) // k] * k
+    for level in np.unique(slip):
+        rows = slip == level
+        if rows.sum() >= k:  # a level recorded at k or more angles is spread over every fold
+            assert len(set(folds[rows].tolist())) == k, (level, folds[rows])
+    for f in range(k):
+        held = folds == f
+        assert np.ptp(recording.features["slip"][held]) > 1.5  # spans skid to drive
+        assert len(set(beta[held].tolist())) >= 4
+    # a recording with fewer angles than folds: each slip level still spread over all its angles
+    sub = recording.subset(np.flatnonzero(beta <= 30))
+    fs = sub.folds(k)
+    s_sub = np.round(sub.features["slip"], 1)
+    for level in np.unique(s_sub):
+        assert len(set(fs[s_sub == level].tolist())) == (s_sub == level).sum()
 
 
 def test_too_few_rows_is_an_error(recording, params):

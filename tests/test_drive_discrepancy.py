@@ -223,3 +223,42 @@ def test_face_pressure_force_on_a_submerged_disk():
     hs = np.linspace(0.0, 2 * r, 30)
     f = face_force(hs, r, rho, c, phi)
     assert f[0] == 0.0 and np.all(np.diff(f) > 0)
+
+
+def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
+    """Issue 24's per-wheel actuator terms act on the commands that wheel's servos follow:
+    a fraction and a cap of the rim speed (sign kept), an extra first-order lag (exact
+    exponential per command period), a steering cap; other wheels and other keys untouched.
+    Every term is a rover key, every candidate has a table-builder line, and none is in the
+    default library (their cost and false alarms on the drive benchmark are not measured)."""
+    from offline.fit.drive_candidates import (
+        ACTUATOR_CANDIDATES,
+        DRIVE_CANDIDATES_WITH_ACTUATORS,
+        PER_WHEEL_ACTUATOR_KEYS,
+        ROVER_KEYS,
+        TABLE_BUILDER_TAKES,
+        actuator_commands,
+    )
+
+    n, period = 12, 0.2
+    rim = np.tile([0.045, 0.045, 0.045, 0.045], (n, 1))
+    rim[6:, 3] = -0.045  # RL reverses at tick 6
+    steer = np.tile(np.radians([30.0, -30.0, 20.0, -20.0]), (n, 1))
+    r, s = actuator_commands({"speed_fraction.RL": 0.8, "rim_speed_max.FR": 0.03, "steer_max.FL": math.radians(25.0),
+                              "tether": 1.0}, rim, steer, period)
+    assert r[:, 3] == pytest.approx(0.8 * rim[:, 3]) and r[:, 0] == pytest.approx(np.full(n, 0.03))
+    assert r[:, 1:3] == pytest.approx(rim[:, 1:3])
+    assert s[:, 1] == pytest.approx(np.full(n, math.radians(-25.0))) and np.delete(s, 1, axis=1) == pytest.approx(np.delete(steer, 1, axis=1))
+    tau = 0.5
+    r, _ = actuator_commands({"wheel_lag.RL": tau}, rim, steer, period)
+    a = math.exp(-period / tau)
+    # the reversal commanded at tick 6: the lagged reference at the end of command period k >= 6
+    for k in range(6, n):
+        assert r[k, 3] == pytest.approx(-0.045 + 0.09 * a ** (k - 5), rel=1e-12)
+    assert r[:6, 3] == pytest.approx(rim[:6, 3]) and r[:, :3] == pytest.approx(rim[:, :3])
+    assert set(PER_WHEEL_ACTUATOR_KEYS) <= set(ROVER_KEYS)
+    RoverExtension(terms={k: 0.5 for k in PER_WHEEL_ACTUATOR_KEYS})  # accepted (no DriveCandidateError)
+    keys = {c.key for c in ACTUATOR_CANDIDATES}
+    assert len(keys) == 16 and keys <= set(TABLE_BUILDER_TAKES)
+    assert not keys & {c.key for c in DRIVE_CANDIDATES}
+    assert keys <= {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS}

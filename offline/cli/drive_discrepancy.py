@@ -32,6 +32,9 @@ def add_recording_arguments(d: argparse.ArgumentParser) -> None:
                         "(default: %(default)s)")
     g.add_argument("--believed-truth", help="believed world as a truth TOML (slope, wheels, tether) if not flat and nominal")
     g.add_argument("--segment", type=int, default=5, help="ticks per row (time segment), default %(default)s")
+    g.add_argument("--per-wheel-actuators", action="store_true",
+                   help="add the per-wheel actuator terms (wheel-speed saturation, extra servo lag, steering saturation "
+                        "of each wheel) to the library; slower")
 
 
 def run_recording(args: argparse.Namespace) -> int:
@@ -72,7 +75,10 @@ def run_recording(args: argparse.Namespace) -> int:
         return fail(f"--segment {args.segment}: at least 2 ticks per segment")
     say = None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True))
     try:
-        v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say)
+        from ..fit.drive_candidates import DRIVE_CANDIDATES, DRIVE_CANDIDATES_WITH_ACTUATORS
+
+        lib = DRIVE_CANDIDATES_WITH_ACTUATORS if getattr(args, "per_wheel_actuators", False) else DRIVE_CANDIDATES
+        v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say, candidates=lib)
     except (DriveDataError, DriveCandidateError) as exc:
         return fail(str(exc))
     except ValueError as exc:  # the engine's DiscrepancyError (too few rows, model fails on most rows)

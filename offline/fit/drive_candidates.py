@@ -29,6 +29,11 @@ tether_anchor        a cable to a fixed anchor (start frame) at a tension     ``
 servo_lag            wheel-speed servo slower than believed               actuator ``wheel_lag``
 torque_saturation    drive torque saturates lower than believed           actuator ``torque_limit``
 gyro_scale           gyro scale-factor error (readings only)              (measurement chain)
+speed_saturation_<W> one wheel's speed servo capped at a rim speed         commands the servo follows
+speed_shortfall_<W>  one wheel's speed servo reaches a fraction of its     (:func:`actuator_commands`;
+                     command                                               per-wheel actuator terms,
+servo_lag_<W>        one wheel's speed servo lags more (extra 1st order)   only in
+steer_saturation_<W> one wheel's steering servo capped at an angle         ``DRIVE_CANDIDATES_WITH_ACTUATORS``)
 soil_stiffness       soil stiffer / softer than believed (k)              ``soil_stiffness_scale``
 wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
 recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
@@ -80,7 +85,8 @@ from ..sim.simulator import DisturbanceForces, TruthState
 from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
 
-__all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "RoverTerms", "rover_terms", "recalibration_candidate",
+__all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
+           "PER_WHEEL_ACTUATOR_KEYS", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
            "AnchoredTether", "Hooks", "PosePath",
            "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
@@ -90,8 +96,14 @@ ROVER_KEYS = (
     "radius_scale_all", *(f"radius_scale.{w}" for w in WHEELS), *(f"steer_offset.{w}" for w in WHEELS),
     "hub_clearance", "hub_face_width", "hub_arm", "anchor_tension", "anchor_bearing", "anchor_inverse_distance",
     "anchor_attach_x", "anchor_spring_rate",
+    *(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fraction.{w}" for w in WHEELS), *(f"wheel_lag.{w}" for w in WHEELS),
+    *(f"steer_max.{w}" for w in WHEELS),
 )
 """Rover terms of :attr:`RoverExtension.terms` (SI: rad, N, s, N m, m, relative)."""
+
+PER_WHEEL_ACTUATOR_KEYS = (*(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fraction.{w}" for w in WHEELS),
+                           *(f"wheel_lag.{w}" for w in WHEELS), *(f"steer_max.{w}" for w in WHEELS))
+"""Per-wheel actuator terms (applied to the commands a wheel's servos receive, :func:`actuator_commands`)."""
 
 MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
@@ -341,6 +353,89 @@ def _term_build(key: str, base: float) -> Callable[[NDArray[np.float64], Paramet
     return build
 
 
+def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], steer_cmd: NDArray[np.float64],
+                      period: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The commands each wheel's servos really follow under the per-wheel actuator terms.
+
+    ``speed_fraction.<W>``: the wheel-speed servo reaches only this fraction of its command
+    (``rim -> fraction rim``); ``rim_speed_max.<W>`` (m/s): the wheel-speed servo saturates,
+    ``|rim| <= max`` (sign kept; after the fraction);
+    ``wheel_lag.<W>`` (s): an extra first-order lag of that wheel's speed servo, applied to its
+    rim-speed command at the command period (the lagged reference at the end of each period,
+    exact exponential per period: ``y_k = u_k + (y_(k-1) - u_k) exp(-period / tau)``, in series with the
+    believed servo lag of every wheel; a staircase at the tick resolution, snapped to the
+    command once within 1e-9 m/s so steady stretches stay steady); ``steer_max.<W>`` (rad): the
+    steering servo saturates, ``|steer| <= max``. Other keys are ignored.
+
+    Parameters
+    ----------
+    terms : mapping
+        Rover terms (:data:`ROVER_KEYS`).
+    rim_cmd, steer_cmd : ndarray, shape (n, 4)
+        Recorded per-tick commands (m/s, rad), wheel order :data:`~offline.sim.truth.WHEELS`.
+    period : float
+        Command period, s.
+
+    Returns
+    -------
+    rim, steer : ndarray, shape (n, 4)
+        Copies with the terms applied.
+    """
+    rim, steer = np.array(rim_cmd, dtype=float), np.array(steer_cmd, dtype=float)
+    for i, w in enumerate(WHEELS):
+        tau = terms.get(f"wheel_lag.{w}", 0.0)
+        if tau > 0.0:
+            a = math.exp(-period / tau)
+            u = rim[:, i].copy()
+            for k in range(1, u.size):  # the lagged reference at the end of command period k
+                y = u[k] + (rim[k - 1, i] - u[k]) * a
+                rim[k, i] = u[k] if abs(y - u[k]) < 1e-9 else y
+        rim[:, i] *= terms.get(f"speed_fraction.{w}", 1.0)
+        cap = terms.get(f"rim_speed_max.{w}", math.inf)
+        if math.isfinite(cap):
+            rim[:, i] = np.clip(rim[:, i], -cap, cap)
+        lim = terms.get(f"steer_max.{w}", math.inf)
+        if math.isfinite(lim):
+            steer[:, i] = np.clip(steer[:, i], -lim, lim)
+    return rim, steer
+
+
+def _actuator_candidates() -> list[Candidate]:
+    out = []
+    for w in WHEELS:
+        ch = (f"omega_{w}", f"torque_{w}", "yaw_rate", "dheading", "dx_body", "dy_body")
+        out.append(Candidate(
+            f"speed_saturation_{w}", f"the {w} wheel-speed servo saturates: its rim speed cannot exceed a limit "
+            "(a weak or overheating motor, a current limit on that wheel only)",
+            (("rim_speed_max", "mm/s", 5.0, 150.0, 40.0, 1e-3),),
+            _term_build(f"rim_speed_max.{w}", 0.0), ch, starts=((20.0,), (35.0,), (60.0,)), threshold=True,
+            family=f"speed_{w}"))
+        out.append(Candidate(
+            f"speed_shortfall_{w}", f"the {w} wheel-speed servo reaches only a fraction of its command (a speed loop "
+            "that saturates in proportion: a weak motor, a low supply voltage or gain on that wheel)",
+            (("fraction", "-", 0.3, 1.2, 1.0, 1.0),),
+            _term_build(f"speed_fraction.{w}", 0.0), ch, family=f"speed_{w}", null=(1.0,)))
+        out.append(Candidate(
+            f"servo_lag_{w}", f"the {w} wheel-speed servo lags more than the others (an extra first-order time constant; "
+            "at most 0.6 s: the quasi-static plant finds no equilibrium for one wheel reversing much slower than the others)",
+            (("time_constant", "s", 0.0, 0.6, 0.2, 1.0),),
+            _term_build(f"wheel_lag.{w}", 0.0), ch, starts=((0.5,),), family=f"speed_{w}", null=(0.0,)))
+        out.append(Candidate(
+            f"steer_saturation_{w}", f"the {w} steering servo saturates: the wheel cannot steer beyond a limit angle",
+            (("steer_max", "deg", 1.0, 60.0, 20.0, _D),),
+            _term_build(f"steer_max.{w}", 0.0), (f"torque_{w}", "yaw_rate", "dheading", "dy_body"),
+            starts=((5.0,), (15.0,), (30.0,)), threshold=True, family=f"steer_{w}"))
+    return out
+
+
+ACTUATOR_CANDIDATES: tuple[Candidate, ...] = tuple(_actuator_candidates())
+"""Per-wheel actuator terms (issue 24): wheel-speed saturation (an absolute cap, and a shortfall
+in proportion to the command), extra servo lag and steering saturation of each wheel. Not in :data:`DRIVE_CANDIDATES` by default: twelve more terms cost
+every drive diagnosis their fits, and their effect on the drive benchmark's false alarms is not
+measured yet; :data:`DRIVE_CANDIDATES_WITH_ACTUATORS` (``offnominal discrepancy drive
+--per-wheel-actuators``) is the library with them."""
+
+
 def _wheel_candidates() -> list[Candidate]:
     out = []
     for w in WHEELS:
@@ -411,6 +506,9 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
 )
 """The rover-level library (module table)."""
 
+DRIVE_CANDIDATES_WITH_ACTUATORS: tuple[Candidate, ...] = DRIVE_CANDIDATES + ACTUATOR_CANDIDATES
+"""The rover-level library with the per-wheel actuator terms (:data:`ACTUATOR_CANDIDATES`)."""
+
 
 TABLE_BUILDER_TAKES: dict[str, str] = {
     "terrain_slope": "yes: the slope / cross_slope axes of the table",
@@ -418,6 +516,12 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     "recalibration": "yes: the parameter file's soil (recalibrated.toml)",
     "wheel_radius_all": "yes: the parameter file's wheel radius",
     "torque_saturation": "yes: a torque_limit_Nm failure on every wheel in the scenario file",
+    **{f"speed_saturation_{w}": f"partly: a rim_speed_max failure on {w} in the scenario file caps its forward rim speed"
+       for w in WHEELS},
+    **{f"servo_lag_{w}": "no: a dynamic effect the steady-state tables have no place for" for w in WHEELS},
+    **{f"speed_shortfall_{w}": "no: the tables assume the commanded rim speed is reached" for w in WHEELS},
+    **{f"steer_saturation_{w}": "no: the tables assume the full steering range (a steer_stuck failure is the nearest)"
+       for w in WHEELS},
     **{f"wheel_radius_{w}": "yes: [wheels.<W>] radius_mm (--world): that wheel's radius in the NLP, the table header "
                             "and rtctl's odometry (rim-speed commands keep the command radius)" for w in WHEELS},
     **{f"steer_offset_{w}": "yes: [wheels.<W>] steer_offset_deg (--world): steering limits and stuck angles in encoder "

@@ -93,6 +93,8 @@ from .drive_candidates import (
     disturbance_from_terms,
     recalibration_candidate,
     rover_terms,
+    PER_WHEEL_ACTUATOR_KEYS,
+    actuator_commands,
     truth_from_terms,
     write_truth_toml,
 )
@@ -746,7 +748,9 @@ class DriveModel:
             sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0, disturbance=hook)
             hd = d.pose[:, 2] + heading_offset
             sim.heading = float(hd[0])
-            sim.start(Commands(0.0, 0, tuple(d.rim_cmd[0]), tuple(d.steer_cmd[0])))
+            # the commands each wheel's servos really follow (per-wheel actuator terms)
+            rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period)
+            sim.start(Commands(0.0, 0, tuple(rim_cmd[0]), tuple(steer_cmd[0])))
 
             servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
             failed = np.zeros(n, dtype=bool)
@@ -762,11 +766,11 @@ class DriveModel:
                 omega[k] = m.wheel_speed
 
             record(0)
-            cmd = np.hstack([d.rim_cmd, d.steer_cmd])
+            cmd = np.hstack([rim_cmd, steer_cmd])
             acts = sim.act
             solved, settled = [0], True
             for k in range(1, n):
-                c = d.rim_cmd[k - 1], d.steer_cmd[k - 1]
+                c = rim_cmd[k - 1], steer_cmd[k - 1]
                 sim.apply(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))
                 steady = settled and (k < 2 or bool(np.all(cmd[k - 1] == cmd[k - 2])))
                 last_of_regime = k < n - 1 and bool(np.any(cmd[k] != cmd[k - 1]))
@@ -911,7 +915,8 @@ def diagnose_drives(
     obs = replace(DriveRecording.build(drives, model, segment), family_alpha=alpha)
     return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                     n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
-                    forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha))
+                    forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
+                    polish_nfev=0)
 
 
 def accepted_extension(v: Verdict) -> RoverExtension:
@@ -971,6 +976,9 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
                                           ("anchor_inverse_distance_per_m", "anchor_inverse_distance"),
                                           ("anchor_attach_x_m", "anchor_attach_x"),
                                           ("anchor_spring_rate_N_per_m", "anchor_spring_rate")) if t in terms} or None
+        # per-wheel actuator terms: not in the truth format (ActuatorConfig has no per-wheel entries);
+        # written with the sensor and actuator comments
+        act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
                                       meas, act, header, dist)
         extra += ["", "## Accepted terms as a simulator truth file", "",

@@ -181,12 +181,18 @@ class SingleWheelRecording:
 
     def folds(self, k: int) -> NDArray[np.int_]:
         """Fold of each row for ``k``-fold held-out scoring, stratified by commanded slip angle
-        and, within an angle, interleaved in slip (so every fold spans the slip range)."""
+        and, within an angle, interleaved in slip (so every fold spans the slip range).
+
+        The ``j``-th angle (in increasing order) starts its interleave at fold ``j mod k``, so
+        the rows at one slip rank (the locked wheel, the free-rolling wheel...) are spread over
+        ``min(k, n_angles)`` folds rather than all falling in one: with at least ``k`` angles
+        every fold holds every slip level (a fold of only zero-slip rows, or one holding every
+        locked-wheel row, would test a term on conditions it was never fitted on)."""
         fold = np.empty(len(self), dtype=int)
-        for b in np.unique(self.beta_cmd):
+        for j, b in enumerate(np.unique(self.beta_cmd)):
             idx = np.flatnonzero(self.beta_cmd == b)
-            order = idx[np.argsort(self.features["slip"][idx])]
-            fold[order] = (np.arange(order.size) + int(round(math.degrees(b)))) % k
+            order = idx[np.argsort(self.features["slip"][idx], kind="stable")]
+            fold[order] = (np.arange(order.size) + j) % k
         return fold
 
     def _state(self, beta: NDArray[np.float64], load: NDArray[np.float64], travel_scale: float = 1.0) -> "SingleWheelRecording":

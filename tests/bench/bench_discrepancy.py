@@ -65,7 +65,8 @@ def main() -> None:
         dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         text, ok_par = check(v)
         hit = expect(v) if expect else None
-        imp = (f"{v.chi2_cv_base:.0f} -> {v.chosen.chi2_cv:.0f} ({100 * v.explained_fraction:.0f} %)"
+        imp = (f"{v.chi2_cv_base:.0f} -> {v.chosen.chi2_cv:.0f} ({100 * v.explained_fraction:.0f} %; noise units "
+               f"{v.noise_chi2[0]:.0f} -> {v.noise_chi2[1]:.0f} for {v.noise_chi2[2]})"
                if v.chosen is not None else f"{v.chi2_cv_base:.0f} (nothing accepted)")
         rows.append((case, v.status, named_set(v), text, imp, dt, cpu, hit, ok_par))
         print(f"{case:38s} {v.status:17s} {named_set(v)[:60]:60s} {text:40s} {dt:5.1f}s wall {cpu:5.1f}s cpu", flush=True)
@@ -116,6 +117,26 @@ def main() -> None:
             check=recal)
         run(f"skid drag (outside library), seed {seed}", T.skid_drag(rec, params, 2.5, seed),
             expect=lambda v: v.status in ("unexplained", "partly_explained"))
+        # issue 24's hard cases
+        t = T.believed(rec, params)
+        ux, uy = T.travel_unit_vector(rec)
+        lin = 0.3e3 * np.maximum(t["sinkage"] - 0.042, 0.0)  # 0.3 N/mm beyond 42 mm, linear
+        t42 = {**t, "Fx": t["Fx"] - lin * ux, "Fy": t["Fy"] - lin * uy}
+        run(f"drag 0.3 N/mm beyond 42 mm, seed {seed}", T.noisy(rec, t42, seed), expect=lambda v: v.missing_physics == ["hub_drag"],
+            check=lambda v: (f"clearance {value(v.chosen, 'clearance'):.1f} mm (truth 42)",
+                             abs(value(v.chosen, "clearance") - 42.0) < 6.0))
+        dr = 3.0e3 * np.maximum(t["sinkage"] - 0.045, 0.0) ** 1.5
+        tp = T.constant_drawbar(rec, {**t, "Fx": t["Fx"] - dr * ux, "Fy": t["Fy"] - dr * uy}, 1.0)
+        run(f"drag h > 45 mm + 1 N drawbar, seed {seed}", T.noisy(rec, tp, seed),
+            expect=lambda v: set(v.missing_physics) == {"hub_drag", "tether"},
+            check=lambda v: (f"clearance {value(v.chosen, 'clearance'):.1f} mm (45), pull {-value(v.chosen, 'force'):.2f} N (1)",
+                             abs(value(v.chosen, "clearance") - 45.0) < 6.0 and abs(-value(v.chosen, "force") - 1.0) < 0.3))
+        w2 = replace(params, soil=replace(params.soil, cohesion=0.0, shear_modulus=2.0 * params.soil.shear_modulus))
+        p2, _ = predict_recording(w2, ModelOptions(), rec)
+        run(f"cohesion 0 and K x2, seed {seed}", T.noisy(rec, p2, seed), expect=lambda v: v.status == "parameters_off",
+            check=lambda v: (f"c {value(v.chosen, 'c'):.2f} kPa (0), K {value(v.chosen, 'K'):.1f} mm "
+                             f"(truth {2e3 * params.soil.shear_modulus:.1f})",
+                             value(v.chosen, "c") < 0.44 and abs(value(v.chosen, "K") / (2e3 * params.soil.shear_modulus) - 1) < 0.2))
     # real data, handicapped models
     run("real data, model without bulldozing", trials, params, ModelOptions(bulldozing="none"),
         expect=lambda v: v.chosen is not None and v.chosen.keys[0] == "sidewall_bulldozing",

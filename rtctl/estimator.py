@@ -55,6 +55,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import NDArray
 
 from .config import ControllerConfig
+from .inputs import finite_real
 from .messages import Pose
 
 __all__ = ["STATE", "EstimatorError", "EstimatorCounters", "Odometry", "wheel_odometry", "wrap_angle",
@@ -223,6 +224,13 @@ class SlipHeadingEKF:
         self._v_last = 0.0
         self._r_last = 0.0
 
+    def rebase_time(self, t: float) -> None:
+        """Move the filter's time to ``t`` keeping its state and covariance (the rover's clock
+        was stepped or restarted, :mod:`rtctl.inputs`): the history of past steps is dropped,
+        since pose fixes time-stamped on the old clock cannot be placed on the new one."""
+        self.t = float(t)
+        self._history = [_Snapshot(self.t, self.ekf.x.copy(), self.ekf.P.copy())]
+
     @property
     def x(self) -> NDArray[np.float64]:
         """State estimate (copy), in :data:`STATE` order."""
@@ -307,10 +315,10 @@ class SlipHeadingEKF:
         ``invalid``; the time stamp may be any finite rover clock value); it is used at
         ``pose.t`` (see the module docstring).
         """
-        vals = (pose.t, pose.x, pose.y, pose.heading)
-        if not (all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
-                and all(abs(v) < _MAX_POSE for v in vals[1:])):
+        vals = tuple(finite_real(getattr(pose, k, None)) for k in ("t", "x", "y", "heading"))
+        if not (all(math.isfinite(v) for v in vals) and all(abs(v) < _MAX_POSE for v in vals[1:])):
             return "invalid"
+        pose = Pose(*vals)
         if pose.t > self.t + 1e-9:
             self.counters.poses_future += 1
             return "future"

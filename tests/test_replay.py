@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -88,15 +89,74 @@ def test_hil_open_loop_from_recording(recording):
     assert st["deadline_misses"] == len(rep.late_seqs) and st["step"]["steps"] == 6
 
 
+SLOW_SEQ = 2
+"""The sequence number at which :class:`_SlowOnce` answers late on any machine."""
+
+
+class _SlowOnce:
+    """The PID controller, answering the measurement of :data:`SLOW_SEQ` 0.6 s late (three
+    deadlines of 0.2 s): a miss that does not depend on the machine's speed or load."""
+
+    def __init__(self) -> None:
+        self.inner = _stuck_controller()
+
+    def step(self, m):
+        out = self.inner.step(m)
+        if m.seq == SLOW_SEQ:
+            time.sleep(0.6)
+        return out
+
+
+def _slow_factory() -> _SlowOnce:
+    return _SlowOnce()
+
+
+class _RecordingPlant:
+    """A simulator that remembers the commands applied before each advance."""
+
+    def __init__(self, sim: RoverSimulator) -> None:
+        self.sim, self.applied, self.seqs = sim, [], []
+
+    def measure(self):
+        m = self.sim.measure()
+        self.seqs.append(m.seq)
+        return m
+
+    def apply(self, c) -> None:
+        self.applied.append(c)
+        self.sim.apply(c)
+
+    def advance(self, seconds: float) -> None:
+        self.sim.advance(seconds)
+
+
 def test_hil_closed_loop_with_simulator():
+    """A late reply is counted with its sequence number, and the plant keeps the last on-time
+    commands over that tick (the servos hold them); an on-time reply is applied. Which other ticks
+    are late depends on the machine's load, so the test checks the bookkeeping of every tick, not a
+    count: whatever the load, the slow tick is late, each late tick applied the held commands and
+    each on-time tick its own reply."""
     sc = scenario_by_name("rr_steer_stuck_50")
     sim = RoverSimulator(sc, seed=4)
     ctl = _stuck_controller()
     c0, _ = ctl.step(run_drive.__globals__["_first_measurement"](sim))
     sim.start(c0)
-    rep = run_hil(_pid_factory, plant=sim, ticks=5, start_method="fork")
-    assert rep.ticks == 5 and sim.t == pytest.approx(1.0)
-    assert 0 <= rep.deadline_misses <= 5 and all(math.isfinite(x) for c in rep.commands for x in c.rim_speed)
+    plant = _RecordingPlant(sim)
+    rep = run_hil(_slow_factory, plant=plant, ticks=5, start_method="fork")
+    assert rep.ticks == 5 and sim.t == pytest.approx(1.0) and len(rep.commands) == 5
+    assert SLOW_SEQ in rep.late_seqs and rep.deadline_misses == len(rep.late_seqs) >= 1
+    assert set(rep.late_seqs) <= set(plant.seqs)
+    held, k = None, 0
+    for seq, cmd in zip(plant.seqs, rep.commands):
+        if seq in rep.late_seqs:
+            if held is not None:  # the held commands went to the plant again, not the late reply
+                assert plant.applied[k] is held
+                k += 1
+        else:
+            assert plant.applied[k] is cmd
+            held, k = cmd, k + 1
+    assert k == len(plant.applied)
+    assert all(math.isfinite(x) for c in rep.commands for x in c.rim_speed)
 
 
 def test_hil_errors():

@@ -47,6 +47,7 @@ filterpy's ``predict_update`` is never called (it stores the wrong prior; STYLE.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -186,6 +187,11 @@ class SlipHeadingEKF:
     """The controller's EKF (module docstring). Deterministic: state is ``(x, P, t)`` plus the
     short history used for late pose fixes; no clock, no randomness.
 
+    Memory is bounded: the history holds at most ``ceil(max_pose_delay / period) + 2`` snapshots
+    (12 with the defaults), the innovations of rejected pose fixes at most
+    ``reset_after_rejections`` (5; only the last ones decide a pose jump), and the counters are
+    a fixed set of integers.
+
     Parameters
     ----------
     config : ControllerConfig
@@ -204,7 +210,7 @@ class SlipHeadingEKF:
         self._history_len = int(math.ceil(config.estimator.max_pose_delay / config.period)) + 2
         self.counters = EstimatorCounters()
         self.last_mahalanobis = math.nan
-        self._rejected: list[NDArray[np.float64]] = []
+        self._rejected: deque[NDArray[np.float64]] = deque(maxlen=config.estimator.reset_after_rejections)
         self.reset(0.0)
 
     # ------------------------------------------------------------------ state
@@ -219,7 +225,7 @@ class SlipHeadingEKF:
         self.t = float(t)
         self.counters = EstimatorCounters()
         self.last_mahalanobis = math.nan
-        self._rejected = []
+        self._rejected.clear()
         self._history: list[_Snapshot] = [_Snapshot(self.t, self.ekf.x.copy(), self.ekf.P.copy())]
         self._v_last = 0.0
         self._r_last = 0.0
@@ -372,10 +378,10 @@ class SlipHeadingEKF:
             if self._pose_jump():
                 self._reinitialise_pose(z)
                 self.counters.pose_resets += 1
-                self._rejected = []
+                self._rejected.clear()
                 return "reset"
             return "gated"
-        self._rejected = []
+        self._rejected.clear()
         self.ekf.update(z, lambda _x: _H, lambda xx: _H @ xx, R=self._R, residual=_residual)
         self.ekf.x[_IPSI] = wrap_angle(self.ekf.x[_IPSI])
         self._keep_pd()
@@ -389,7 +395,7 @@ class SlipHeadingEKF:
         k = self.config.estimator.reset_after_rejections
         if len(self._rejected) < k:
             return False
-        last = self._rejected[-k:]
+        last = list(self._rejected)[-k:]
         ref = last[-1]
         n = self.config.noise
         tol = np.array([4 * n.pose_xy + 0.02, 4 * n.pose_xy + 0.02, 4 * n.pose_heading + 0.02])

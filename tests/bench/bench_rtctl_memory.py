@@ -1,0 +1,187 @@
+"""Issue 25, bounded memory and time: an 8-hour drive at 5 Hz (144,000 ticks), simulated.
+
+The controller runs in closed loop with the kinematic truth of ``bench_rtctl.py timing`` (noisy
+encoders and gyro, a pose every 1 s arriving 0.4 s late; with the shipped tables the RR steering
+is declared stuck in alternate blocks of 2000 ticks, so the table switches) under
+:class:`rtctl.runner.Runner` (timed on this thread's CPU clock, ``time.thread_time``: the
+controller's own cost, not the other jobs' on the shared machine). From tick 20,000 to 21,999
+every tick brings a pose fix that the gate rejects, jumping back and forth by 3 m so that the
+rejected fixes never agree (no pose reset): the case where the estimator's list of rejected
+fixes grew without bound.
+
+Measured:
+
+* resident memory (``/proc/self/statm``) every 1000 ticks: its growth from tick 10,000 to the
+  end, and a least-squares slope;
+* the sizes of the controller's, estimator's and runner's buffers and the number of objects the
+  garbage collector tracks, at tick 10,000 and at the end;
+* allocation per tick with :mod:`tracemalloc`, on two windows of 1000 ticks (ticks 10,000-10,999
+  and the 1000 ticks before the last 10,000; tracing is off elsewhere, so it does not slow the
+  timed windows): the peak of traced memory within a tick above its level before the tick
+  (transient allocation) and the net change over the tick (retained);
+* step time (feedback + preparation, thread CPU): median and 99th percentile over the first
+  10,000 and the last 10,000 ticks.
+
+Writes ``tests/bench/results_rtctl_memory.md``::
+
+    nice python tests/bench/bench_rtctl_memory.py [--steps 144000] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import math
+import os
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+
+import bench_rtctl as B  # noqa: E402
+from offline.files import write_text  # noqa: E402
+from rtctl.config import ControllerConfig  # noqa: E402
+from rtctl.controller import Controller  # noqa: E402
+from rtctl.messages import FailureDeclaration, Measurements, Pose  # noqa: E402
+from rtctl.runner import Runner  # noqa: E402
+
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def rss_kb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * PAGE / 1024
+
+
+def buffers(ctl: Controller, runner: Runner) -> dict[str, int]:
+    """Sizes of every container the controller, its estimator and the runner keep across ticks."""
+    ekf = ctl.ekf
+    out = {"ekf history": len(ekf._history), "ekf rejected fixes": len(ekf._rejected),
+           "controller counters": len(ctl._counters), "controller allocators": len(ctl._allocators),
+           "runner timings": len(runner.stats.timings)}
+    clock = getattr(ctl, "_clock", None)
+    if clock is not None:
+        out["tick clock candidates"] = len(clock.candidates)
+    out["gc-tracked objects"] = len(gc.get_objects())
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=144_000)
+    ap.add_argument("--out", default=str(HERE / "results_rtctl_memory.md"))
+    ap.add_argument("--no-trace", action="store_true", help="skip the tracemalloc windows (RSS without tracemalloc's own memory)")
+    a = ap.parse_args()
+    n = a.steps
+    if n < 30_000:
+        raise SystemExit("--steps must be >= 30000 (two 10,000-tick timing windows and the tracemalloc windows)")
+    B._COMMIT_AT_START = B._commit()
+    tables, note = B.load_tables()
+    from test_rtctl_controller import ROCKER, RS, TRACK
+
+    cfg = ControllerConfig()
+    ctl = Controller(tables, cfg)
+    runner = Runner(ctl, period=cfg.period, clock=time.thread_time)
+    rng = np.random.default_rng(1)
+    x, y, psi, slip = 0.0, -0.05, math.radians(5.0), 0.2
+    rim, steer = np.full(4, 0.03 / 0.9), np.zeros(4)
+    pending: list[tuple[int, Pose]] = []
+    step_us = np.full(n, np.nan)  # every page touched now, not during the run (RSS)
+    rss: list[tuple[int, float]] = []
+    trace_windows = {"ticks 10,000-10,999": range(10_000, 11_000), f"ticks {n - 12_000:,}-{n - 11_001:,}": range(n - 12_000, n - 11_000)}
+    if a.no_trace:
+        trace_windows = {}
+    traced: dict[str, list[tuple[int, int]]] = {k: [] for k in trace_windows}
+    bad_from, bad_to = 20_000, 22_000
+    sizes0: dict[str, int] = {}
+    sizes_peak: dict[str, int] = {}
+    modes = {"qp": 0, "fallback": 0, "hold": 0}
+    t_wall = time.perf_counter()
+    for k in range(n):
+        t = 0.2 * k
+        v = float(np.mean(rim * np.cos(steer))) * (1 - slip)
+        r = (((rim[0] + rim[2]) - (rim[1] + rim[3])) / 2 / TRACK * (1 - slip)
+             + v * (math.tan((steer[0] + steer[1]) / 2) - math.tan((steer[2] + steer[3]) / 2)) / ROCKER)
+        if k:
+            x += 0.2 * v * math.cos(psi)
+            y += 0.2 * v * math.sin(psi)
+            psi += 0.2 * r
+        if k % 5 == 0 and not bad_from <= k < bad_to:
+            pending.append((k + 2, Pose(t, x + rng.normal(0, 0.005), y + rng.normal(0, 0.005), psi + rng.normal(0, 0.005))))
+        pose = next((p for due, p in pending if due == k), None)
+        pending = [(due, p) for due, p in pending if due > k]
+        if bad_from <= k < bad_to:
+            sign = 1.0 if k % 2 else -1.0
+            pose = Pose(t, x + 3.0 * sign, y - 3.0 * sign, psi)
+        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
+        m = Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
+                         r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
+        window = next((name for name, rg in trace_windows.items() if k in rg), None)
+        if window is not None:
+            if not tracemalloc.is_tracing():
+                tracemalloc.start()
+            before = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+        cmd, diag, tick = runner.tick(m)
+        if window is not None:
+            cur, peak = tracemalloc.get_traced_memory()
+            traced[window].append((peak - before, cur - before))
+            if k + 1 not in trace_windows[window]:
+                tracemalloc.stop()
+        step_us[k] = tick.total * 1e6
+        modes[diag.mode] += 1
+        rim, steer = np.array(cmd.rim_speed), np.array(cmd.steer_angle)
+        if k % 1000 == 999:
+            rss.append((k + 1, rss_kb()))
+        if k == 9_999:
+            gc.collect()
+            sizes0 = buffers(ctl, runner)
+        if bad_from <= k < bad_to:
+            for key, val in buffers(ctl, runner).items() if k % 500 == 499 else ():
+                sizes_peak[key] = max(sizes_peak.get(key, 0), val)
+    wall = time.perf_counter() - t_wall
+    gc.collect()
+    sizes1 = buffers(ctl, runner)
+    r = np.array(rss)
+    later = r[r[:, 0] >= 10_000]
+    slope = float(np.polyfit(later[:, 0], later[:, 1], 1)[0]) if len(later) > 2 else math.nan
+    first, last = step_us[:10_000], step_us[-10_000:]
+    lines = [B._header(f"rtctl memory and time over {n:,} ticks ({n * 0.2 / 3600:.1f} simulated hours at 5 Hz)", note),
+             f"Command: `nice python tests/bench/bench_rtctl_memory.py --steps {n}{' --no-trace' if a.no_trace else ''}` (wall {wall:.0f} s). "
+             f"Modes: {modes}.", "",
+             "## Resident memory", "",
+             f"RSS at tick 10,000: {later[0, 1] / 1024:.2f} MB; at the end: {r[-1, 1] / 1024:.2f} MB; growth "
+             f"{r[-1, 1] - later[0, 1]:+.0f} kB; least-squares slope from tick 10,000: {slope * 1e4:+.2f} kB per 10,000 ticks; "
+             f"largest RSS after tick 10,000: {later[:, 1].max() / 1024:.2f} MB.", "",
+             "## Buffers (tick 10,000 / largest while the fixes were rejected / end)", "",
+             "| buffer | tick 10,000 | during ticks 20,000-21,999 | end |", "|---|---|---|---|"]
+    for key in sizes1:
+        lines.append(f"| {key} | {sizes0.get(key, '-')} | {sizes_peak.get(key, '-')} | {sizes1[key]} |")
+    lines += ["", "## Allocation per tick (tracemalloc)", "",
+              "| window | transient peak per tick, median (kB) | p99 (kB) | retained per tick, mean (B) |", "|---|---|---|---|"]
+    for name, rows in traced.items():
+        arr = np.array(rows, dtype=float)
+        if len(arr):
+            lines.append(f"| {name} | {np.median(arr[:, 0]) / 1024:.1f} | {np.percentile(arr[:, 0], 99) / 1024:.1f} | "
+                         f"{arr[:, 1].mean():+.1f} |")
+    lines += ["", "(The first window's retained bytes include tracemalloc's own start-up; the windows' ticks are "
+              "excluded from nothing else: tracing slows only them.)", "",
+              "## Step time (feedback + preparation, thread CPU, us)", "",
+              "| ticks | median | p99 | mean |", "|---|---|---|---|",
+              f"| first 10,000 | {np.median(first):.0f} | {np.percentile(first, 99):.0f} | {first.mean():.0f} |",
+              f"| last 10,000 | {np.median(last):.0f} | {np.percentile(last, 99):.0f} | {last.mean():.0f} |",
+              f"| ratio last / first | {np.median(last) / np.median(first):.3f} | "
+              f"{np.percentile(last, 99) / np.percentile(first, 99):.3f} | {last.mean() / first.mean():.3f} |", ""]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    write_text(Path(a.out), text)
+
+
+if __name__ == "__main__":
+    main()

@@ -42,6 +42,16 @@ break it) it is checked by a Cholesky factorisation and repaired (eigenvalue flo
 stopped being positive definite; the repair is counted.
 
 filterpy's ``predict_update`` is never called (it stores the wrong prior; STYLE.md point 4).
+
+Import cost: ``from filterpy.kalman import ExtendedKalmanFilter`` runs ``filterpy.kalman``'s
+package ``__init__``, which imports every filter of the package and, through ``filterpy.stats``,
+``scipy.stats``: most of the controller's import time, for filters rtctl does not use. So the
+class is taken from its own module file (``filterpy/kalman/EKF.py``, :func:`_filterpy_ekf`),
+loaded under a private name with the two helpers it imports from ``filterpy.common``
+(``filterpy/common/helpers.py``, numpy only) and a ``logpdf`` that imports ``filterpy.stats`` when
+first called (only ``ExtendedKalmanFilter.log_likelihood`` calls it, which rtctl does not).
+It is filterpy's own code, unchanged; where that layout is not found (another filterpy version)
+the package import is used (:data:`FILTERPY_EKF_SOURCE` says which).
 """
 
 from __future__ import annotations
@@ -49,10 +59,9 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import NDArray
 
 from .config import ControllerConfig
@@ -60,7 +69,62 @@ from .inputs import finite_real
 from .messages import Pose
 
 __all__ = ["STATE", "EstimatorError", "EstimatorCounters", "Odometry", "wheel_odometry", "wrap_angle",
-           "SlipHeadingEKF"]
+           "SlipHeadingEKF", "FILTERPY_EKF_SOURCE"]
+
+
+def _filterpy_ekf() -> tuple[Any, str]:
+    """filterpy's ``ExtendedKalmanFilter`` class and where it came from (module docstring):
+    ``"module file"`` (filterpy/kalman/EKF.py without the package ``__init__``) or ``"package"``."""
+    import importlib.util
+    import sys
+    import types
+    from pathlib import Path
+
+    if "filterpy.kalman" not in sys.modules:  # already imported: nothing to save
+        placed: list[str] = []
+        try:
+            spec = importlib.util.find_spec("filterpy")
+            root = Path(list(spec.submodule_search_locations or [])[0]) if spec is not None else None
+            if root is not None and (root / "kalman" / "EKF.py").is_file() and (root / "common" / "helpers.py").is_file():
+                hspec = importlib.util.spec_from_file_location("rtctl._filterpy_helpers", root / "common" / "helpers.py")
+                espec = importlib.util.spec_from_file_location("rtctl._filterpy_ekf", root / "kalman" / "EKF.py")
+                if hspec is not None and hspec.loader is not None and espec is not None and espec.loader is not None:
+                    helpers = importlib.util.module_from_spec(hspec)
+                    hspec.loader.exec_module(helpers)
+
+                    def logpdf(*args: Any, **kwargs: Any) -> Any:
+                        """filterpy.stats.logpdf, imported at the first call."""
+                        from filterpy.stats import logpdf as real
+
+                        return real(*args, **kwargs)
+
+                    stand_ins = {"filterpy.stats": {"logpdf": logpdf},
+                                 "filterpy.common": {"pretty_str": helpers.pretty_str, "reshape_z": helpers.reshape_z}}
+                    for name, attrs in stand_ins.items():
+                        if name not in sys.modules:  # the real module, if loaded, serves as is
+                            mod = types.ModuleType(name)
+                            mod.__dict__.update(attrs)
+                            sys.modules[name] = mod
+                            placed.append(name)
+                    ekf = importlib.util.module_from_spec(espec)
+                    espec.loader.exec_module(ekf)
+                    return ekf.ExtendedKalmanFilter, "module file"
+        except Exception:  # noqa: BLE001 - any surprise in another filterpy's layout: the package import below
+            pass
+        finally:
+            for name in placed:  # the stand-ins served EKF.py's own imports only
+                del sys.modules[name]
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    return ExtendedKalmanFilter, "package"
+
+
+if TYPE_CHECKING:
+    from filterpy.kalman import ExtendedKalmanFilter
+else:
+    ExtendedKalmanFilter, FILTERPY_EKF_SOURCE = _filterpy_ekf()
+FILTERPY_EKF_SOURCE: str
+"""Where :class:`filterpy.kalman.ExtendedKalmanFilter` came from: ``"module file"`` or ``"package"``."""
 
 STATE: tuple[str, ...] = ("x", "y", "heading", "slip", "crab", "gyro_bias")
 """Names of the EKF state entries, in order."""

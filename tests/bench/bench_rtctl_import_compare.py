@@ -43,8 +43,9 @@ def main() -> None:
     for v in a.variant:
         label, _, rest = v.partition("=")
         py, _, pp = rest.partition(":")
-        variants.append((label, py, pp))
+        variants.append((label, str(Path(py).absolute()), str(Path(pp).absolute()) if pp else ""))
     res: dict[str, list[tuple[float, float, int, int, int]]] = {label: [] for label, _, _ in variants}
+    load0 = os.getloadavg()[0]
     for _ in range(a.rounds):
         for label, py, pp in variants:
             env = dict(os.environ)
@@ -59,7 +60,8 @@ def main() -> None:
     B._COMMIT_AT_START = B._commit()
     lines = [B._header("rtctl cold import, interleaved variants", "shipped tables"),
              f"Command: `python tests/bench/bench_rtctl_import_compare.py --rounds {a.rounds} "
-             + " ".join(f'--variant "{v}"' for v in a.variant) + "`.", "",
+             + " ".join(f'--variant "{v}"' for v in a.variant) + f"`. Load average at the start {load0:.1f}, at the "
+             f"end {os.getloadavg()[0]:.1f} (2 cores; wall-clock times, every variant under the same load).", "",
              "| variant | import rtctl.controller (s): min / median | tables + Controller (s): median | "
              "peak RSS (MB): median | scipy.stats imported | filterpy.kalman imported |", "|---|---|---|---|---|---|"]
     for label, rows in res.items():

@@ -20,7 +20,9 @@ Measured:
   timed windows): the peak of traced memory within a tick above its level before the tick
   (transient allocation) and the net change over the tick (retained);
 * step time (feedback + preparation, thread CPU): median and 99th percentile over the first
-  10,000 and the last 10,000 ticks.
+  10,000 and the last 10,000 ticks, the trend over the run, and, after it, the aged controller
+  against a fresh one stepping in turn on the same measurements (the comparison the shared
+  machine's varying load cannot spoil).
 
 Writes ``tests/bench/results_rtctl_memory.md``::
 
@@ -52,6 +54,8 @@ from rtctl.messages import FailureDeclaration, Measurements, Pose  # noqa: E402
 from rtctl.runner import Runner  # noqa: E402
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
+AGED_TICKS = 6000
+"""Ticks of the interleaved aged-versus-fresh comparison after the run (the first tenth not counted)."""
 
 
 def rss_kb() -> float:
@@ -164,6 +168,32 @@ def main() -> None:
         if bad_from <= k < bad_to:
             for key, val in buffers(ctl, runner).items() if k % 500 == 499 else ():
                 sizes_peak[key] = max(sizes_peak.get(key, 0), val)
+    # the aged controller against a fresh one, tick by tick in turn on the same measurements (the
+    # drive goes on with the aged controller's commands): both see the same load of the shared
+    # machine, which the first-vs-last comparison above cannot promise
+    fresh = Controller(tables, cfg)
+    aged_us, fresh_us = [], []
+    for k in range(n, n + AGED_TICKS):
+        t = 0.2 * k
+        v = float(np.mean(rim * np.cos(steer))) * (1 - slip)
+        r = (((rim[0] + rim[2]) - (rim[1] + rim[3])) / 2 / TRACK * (1 - slip)
+             + v * (math.tan((steer[0] + steer[1]) / 2) - math.tan((steer[2] + steer[3]) / 2)) / ROCKER)
+        x += 0.2 * v * math.cos(psi)
+        y += 0.2 * v * math.sin(psi)
+        psi += 0.2 * r
+        pose = Pose(t, x, y, psi) if k % 5 == 0 else None
+        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
+        m = Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
+                         r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
+        pair = [(ctl, aged_us), (fresh, fresh_us)]
+        for c, out in (pair if k % 2 else pair[::-1]):  # alternate which one goes first
+            t0 = time.thread_time()
+            cmd_k, _ = c.step(m)
+            out.append((time.thread_time() - t0) * 1e6)
+            if c is ctl:
+                cmd = cmd_k
+        rim, steer = np.array(cmd.rim_speed), np.array(cmd.steer_angle)
+    aged_a, fresh_a = np.array(aged_us[AGED_TICKS // 10:]), np.array(fresh_us[AGED_TICKS // 10:])
     wall = time.perf_counter() - t_wall
     gc.collect()
     sizes1 = buffers(ctl, runner)
@@ -171,6 +201,17 @@ def main() -> None:
     later = r[r[:, 0] >= 10_000]
     slope = float(np.polyfit(later[:, 0], later[:, 1], 1)[0]) if len(later) > 2 else math.nan
     first, last = step_us[:10_000], step_us[-10_000:]
+    # trend of the step time over the run: medians of blocks of 1000 ticks, least squares, with
+    # the slope's standard error from the residuals (thread CPU time still varies with the other
+    # jobs' load on the shared cores: the blocks show how much)
+    blocks = np.median(step_us[: n // 1000 * 1000].reshape(-1, 1000), axis=1)
+    xb = np.arange(len(blocks)) * 1000.0 + 500.0
+    untraced = np.array([not any(int(x) in rg for rg in trace_windows.values()) for x in xb])  # tracing slows its ticks
+    blocks, xb = blocks[untraced], xb[untraced]
+    coef, res, *_ = np.polyfit(xb, blocks, 1, full=True)
+    resid = blocks - np.polyval(coef, xb)
+    se = float(np.sqrt(np.sum(resid ** 2) / max(len(blocks) - 2, 1) / np.sum((xb - xb.mean()) ** 2)))
+    trend = (100 * coef[0] * 1e5 / np.median(blocks), 100 * 2 * se * 1e5 / np.median(blocks))
     lines = [B._header(f"rtctl memory and time over {n:,} ticks ({n * 0.2 / 3600:.1f} simulated hours at 5 Hz)", note),
              f"Command: `nice python tests/bench/bench_rtctl_memory.py --steps {n}{' --no-trace' if a.no_trace else ''}` (wall {wall:.0f} s). "
              f"Modes: {modes}.", "",
@@ -183,24 +224,37 @@ def main() -> None:
     for key in sizes1:
         lines.append(f"| {key} | {sizes0.get(key, '-')} | {sizes_peak.get(key, '-')} | {sizes1[key]} |")
     lines += ["", "## Allocation per tick (tracemalloc)", "",
-              "| window | transient peak per tick, median (kB) | p99 (kB) | kept by the controller per tick (B) | "
-              "largest sites of what is kept |", "|---|---|---|---|---|"]
+              "| window | transient peak per tick, median (kB) | p99 (kB) | allocated in the window and alive at its "
+              "end (kB) | largest sites of those |", "|---|---|---|---|---|"]
     for name, rows in traced.items():
         arr = np.array(rows, dtype=float)
         if len(arr):
             kb, top = kept.get(name, (0, []))
             lines.append(f"| {name} | {np.median(arr[:, 0]) / 1024:.1f} | {np.percentile(arr[:, 0], 99) / 1024:.1f} | "
-                         f"{kb / len(arr):.1f} | {'; '.join(top)} |")
-    lines += ["", "Transient peak: traced memory within a tick above its level before the tick. Kept: bytes "
-              "allocated in the window and still alive at its end after a garbage collection, outside the "
-              "runner's bounded ring buffer of timings and this script (whose replacement of untraced entries by "
-              "traced ones would look like growth), divided by the window's ticks.", "",
+                         f"{kb / 1024:.1f} | {'; '.join(top)} |")
+    lines += ["", "Transient peak: traced memory within a tick above its level before the tick. Alive at the end: "
+              "bytes allocated in the 1000-tick window and still alive at its end after a garbage collection, "
+              "outside the runner's bounded ring buffer of timings and this script; that is the controller's "
+              "current state (the table point, the QP's matrices, the EKF's history), replaced every tick, so "
+              "it is the same in an early and a late window when nothing grows (an unbounded buffer would add "
+              "its bytes per tick times 1000).", "",
               "## Step time (feedback + preparation, thread CPU, us)", "",
               "| ticks | median | p99 | mean |", "|---|---|---|---|",
               f"| first 10,000 | {np.median(first):.0f} | {np.percentile(first, 99):.0f} | {first.mean():.0f} |",
               f"| last 10,000 | {np.median(last):.0f} | {np.percentile(last, 99):.0f} | {last.mean():.0f} |",
               f"| ratio last / first | {np.median(last) / np.median(first):.3f} | "
-              f"{np.percentile(last, 99) / np.percentile(first, 99):.3f} | {last.mean() / first.mean():.3f} |", ""]
+              f"{np.percentile(last, 99) / np.percentile(first, 99):.3f} | {last.mean() / first.mean():.3f} |", "",
+              f"Trend of the step time over the run (least squares on the medians of the {len(blocks)} untraced blocks "
+              f"of 1000 ticks): {trend[0]:+.1f} % per 100,000 ticks (+/- {trend[1]:.1f} %, two standard errors); block medians "
+              f"from {blocks.min():.0f} to {blocks.max():.0f} us.", "",
+              f"## Aged against fresh, interleaved ({AGED_TICKS} more ticks, the first {AGED_TICKS // 10} not counted)", "",
+              "After the run, the aged controller and a fresh one step in turn on the same measurements (which one "
+              "goes first alternates), so both see the same load of the shared cores.", "",
+              "| controller | median (us) | p99 (us) | mean (us) |", "|---|---|---|---|",
+              f"| aged ({n:,} ticks) | {np.median(aged_a):.0f} | {np.percentile(aged_a, 99):.0f} | {aged_a.mean():.0f} |",
+              f"| fresh | {np.median(fresh_a):.0f} | {np.percentile(fresh_a, 99):.0f} | {fresh_a.mean():.0f} |",
+              f"| ratio aged / fresh | {np.median(aged_a) / np.median(fresh_a):.3f} | "
+              f"{np.percentile(aged_a, 99) / np.percentile(fresh_a, 99):.3f} | {aged_a.mean() / fresh_a.mean():.3f} |", ""]
     text = "\n".join(lines) + "\n"
     print(text)
     write_text(Path(a.out), text)

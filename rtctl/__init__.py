@@ -5,6 +5,7 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 
 * :mod:`rtctl.layout`: the named layout of the steady-state NLP (7.25), shared with the table builder;
 * :mod:`rtctl.messages`: measurements in, commands out;
+* :mod:`rtctl.inputs`: the input boundary (every field converted once; time stamps and sequence numbers judged);
 * :mod:`rtctl.table`: lookup tables (load, hash/schema check, interpolation at an operating point);
 * :mod:`rtctl.config`: the controller's TOML configuration (actuator limits, noise, gains, QP settings);
 * :mod:`rtctl.estimator`: EKF on heading, position, slip, crab angle and gyro bias (filterpy);
@@ -16,4 +17,5 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count.
 """
 
-__all__ = ["layout", "messages", "table", "config", "estimator", "allocator", "rti", "mirror", "physics", "controller", "runner"]
+__all__ = ["layout", "messages", "inputs", "table", "config", "estimator", "allocator", "rti", "mirror", "physics",
+           "controller", "runner"]

@@ -49,8 +49,13 @@ offsets, so the QP cancels the disturbance that causes the crab. The lateral spe
 loop's own F_y offset asks for (offset / lateral resistance) is subtracted first: that part of
 the crab is wanted.
 
-Bad input never raises and never reaches the commands: a measurement without a valid time, a
-duplicate or one out of order is rejected (the previous commands are held); a NaN, infinite or
+Bad input never raises and never reaches the commands: every field is converted once at the
+boundary (:mod:`rtctl.inputs`: anything not a finite real number of the right type is rejected,
+a string is never parsed, an int beyond the float range is not an error); a measurement without
+a valid time, a duplicate, one out of order or one whose time stamp and sequence number jumped
+implausibly from the last accepted measurement is rejected (the previous commands are held; the
+rule, and how a restart is taken up after :data:`rtctl.inputs.REBASE_AFTER` consistent
+measurements, is in :mod:`rtctl.inputs`); a NaN, infinite or
 out-of-range wheel reading takes that wheel out of the odometry; a bad gyro or tilt reading is
 replaced by the last good one with inflated uncertainty; a bad, late, future or inconsistent
 pose is rejected or gated by the EKF; every case is counted in the diagnostics. A QP that fails,
@@ -71,10 +76,11 @@ from numpy.typing import NDArray
 from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
+from .inputs import Inputs, TickClock, read_measurements
 from .layout import WHEELS
+from .messages import Commands, Diagnostics, Measurements, Task
 from .mirror import MIRROR_WHEEL, MirrorError, mirror_table
 from .rti import RealTimeIteration
-from .messages import FAILURE_KINDS, TASK_KINDS, Commands, Diagnostics, FailureDeclaration, Measurements, Task
 
 _Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
 
@@ -359,6 +365,7 @@ class Controller:
         self._rtis: dict[str, RealTimeIteration] = {}
         self._last_t: float | None = None
         self._last_seq: int | None = None
+        self._clock = TickClock(cfg.period)
         self._pose_seen = False
         self._slope = 0.0
         self._cross = 0.0
@@ -579,38 +586,50 @@ class Controller:
         return out
 
     def feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
-        """Feedback phase: from the measurement to the commands (module docstring)."""
+        """Feedback phase: from the measurement to the commands (module docstring). Every field
+        is converted once by :func:`rtctl.inputs.read_measurements`, and the time stamp and
+        sequence number judged by :class:`rtctl.inputs.TickClock` (its docstring states the rule
+        and its constants); nothing raises."""
         cfg = self.config
         self._tick_flags = []
-        t, seq = getattr(m, "t", math.nan), getattr(m, "seq", -1)
-        if not _finite(t) or isinstance(seq, bool) or not isinstance(seq, (int, np.integer)):
+        inp = read_measurements(m)
+        t, seq = inp.t, inp.seq
+        if t is None or seq is None:
             self._count("rejected_bad_time_or_seq")
-            return self._hold(t, seq, "measurement without a finite time stamp or an integer sequence number")
-        t = float(t)
-        seq = int(seq)
-        if self._last_t is not None:
-            if seq == self._last_seq and t == self._last_t:
-                self._count("rejected_duplicate")
-                return self._hold(t, seq, "duplicate measurement")
-            if t <= self._last_t or seq <= self._last_seq:  # type: ignore[operator]
-                self._count("rejected_out_of_order")
-                return self._hold(t, seq, "out-of-order measurement")
-            if seq != self._last_seq + 1:  # type: ignore[operator]
-                self._count("sequence_gaps")
-        dt = cfg.period if self._last_t is None else t - self._last_t
-        stale = dt > cfg.max_gap
+            return self._hold(t, seq, "measurement without a finite time stamp (|t| <= 1e9 s) or an integer "
+                                      "sequence number")
+        ref_t = self._clock.t
+        verdict_t = self._clock.judge(t, seq)
+        if verdict_t == "duplicate":
+            self._count("rejected_duplicate")
+            return self._hold(t, seq, "duplicate measurement")
+        if verdict_t == "out_of_order":
+            self._count("rejected_out_of_order")
+            return self._hold(t, seq, "out-of-order measurement")
+        if verdict_t == "jump":
+            self._count("rejected_time_jump")
+            return self._hold(t, seq, "time stamp and sequence number disagree with the last accepted measurement "
+                                      "(an implausible jump; rtctl.inputs)")
+        if verdict_t == "gap":
+            self._count("sequence_gaps")
+        first = ref_t is None
+        rebase = verdict_t == "rebase"
+        if rebase:  # a restart or a stepped clock (rtctl.inputs): go on as after a stale gap
+            self._count("clock_rebases")
+            self.ekf.rebase_time(t - cfg.max_gap)
+        dt = cfg.period if first else (cfg.max_gap if rebase else t - ref_t)  # type: ignore[operator]
+        stale = dt > cfg.max_gap or rebase
         if stale:
             self._count("stale_gaps")
             self._int_psi = self._int_y = 0.0
-        first = self._last_t is None
         if first:
             self.ekf.reset(t - cfg.period, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
         self._last_t, self._last_seq = t, seq
         # ---- declared failures and task
-        self._read_failures(getattr(m, "failures", ()))
-        self._read_task(getattr(m, "task", None))
+        self._read_failures(inp)
+        self._read_task(inp)
         # ---- wheels
-        om, st, valid = self._read_wheels(m)
+        om, st, valid = self._read_wheels(inp)
         if first and (self._prep is None or self._prep.signature != self._declared()):
             # the first tick declares failures or a task the start-up preparation did not know:
             # prepare on the right table now and take its primitive as the previous command (the
@@ -623,28 +642,27 @@ class Controller:
         v_odo, var = wheel_odometry(om, st, odo_ok, rs, cfg.noise.wheel_speed)
         if stale:
             v_odo, var = math.nan, math.inf
-        r = getattr(m, "yaw_rate", math.nan)
-        if not (_finite(r) and abs(r) <= _MAX_YAW_RATE):
+        r = inp.yaw_rate
+        if not abs(r) <= _MAX_YAW_RATE:  # NaN (rejected at the boundary) fails too
             self._count("rejected_yaw_rate")
             r = math.nan
-        self._read_tilt(m, dt)
+        self._read_tilt(inp, dt)
         # ---- EKF
         self._crab_used = self._crab_cmd
-        self.ekf.predict(t, Odometry(v_odo, var, float(r), self._crab_cmd))
+        self.ekf.predict(t, Odometry(v_odo, var, r, self._crab_cmd))
         verdict = ""
-        pose = getattr(m, "pose", None)
-        if pose is not None:
-            if not self._pose_seen and _finite(getattr(pose, "t", math.nan)) \
-                    and all(_finite(getattr(pose, k, math.nan)) and abs(getattr(pose, k)) < 1e6 for k in ("x", "y", "heading")) \
+        pose = inp.pose
+        if inp.pose_invalid:
+            verdict = "invalid"
+            self._count("rejected_pose_invalid")
+        elif pose is not None:
+            if not self._pose_seen and all(abs(v) < 1e6 for v in (pose.x, pose.y, pose.heading)) \
                     and t - cfg.period <= pose.t <= t:
                 self.ekf.initialise_pose(pose)
                 verdict = "initial"
                 self._pose_seen = True
             else:
-                try:
-                    verdict = self.ekf.update_pose(pose)
-                except (TypeError, AttributeError):
-                    verdict = "invalid"
+                verdict = self.ekf.update_pose(pose)
                 if verdict == "invalid":
                     self._count("rejected_pose_invalid")
                 elif verdict in ("accepted", "late", "reset"):
@@ -714,60 +732,34 @@ class Controller:
         return alloc.problem(snap), snap[-1]
 
     # ------------------------------------------------------------------ pieces
-    def _read_failures(self, failures: Any) -> None:
-        out: dict[tuple[str, str], float] = {}
-        try:
-            items = tuple(failures)
-        except TypeError:
-            items = ()
-            self._count("rejected_failure_declaration")
-        for f in items:
-            if not isinstance(f, FailureDeclaration) or f.wheel not in WHEELS or f.kind not in FAILURE_KINDS:
-                self._count("rejected_failure_declaration")
-                continue
-            v = f.value
-            if not isinstance(v, (int, float)) or math.isinf(v):
-                self._count("rejected_failure_declaration")
-                continue
-            if f.kind in ("rim_speed_cap", "torque_limit") and not (math.isfinite(v) and v >= 0):
-                self._count("rejected_failure_declaration")
-                continue
-            if f.kind == "steer_stuck" and math.isfinite(v) and abs(v) > math.pi:
-                self._count("rejected_failure_declaration")
-                continue
-            out[(f.wheel, f.kind)] = float(v)
-        self._failures = out
+    def _read_failures(self, inp: Inputs) -> None:
+        """The declared failures of this tick (well-formed ones, :mod:`rtctl.inputs`); the dropped
+        ones are counted."""
+        if inp.rejected_failures:
+            self._count("rejected_failure_declaration", inp.rejected_failures)
+        self._failures = {(f.wheel, f.kind): f.value for f in inp.failures}
 
-    def _read_task(self, task: Any) -> None:
-        """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m);
-        anything else is counted and ignored (no task)."""
-        if task is None:
-            self._task = None
-            return
-        ok = (isinstance(task, Task) and task.kind in TASK_KINDS and task.wheel in WHEELS
-              and isinstance(task.value, (int, float)) and not isinstance(task.value, bool)
-              and math.isfinite(task.value) and 0.0 < task.value < 0.5)
-        if not ok:
+    def _read_task(self, inp: Inputs) -> None:
+        """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m,
+        checked in :mod:`rtctl.inputs`); anything else is counted and ignored (no task)."""
+        if inp.rejected_task:
             self._count("rejected_task")
-            self._tick_flags.append(f"task {task!r} rejected: expected Task('trench', wheel, depth in m, 0 < depth < 0.5)")
-            self._task = None
-            return
-        self._task = Task(task.kind, task.wheel, float(task.value))
+            self._tick_flags.append(f"task {inp.rejected_task} rejected: expected Task('trench', wheel, depth in m, "
+                                    "0 < depth < 0.5)")
+        self._task = inp.task
 
-    def _read_wheels(self, m: Any) -> tuple[list[float], list[float], list[bool]]:
+    def _read_wheels(self, inp: Inputs) -> tuple[list[float], list[float], list[bool]]:
+        """Wheel speeds and steering angles (physical angles: the encoder plus its offset); a
+        non-finite or out-of-range entry takes that wheel out, a missing vector all four."""
         cfg = self.config
         om_max = 2.0 * cfg.actuators.max_rim_speed / float(np.min(self.wheel_radii))
-        try:
-            om = [float(v) for v in m.wheel_speed]
-            st = [float(v) for v in m.steer_angle]
-            if len(om) != len(WHEELS) or len(st) != len(WHEELS):
-                raise ValueError
-        except (TypeError, ValueError, AttributeError):
+        if inp.wheel_speed is None or inp.steer_angle is None:
             self._count("rejected_wheel_vectors")
             return [0.0] * len(WHEELS), [0.0] * len(WHEELS), [False] * len(WHEELS)
+        om, st = list(inp.wheel_speed), list(inp.steer_angle)
         valid = []
         for i, w in enumerate(WHEELS):
-            ok = math.isfinite(om[i]) and math.isfinite(st[i]) and abs(om[i]) <= om_max and abs(st[i]) <= math.pi
+            ok = abs(om[i]) <= om_max and abs(st[i]) <= math.pi  # NaN (rejected at the boundary) fails
             if not ok:
                 self._count(f"rejected_wheel_{w}")
                 om[i], st[i] = 0.0, 0.0
@@ -778,12 +770,11 @@ class Controller:
             valid.append(ok)
         return om, st, valid
 
-    def _read_tilt(self, m: Any, dt: float) -> None:
+    def _read_tilt(self, inp: Inputs, dt: float) -> None:
         a = min(max(dt, 0.0) / _TILT_TAU, 1.0)
-        for attr, name in (("pitch", "_slope"), ("roll", "_cross")):
-            v = getattr(m, attr, math.nan)
-            if _finite(v) and abs(v) <= _MAX_TILT:
-                setattr(self, name, (1 - a) * getattr(self, name) + a * float(v))
+        for v, attr, name in ((inp.pitch, "pitch", "_slope"), (inp.roll, "roll", "_cross")):
+            if abs(v) <= _MAX_TILT:  # NaN (rejected at the boundary) fails
+                setattr(self, name, (1 - a) * getattr(self, name) + a * v)
             else:
                 self._count(f"rejected_{attr}")
 
@@ -938,10 +929,10 @@ class Controller:
         self._count("fallbacks")
         return cmd, self._diag(t, seq, "fallback", why, res, e_psi, e_y, mz, fy, verdict)
 
-    def _hold(self, t: Any, seq: Any, why: str) -> tuple[Commands, Diagnostics]:
+    def _hold(self, t: float | None, seq: int | None, why: str) -> tuple[Commands, Diagnostics]:
         rim, steer = self._prev_cmd
-        tt = float(t) if _finite(t) else (self._last_t if self._last_t is not None else 0.0)
-        ss = int(seq) if isinstance(seq, (int, np.integer)) and not isinstance(seq, bool) else -1
+        tt = t if t is not None else (self._last_t if self._last_t is not None else 0.0)
+        ss = seq if seq is not None else -1
         self._count("holds")
         return Commands(tt, ss, rim, steer), self._diag(tt, ss, "hold", why, None, math.nan, math.nan, 0.0, 0.0, "")
 
@@ -1002,8 +993,4 @@ def _describe(op: Mapping[str, float]) -> str:
         else:
             out.append(f"{k} {v:.3g}")
     return ", ".join(out)
-
-
-def _finite(v: Any) -> bool:
-    return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool) and math.isfinite(v)
 

@@ -42,23 +42,89 @@ break it) it is checked by a Cholesky factorisation and repaired (eigenvalue flo
 stopped being positive definite; the repair is counted.
 
 filterpy's ``predict_update`` is never called (it stores the wrong prior; STYLE.md point 4).
+
+Import cost: ``from filterpy.kalman import ExtendedKalmanFilter`` runs ``filterpy.kalman``'s
+package ``__init__``, which imports every filter of the package and, through ``filterpy.stats``,
+``scipy.stats``: most of the controller's import time, for filters rtctl does not use. So the
+class is taken from its own module file (``filterpy/kalman/EKF.py``, :func:`_filterpy_ekf`),
+loaded under a private name with the two helpers it imports from ``filterpy.common``
+(``filterpy/common/helpers.py``, numpy only) and a ``logpdf`` that imports ``filterpy.stats`` when
+first called (only ``ExtendedKalmanFilter.log_likelihood`` calls it, which rtctl does not).
+It is filterpy's own code, unchanged; where that layout is not found (another filterpy version)
+the package import is used (:data:`FILTERPY_EKF_SOURCE` says which).
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import NDArray
 
 from .config import ControllerConfig
+from .inputs import finite_real
 from .messages import Pose
 
 __all__ = ["STATE", "EstimatorError", "EstimatorCounters", "Odometry", "wheel_odometry", "wrap_angle",
-           "SlipHeadingEKF"]
+           "SlipHeadingEKF", "FILTERPY_EKF_SOURCE"]
+
+
+def _filterpy_ekf() -> tuple[Any, str]:
+    """filterpy's ``ExtendedKalmanFilter`` class and where it came from (module docstring):
+    ``"module file"`` (filterpy/kalman/EKF.py without the package ``__init__``) or ``"package"``."""
+    import importlib.util
+    import sys
+    import types
+    from pathlib import Path
+
+    if "filterpy.kalman" not in sys.modules:  # already imported: nothing to save
+        placed: list[str] = []
+        try:
+            spec = importlib.util.find_spec("filterpy")
+            root = Path(list(spec.submodule_search_locations or [])[0]) if spec is not None else None
+            if root is not None and (root / "kalman" / "EKF.py").is_file() and (root / "common" / "helpers.py").is_file():
+                hspec = importlib.util.spec_from_file_location("rtctl._filterpy_helpers", root / "common" / "helpers.py")
+                espec = importlib.util.spec_from_file_location("rtctl._filterpy_ekf", root / "kalman" / "EKF.py")
+                if hspec is not None and hspec.loader is not None and espec is not None and espec.loader is not None:
+                    helpers = importlib.util.module_from_spec(hspec)
+                    hspec.loader.exec_module(helpers)
+
+                    def logpdf(*args: Any, **kwargs: Any) -> Any:
+                        """filterpy.stats.logpdf, imported at the first call."""
+                        from filterpy.stats import logpdf as real
+
+                        return real(*args, **kwargs)
+
+                    stand_ins = {"filterpy.stats": {"logpdf": logpdf},
+                                 "filterpy.common": {"pretty_str": helpers.pretty_str, "reshape_z": helpers.reshape_z}}
+                    for name, attrs in stand_ins.items():
+                        if name not in sys.modules:  # the real module, if loaded, serves as is
+                            mod = types.ModuleType(name)
+                            mod.__dict__.update(attrs)
+                            sys.modules[name] = mod
+                            placed.append(name)
+                    ekf = importlib.util.module_from_spec(espec)
+                    espec.loader.exec_module(ekf)
+                    return ekf.ExtendedKalmanFilter, "module file"
+        except Exception:  # noqa: BLE001 - any surprise in another filterpy's layout: the package import below
+            pass
+        finally:
+            for name in placed:  # the stand-ins served EKF.py's own imports only
+                del sys.modules[name]
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    return ExtendedKalmanFilter, "package"
+
+
+if TYPE_CHECKING:
+    from filterpy.kalman import ExtendedKalmanFilter
+else:
+    ExtendedKalmanFilter, FILTERPY_EKF_SOURCE = _filterpy_ekf()
+FILTERPY_EKF_SOURCE: str
+"""Where :class:`filterpy.kalman.ExtendedKalmanFilter` came from: ``"module file"`` or ``"package"``."""
 
 STATE: tuple[str, ...] = ("x", "y", "heading", "slip", "crab", "gyro_bias")
 """Names of the EKF state entries, in order."""
@@ -185,6 +251,11 @@ class SlipHeadingEKF:
     """The controller's EKF (module docstring). Deterministic: state is ``(x, P, t)`` plus the
     short history used for late pose fixes; no clock, no randomness.
 
+    Memory is bounded: the history holds at most ``ceil(max_pose_delay / period) + 2`` snapshots
+    (12 with the defaults), the innovations of rejected pose fixes at most
+    ``reset_after_rejections`` (5; only the last ones decide a pose jump), and the counters are
+    a fixed set of integers.
+
     Parameters
     ----------
     config : ControllerConfig
@@ -203,7 +274,7 @@ class SlipHeadingEKF:
         self._history_len = int(math.ceil(config.estimator.max_pose_delay / config.period)) + 2
         self.counters = EstimatorCounters()
         self.last_mahalanobis = math.nan
-        self._rejected: list[NDArray[np.float64]] = []
+        self._rejected: deque[NDArray[np.float64]] = deque(maxlen=config.estimator.reset_after_rejections)
         self.reset(0.0)
 
     # ------------------------------------------------------------------ state
@@ -218,10 +289,17 @@ class SlipHeadingEKF:
         self.t = float(t)
         self.counters = EstimatorCounters()
         self.last_mahalanobis = math.nan
-        self._rejected = []
+        self._rejected.clear()
         self._history: list[_Snapshot] = [_Snapshot(self.t, self.ekf.x.copy(), self.ekf.P.copy())]
         self._v_last = 0.0
         self._r_last = 0.0
+
+    def rebase_time(self, t: float) -> None:
+        """Move the filter's time to ``t`` keeping its state and covariance (the rover's clock
+        was stepped or restarted, :mod:`rtctl.inputs`): the history of past steps is dropped,
+        since pose fixes time-stamped on the old clock cannot be placed on the new one."""
+        self.t = float(t)
+        self._history = [_Snapshot(self.t, self.ekf.x.copy(), self.ekf.P.copy())]
 
     @property
     def x(self) -> NDArray[np.float64]:
@@ -307,10 +385,10 @@ class SlipHeadingEKF:
         ``invalid``; the time stamp may be any finite rover clock value); it is used at
         ``pose.t`` (see the module docstring).
         """
-        vals = (pose.t, pose.x, pose.y, pose.heading)
-        if not (all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
-                and all(abs(v) < _MAX_POSE for v in vals[1:])):
+        vals = tuple(finite_real(getattr(pose, k, None)) for k in ("t", "x", "y", "heading"))
+        if not (all(math.isfinite(v) for v in vals) and all(abs(v) < _MAX_POSE for v in vals[1:])):
             return "invalid"
+        pose = Pose(*vals)
         if pose.t > self.t + 1e-9:
             self.counters.poses_future += 1
             return "future"
@@ -364,10 +442,10 @@ class SlipHeadingEKF:
             if self._pose_jump():
                 self._reinitialise_pose(z)
                 self.counters.pose_resets += 1
-                self._rejected = []
+                self._rejected.clear()
                 return "reset"
             return "gated"
-        self._rejected = []
+        self._rejected.clear()
         self.ekf.update(z, lambda _x: _H, lambda xx: _H @ xx, R=self._R, residual=_residual)
         self.ekf.x[_IPSI] = wrap_angle(self.ekf.x[_IPSI])
         self._keep_pd()
@@ -381,7 +459,7 @@ class SlipHeadingEKF:
         k = self.config.estimator.reset_after_rejections
         if len(self._rejected) < k:
             return False
-        last = self._rejected[-k:]
+        last = list(self._rejected)[-k:]
         ref = last[-1]
         n = self.config.noise
         tol = np.array([4 * n.pose_xy + 0.02, 4 * n.pose_xy + 0.02, 4 * n.pose_heading + 0.02])

@@ -92,7 +92,11 @@ def _serve(conn: Any, factory: Callable[[], Any]) -> None:
 
 @dataclass
 class HilReport:
-    """Outcome of a HIL run (times in s)."""
+    """Outcome of a HIL run (times in s).
+
+    Its lists hold one entry per tick of the run (``late_seqs``: per late tick), so their bound is
+    the run's ``ticks``: the HIL runner is a ground-side bench harness with a given length, not
+    part of the rover's loop (:class:`rtctl.runner.Runner` is, and its memory is bounded)."""
 
     ticks: int
     deadline_misses: int

@@ -3,8 +3,11 @@
 These types are the contract between the rover (or the simulator) and :mod:`rtctl`, and the
 records of a drive: the recorder writes them, replay reads them back. They are frozen and
 hold plain floats and tuples so a step is reproducible bit for bit. Validation of values
-(NaN, range, staleness, order) is the controller's job, not the constructor's: a
-measurement with a NaN must still be representable so it can be recorded and rejected.
+(type, NaN, range, staleness, order) is the controller's job, not the constructor's: a
+measurement with a NaN must still be representable so it can be recorded and rejected. The
+controller converts every field once at its boundary (:mod:`rtctl.inputs`: a field that is not
+a finite real number of the right type -- a string, None, a bool, an int beyond the float
+range -- is rejected and counted, never parsed and never an exception).
 
 Wheel order everywhere: :data:`rtctl.layout.WHEELS` (FR, FL, RR, RL).
 """
@@ -27,7 +30,8 @@ TASK_KINDS: tuple[str, ...] = ("trench",)
 MODES: tuple[str, ...] = ("qp", "fallback", "hold")
 """What produced a tick's commands: the QP; the safe fallback (the interpolated primitive,
 rate-limited) after a failed, infeasible or refused QP; or the previous commands held because
-the measurement itself was rejected (duplicate, out of order, no valid time)."""
+the measurement itself was rejected (duplicate, out of order, no valid time, an implausible jump
+of the time stamp or sequence number: :mod:`rtctl.inputs`)."""
 
 
 @dataclass(frozen=True)
@@ -100,9 +104,11 @@ class Measurements:
     Attributes
     ----------
     t : float
-        Time stamp of the tick, s (monotonic rover clock).
+        Time stamp of the tick, s (monotonic rover clock, ``|t| <= 1e9``).
     seq : int
-        Sequence number (increments by one per tick; gaps and repeats are detected).
+        Sequence number (increments by one per tick; gaps and repeats are detected). A time
+        stamp and sequence number that jump implausibly from the last accepted measurement are
+        rejected; a restart is taken up after a few consistent ticks (:mod:`rtctl.inputs`).
     wheel_speed : tuple of 4 float
         Encoder wheel angular speed omega per wheel, rad/s.
     steer_angle : tuple of 4 float

@@ -19,6 +19,15 @@ topic                  content
 ``/sim/truth``           optional simulator truth (free-form object)
 =====================  ==========================================================
 
+Provenance (self-describing recordings): a recorder given ``provenance=`` (``offnominal drive``
+passes :func:`provenance` of its controller) stores a second metadata record ``"provenance"``:
+the table names with their files and content hashes, the controller configuration, the library
+version, the Python, numpy, scipy, osqp and filterpy versions and the platform (each value JSON).
+:func:`compare_provenance` tells a replay what differs, by name: a different table or
+configuration means another controller (a replay refuses); another version or platform may
+change the last bits of a float (a replay warns, and a tolerance mode compares within
+``--rtol/--atol``).
+
 Log time is the message's own time stamp ``t`` in integer nanoseconds. Floats are written
 with Python's shortest round-trip repr, so a read gives back the same bits; non-finite
 values (a NaN measurement the controller must reject) are written as the strings
@@ -45,7 +54,8 @@ import numpy as np
 from .messages import Commands, FailureDeclaration, Measurements, Pose, Task
 
 __all__ = ["RecordingError", "Recorder", "Recording", "read_recording", "export_csv", "TOPICS", "FORMAT_VERSION",
-           "READABLE_VERSIONS", "to_jsonable"]
+           "READABLE_VERSIONS", "to_jsonable", "provenance", "compare_provenance", "PROVENANCE_REFUSE",
+           "PROVENANCE_WARN"]
 
 FORMAT_VERSION = "2"
 """Written by this recorder. 2 added the measurements' ``task`` (the operator's driving task)."""
@@ -187,10 +197,13 @@ class Recorder:
     path : str or Path
         Target ``.mcap`` file. Its folder is created; an existing file is replaced only at close.
     metadata : mapping, optional
-        Free-form facts about the run (controller config, table names and sha256, scenario,
-        seed), stored as an MCAP metadata record ``"run"`` (values as strings).
+        Free-form facts about the run (scenario, seed, truth), stored as an MCAP metadata record
+        ``"run"`` (values as strings).
     truth : bool
         Register the ``/sim/truth`` channel.
+    provenance : mapping, optional
+        What made the commands (:func:`provenance`), stored as the metadata record
+        ``"provenance"`` (each value as JSON).
 
     Examples
     --------
@@ -198,7 +211,8 @@ class Recorder:
     ...     rec.measurements(m); rec.commands(c)
     """
 
-    def __init__(self, path: str | Path, metadata: Mapping[str, Any] | None = None, truth: bool = False) -> None:
+    def __init__(self, path: str | Path, metadata: Mapping[str, Any] | None = None, truth: bool = False,
+                 provenance: Mapping[str, Any] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -222,6 +236,9 @@ class Recorder:
         for k, v in (metadata or {}).items():
             meta[str(k)] = v if isinstance(v, str) else json.dumps(to_jsonable(v))
         self._writer.add_metadata("run", meta)
+        if provenance is not None:
+            self._writer.add_metadata("provenance", {str(k): json.dumps(to_jsonable(v), sort_keys=True)
+                                                     for k, v in provenance.items()})
         self._closed = False
 
     def _write(self, kind: str, t: float, obj: Mapping[str, Any]) -> None:
@@ -303,6 +320,8 @@ class Recording:
     truth: list[dict[str, Any]] = field(default_factory=list)
     metadata: dict[str, str] = field(default_factory=dict)
     path: str = ""
+    provenance: dict[str, Any] = field(default_factory=dict)
+    """The ``"provenance"`` record, values decoded from JSON (empty: the recording has none)."""
 
 
 def read_recording(path: str | Path) -> Recording:
@@ -327,6 +346,11 @@ def read_recording(path: str | Path) -> Recording:
             for md in reader.iter_metadata():
                 if md.name == "run":
                     rec.metadata = dict(md.metadata)
+                elif md.name == "provenance":
+                    try:
+                        rec.provenance = {k: json.loads(v) for k, v in md.metadata.items()}
+                    except ValueError as exc:
+                        raise RecordingError(f"{p}: provenance record does not decode ({exc})") from None
             for _schema, channel, message in reader.iter_messages(log_time_order=False):
                 kind = by_topic.get(channel.topic)
                 if kind is None:
@@ -398,3 +422,89 @@ def export_csv(path: str | Path, out_dir: str | Path) -> list[Path]:
         os.replace(tmp, target)
         written.append(target)
     return written
+
+
+PROVENANCE_REFUSE = ("tables", "controller_config")
+"""Provenance entries whose difference means another controller: a replay refuses."""
+PROVENANCE_WARN = ("library_version", "python", "numpy", "scipy", "osqp", "filterpy", "platform", "machine")
+"""Provenance entries whose difference may change the last bits of a float: a replay warns."""
+_IGNORED_CONFIG = ("tables_index",)  # a path on the recording machine; the table hashes say what was loaded
+
+
+def _version(dist: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "not installed"
+
+
+def provenance(controller: Any = None) -> dict[str, Any]:
+    """What made a recording's commands: the library, its dependencies' versions and the platform,
+    and, for a controller with ``tables`` and ``config`` (:class:`rtctl.controller.Controller`),
+    each table's file name and content hash and the configuration (a nested mapping).
+
+    Parameters
+    ----------
+    controller : object, optional
+        The controller that drives (anything else: versions and platform only).
+    """
+    import dataclasses as dc
+    import platform
+    import sys
+
+    out: dict[str, Any] = {
+        "library_version": _version("offnominal-rover"), "python": platform.python_version(),
+        "numpy": np.__version__, "scipy": _version("scipy"), "osqp": _version("osqp"), "filterpy": _version("filterpy"),
+        "platform": platform.platform(), "machine": platform.machine(), "byteorder": sys.byteorder}
+    tables = getattr(controller, "tables", None)
+    if isinstance(tables, Mapping):
+        out["tables"] = {str(k): {"file": str(getattr(t, "source", "")),
+                                  "content_hash": str(getattr(t, "header", {}).get("content_hash", ""))}
+                         for k, t in sorted(tables.items())}
+    cfg = getattr(controller, "config", None)
+    if cfg is not None and dc.is_dataclass(cfg) and not isinstance(cfg, type):
+        out["controller_config"] = to_jsonable(dc.asdict(cfg))
+    return out
+
+
+def _diff(prefix: str, a: Any, b: Any, out: list[str]) -> None:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k in _IGNORED_CONFIG and prefix == "controller_config":
+                continue
+            _diff(f"{prefix}.{k}", a.get(k, "<absent>"), b.get(k, "<absent>"), out)
+    elif a != b:
+        out.append(f"{prefix}: recorded {a!r}, now {b!r}")
+
+
+def compare_provenance(recorded: Mapping[str, Any], current: Mapping[str, Any]) -> tuple[list[str], list[str]]:
+    """What differs between a recording's provenance and the replaying side's, by name.
+
+    Returns
+    -------
+    refuse : list of str
+        Differences in :data:`PROVENANCE_REFUSE` (a table, a configuration key: another
+        controller), e.g. ``controller_config.qp.eps: recorded 1e-05, now 1e-06``; a recording
+        without provenance, or without an entry the current side has, is no refusal (it says
+        nothing), but is warned about.
+    warn : list of str
+        Differences in :data:`PROVENANCE_WARN` (versions, platform), and missing entries.
+    """
+    refuse: list[str] = []
+    warn: list[str] = []
+    current = json.loads(json.dumps(to_jsonable(current)))  # the same JSON round trip as the recording's
+    if not recorded:
+        return refuse, ["the recording has no provenance record (made before it existed): cannot tell whether "
+                        "the same tables, configuration and versions replay it"]
+    for key in PROVENANCE_REFUSE:
+        if key not in recorded or key not in current:
+            if key in current:
+                warn.append(f"{key}: not in the recording")
+            continue
+        _diff(key, recorded[key], current[key], refuse)
+    for key in PROVENANCE_WARN:
+        if recorded.get(key) != current.get(key):
+            warn.append(f"{key}: recorded {recorded.get(key, '<absent>')!r}, now {current.get(key, '<absent>')!r}")
+    return refuse, warn

@@ -6,6 +6,14 @@ the recorded commands *exactly*: any change in the controller's code, tables or 
 that alters its output shows up as a divergence, reported at its first occurrence (time,
 sequence number, wheel, field, both values) with the step-time statistics of the replay.
 
+Bit for bit holds on the machine and library versions that recorded the drive. On another
+architecture (or numpy, osqp, Python) the last bits of a float may differ, and a warm-started
+QP amplifies that up to its own tolerance; the tolerance mode (``rtol``/``atol``, ``offnominal
+replay --rtol/--atol``) then reports the first command that differs by more than
+``atol + rtol * |recorded|`` and the largest difference seen. Bit-exact stays the default.
+A recording's provenance (:func:`rtctl.recording.compare_provenance`) says which of the two
+applies.
+
 Usage::
 
     rec = read_recording("drive.mcap")
@@ -56,9 +64,19 @@ def _bits(x: float) -> bytes:
     return struct.pack("<d", float(x))
 
 
-def compare_commands(index: int, recorded: Commands, replayed: Commands) -> Divergence | None:
-    """First field (rim speed then steering angle, wheels in order) whose bits differ; ``t`` and
-    ``seq`` must match too (reported as field ``t`` / ``seq`` on wheel ``-``)."""
+def _differ(x: float, y: float, rtol: float | None, atol: float | None) -> bool:
+    if rtol is None and atol is None:
+        return _bits(x) != _bits(y)
+    if math.isnan(x) or math.isnan(y):
+        return math.isnan(x) != math.isnan(y)
+    return not abs(y - x) <= (atol or 0.0) + (rtol or 0.0) * abs(x)
+
+
+def compare_commands(index: int, recorded: Commands, replayed: Commands, rtol: float | None = None,
+                     atol: float | None = None) -> Divergence | None:
+    """First field (rim speed then steering angle, wheels in order) whose bits differ (or, with
+    ``rtol``/``atol``, that differs by more than ``atol + rtol * |recorded|``); ``t`` and ``seq``
+    must match exactly (reported as field ``t`` / ``seq`` on wheel ``-``)."""
     if recorded.seq != replayed.seq:
         return Divergence(index, recorded.t, recorded.seq, "-", "seq", float(recorded.seq), float(replayed.seq))
     if _bits(recorded.t) != _bits(replayed.t):
@@ -66,9 +84,15 @@ def compare_commands(index: int, recorded: Commands, replayed: Commands) -> Dive
     for name in ("rim_speed", "steer_angle"):
         a, b = getattr(recorded, name), getattr(replayed, name)
         for w, x, y in zip(WHEELS, a, b):
-            if _bits(x) != _bits(y):
+            if _differ(float(x), float(y), rtol, atol):
                 return Divergence(index, recorded.t, recorded.seq, w, name, float(x), float(y))
     return None
+
+
+def _largest_difference(recorded: Commands, replayed: Commands) -> float:
+    d = [abs(float(y) - float(x)) for name in ("rim_speed", "steer_angle")
+         for x, y in zip(getattr(recorded, name), getattr(replayed, name))]
+    return max(d) if d else 0.0
 
 
 def step_time_stats(seconds: Sequence[float], deadline: float = 0.2) -> dict[str, float]:
@@ -90,17 +114,39 @@ class ReplayReport:
     diverged_steps: int
     step_times: dict[str, float]
     commands: list[Commands] = field(default_factory=list, repr=False)
+    rtol: float | None = None
+    """The tolerance mode's relative tolerance (None with ``atol``: bit for bit)."""
+    atol: float | None = None
+    """The tolerance mode's absolute tolerance (None with ``rtol``: bit for bit)."""
+    largest_difference: float = 0.0
+    """Largest absolute difference of a command (rim speed m/s, steering rad) over the replay."""
+    bit_identical_steps: int = 0
+    """Steps whose commands are identical bit for bit."""
+
+    @property
+    def tolerant(self) -> bool:
+        """Whether the comparison used a tolerance."""
+        return self.rtol is not None or self.atol is not None
 
     def summary(self) -> str:
         """One paragraph for a terminal."""
         st = self.step_times
-        head = (f"{self.steps} steps replayed: commands identical bit for bit" if self.identical else
-                f"{self.steps} steps replayed: {self.diverged_steps} differ; first: {self.first_divergence}")
+        if self.tolerant:
+            tol = f"within rtol {self.rtol or 0:g}, atol {self.atol or 0:g}"
+            head = (f"{self.steps} steps replayed: commands equal {tol} ({self.bit_identical_steps} of them bit for bit; "
+                    f"largest difference {self.largest_difference:.3g})" if self.identical else
+                    f"{self.steps} steps replayed: {self.diverged_steps} differ beyond rtol {self.rtol or 0:g}, atol "
+                    f"{self.atol or 0:g}; first: {self.first_divergence}")
+        else:
+            head = (f"{self.steps} steps replayed: commands identical bit for bit" if self.identical else
+                    f"{self.steps} steps replayed: {self.diverged_steps} differ; first: {self.first_divergence} "
+                    f"(largest difference {self.largest_difference:.3g})")
         return (f"{head}\nstep time median {1e6 * st['median_s']:.0f} us, p99 {1e6 * st['p99_s']:.0f} us, "
                 f"max {1e6 * st['max_s']:.0f} us, {st['over_deadline']} over the deadline")
 
 
-def replay(recording: Recording | str | Path, controller: Any, reset: bool = True, deadline: float = 0.2) -> ReplayReport:
+def replay(recording: Recording | str | Path, controller: Any, reset: bool = True, deadline: float = 0.2,
+           rtol: float | None = None, atol: float | None = None) -> ReplayReport:
     """Feed every recorded measurement to ``controller`` and compare its commands with the recorded ones.
 
     Parameters
@@ -112,12 +158,18 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
         Call ``controller.reset()`` first (a recording starts from a fresh controller).
     deadline : float
         Step-time budget for the statistics, s.
+    rtol, atol : float, optional
+        Tolerance mode (module docstring): a command differs when ``|replayed - recorded| >
+        atol + rtol * |recorded|``; both None (the default): bit for bit.
 
     Raises
     ------
     ReplayError
-        No measurements, or fewer commands than measurements.
+        No measurements, fewer commands than measurements, or a negative or non-finite tolerance.
     """
+    for name, tol in (("rtol", rtol), ("atol", atol)):
+        if tol is not None and not (math.isfinite(tol) and tol >= 0):
+            raise ReplayError(f"{name} must be finite and >= 0, got {tol}")
     rec = read_recording(recording) if isinstance(recording, (str, Path)) else recording
     if not rec.measurements:
         raise ReplayError(f"{rec.path or 'recording'}: no measurements to replay")
@@ -127,7 +179,8 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
     if reset and hasattr(controller, "reset"):
         controller.reset()
     first: Divergence | None = None
-    n_div = 0
+    n_div = n_bits = 0
+    largest = 0.0
     times: list[float] = []
     out: list[Commands] = []
     for i, (m, c) in enumerate(zip(rec.measurements, rec.commands)):
@@ -135,8 +188,13 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
         cmd, _diag = controller.step(m)
         times.append(time.perf_counter() - t0)
         out.append(cmd)
-        d = compare_commands(i, c, cmd)
+        d = compare_commands(i, c, cmd, rtol, atol)
         if d is not None:
             n_div += 1
             first = first or d
-    return ReplayReport(len(out), n_div == 0, first, n_div, step_time_stats(times, deadline), out)
+        if compare_commands(i, c, cmd) is None:
+            n_bits += 1
+        elif d is None or d.field not in ("t", "seq"):
+            largest = max(largest, _largest_difference(c, cmd))
+    return ReplayReport(len(out), n_div == 0, first, n_div, step_time_stats(times, deadline), out, rtol, atol,
+                        largest, n_bits)

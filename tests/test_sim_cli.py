@@ -7,6 +7,7 @@ from pathlib import Path
 
 from offline.cli import main
 from rtctl.recording import read_recording
+from rtctl.table import load_index
 
 DATA = Path(__file__).parent / "data"
 
@@ -40,10 +41,15 @@ def test_drive_errors(tmp_path, capsys):
 
 
 def test_replay_cli(tmp_path, capsys):
+    """The committed recording was made on another machine before recordings carried their
+    provenance: the replay warns that it cannot tell, and compares within a tolerance (1e-6 m/s
+    or rad: OSQP's eps of 1e-6 on variables of scale <= 1; measured here: 8e-14)."""
     rec = str(DATA / "rec_rr_steer_stuck_50_rtctl.mcap")
-    assert main(["replay", rec, "--tables", str(DATA / "tables"), "--csv", str(tmp_path / "csv")]) == 0
+    assert main(["replay", rec, "--tables", str(DATA / "tables"), "--csv", str(tmp_path / "csv"),
+                 "--rtol", "0", "--atol", "1e-6"]) == 0
     out = capsys.readouterr().out
-    assert "commands identical bit for bit" in out and (tmp_path / "csv" / "commands.csv").exists()
+    assert "has no provenance record" in out
+    assert "commands equal within rtol 0, atol 1e-06" in out and (tmp_path / "csv" / "commands.csv").exists()
     # the same recording through a controller that lacks the stuck-steering table: reported, exit 1
     only_nominal = tmp_path / "nominal.npz"
     only_nominal.write_bytes((DATA / "tables" / "nominal.npz").read_bytes())
@@ -52,6 +58,40 @@ def test_replay_cli(tmp_path, capsys):
     assert "differ; first: tick 0 (t = 0.000 s, seq 0)" in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
     assert "no such recording" in capsys.readouterr().err
+
+
+def test_drive_records_provenance_and_replay_checks_it(tmp_path, capsys):
+    """``offnominal drive`` stores the tables, configuration, versions and platform; a replay on
+    this machine is bit for bit; other tables or another configuration are refused by name;
+    --allow-mismatch replays anyway; --rtol/--atol compare within a tolerance."""
+    out = tmp_path / "drive"
+    assert main(["drive", "rr_steer_stuck_50", "--controllers", "rtctl", "--tables", str(DATA / "tables"),
+                 "--distance", "0.02", "--out", str(out), "--quiet"]) == 0
+    path = out / "rr_steer_stuck_50_rtctl.mcap"
+    prov = read_recording(path).provenance
+    index = load_index(DATA / "tables" / "index.json")
+    assert prov["tables"] == {k: {"file": v.path.name, "content_hash": v.content_hash} for k, v in index.items()}
+    assert prov["controller_config"]["qp"]["eps"] == 1e-6 and prov["numpy"] and prov["osqp"] and prov["platform"]
+    assert prov["library_version"] and prov["python"].count(".") == 2
+    capsys.readouterr()
+    assert main(["replay", str(path), "--tables", str(DATA / "tables")]) == 0
+    text = capsys.readouterr().out
+    assert "identical bit for bit" in text and "warning" not in text
+    only_nominal = tmp_path / "nominal.npz"
+    only_nominal.write_bytes((DATA / "tables" / "nominal.npz").read_bytes())
+    assert main(["replay", str(path), "--tables", str(only_nominal)]) == 2
+    err = capsys.readouterr().err
+    assert "not the recorded one" in err and "tables.rr_steer_stuck" in err
+    cfg = tmp_path / "eps.toml"
+    cfg.write_text("[qp]\neps = 1e-5\n")
+    assert main(["replay", str(path), "--tables", str(DATA / "tables"), "--config", str(cfg)]) == 2
+    assert "controller_config.qp.eps: recorded 1e-06, now 1e-05" in capsys.readouterr().err
+    rc = main(["replay", str(path), "--tables", str(DATA / "tables"), "--config", str(cfg), "--allow-mismatch",
+               "--atol", "1e-3"])
+    text = capsys.readouterr().out
+    assert "--allow-mismatch" in text and rc in (0, 1) and "steps replayed" in text
+    assert main(["replay", str(path), "--tables", str(DATA / "tables"), "--atol", "-1"]) == 2
+    assert "--atol must be finite and >= 0" in capsys.readouterr().err
 
 
 def test_drive_hil(tmp_path, capsys):

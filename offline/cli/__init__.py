@@ -50,15 +50,35 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+GROUND_PACKAGES = ("casadi", "matplotlib", "tqdm", "dask", "distributed", "qpsolvers")
+"""Packages of the ``ground`` extra (``pip install 'offnominal-rover[ground]'``); the rover install
+(``pip install .``) has rtctl's only."""
+
+
+def _ground_missing(exc: ModuleNotFoundError) -> int:
+    """A clear error for a ground-side command on the rover install (else re-raise)."""
+    if (exc.name or "").split(".")[0] not in GROUND_PACKAGES:
+        raise exc
+    print(f"offnominal: this command needs the ground-side dependencies ({exc.name} is not installed); this "
+          "looks like the rover install (pip install .), which has rtctl's only: install "
+          "'offnominal-rover[ground]' (from the repository: pip install '.[ground]')", file=sys.stderr)
+    return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``offnominal`` command."""
-    ap = build_parser()
+    try:
+        ap = build_parser()
+    except ModuleNotFoundError as exc:
+        return _ground_missing(exc)
     args = ap.parse_args(argv)
     if not getattr(args, "command", None):
         ap.print_help()
         return 0
     try:
         return int(args.func(args))
+    except ModuleNotFoundError as exc:
+        return _ground_missing(exc)
     except KeyboardInterrupt:
         # only commands that write every output through offline.files (temporary file, then
         # rename) set atomic_outputs; for the others a file being written may be cut short

@@ -94,7 +94,10 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
     print(f"HIL {sim.scenario.name}: rtctl in its own process, {rep.ticks} ticks at 5 Hz, {rep.deadline_misses} deadline "
           f"misses (200 ms), step median {1e6 * st['median_s']:.0f} us, max {1e6 * st['max_s']:.0f} us", flush=True)
     if not args.no_record:
-        with Recorder(rec_path, {**meta, "hil": True, "deadline_misses": rep.deadline_misses}, truth=True) as rec:
+        from rtctl.recording import provenance
+
+        with Recorder(rec_path, {**meta, "hil": True, "deadline_misses": rep.deadline_misses}, truth=True,
+                      provenance=provenance(ctl)) as rec:
             for i, (m, ts) in enumerate(zip(plant.measurements, plant.truth)):
                 rec.measurements(m)
                 if i < len(rep.commands) and rep.commands[i] is not None:
@@ -118,7 +121,7 @@ def _truth_hooks(truth: Any, rover: Any) -> Any:
 def _cmd_drive(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from rtctl.recording import Recorder
+    from rtctl.recording import Recorder, provenance
 
     from ..files import OutputError, check_output_dir, write_text
     from ..sim.actuators import ActuatorError
@@ -182,7 +185,7 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                         r = run_drive(sim, ctl, distance=args.distance, name=kind)
                     else:
                         rec_path = out / f"{sc.name}{tag}_{kind.replace('+', '_')}.mcap"
-                        with Recorder(rec_path, meta, truth=True) as rec:
+                        with Recorder(rec_path, meta, truth=True, provenance=provenance(ctl)) as rec:
                             r = run_drive(sim, ctl, distance=args.distance, recorder=rec, name=kind)
                 except (ExperimentError, ActuatorError, SimulationError) as exc:
                     bar.close()
@@ -209,7 +212,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     import functools
 
     from rtctl.hil import HilError, load_controller, run_hil
-    from rtctl.recording import RecordingError, export_csv, read_recording
+    from rtctl.recording import RecordingError, compare_provenance, export_csv, provenance, read_recording
     from rtctl.replay import ReplayError, compare_commands, replay, step_time_stats
 
     from ..sim.rtctl_bridge import shipped_tables
@@ -226,18 +229,41 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if not index.exists():
         return fail(f"{index}: no table index; pass --tables (the tables the recording was made with)")
     factory = functools.partial(load_controller, str(index), args.config)
+    for name, tol in (("--rtol", args.rtol), ("--atol", args.atol)):
+        if tol is not None and not (math.isfinite(tol) and tol >= 0):
+            return fail(f"{name} must be finite and >= 0, got {tol}")
+    tolerant = args.rtol is not None or args.atol is not None
+    rtol, atol = (args.rtol or 0.0, args.atol or 0.0) if tolerant else (None, None)
+    try:
+        ctl = factory()
+    except Exception as exc:  # the table reader's and controller's errors say what is wrong
+        return fail(f"{index}: {exc}")
+    refuse, warn = compare_provenance(rec.provenance, provenance(ctl))
+    for w in warn:
+        print(f"warning: {w}")
+    if warn and not tolerant and rec.provenance:
+        print("warning: another machine or library version may change the last bits; compare with --rtol/--atol "
+              "for a cross-architecture bench")
+    if refuse:
+        msg = "; ".join(refuse)
+        if not args.allow_mismatch:
+            return fail(f"{args.recording}: the replaying controller is not the recorded one: {msg} (pass the "
+                        "recording's tables and config, or --allow-mismatch to replay anyway)")
+        print(f"warning (--allow-mismatch): the replaying controller is not the recorded one: {msg}")
     try:
         if args.hil:
             n = len(rec.measurements) if args.ticks is None else min(args.ticks, len(rec.measurements))
             print(f"HIL: rtctl in its own process, {n} ticks at 5 Hz ({0.2 * n:.0f} s) ...", flush=True)
             rep = run_hil(factory, measurements=rec.measurements[:n])
-            div = [d for i, c in enumerate(rep.commands) if (d := compare_commands(i, rec.commands[i], c)) is not None]
+            div = [d for i, c in enumerate(rep.commands)
+                   if (d := compare_commands(i, rec.commands[i], c, rtol, atol)) is not None]
             st = step_time_stats(rep.step_times)
             print(f"{rep.ticks} ticks, {rep.deadline_misses} deadline misses (200 ms), step median "
                   f"{1e6 * st['median_s']:.0f} us, p99 {1e6 * st['p99_s']:.0f} us; "
-                  + ("commands identical bit for bit" if not div else f"{len(div)} differ; first: {div[0]}"))
+                  + ((f"commands equal within rtol {rtol:g}, atol {atol:g}" if tolerant else
+                      "commands identical bit for bit") if not div else f"{len(div)} differ; first: {div[0]}"))
             return 0 if not div else 1
-        r = replay(rec, factory())
+        r = replay(rec, ctl, rtol=rtol, atol=atol)
     except (ReplayError, HilError) as exc:
         return fail(str(exc))
     except Exception as exc:  # the table reader's and controller's errors say what is wrong
@@ -252,13 +278,21 @@ def register(sub: Any) -> None:
         "replay", help="replay an MCAP recording through rtctl and compare its commands bit for bit",
         description="Feed a recording's measurements to a fresh rtctl controller (same tables and config as the "
                     "recording) and report the first command that differs (time, wheel, field) and the step times; "
-                    "--hil runs the controller in its own process at the real 5 Hz clock and counts deadline misses.")
+                    "--hil runs the controller in its own process at the real 5 Hz clock and counts deadline misses. "
+                    "The recording's provenance is checked first: other tables or configuration refuse the replay "
+                    "(by name), other versions or platform warn; --rtol/--atol compare within a tolerance.")
     rp.add_argument("recording", help="an .mcap file written by offnominal drive (or a rover)")
     rp.add_argument("--tables", help="table index or folder (default: the shipped tables)")
     rp.add_argument("--config", help="rtctl controller config TOML (default: rtctl's defaults)")
     rp.add_argument("--hil", action="store_true", help="controller in its own process over a pipe, real 5 Hz clock")
     rp.add_argument("--ticks", type=int, help="with --hil: only the first N ticks")
     rp.add_argument("--csv", metavar="DIR", help="also export every channel as CSV into DIR")
+    rp.add_argument("--rtol", type=float, help="tolerance mode: relative tolerance of a command (default: bit for bit)")
+    rp.add_argument("--atol", type=float, help="tolerance mode: absolute tolerance of a command, m/s or rad "
+                    "(default: bit for bit); the first command beyond atol + rtol * |recorded| is reported")
+    rp.add_argument("--allow-mismatch", action="store_true",
+                    help="replay even when the recording's tables or controller configuration differ from these "
+                         "(named in a warning)")
     rp.set_defaults(func=_cmd_replay)
 
     dr = sub.add_parser(

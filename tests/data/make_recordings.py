@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     from offline.sim.experiments import build_controller, run_drive, scenario_by_name
     from offline.sim.rtctl_bridge import rtctl_factory
     from offline.sim.simulator import RoverSimulator
-    from rtctl.recording import Recorder
+    from rtctl.recording import Recorder, provenance
 
     tables = HERE / "tables"
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.controller == "rtctl":
             meta["tables"] = {p.name: _sha(p) for p in sorted(tables.iterdir()) if p.is_file()}
         out = HERE / f"rec_{name}_{args.controller.replace('+', '_')}.mcap"
-        with Recorder(out, meta, truth=True) as rec:
+        with Recorder(out, meta, truth=True, provenance=provenance(ctl)) as rec:
             sim = RoverSimulator(sc, seed=args.seed)
             run_drive(sim, ctl, distance=1e9, max_time=0.2 * (args.ticks - 1) + 1e-9, recorder=rec)
         print(f"wrote {out.relative_to(HERE.parent.parent)} ({out.stat().st_size / 1e3:.0f} kB)")

@@ -152,8 +152,8 @@ def _timing(steps: int) -> str:
         fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
         m = Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
                          r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
-        for name, r in ctl._rtis.items():  # time every real-time iteration's QP solve and prepare
-            a = r.allocator
+        for name, it_ in ctl._rtis.items():  # time every real-time iteration's QP solve and prepare
+            a = it_.allocator
             if name not in qp_timers:
                 qp_timers[name] = (_Timer(a, "solve_at"), _Timer(a, "prepare"))
         cmd, diag, tick = runner.tick(m)

@@ -41,19 +41,22 @@ def test_drive_errors(tmp_path, capsys):
 
 
 def test_replay_cli(tmp_path, capsys):
-    """The committed recording was made on another machine before recordings carried their
-    provenance: the replay warns that it cannot tell, and compares within a tolerance (1e-6 m/s
-    or rad: OSQP's eps of 1e-6 on variables of scale <= 1; measured here: 8e-14)."""
+    """The committed recording carries its provenance (tables, configuration, versions): the
+    replay checks it, then compares within a tolerance (1e-6 m/s or rad: OSQP's eps of 1e-6 on
+    variables of scale <= 1), for a bench on another architecture."""
     rec = str(DATA / "rec_rr_steer_stuck_50_rtctl.mcap")
     assert main(["replay", rec, "--tables", str(DATA / "tables"), "--csv", str(tmp_path / "csv"),
                  "--rtol", "0", "--atol", "1e-6"]) == 0
     out = capsys.readouterr().out
-    assert "has no provenance record" in out
+    assert "provenance" not in out  # same tables and configuration: nothing to refuse or warn about
     assert "commands equal within rtol 0, atol 1e-06" in out and (tmp_path / "csv" / "commands.csv").exists()
     # the same recording through a controller that lacks the stuck-steering table: reported, exit 1
     only_nominal = tmp_path / "nominal.npz"
     only_nominal.write_bytes((DATA / "tables" / "nominal.npz").read_bytes())
-    assert main(["replay", rec, "--tables", str(only_nominal)]) == 1
+    assert main(["replay", rec, "--tables", str(only_nominal)]) == 2  # refused by the provenance, by name
+    out = capsys.readouterr()
+    assert "the replaying controller is not the recorded one" in out.err + out.out and "tables.rr_steer_stuck_50: recorded" in out.err + out.out
+    assert main(["replay", rec, "--tables", str(only_nominal), "--allow-mismatch"]) == 1
     # the first tick already differs: it is prepared on the table of the declared failure
     assert "differ; first: tick 0 (t = 0.000 s, seq 0)" in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "missing.mcap")]) == 2
@@ -70,7 +73,10 @@ def test_drive_records_provenance_and_replay_checks_it(tmp_path, capsys):
     path = out / "rr_steer_stuck_50_rtctl.mcap"
     prov = read_recording(path).provenance
     index = load_index(DATA / "tables" / "index.json")
-    assert prov["tables"] == {k: {"file": v.path.name, "content_hash": v.content_hash} for k, v in index.items()}
+    files = {k: {"file": v.path.name, "content_hash": v.content_hash} for k, v in index.items()}
+    assert {k: prov["tables"][k] for k in files} == files
+    mirrors = {k: v for k, v in prov["tables"].items() if k not in files}  # the mirrors rtctl adds (rtctl.mirror)
+    assert mirrors and all(v["file"].startswith("mirror of ") and v["content_hash"] for v in mirrors.values())
     assert prov["controller_config"]["qp"]["eps"] == 1e-6 and prov["numpy"] and prov["osqp"] and prov["platform"]
     assert prov["library_version"] and prov["python"].count(".") == 2
     capsys.readouterr()

@@ -49,6 +49,7 @@ import importlib
 import json
 import math
 import multiprocessing
+import os
 import shutil
 import tomllib
 from dataclasses import dataclass, field, replace
@@ -381,7 +382,7 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
     BuildError
         Unreadable scenario (the loader's message), or a bad grid.
     """
-    from .scenario import ScenarioError, load_scenario
+    from .scenario import ScenarioError, load_scenario, param_preset_file
 
     p = Path(path)
     try:
@@ -395,7 +396,11 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         ref = tomllib.loads(p.read_text()).get("scenario", {}).get("params")
     except tomllib.TOMLDecodeError:
         ref = None
-    if isinstance(ref, str) and (p.parent / ref).is_file():
+    preset_file = param_preset_file(ref) if isinstance(ref, str) else None
+    if preset_file is not None:  # a shipped parameter file by name: its name and hash, and the name
+        sources["params_file"] = _file_record(preset_file)
+        sources["params_preset"] = ref
+    elif isinstance(ref, str) and (p.parent / ref).is_file():
         sources["params_file"] = _file_record(p.parent / ref)
     elif isinstance(ref, str):
         sources["params_preset"] = ref
@@ -1374,9 +1379,21 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
     return out
 
 
-def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
+def write_index(out_dir: str | Path, paths: Iterable[Path], base_index: str | Path | None = None) -> Path:
     """Write ``<out_dir>/index.json``: every table's file, hashes, grid, family and feasible ranges
-    (entries of tables already in the index and not rebuilt are kept)."""
+    (entries of tables already in the index and not rebuilt are kept).
+
+    ``base_index``: when ``<out_dir>`` has no index yet, start from this one's entries (e.g. the
+    shipped ``tables/index.json``), their files re-pointed relative to ``<out_dir>`` (rtctl
+    resolves an entry's ``file`` against the index's folder) and their hashes kept, so an index
+    in a fresh folder lists the new tables *and* the base ones, each loaded from where it is and
+    checked against its hash. A table built here replaces a base entry of the same name.
+
+    Raises
+    ------
+    BuildError
+        ``base_index`` is not a readable table index.
+    """
     from rtctl.table import load_table
 
     out = Path(out_dir)
@@ -1388,6 +1405,8 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
             entries = dict(old.get("tables", {}))
         except json.JSONDecodeError:
             entries = {}
+    elif base_index is not None:
+        entries = _rebased_entries(Path(base_index), out)
     for p in paths:
         t = load_table(p)
         entries[t.name] = {
@@ -1403,6 +1422,26 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
     doc = {"schema": SCHEMA + " index", "schema_version": SCHEMA_VERSION, "tables": dict(sorted(entries.items()))}
     write_text(ip, json.dumps(doc, indent=1, sort_keys=True) + "\n")
     return ip
+
+
+def _rebased_entries(base: Path, out: Path) -> dict[str, Any]:
+    """Entries of the index ``base`` with each ``file`` made relative to the folder ``out``."""
+    from rtctl.table import TableError, load_index
+
+    try:
+        infos = load_index(base)
+    except TableError as exc:
+        raise BuildError(f"base index: {exc}") from None
+    entries = {}
+    for name, info in infos.items():
+        e = dict(info.entry)
+        target = Path(os.path.abspath(info.path))
+        try:
+            e["file"] = os.path.relpath(target, os.path.abspath(out))
+        except ValueError:  # another drive (Windows): an absolute path
+            e["file"] = str(target)
+        entries[name] = e
+    return entries
 
 
 def upgrade_table(src: str | Path, out_dir: str | Path) -> Path:

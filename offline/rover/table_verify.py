@@ -52,10 +52,14 @@ PASSED only when every part of every check is within its tolerance (:attr:`Verif
 2. **Linearisation** (the trust radius): at each sampled point and for each continuous
    parameter whose stored trust radius the build verified (``trust_unverified`` = 0), the
    first-order prediction ``x + dx/dp dp`` (the QP of one SQP step with the active set held,
-   i.e. the KKT sensitivity system) against an independent re-solve of the NLP
-   (:func:`~offline.rover.primitives.solve_primitive` started at the prediction, with its own
-   independent check) at ``dp = +-`` the point's stored radius. rtctl clips every parameter
-   step to that radius, so this is the table's contract. Tolerance: the build's
+   i.e. the KKT sensitivity system) against a re-solve of the NLP at ``dp = +-`` the point's
+   stored radius, started at the prediction (the re-solve the radius claims: IPOPT warm with the
+   primitive's multipliers, then with its own dual initialisation, each with the optimizer's
+   full per-run budget, then the optimizer's search from the prediction), whose result must
+   pass the optimizer's independent numeric check. rtctl clips every parameter step to that
+   radius, so this is the table's contract. (A cold search alone is not enough here: at a
+   rim-speed-cap point with the cap active it found no primitive 1e-4 rad of slope away, where
+   the warm run converges at once.) Tolerance: the build's
    ``trust_tolerance`` (0.02 variable scales), the number the radius was sized to; the
    re-solve is exact to IPOPT's tolerance (1e-8 scaled), so nothing is added to it. A re-solve
    without a primitive fails. The ladder of larger steps (1/16 to 2 parameter scales) is still
@@ -349,6 +353,30 @@ def lay_pscale(lay: Any) -> NDArray[np.float64]:
     return np.array([b.scale for b in lay.parameters])
 
 
+def _resolve_from(pb: Any, sc: Any, spec: TableSpec, x0: NDArray[np.float64], lam_x: NDArray[np.float64] | None,
+                  lam_g: NDArray[np.float64] | None,
+                  more: Sequence[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = ()
+                  ) -> NDArray[np.float64] | None:
+    """The NLP's solution at ``sc`` reached from ``x0`` (scaled), or None: one IPOPT run warm with the
+    multipliers ``lam_x``, ``lam_g`` (scaled; skipped when None), then one with IPOPT's own dual
+    initialisation (the re-solve a trust radius claims, with the optimizer's full per-run budget
+    instead of the build's 30 iterations), then warm runs from the further starts ``more``
+    (``(x0, lam_x, lam_g)``), then the optimizer's search from ``x0``. The first that converges
+    must also pass the optimizer's independent numeric check
+    (:func:`~offline.rover.primitives.check_solution`)."""
+    from .primitives import check_solution, solve_primitive
+
+    b = pb.bounds(sc)
+    runs: list[tuple[Any, ...]] = ([(x0, lam_x, lam_g)] if lam_x is not None else []) + [(x0,)] + list(more)
+    for args in runs:
+        r = pb.solve(b, *args)
+        if r["success"]:
+            xr = np.asarray(r["x"], dtype=float)
+            return xr if check_solution(pb, sc, xr)[1] else None
+    res = solve_primitive(sc, spec.solver, x0=x0)
+    return np.asarray(res.x, dtype=float) if res.status == "optimal" else None
+
+
 def check_trust_radius(t: Table, spec: TableSpec, flats: Sequence[int]) -> tuple[list[dict[str, Any]], list[str]]:
     """The gated linearisation check (module docstring, check 2): at each point and each continuous
     parameter with a verified radius, the prediction at ``+-`` the radius against a re-solve.
@@ -369,6 +397,9 @@ def check_trust_radius(t: Table, spec: TableSpec, flats: Sequence[int]) -> tuple
         pt = {k: round(v, 6) for k, v in op.items()}
         sc = scenario_at(spec.scenario, spec.family, op)
         x, dxdp = t.arrays["x"][idx], t.arrays["dx_dp"][idx]
+        pb = _problem(sc, spec.solver)
+        lam_x = t.arrays["lam_x"][idx] * xsc  # IPOPT's scaled multipliers (the table stores physical ones)
+        lam_g = t.arrays["lam_g"][idx] * lay.constraint_scale
         radius, unverified = t.arrays["trust_radius"][idx], t.arrays["trust_unverified"][idx]
         for name in _LIN_PARAMS:
             j = lay.index(name)
@@ -381,9 +412,9 @@ def check_trust_radius(t: Table, spec: TableSpec, flats: Sequence[int]) -> tuple
                 if name == "speed":
                     kw.update(_fam_follow(spec, sc, sc.speed + dp))
                 pred = x + dxdp[:, j] * dp
-                r = solve_primitive(replace(sc, **kw), spec.solver, x0=pred / xsc)
-                e = float(np.max(np.abs(pred - np.asarray(r.x, dtype=float) * xsc) / xsc)) if r.status == "optimal" \
-                    else math.nan
+                sc2 = replace(sc, **kw)
+                xr = _resolve_from(pb, sc2, spec, pred / xsc, lam_x, lam_g)
+                e = float(np.max(np.abs(pred - xr * xsc) / xsc)) if xr is not None else math.nan
                 out.append({"point": pt, "parameter": name, "step": dp, "error": e, "tolerance": tol})
     return out, notes
 
@@ -410,16 +441,44 @@ def _direct_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64]) -> dict[str
     return {"x": x, "jac_g_x": csc[:, None] * jgx_s / xsc[None, :], "wrench_jac": wj}
 
 
+def _corner_starts(t: Table, cell: tuple[int, ...], op: dict[str, float]
+                   ) -> list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]:
+    """Warm starts (scaled) at a cell midpoint from each feasible corner: its primitive moved by its
+    sensitivity to the midpoint's slope, cross slope and speed, with its multipliers."""
+    lay = t.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    multi = [i for i, n in enumerate(t.shape) if n > 1]
+    out = []
+    for b in range(2 ** len(multi)):
+        k = list(cell)
+        for j, a in enumerate(multi):
+            k[a] += (b >> j) & 1
+        idx = tuple(k)
+        if not t.feasible[idx]:
+            continue
+        corner = t.grid_point(idx)
+        dp = np.zeros(lay.np_)
+        for name in ("slope", "cross_slope", "speed"):
+            if name in op and name in corner:
+                dp[lay.index(name)] = op[name] - corner[name]
+        x = (t.arrays["x"][idx] + t.arrays["dx_dp"][idx] @ dp) / xsc
+        out.append((x, t.arrays["lam_x"][idx] * xsc, t.arrays["lam_g"][idx] * csc))
+    return out
+
+
 def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]]) -> dict[str, Any]:
     """At each cell midpoint: interpolated ``x``, ``jac_g_x`` and ``wrench_jac`` against a direct solve.
 
-    Returns the largest errors (x: per variable scale; Jacobians: relative to the largest entry)
-    and the number of midpoints where the direct solve found no primitive.
-    """
-    from .primitives import solve_primitive
+    The direct solve starts at the interpolated primitive (warm with the interpolated multipliers,
+    then cold), then at each corner's primitive moved by its sensitivity, then the optimizer's
+    search (:func:`_resolve_from`): the optimizer's search alone, with the table budgets, called
+    midpoints of ``rr_unpowered`` and ``rr_rim_speed_cap`` infeasible where a primitive exists.
 
+    Returns the largest errors (x: per variable scale; Jacobians: relative to the largest entry),
+    the number of midpoints where no primitive was found and those midpoints.
+    """
     lay = t.layout
-    xsc = lay.variable_scale
+    xsc, csc = lay.variable_scale, lay.constraint_scale
     ex, ej, ew, fails, where = 0.0, 0.0, 0.0, 0, None
     holes = []
     for c in cells:
@@ -427,12 +486,13 @@ def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]])
               for k, i in zip(t.axis_order, c)}
         tp = t.at(**op)
         sc = scenario_at(spec.scenario, spec.family, op)
-        r = solve_primitive(sc, spec.solver, x0=tp.x / xsc)
-        if r.status != "optimal":
+        pb = _problem(sc, spec.solver)
+        xr = _resolve_from(pb, sc, spec, tp.x / xsc, tp.lam_x * xsc, tp.lam_g * csc, _corner_starts(t, c, op))
+        if xr is None:
             fails += 1
-            holes.append({"midpoint": {k: round(v, 6) for k, v in op.items()}, "status": r.status})
+            holes.append({k: round(v, 6) for k, v in op.items()})
             continue
-        dd = _direct_data(spec, sc, np.asarray(r.x, dtype=float))
+        dd = _direct_data(spec, sc, xr)
         e = float(np.max(np.abs(tp.x - dd["x"]) / xsc))
         if e > ex:
             ex, where = e, op

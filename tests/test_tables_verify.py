@@ -210,3 +210,23 @@ def test_build_into_a_fresh_folder_from_a_scenario_anywhere(tmp_path, capsys):
     assert _base_index("shipped", tmp_path / "alone") == TABLES / "index.json"
     assert _base_index("shipped", TABLES) is None  # building the shipped tables themselves
     assert _base_index(str(out), tmp_path / "alone") == out / "index.json"
+
+
+# ------------------------------------------------------------------------------ relaxation evidence
+def test_relaxation_is_the_scenario_without_failures_when_that_is_a_relaxation():
+    from dataclasses import replace
+
+    from offline.rover.scenario import WheelFailure
+    from offline.rover.table_builder import relaxation_of
+
+    base = load_scenario(TABLES / "scenarios" / "rr_steer_stuck.toml")
+    rel = relaxation_of(base)
+    assert rel is not None and rel.failures == {} and rel.trench is None
+    assert (rel.params, rel.rover, rel.speed, rel.slope) == (base.params, base.rover, base.speed, base.slope)
+    assert relaxation_of(replace(base, failures={})) is None  # nothing to relax
+    # a stuck angle beyond the optimizer's +-89 deg lies outside the nominal bounds
+    assert relaxation_of(replace(base, failures={"RR": WheelFailure(steer_stuck=math.radians(90.0))})) is None
+    # a raised wheel changes the equations
+    assert relaxation_of(replace(base, failures={"RR": WheelFailure(raised=True)})) is None
+    trench = load_scenario(TABLES / "scenarios" / "rr_trench_clean.toml")
+    assert relaxation_of(trench).params == trench.params  # the trench's zeta = 1 stays

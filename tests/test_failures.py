@@ -192,3 +192,32 @@ def test_trench_given_as_a_number_is_a_clear_error(tmp_path):
     f.write_text('trench = 5\n[scenario]\nname = "t5"\nspeed_m_s = 0.03\n')
     with pytest.raises(ScenarioError, match=r"trench = 5: the trench goal is a table"):
         load_scenario(f)
+
+
+def test_stuck_steering_is_held_at_the_declared_angle_up_to_90_deg():
+    """The optimizer's +-89 deg limit bounds a free steering decision, not a stuck angle: the
+    old clamp made the NLP solve 89 deg for a wheel declared stuck at 90 deg, and the
+    independent check rejected the result (residual 1.75e-2 rad)."""
+    from offline.rover.primitives import BETA_LIMIT
+
+    b = _bounds()
+    b.lo["beta"], b.hi["beta"] = -BETA_LIMIT, BETA_LIMIT
+    StuckSteering(math.pi / 2).apply(b)
+    assert b.lo["beta"] == b.hi["beta"] == pytest.approx(math.pi / 2, abs=1e-15)
+    b = _bounds()
+    b.lo["beta"], b.hi["beta"] = -BETA_LIMIT, BETA_LIMIT
+    StuckSteering(-math.radians(95.0)).apply(b)  # beyond the model's domain (an offset can do this)
+    assert b.lo["beta"] == b.hi["beta"] == pytest.approx(-math.pi / 2, abs=1e-15)
+
+
+@pytest.mark.parametrize("angle", [90.0, -90.0])
+def test_front_left_stuck_at_90_deg_passes_the_independent_check(angle):
+    """README's worked example at its axis ends: optimal and the independent check passes
+    (before the fix: 'IPOPT converged but the independent numeric check failed')."""
+    cal = load_toml(CALIBRATED)["parameter_set"]
+    sc = replace(load_scenario(SHIPPED["nominal"]), params=cal, speed=0.02, name=f"FL stuck {angle}",
+                 failures={"FL": WheelFailure(steer_stuck=math.radians(angle))})
+    r = solve_primitive(sc)
+    assert r.status == "optimal" and r.check_passed, (r.status, r.evidence)
+    assert r.wheels["FL"].steer == pytest.approx(math.radians(angle), abs=1e-9)
+    assert abs(r.residuals["steer FL"]) <= 1e-9

@@ -191,7 +191,8 @@ def test_cli_verify_reports_all_three_checks(nominal, capsys):
     _, path, _ = nominal
     assert main(["tables", "verify", str(path), "--points", "1"]) == 0
     out = capsys.readouterr().out
-    for part in ("Jacobians vs central differences", "Linearisation", "Interpolation at cell midpoints", "PASSED"):
+    for part in ("Jacobians vs difference quotients", "Linearisation", "Interpolation at cell midpoints",
+                 "verdicts: jacobians passed, linearisation passed, interpolation passed", "PASSED"):
         assert part in out
 
 

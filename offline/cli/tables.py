@@ -94,6 +94,23 @@ def _world(path: str, scenario: Path) -> object:
         raise BuildError(f"--world: {exc}") from None
 
 
+def _base_index(choice: str, out: Path) -> Path | None:
+    """The index a fresh ``--out`` folder's index starts from (``--base-index``): None when
+    ``<out>/index.json`` exists (it is updated), for ``none``, or when ``out`` is the shipped
+    folder itself; ``shipped``: the shipped tables' index; else the given index file or folder."""
+    if (out / "index.json").is_file() or choice == "none":
+        return None
+    if choice == "shipped":
+        from offnominal_tables import index_path
+
+        base = Path(index_path())
+        if not base.is_file() or base.parent.resolve() == out.resolve():
+            return None
+        return base
+    p = Path(choice)
+    return p / "index.json" if p.is_dir() else p
+
+
 def cmd_build(args: argparse.Namespace) -> int:
     from ..files import OutputError
     from ..rover.table_builder import BuildError, build_tables, table_spec, write_index
@@ -146,8 +163,14 @@ def cmd_build(args: argparse.Namespace) -> int:
     except (BuildError, OutputError) as exc:
         return fail(str(exc))
     if not args.no_index:
-        ip = write_index(args.out, built)
-        print(f"index: {ip}")
+        base = _base_index(args.base_index, Path(args.out))
+        try:
+            ip = write_index(args.out, built, base_index=base)
+        except BuildError as exc:
+            return fail(str(exc))
+        n = len(json.loads(ip.read_text())["tables"])
+        extra = f", with the tables of {base} (files referenced where they are)" if base is not None else ""
+        print(f"index: {ip} ({n} tables{extra}); the controller finds them all with --tables {ip}")
     print(f"built {len(built)} table(s) in {time.perf_counter() - t_all:.1f} s")
     return 0
 
@@ -226,7 +249,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     from ..rover.table_verify import verify_table
 
     try:
-        rep = verify_table(args.file, points=args.points, seed=args.seed)
+        rep = verify_table(args.file, points=args.points, seed=args.seed, ladder=not args.no_ladder)
     except TableError as exc:
         return fail(str(exc))
     print(rep.text())
@@ -283,6 +306,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="combinations of the other axes checked per cell (default 3)")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    b.add_argument("--base-index", default="shipped", metavar="shipped|none|INDEX",
+                   help="when <out> has no index.json yet, start it from this index (default: the shipped "
+                        "tables'), so 'offnominal drive --tables <out>' finds the new table(s) and those; the "
+                        "base tables stay where they are (referenced by relative path, checked by hash)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_build)
 
@@ -300,8 +327,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--evidence", type=int, default=5, help="points without a primitive to list (default 5)")
     i.set_defaults(func=cmd_info)
 
-    v = ts.add_parser("verify", help="check Jacobians, linearisation and interpolation against the model")
+    v = ts.add_parser("verify", help="check Jacobians, linearisation and interpolation against the model",
+                      description="Three gated checks (Jacobians vs difference quotients, the first-order prediction at "
+                                  "each sampled point's trust radius vs a re-solve, interpolation at cell midpoints vs a "
+                                  "direct solve); PASSED only if every part passed. Tolerances and why: "
+                                  "offline/rover/table_verify.py. Exit code 0 passed, 1 failed.")
     v.add_argument("file")
     v.add_argument("--points", type=int, default=3, help="sampled points per check (default 3)")
     v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--no-ladder", action="store_true",
+                   help="skip the informational linearisation step ladder (not gated; most of the time)")
     v.set_defaults(func=cmd_verify)

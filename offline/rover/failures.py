@@ -205,8 +205,17 @@ class StuckSteering(FailureKind):
         return cls(math.radians(_num(values, "steer_stuck_deg", -90.0, 90.0, " (degrees expected)")))
 
     def apply(self, b: WheelBounds) -> None:
-        """Fix beta (the steer limit of +-89 deg still applies)."""
-        a = min(max(self.angle, b.lo["beta"]), b.hi["beta"])
+        """Fix beta at the stuck angle, eq. (7.31).
+
+        The optimizer's steering limit of +-89 deg
+        (:data:`offline.rover.primitives.BETA_LIMIT`) bounds a *free* steering decision; a
+        stuck angle is a fact and is held as declared, clipped only to the wheel model's
+        domain ``|beta| <= 90 deg`` (``v_x = v cos(beta) >= 0``). Clipping it to 89 deg made the
+        NLP solve a scenario 1 deg away from the declared one, which the independent check
+        (rightly) rejected: every point of a stuck-angle axis at +-90 deg read "IPOPT converged
+        but the independent numeric check failed" (residual ``steer`` = 1.75e-2 rad).
+        """
+        a = min(max(self.angle, -0.5 * math.pi), 0.5 * math.pi)
         b.lo["beta"] = b.hi["beta"] = a
 
     def mirror(self) -> "StuckSteering":

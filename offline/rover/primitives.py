@@ -945,8 +945,12 @@ def _nominal(pb: SteadyStateProblem, sc: Scenario, options: SolverOptions) -> tu
     """Nominal search, cached per problem and operating point together with its cost (the
     attempts and iterations are charged again on a cache hit, so the budget accounting and
     the reported counts do not depend on what was solved before)."""
+    # the search budgets are part of the key: a search cut short by a table build's small budgets
+    # must not answer a later call with the default budgets (it did: the nominal rover at 25 deg
+    # read "budget spent" instead of its confirmed "infeasible" in the same process)
     key = (id(pb), sc.speed, sc.slope, sc.cross_slope, sc.fy_offset, sc.mz_offset, options.seed, options.max_iter,
-           options.continue_rounds) + ((sc.steer_offset,) if sc.steer_offset is not None else ())
+           options.continue_rounds, options.max_attempts, options.max_iterations) \
+        + ((sc.steer_offset,) if sc.steer_offset is not None else ())
     if key not in _NOMINAL_CACHE:
         s = _Search(pb, sc, replace(options, time_limit=None), options.max_attempts, options.max_iterations, time.perf_counter())
         try:

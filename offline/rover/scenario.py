@@ -11,7 +11,8 @@ File format
 
     [scenario]
     name = "rr_speed_cap"
-    params = "dissertation-ch7"      # preset, or a parameter TOML path (relative to this file)
+    params = "dissertation-ch7"      # preset (PARAM_PRESETS, PARAM_FILE_PRESETS: "calibrated-sand",
+                                     # ...), or a parameter TOML path (relative to this file)
     rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section
     exit_angle = "classic"           # default; "soil_flow" takes theta_r from the trench model
     speed_m_s = 0.03
@@ -125,6 +126,7 @@ from .failures import (
 from .statics import WHEELS
 
 __all__ = ["ScenarioError", "ExternalForce", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
+           "PARAM_FILE_PRESETS", "param_preset_file",
            "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "section_table", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
 
 
@@ -162,6 +164,23 @@ PARAM_PRESETS: dict[str, ParameterSet] = {
     ),
 }
 ROVER_PRESETS: dict[str, Rover] = {"mini-rover-t72": ROVER_MINI_T72}
+PARAM_FILE_PRESETS: dict[str, str] = {
+    "calibrated-sand": "calibrated_grousered.toml",
+    "calibrated-sand-soil-flow": "calibrated_grousered_soil_flow.toml",
+    "dissertation-t54-grousered": "dissertation_grousered_t54.toml",
+    "dissertation-t54-smooth": "dissertation_smooth_t54.toml",
+}
+"""Parameter files shipped in ``offline/data``, by name (``params = "calibrated-sand"`` in a
+scenario works from any folder): the sand calibrated against the 189 single-wheel trials
+(``offnominal calibrate``, classic exit angle; the parameter file of every shipped table) and its
+soil-flow variant, and the dissertation's Table 5.2 wheels with Table 5.3 soil and Table 5.4's
+per-angle contact tuning. ``dissertation-ch7`` (:data:`PARAM_PRESETS`) is chapter 7's set."""
+
+
+def param_preset_file(ref: str) -> Path | None:
+    """The shipped parameter file a preset name stands for (:data:`PARAM_FILE_PRESETS`), else None."""
+    name = PARAM_FILE_PRESETS.get(ref)
+    return None if name is None else Path(str(resources.files("offline").joinpath("data", name)))
 
 
 @dataclass(frozen=True)
@@ -373,7 +392,11 @@ def _resolve_params(path: Path, ref: str, zeta: float | None, mu: float | None =
     if ref in PARAM_PRESETS:
         ps = PARAM_PRESETS[ref]
     else:
-        p = (path.parent / ref) if not Path(ref).is_absolute() else Path(ref)
+        p = param_preset_file(ref) or ((path.parent / ref) if not Path(ref).is_absolute() else Path(ref))
+        if not p.is_file():
+            presets = sorted([*PARAM_PRESETS, *PARAM_FILE_PRESETS])
+            raise ScenarioError(f"{path}: [scenario] params = {ref!r}: neither a preset ({', '.join(presets)}) nor a "
+                                f"file ({p} does not exist; a path is relative to the scenario file's folder)")
         try:
             loaded = load_toml(p)
         except ParameterError as exc:

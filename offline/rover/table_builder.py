@@ -49,6 +49,7 @@ import importlib
 import json
 import math
 import multiprocessing
+import os
 import shutil
 import tomllib
 from dataclasses import dataclass, field, replace
@@ -69,7 +70,7 @@ __all__ = [
     "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
-    "CODE_SOURCES", "code_hash", "world_header",
+    "CODE_SOURCES", "code_hash", "world_header", "relaxation_of", "relaxation_verdict",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -332,6 +333,11 @@ class BuildOptions:
     speed_twins : bool
         Twin pass (:func:`_twin_pass`): points that differ only in speed (one NLP up to the exact
         speed scaling of (7.25)) take the best optimum found at any of their speeds.
+    relaxation_evidence : bool
+        Relaxation pass (:func:`_relaxation_pass`): a point still ``not_found`` becomes
+        ``infeasible`` when the same operating point without the failures (a relaxation,
+        :func:`relaxation_of`) is confirmed infeasible by the optimizer with its default budgets
+        (one solve per slope and cross slope, shared by every speed and family value).
     """
 
     mz_offset: float = 0.2
@@ -343,6 +349,7 @@ class BuildOptions:
     active_tol: float = 1e-7
     polish_sweeps: int = 2
     speed_twins: bool = True
+    relaxation_evidence: bool = True
 
 
 @dataclass(frozen=True)
@@ -387,7 +394,7 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
     BuildError
         Unreadable scenario (the loader's message), or a bad grid.
     """
-    from .scenario import ScenarioError, load_scenario
+    from .scenario import ScenarioError, load_scenario, param_preset_file
 
     p = Path(path)
     try:
@@ -401,7 +408,11 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         ref = tomllib.loads(p.read_text()).get("scenario", {}).get("params")
     except tomllib.TOMLDecodeError:
         ref = None
-    if isinstance(ref, str) and (p.parent / ref).is_file():
+    preset_file = param_preset_file(ref) if isinstance(ref, str) else None
+    if preset_file is not None:  # a shipped parameter file by name: its name and hash, and the name
+        sources["params_file"] = _file_record(preset_file)
+        sources["params_preset"] = ref
+    elif isinstance(ref, str) and (p.parent / ref).is_file():
         sources["params_file"] = _file_record(p.parent / ref)
     elif isinstance(ref, str):
         sources["params_preset"] = ref
@@ -616,7 +627,8 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     points.) The radius is the smaller of the
     two signs. When no step passes, the radius is ``d tol / e`` from the smallest step ``d``
     that was re-solved (error ``e``; the linear growth law, the smaller of the linear and
-    quadratic laws); if no re-solve of a sign converged, its smallest step is re-solved once
+    quadratic laws), re-solved there and shrunk (by 0.9 tol / e, at most to half) while its
+    error exceeds the tolerance, at most 3 times; if no re-solve of a sign converged, its smallest step is re-solved once
     more from the prediction with the optimizer's per-run budget ``solver.max_iter`` (measured
     at 3 rim-speed-cap points: such re-solves converge in 52-116 iterations to a point 1-20
     variable scales from the prediction, so the radius is tiny, not the fallback). A speed step that would leave less than a quarter of the travel speed is
@@ -664,6 +676,14 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
                     err(0, spec.solver.max_iter if spec.solver is not None else None)
                 done = sorted(k for k, e in cache.items() if math.isfinite(e))
                 r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
+                # the linear law is an estimate: re-solve at r and shrink while it fails (at most 3
+                # re-solves; measured on a nominal point: 0.021 > 0.02 at the law's cross-slope
+                # radius, which `tables verify` rejected)
+                for _ in range(3 if math.isfinite(r) else 0):
+                    e_r = _prediction_error(spec, pb, sc, name, sgn * r, lam_x, lam_g, x, dx_dp[:, j], xsc)
+                    if e_r <= tol:
+                        break
+                    r *= min(0.5, 0.9 * tol / e_r) if math.isfinite(e_r) else 0.5
             solved_any = solved_any or any(math.isfinite(e) for e in cache.values())
             best = min(best, r)
         if not solved_any or not math.isfinite(best):
@@ -1142,6 +1162,10 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         polished = _polish(spec, recs, ck, ex, bar)
+        relaxed = 0
+        if spec.build.relaxation_evidence:
+            bar.set_description(f"{spec.name} (relaxations)")
+            relaxed = _relaxation_pass(spec, recs, ck, ex)
         refinement = None
         if spec.refine is not None:
             from .table_refine import refine_grid
@@ -1165,9 +1189,104 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "polished": polished, "trust_radius": header["trust_radius"],
+               "retried": len(retried), "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
                "refinement": header.get("refinement")}
     return path, summary
+
+
+def relaxation_of(sc: Any) -> Any | None:
+    """The scenario whose feasible set contains ``sc``'s: failures and trench goal removed
+    (everything else -- parameters, rover, world terms, operating point -- kept), or None when
+    that is not a relaxation.
+
+    Every failure kind but one only adds constraints to (7.25) with the same objective (7.25):
+    a stuck or narrowed steering angle, a rim-speed cap, a locked, unpowered or torque-limited
+    wheel, a trench goal. A raised wheel changes the equations (no ground contact), and a
+    failure kind written elsewhere (``WheelFailure.extra``) is not known to be a restriction;
+    a stuck angle beyond the optimizer's free steering range (+-89 deg, ``BETA_LIMIT``) lies
+    outside the nominal problem's bounds. So if the relaxation has no primitive (a confirmed
+    verdict), neither has ``sc``: sound infeasibility evidence for a point the table's own
+    search could not decide.
+    """
+    from .primitives import BETA_LIMIT
+
+    for k in sc.failures:
+        f = sc.failure(k)
+        if f.raised or f.extra:
+            return None
+        pf = sc.physical_failure(k)
+        if pf.steer_stuck is not None and abs(pf.steer_stuck) > BETA_LIMIT:
+            return None
+    if not sc.failures and sc.trench is None:
+        return None
+    return replace(sc, failures={}, trench=None, name=f"{sc.name} (relaxation: no failures)")
+
+
+def relaxation_verdict(spec: TableSpec, op: Mapping[str, float]) -> dict[str, Any]:
+    """The optimizer's verdict (default budgets) on the relaxation of the scenario at ``op``
+    (:func:`relaxation_of`): ``{"status", "evidence"}``."""
+    from . import primitives as P
+
+    rel = relaxation_of(scenario_at(spec.scenario, spec.family, op))
+    if rel is None:
+        return {"status": "none", "evidence": None}
+    r = P.solve_primitive(rel, replace(spec.solver, **{k: getattr(P.SolverOptions(), k) for k in TABLE_SOLVER_BUDGETS})
+                          if spec.solver is not None else P.SolverOptions())
+    return {"status": r.status, "evidence": encode(r.evidence) if r.status != "optimal" else None}
+
+
+def _relaxation_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None) -> int:
+    """Points still ``not_found``: solve the relaxation of each distinct (slope, cross slope) once,
+    at the speed of its first such point, with the optimizer's default budgets
+    (:func:`relaxation_verdict`; measured: 17.5 CPU s for the nominal rover at 25 deg, confirmed
+    infeasible); where it is confirmed ``infeasible``, so is every such point, at every speed
+    (exact speed scaling of (7.25)) and every value of the failure's axis (evidence: the
+    relaxation's). Returns how many points became ``infeasible``."""
+    names = spec.grid.names
+    groups: dict[str, list[int]] = {}
+    ops: dict[str, dict[str, float]] = {}
+    for f in sorted(recs):
+        if recs[f]["status"] != "not_found":
+            continue
+        op = spec.grid.point(f)
+        if relaxation_of(scenario_at(spec.scenario, spec.family, op)) is None:
+            continue
+        # one solve per (slope, cross slope): (7.25) scales exactly with the travel speed (the
+        # speed twins' rule), so the relaxation's verdict at one speed holds at every speed
+        base = {k: v for k, v in op.items() if k in ("slope", "cross_slope")}
+        key = "_".join(f"{k}{base[k]:.9g}" for k in names if k in base) or "all"
+        if key not in groups:
+            ops[key] = {k: v for k, v in op.items() if k in ("slope", "cross_slope", "speed")}
+        groups.setdefault(key, []).append(f)
+    verdicts: dict[str, dict[str, Any]] = {}
+    keys = sorted(groups)
+    tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    for i, key in enumerate(keys):
+        got = ck.load("relax", key)
+        if got is not None:
+            verdicts[key] = got[0]
+        else:
+            tasks.append((relaxation_verdict, (spec, {**spec.grid.point(groups[key][0]), **ops[key]}), i))
+
+    def done(i: int, v: dict[str, Any]) -> None:
+        rec = {"flat": -1, **v}
+        ck.save("relax", keys[i], [rec])
+        verdicts[keys[i]] = rec
+
+    _run(tasks, ex, done)
+    n = 0
+    for key, flats in groups.items():
+        v = verdicts[key]
+        if v["status"] != "infeasible":
+            continue
+        for f in flats:
+            recs[f] = {**recs[f], "status": "infeasible",
+                       "evidence": {"relaxation": "the same operating point without the failures (a relaxation: "
+                                                  "the failures only add constraints) is confirmed infeasible by "
+                                                  "the optimizer with its default budgets",
+                                    "relaxation evidence": v["evidence"], "table search": recs[f]["evidence"]}}
+            n += 1
+    return n
 
 
 def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mapping[int, int | None], ck: _Checkpoint,
@@ -1380,9 +1499,21 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
     return out
 
 
-def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
+def write_index(out_dir: str | Path, paths: Iterable[Path], base_index: str | Path | None = None) -> Path:
     """Write ``<out_dir>/index.json``: every table's file, hashes, grid, family and feasible ranges
-    (entries of tables already in the index and not rebuilt are kept)."""
+    (entries of tables already in the index and not rebuilt are kept).
+
+    ``base_index``: when ``<out_dir>`` has no index yet, start from this one's entries (e.g. the
+    shipped ``tables/index.json``), their files re-pointed relative to ``<out_dir>`` (rtctl
+    resolves an entry's ``file`` against the index's folder) and their hashes kept, so an index
+    in a fresh folder lists the new tables *and* the base ones, each loaded from where it is and
+    checked against its hash. A table built here replaces a base entry of the same name.
+
+    Raises
+    ------
+    BuildError
+        ``base_index`` is not a readable table index.
+    """
     from rtctl.table import load_table
 
     out = Path(out_dir)
@@ -1394,6 +1525,8 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
             entries = dict(old.get("tables", {}))
         except json.JSONDecodeError:
             entries = {}
+    elif base_index is not None:
+        entries = _rebased_entries(Path(base_index), out)
     for p in paths:
         t = load_table(p)
         entries[t.name] = {
@@ -1409,6 +1542,26 @@ def write_index(out_dir: str | Path, paths: Iterable[Path]) -> Path:
     doc = {"schema": SCHEMA + " index", "schema_version": SCHEMA_VERSION, "tables": dict(sorted(entries.items()))}
     write_text(ip, json.dumps(doc, indent=1, sort_keys=True) + "\n")
     return ip
+
+
+def _rebased_entries(base: Path, out: Path) -> dict[str, Any]:
+    """Entries of the index ``base`` with each ``file`` made relative to the folder ``out``."""
+    from rtctl.table import TableError, load_index
+
+    try:
+        infos = load_index(base)
+    except TableError as exc:
+        raise BuildError(f"base index: {exc}") from None
+    entries = {}
+    for name, info in infos.items():
+        e = dict(info.entry)
+        target = Path(os.path.abspath(info.path))
+        try:
+            e["file"] = os.path.relpath(target, os.path.abspath(out))
+        except ValueError:  # another drive (Windows): an absolute path
+            e["file"] = str(target)
+        entries[name] = e
+    return entries
 
 
 def upgrade_table(src: str | Path, out_dir: str | Path) -> Path:

@@ -1,0 +1,252 @@
+"""``offnominal tables verify`` and its gates, parameter presets by name, and an index in a fresh
+``--out`` folder that keeps the shipped tables (issue 22).
+
+The quick verify of every shipped table samples 2 points (and 2 cells) per table; the full
+report is ``offnominal tables verify tables/<name>.npz``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from offline.rover.scenario import PARAM_FILE_PRESETS, ScenarioError, load_scenario, param_preset_file
+from offline.rover.table_builder import write_index
+from offline.rover.table_verify import (FD_STEP, JACOBIAN_RTOL, STEEP_RTOL, _check_block, check_jacobians,
+                                        spec_from_table, verify_table)
+from rtctl.table import load_index, load_table
+
+ROOT = Path(__file__).resolve().parents[1]
+TABLES = ROOT / "tables"
+SHIPPED = sorted(json.loads((TABLES / "index.json").read_text())["tables"])
+
+
+# ------------------------------------------------------------------------------ Jacobian check
+def test_jacobian_check_accepts_an_exact_derivative_inside_a_boundary_layer():
+    """A function differentiable only within 1e-12 of the point (sqrt with a 1e-24 floor, the
+    trench flat fill's shape): the exact derivative passes, listed as a second-tier entry; a
+    wrong one fails. The old check (one central step of 1e-6) rejected the exact one by 40x."""
+    a = 1e-24
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        return np.array([np.sqrt(max(z[0] ** 2 + a, a)) + 3.0 * z[1], 2.0 * z[1]])
+
+    z = np.array([0.0, 0.5])
+    exact = np.array([[0.0, 3.0], [0.0, 2.0]])  # d sqrt(z0^2 + a) / dz0 = z0 / sqrt(...) = 0 at z0 = 0
+    step = FD_STEP * np.ones(2)
+    entries: list = []
+    assert _check_block(fun, z, step, exact, "b", {}, ["r0", "r1"], ["c0", "c1"], entries) <= JACOBIAN_RTOL
+    assert entries == []  # symmetric: the central quotient is exact here
+    # shifted off the symmetric point by 1e-13: the slope there is ~0.1, the 1e-6 step sees ~1e-7
+    z = np.array([1e-13 / math.sqrt(99.0), 0.5])
+    d0 = z[0] / math.sqrt(z[0] ** 2 + a)
+    exact = np.array([[d0, 3.0], [0.0, 2.0]])
+    entries = []
+    err = _check_block(fun, z, step, exact, "b", {}, ["r0", "r1"], ["c0", "c1"], entries)
+    assert len(entries) == 1 and entries[0]["row"] == "r0" and entries[0]["column"] == "c0"
+    assert err <= STEEP_RTOL, entries
+    wrong = exact.copy()
+    wrong[0, 0] = 0.5 * d0
+    err = _check_block(fun, z, step, wrong, "b", {}, ["r0", "r1"], ["c0", "c1"], [])
+    assert err > STEEP_RTOL
+
+
+def test_jacobian_check_takes_a_one_sided_derivative_at_a_cusp_and_rejects_a_wrong_one():
+    """g = z + sqrt(max(z, 0)) (the clean-side pile height at A_R2 = 0): the backward derivative
+    is 1, the forward one infinite. The stored 1 passes as 'backward'; 1.5 fails."""
+    def fun(z: np.ndarray) -> np.ndarray:
+        return np.array([z[0] + math.sqrt(max(z[0], 0.0))])
+
+    z = np.array([0.0])
+    entries: list = []
+    err = _check_block(fun, z, FD_STEP * np.ones(1), np.array([[1.0]]), "b", {}, ["r"], ["c"], entries)
+    assert err <= STEEP_RTOL and entries[0]["side"] == "backward"
+    assert _check_block(fun, z, FD_STEP * np.ones(1), np.array([[1.5]]), "b", {}, ["r"], ["c"], []) > STEEP_RTOL
+
+
+def test_trench_table_jacobians_pass_and_name_the_flat_width_row():
+    """rr_trench_clean_mu01 (issue 22: jac_g_x 27x and jac_g_p 41x off under the old check): the
+    stored Jacobians are the limits of the difference quotients; the entries that needed the
+    smaller steps are the trench flat-width row."""
+    t = load_table(TABLES / "rr_trench_clean_mu01.npz")
+    flats = [int(i) for i in np.flatnonzero(t.feasible.ravel())]
+    entries: list = []
+    errs = check_jacobians(t, spec_from_table(t), flats, entries)
+    assert errs["jac_g_x"] <= STEEP_RTOL and errs["jac_g_p"] <= STEEP_RTOL, errs
+    assert errs["wrench_jac"] <= JACOBIAN_RTOL and errs["grad_f"] <= JACOBIAN_RTOL, errs
+    assert entries and {e["row"] for e in entries} == {"trench flat width RR"}, entries
+
+
+# ------------------------------------------------------------------------------ every shipped table
+INTERPOLATION_FAILS = {
+    "rr_unpowered": "a kink inside a cell: the front-right wheel is at the motor limit (12 x the travel speed) at 3 of "
+                    "the 4 slope x cross-slope corners around (12.5, -5) deg and 2.1 rad/s below it at the fourth; the "
+                    "midpoint is off by 1.35 variable scales (5 deg slope and 10 deg cross-slope cells, not refined)",
+    "rr_steer_stuck": "the stuck wheel's speed is strongly non-linear in the stuck angle at steep angles: omega RR "
+                      "0.78 rad/s at -67.5 deg stuck and 7.5 deg slope, 1.27 interpolated from the -75 and -60 deg "
+                      "corners (1.0 variable scale); the 15 deg stuck axis and 5 deg slope cells are too coarse there",
+    "rr_rim_speed_cap": "front-wheel speeds rise up to 4x across one 5 deg slope cell and reach the motor limit at "
+                        "some corners: 1.4 variable scales at (2.5, -5) deg and cap fraction 0.625; the interpolated "
+                        "jac_g_x is up to 75 % off",
+}
+"""Shipped tables whose interpolation check fails on the quick sample, and why (the table's, not the
+check's: the direct solve there passes the independent check). Fixing them means refining their
+grids (``[refine]`` in ``tables/scenarios/grids.toml``), which the shipped build budget has not
+had room for."""
+
+
+@pytest.fixture(scope="module")
+def quick_reports():
+    """The quick verify of every shipped table: 2 sampled points and cells, no ladder."""
+    return {name: verify_table(TABLES / f"{name}.npz", points=2, seed=0, ladder=False) for name in SHIPPED}
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_shipped_table_passes_the_jacobian_and_linearisation_gates(quick_reports, name):
+    rep = quick_reports[name]
+    if not np.any(load_table(TABLES / f"{name}.npz").feasible):
+        assert rep.passed and not rep.verdicts  # nothing to check beyond the file
+        return
+    assert rep.verdicts["jacobians"], rep.text()
+    assert rep.verdicts["linearisation"] and rep.trust, rep.text()
+
+
+@pytest.mark.parametrize("name", [n for n in SHIPPED if n not in INTERPOLATION_FAILS])
+def test_shipped_tables_pass_the_whole_verify(quick_reports, name):
+    rep = quick_reports[name]
+    assert rep.passed, rep.text()
+
+
+@pytest.mark.parametrize("name", sorted(INTERPOLATION_FAILS))
+def test_known_interpolation_failures_fail_for_the_stated_reason(quick_reports, name):
+    """These fail honestly (INTERPOLATION_FAILS): the verdict is FAILED, decided by the
+    interpolation check alone, with a primitive found at every midpoint (the grid, not a hole)."""
+    rep = quick_reports[name]
+    assert not rep.passed and rep.verdicts == {"jacobians": True, "linearisation": True, "interpolation": False}
+    assert rep.interpolation["no_direct_solution"] == 0
+    assert rep.interpolation["x_error_per_scale"] > rep.interpolation["tolerance_per_scale"] \
+        or rep.interpolation["jac_g_x_rel_error"] > rep.interpolation["tolerance_per_scale"]
+
+
+def test_verify_fails_when_the_linearisation_is_off(tmp_path):
+    """A table whose dx/dp is wrong passes the Jacobian check but fails the linearisation gate:
+    the verdict is not decided by the Jacobians alone."""
+    from rtctl.table import table_bytes
+
+    src = load_table(TABLES / "nominal.npz")
+    arrays = {k: np.array(v) for k, v in src.arrays.items()}
+    arrays["dx_dp"] = 3.0 * arrays["dx_dp"]
+    bad = tmp_path / "nominal.npz"
+    bad.write_bytes(table_bytes({k: v for k, v in src.header.items() if k != "content_hash"}, arrays))
+    rep = verify_table(bad, points=1, seed=0, ladder=False)
+    assert rep.verdicts["jacobians"] and not rep.verdicts["linearisation"] and not rep.passed
+
+
+# ------------------------------------------------------------------------------ presets
+def test_a_scenario_names_the_calibrated_sand_from_any_folder(tmp_path):
+    body = '[scenario]\nname = "x"\nparams = "{}"\nrover = "mini-rover-t72"\n[wheels.FL]\nsteer_stuck_deg = -30.0\n'
+    by_name = tmp_path / "a" / "by_name.toml"
+    by_name.parent.mkdir()
+    by_name.write_text(body.format("calibrated-sand"))
+    by_path = tmp_path / "by_path.toml"
+    by_path.write_text(body.format(str(ROOT / "offline" / "data" / "calibrated_grousered.toml")))
+    assert load_scenario(by_name).params == load_scenario(by_path).params
+    for name, file in PARAM_FILE_PRESETS.items():
+        assert param_preset_file(name) is not None and param_preset_file(name).name == file
+        assert param_preset_file(name).is_file()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(body.format("calibrated-snd"))
+    with pytest.raises(ScenarioError, match="neither a preset.*calibrated-sand"):
+        load_scenario(bad)
+
+
+# ------------------------------------------------------------------------------ index in a fresh folder
+def test_index_in_a_fresh_folder_keeps_the_shipped_tables(tmp_path):
+    """A table written to a fresh folder: its index lists it and every shipped table, each
+    loadable (hash-checked) from where it is; a name built here replaces the shipped entry."""
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    new = fresh / "rr_locked.npz"
+    shutil.copy(TABLES / "rr_locked.npz", new)
+    ip = write_index(fresh, [new], base_index=TABLES / "index.json")
+    infos = load_index(ip)
+    assert sorted(infos) == SHIPPED
+    assert infos["rr_locked"].path.resolve() == new.resolve()
+    assert infos["nominal"].path.resolve() == (TABLES / "nominal.npz").resolve()
+    assert infos["nominal"].load().name == "nominal"
+    # a second build into the same folder updates its own index (no base any more)
+    ip2 = write_index(fresh, [new], base_index=None)
+    assert sorted(load_index(ip2)) == SHIPPED
+
+
+def test_build_into_a_fresh_folder_from_a_scenario_anywhere(tmp_path, capsys):
+    """End to end, as a new user: a scenario outside the repository names the calibrated sand;
+    ``tables build --out fresh/`` writes an index holding the new table and the shipped ones,
+    and the controller's loader reads all of them (each checked against its hash)."""
+    from offline.cli import main
+    from rtctl.controller import load_tables
+
+    sc = tmp_path / "elsewhere" / "my_nominal.toml"
+    sc.parent.mkdir()
+    sc.write_text('[scenario]\nname = "my_nominal"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n')
+    out = tmp_path / "fresh"
+    assert main(["tables", "build", str(sc), "--grid", "slope=0;cross_slope=0;speed=3", "--out", str(out),
+                 "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert f"({len(SHIPPED) + 1} tables, with the tables of" in printed and f"--tables {out / 'index.json'}" in printed
+    tables = load_tables(out / "index.json")
+    assert sorted(tables) == sorted([*SHIPPED, "my_nominal"])
+    assert load_table(out / "my_nominal.npz").header["sources"]["params_preset"] == "calibrated-sand"
+    # which index a fresh folder starts from: none when asked, or when the folder has its own
+    from offline.cli.tables import _base_index
+
+    assert _base_index("none", tmp_path / "alone") is None
+    assert _base_index("shipped", out) is None  # out has an index now: it is updated, not rebased
+    assert _base_index("shipped", tmp_path / "alone") == TABLES / "index.json"
+    assert _base_index("shipped", TABLES) is None  # building the shipped tables themselves
+    assert _base_index(str(out), tmp_path / "alone") == out / "index.json"
+
+
+# ------------------------------------------------------------------------------ relaxation evidence
+def test_relaxation_is_the_scenario_without_failures_when_that_is_a_relaxation():
+    from dataclasses import replace
+
+    from offline.rover.scenario import WheelFailure
+    from offline.rover.table_builder import relaxation_of
+
+    base = load_scenario(TABLES / "scenarios" / "rr_steer_stuck.toml")
+    rel = relaxation_of(base)
+    assert rel is not None and rel.failures == {} and rel.trench is None
+    assert (rel.params, rel.rover, rel.speed, rel.slope) == (base.params, base.rover, base.speed, base.slope)
+    assert relaxation_of(replace(base, failures={})) is None  # nothing to relax
+    # a stuck angle beyond the optimizer's +-89 deg lies outside the nominal bounds
+    assert relaxation_of(replace(base, failures={"RR": WheelFailure(steer_stuck=math.radians(90.0))})) is None
+    # a raised wheel changes the equations
+    assert relaxation_of(replace(base, failures={"RR": WheelFailure(raised=True)})) is None
+    trench = load_scenario(TABLES / "scenarios" / "rr_trench_clean.toml")
+    assert relaxation_of(trench).params == trench.params  # the trench's zeta = 1 stays
+
+
+def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
+    """FL stuck at -30 deg on a 25 deg slope: the table's small-budget search gives up
+    (``not_found``); the nominal rover there is confirmed infeasible with the default budgets
+    (17.5 CPU s), so the point is ``infeasible`` with that evidence. Also pins the nominal-search
+    cache: it used to hand the small-budget search's result to the default-budget call."""
+    from offline.rover.table_builder import BuildOptions, build_table, table_spec
+
+    sc = tmp_path / "fl_steer_stuck.toml"
+    sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
+                  '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
+    grid = "slope=25;cross_slope=0;speed=3;steer_stuck=-30"
+    path, summ = build_table(table_spec(sc, grid), tmp_path / "on", progress=False)
+    assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
+    ev = load_table(path).header["evidence"]["0"]
+    assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
+    _, off = build_table(table_spec(sc, grid, build=BuildOptions(relaxation_evidence=False)), tmp_path / "off",
+                         progress=False)
+    assert off["statuses"] == {"not_found": 1}

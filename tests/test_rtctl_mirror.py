@@ -99,3 +99,16 @@ def test_rear_left_stuck_steering_drives_straight_on_the_mirror(tmp_path):
     m = res.metrics
     assert m["max_abs_heading_deg"] <= 3.0 and m["max_abs_cross_track_cm"] <= 3.0, m
     assert abs(m["speed_error_pct"]) <= 10.0, m
+
+
+def test_tables_mirror_command_writes_the_mirror_and_refuses_a_trench(tmp_path, capsys):
+    from offline.cli import main
+
+    assert main(["tables", "mirror", str(TABLES / "rr_unpowered.npz"), "--out", str(tmp_path)]) == 0
+    written = load_table(tmp_path / "rl_unpowered.npz")  # its content hash is checked on load
+    direct = mirror_table(load_table(TABLES / "rr_unpowered.npz"))
+    for k, a in direct.arrays.items():
+        assert np.array_equal(np.asarray(a), np.asarray(written.arrays[k]), equal_nan=True), k
+    assert "rl_unpowered" in load_index(tmp_path / "index.json")
+    assert main(["tables", "mirror", str(TABLES / "rr_trench_clean.npz"), "--out", str(tmp_path)]) == 2
+    assert "trench table is not mirrored" in capsys.readouterr().err

@@ -274,8 +274,33 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_mirror(args: argparse.Namespace) -> int:
+    from rtctl.mirror import MirrorError, mirror_table
+    from rtctl.table import TableError, load_table, table_bytes
+
+    from ..files import OutputError, check_output_dir, write_bytes
+    from ..rover.table_builder import BuildError, write_index
+
+    done = []
+    try:
+        tables = [load_table(f) for f in args.files]
+        mirrors = [mirror_table(t) for t in tables]
+        out = check_output_dir(args.out, args.files, [f"{m.name}.npz" for m in mirrors])
+        for m in mirrors:
+            head = {k: v for k, v in m.header.items() if k != "content_hash"}
+            done.append(write_bytes(out / f"{m.name}.npz", table_bytes(head, m.arrays)))
+            of = m.header["mirror_of"]["name"]
+            print(f"{done[-1]}: left-right mirror of {of} ({int(m.feasible.sum())}/{m.feasible.size} points with a "
+                  "primitive; no solve: checked in tests/test_rtctl_mirror.py and tests/bench/bench_mirror.py)")
+    except (TableError, MirrorError, OutputError, BuildError, OSError) as exc:
+        return fail(str(exc))
+    if not args.no_index:
+        print(f"index: {write_index(args.out, done)}")
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``tables build|upgrade|info|verify``."""
+    """Add ``tables build|upgrade|mirror|info|verify``."""
     p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
                        description="Lookup tables: driving primitives and the QP's data over slope, cross-slope, "
                                    "speed and the failure's parameter.")
@@ -321,6 +346,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
     u.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     u.set_defaults(func=cmd_upgrade)
+
+    m = ts.add_parser("mirror", help="write the left-right mirror of tables (a rear-right table serves rear-left)",
+                      description="Mirror image of each table (rtctl.mirror: right and left wheels swapped, every lateral "
+                                  "quantity's sign flipped) without a solve; rtctl also does this itself at start-up for a "
+                                  "failure no loaded table serves. Trench tables are refused.")
+    m.add_argument("files", nargs="+", help=".npz tables")
+    m.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
+    m.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    m.set_defaults(func=cmd_mirror)
 
     i = ts.add_parser("info", help="describe a table file (checks its hash)")
     i.add_argument("file")

@@ -93,17 +93,9 @@ def test_unmatched_stuck_steering_drives_straight_in_the_simulator(tmp_path):
     """Front-left steering stuck at -30 deg: no table ships for it; imposed on the nominal table
     with the exact residual the rover drives straight (measured 0.3 deg, 0.6 cm, 0 % over 1.5 m;
     uncompensated: 26 deg, 54 cm). 0.8 m here."""
-    from offline.rover.scenario import load_scenario
-    from offline.sim.experiments import run_drive
-    from offline.sim.rtctl_bridge import rtctl_factory
-    from offline.sim.simulator import RoverSimulator
-    from offline.sim.truth import Truth
+    from drive_helpers import drive_rtctl
 
-    f = tmp_path / "fl_stuck_30.toml"
-    f.write_text('[scenario]\nname = "fl_stuck_30"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
-                 '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
-    sc = load_scenario(f)
-    res = run_drive(RoverSimulator(sc, Truth.nominal(sc.params, sc.rover), seed=1), rtctl_factory()(sc), distance=0.8)
-    m = res.metrics
+    m = drive_rtctl(tmp_path, '[scenario]\nname = "fl_stuck_30"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
+                    '[wheels.FL]\nsteer_stuck_deg = -30.0\n', distance=0.8)
     assert m["max_abs_heading_deg"] <= 3.0 and m["max_abs_cross_track_cm"] <= 3.0, m
     assert abs(m["speed_error_pct"]) <= 10.0, m

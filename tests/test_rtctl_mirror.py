@@ -85,18 +85,10 @@ def test_controller_serves_rear_left_from_the_rear_right_tables():
 def test_rear_left_stuck_steering_drives_straight_on_the_mirror(tmp_path):
     """RL stuck at +50 deg (the mirror of section 7.3's RR at -50 deg), no RL table shipped:
     measured over 1.5 m 0.8 deg, 0.6 cm, +0.1 % (RR at -50 deg: 0.7 deg, 0.5 cm); 0.8 m here."""
-    from offline.rover.scenario import load_scenario
-    from offline.sim.experiments import run_drive
-    from offline.sim.rtctl_bridge import rtctl_factory
-    from offline.sim.simulator import RoverSimulator
-    from offline.sim.truth import Truth
+    from drive_helpers import drive_rtctl
 
-    f = tmp_path / "rl_stuck_50.toml"
-    f.write_text('[scenario]\nname = "rl_stuck_50"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
-                 '[wheels.RL]\nsteer_stuck_deg = 50.0\n')
-    sc = load_scenario(f)
-    res = run_drive(RoverSimulator(sc, Truth.nominal(sc.params, sc.rover), seed=1), rtctl_factory()(sc), distance=0.8)
-    m = res.metrics
+    m = drive_rtctl(tmp_path, '[scenario]\nname = "rl_stuck_50"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
+                    '[wheels.RL]\nsteer_stuck_deg = 50.0\n', distance=0.8)
     assert m["max_abs_heading_deg"] <= 3.0 and m["max_abs_cross_track_cm"] <= 3.0, m
     assert abs(m["speed_error_pct"]) <= 10.0, m
 

@@ -38,8 +38,10 @@ def recorded(tables, tmp_path_factory):
 
 
 def test_provenance_names_tables_config_versions(tables):
-    p = provenance(Controller(tables, ControllerConfig()))
-    assert set(p["tables"]) == set(tables)
+    ctl = Controller(tables, ControllerConfig())
+    p = provenance(ctl)
+    assert set(p["tables"]) == set(tables) | set(ctl.mirrored)  # the mirrors rtctl adds are recorded too
+    assert all(p["tables"][m]["file"].startswith("mirror of ") for m in ctl.mirrored)
     for name, t in tables.items():
         assert p["tables"][name] == {"file": t.source, "content_hash": t.header["content_hash"]}
     assert p["controller_config"]["qp"]["eps"] == ControllerConfig().qp.eps

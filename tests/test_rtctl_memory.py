@@ -37,9 +37,9 @@ def test_no_buffer_grows_over_a_drive(tables):
     cfg = ControllerConfig()
     ctl = Controller(tables, cfg)
     runner = Runner(ctl, period=cfg.period, clock=time.thread_time, window=100)
-    warm, n = 800, 1600
+    warm, n = 800, 2000
     sizes = {}
-    grown = 0
+    marks: list[int] = []
     for k in range(n):
         pose = Pose(0.2 * k, 0.006 * k + (3.0 if k % 2 else -3.0), 0.0, 0.0) if k >= warm else None
         if k == warm - 5:
@@ -50,12 +50,15 @@ def test_no_buffer_grows_over_a_drive(tables):
             tracemalloc.start(1)
             base = tracemalloc.get_traced_memory()[0]
         _, d, _ = runner.tick(m)
-        if k == warm + 400:  # the ring buffer holds traced objects only, the first transients are over
+        if k in (warm + 400, warm + 800):  # the ring buffer holds traced objects only, the first transients are over
             gc.collect()  # garbage is not memory kept
-            mid = tracemalloc.get_traced_memory()[0]
+            marks.append(tracemalloc.get_traced_memory()[0])
     gc.collect()
-    grown = tracemalloc.get_traced_memory()[0] - mid
+    marks.append(tracemalloc.get_traced_memory()[0])
     tracemalloc.stop()
+    # two windows of 400 ticks: a leak grows in both; a one-off allocation (a cache or a dict
+    # resize somewhere, seen here up to 11 kB once in a few runs) only in one
+    grown = min(marks[1] - marks[0], marks[2] - marks[1])
     end = _sizes(ctl, runner)
     assert d.counter("ekf_poses_gated") >= n - warm - 10 and d.counter("ekf_pose_resets") == 0
     assert end["rejected"] <= cfg.estimator.reset_after_rejections
@@ -68,7 +71,7 @@ def test_no_buffer_grows_over_a_drive(tables):
     # estimator one innovation per rejected fix (about 130 B): 110 kB here; the bound allows
     # 32 B per tick (measured: 8 B per tick over these ticks, falling to 2 B per tick by tick
     # 3200, traced to allocations inside OSQP's Python interface, osqp.interface.constant)
-    assert grown < 32 * (n - warm - 400), grown
+    assert grown < 32 * 400, (grown, marks)
 
 
 def test_run_stats_are_bounded_and_keep_whole_run_aggregates():

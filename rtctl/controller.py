@@ -94,6 +94,9 @@ _SPEED_SHIFT = (0.7, 1.5)  # bounds of the slip operating-point shift factor
 _SLIP_SIGMA_USE = 0.02  # use the slip / crab correction only when the EKF is this sure (0.05 acted on the
 # start-up transient of the trench drive, when the slip is still 2 sigma off)
 _CRAB_SIGMA_USE = math.radians(3.0)
+_UNREACHABLE_SLACK = 0.05  # scaled model-row slack: 5 % of the weight in a force row
+_UNREACHABLE_TICKS = 15  # 3 s at 5 Hz: longer than the rate-limited transient to a primitive (10 ticks flagged one tick of a
+# reachable front-right cap imposed on the nominal table)
 _REF_HEADING_ERROR = math.radians(5.0)
 _REF_CROSSTRACK_ERROR = 0.05
 _SIDE = np.array([-1.0, 1.0, -1.0, 1.0])  # y sign of FR, FL, RR, RL (right is negative; Fig. 7.2)
@@ -381,6 +384,7 @@ class Controller:
         self._table_error = ""
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
         self._last_p: NDArray[np.float64] | None = None
+        self._short_ticks = 0  # consecutive ticks whose linearised balance stayed out of reach
         self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
         if self._prep is None:
@@ -708,6 +712,7 @@ class Controller:
         res = rti.step(p, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
         self._last_qp = (prep.allocator, prep.allocator.snapshot())
         self._last_p = p
+        self._unreachable(res)
         if not res.ok:  # the iterate restarts from the table's primitive at the next preparation
             self._count("qp_fallbacks")
             return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
@@ -908,6 +913,19 @@ class Controller:
     def _valid(self, c: Commands) -> bool:
         act = self.config.actuators
         return c.is_valid(act.max_rim_speed, act.max_steer) and all(v >= act.min_rim_speed for v in c.rim_speed)
+
+    def _unreachable(self, res: Any) -> None:
+        """Say when the steady state is out of reach: the exact residual's linearised balance has
+        not been met (model-row slack above ``_UNREACHABLE_SLACK``) for ``_UNREACHABLE_TICKS``
+        consecutive ticks, so no primitive of the failed rover is being approached; the QP's answer
+        (the smallest weighted violation within the limits) is the best reachable point driven."""
+        slack = float(getattr(res, "slack", math.inf))
+        self._short_ticks = self._short_ticks + 1 if not slack <= _UNREACHABLE_SLACK else 0
+        if self._short_ticks >= _UNREACHABLE_TICKS:
+            self._count("unreachable_ticks")
+            self._tick_flags.append(f"unreachable: the steady-state balance of the declared failures has been out of "
+                                    f"reach for {self._short_ticks} ticks (model-row slack {slack:.3g} scaled); "
+                                    "driving the best reachable point")
 
     def _fallback(self, t: float, seq: int, why: str, e_psi: float, e_y: float, mz: float, fy: float, verdict: str,
                   res: Any) -> tuple[Commands, Diagnostics]:

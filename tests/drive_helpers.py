@@ -6,12 +6,33 @@ from pathlib import Path
 from typing import Any
 
 
+class _Flags:
+    """The least of a recorder: keeps every tick's diagnostics flags."""
+
+    def __init__(self) -> None:
+        self.flags: list[tuple[str, ...]] = []
+        self._channels: dict[str, Any] = {}
+
+    def measurements(self, m: Any) -> None:
+        pass
+
+    def commands(self, c: Any) -> None:
+        pass
+
+    def diagnostics(self, t: float, d: Any) -> None:
+        self.flags.append(tuple(getattr(d, "flags", ())))
+
+    def timing(self, *args: Any) -> None:
+        pass
+
+
 def drive_rtctl(tmp_path: Path, scenario_toml: str, distance: float, truth_toml: str | None = None,
-                seed: int = 1) -> dict[str, Any]:
+                seed: int = 1, flags: list[tuple[str, ...]] | None = None) -> dict[str, Any]:
     """Drive the simulated mini rover with rtctl on the shipped tables; the drive's metrics.
 
     ``scenario_toml`` is a scenario file's text (its failures are what the rover declares);
-    ``truth_toml`` the simulated world's truth file text (None: the scenario's own parameters).
+    ``truth_toml`` the simulated world's truth file text (None: the scenario's own parameters);
+    ``flags``, if given, receives every tick's diagnostics flags.
     """
     from offline.rover.scenario import load_scenario
     from offline.sim.experiments import run_drive
@@ -28,5 +49,8 @@ def drive_rtctl(tmp_path: Path, scenario_toml: str, distance: float, truth_toml:
         tr = tmp_path / "truth.toml"
         tr.write_text(truth_toml)
         truth = load_truth(tr, sc.rover)
-    res = run_drive(RoverSimulator(sc, truth, seed=seed), rtctl_factory()(sc), distance=distance)
+    rec = _Flags()
+    res = run_drive(RoverSimulator(sc, truth, seed=seed), rtctl_factory()(sc), distance=distance, recorder=rec)
+    if flags is not None:
+        flags.extend(rec.flags)
     return dict(res.metrics)

@@ -95,7 +95,24 @@ def test_unmatched_stuck_steering_drives_straight_in_the_simulator(tmp_path):
     uncompensated: 26 deg, 54 cm). 0.8 m here."""
     from drive_helpers import drive_rtctl
 
+    flags: list = []
     m = drive_rtctl(tmp_path, '[scenario]\nname = "fl_stuck_30"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
-                    '[wheels.FL]\nsteer_stuck_deg = -30.0\n', distance=0.8)
+                    '[wheels.FL]\nsteer_stuck_deg = -30.0\n', distance=0.8, flags=flags)
+    assert not any(f.startswith("unreachable") for tick in flags for f in tick)  # a primitive exists
     assert m["max_abs_heading_deg"] <= 3.0 and m["max_abs_cross_track_cm"] <= 3.0, m
     assert abs(m["speed_error_pct"]) <= 10.0, m
+
+
+def test_failures_without_a_primitive_are_said_unreachable(tmp_path):
+    """RR steering stuck at -50 deg with the front-left rim speed capped at 1.8 cm/s: the optimizer
+    finds no primitive (`offnominal primitive`, tests/bench/results_failures_every_wheel.md); the
+    controller says so once the balance has stayed out of reach for 3 s (measured: 40 of 282 ticks
+    over 1.5 m) and keeps commanding valid commands."""
+    from drive_helpers import drive_rtctl
+
+    flags: list = []
+    drive_rtctl(tmp_path, '[scenario]\nname = "pair"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
+                '[wheels.RR]\nsteer_stuck_deg = -50.0\n\n[wheels.FL]\nrim_speed_max_m_s = 0.018\n', distance=0.8,
+                flags=flags)
+    said = [f for tick in flags for f in tick if f.startswith("unreachable")]
+    assert said and "out of reach for" in said[0]

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 
-class _Flags:
+class FlagRecorder:
     """The least of a recorder: keeps every tick's diagnostics flags."""
 
     def __init__(self) -> None:
@@ -49,7 +49,7 @@ def drive_rtctl(tmp_path: Path, scenario_toml: str, distance: float, truth_toml:
         tr = tmp_path / "truth.toml"
         tr.write_text(truth_toml)
         truth = load_truth(tr, sc.rover)
-    rec = _Flags()
+    rec = FlagRecorder()
     res = run_drive(RoverSimulator(sc, truth, seed=seed), rtctl_factory()(sc), distance=distance, recorder=rec)
     if flags is not None:
         flags.extend(rec.flags)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
 
 WHEELS = ("FR", "FL", "RR", "RL")
 KINDS = {
@@ -36,26 +37,6 @@ KINDS = {
 PAIRS = [(("RR", "steer_stuck_deg = -50.0"), ("FL", "rim_speed_max_m_s = 0.018")),
          (("FR", "unpowered = true"), ("RL", "steer_stuck_deg = 30.0")),
          (("RR", "unpowered = true"), ("FL", "steer_stuck_deg = -20.0"))]
-
-
-class _Flags:
-    """Keeps every tick's diagnostics flags (the recorder interface of run_drive)."""
-
-    def __init__(self) -> None:
-        self.flags: list[tuple[str, ...]] = []
-        self._channels: dict[str, object] = {}
-
-    def measurements(self, m: object) -> None:
-        pass
-
-    def commands(self, c: object) -> None:
-        pass
-
-    def diagnostics(self, t: float, d: object) -> None:
-        self.flags.append(tuple(getattr(d, "flags", ())))
-
-    def timing(self, *args: object) -> None:
-        pass
 
 
 def _scenario(tmp: Path, name: str, wheels: list[tuple[str, str]]) -> Path:
@@ -82,6 +63,7 @@ def main() -> None:
     from offline.sim.rtctl_bridge import rtctl_factory
     from offline.sim.simulator import RoverSimulator
     from offline.sim.truth import Truth
+    from drive_helpers import FlagRecorder
     from rtctl.config import ControllerConfig
 
     act = ControllerConfig().actuators
@@ -95,7 +77,7 @@ def main() -> None:
             prim = solve_primitive(sc)
             ctl = rtctl_factory()(sc)
             row = {"case": name, "failures": "; ".join(f"{w} {line}" for w, line in wheels), "primitive": prim.status}
-            rec = _Flags()
+            rec = FlagRecorder()
             try:
                 res = run_drive(RoverSimulator(sc, Truth.nominal(sc.params, sc.rover), seed=args.seed), ctl,
                                 distance=args.distance, recorder=rec)

@@ -76,6 +76,7 @@ from numpy.typing import NDArray
 from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
+from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds, read_table_failures, rule_text
 from .inputs import Inputs, TickClock, read_measurements
 from .layout import WHEELS
 from .messages import Commands, Diagnostics, Measurements, Task
@@ -107,38 +108,24 @@ class ControllerError(ValueError):
     """Tables or configuration the controller cannot run with (raised at construction only)."""
 
 
-def _failure_kinds(f: Any) -> set[str]:
-    """Failure kinds of a table's encoded WheelFailure (dict) or of a live object."""
-    get = (lambda k, d=None: f.get(k, d)) if isinstance(f, dict) else (lambda k, d=None: getattr(f, k, d))
-    kinds = set()
-    if get("steer_stuck") is not None:
-        kinds.add("steer_stuck")
-    rim = get("rim_speed_max", math.inf)
-    if rim is not None and isinstance(rim, (int, float)) and math.isfinite(rim) and not get("locked", False):
-        kinds.add("rim_speed_cap")
-    for k in ("locked", "unpowered", "raised"):
-        if get(k, False):
-            kinds.add(k)
-    tl = get("torque_limit", math.inf)
-    if tl is not None and isinstance(tl, (int, float)) and math.isfinite(tl) and not get("unpowered", False):
-        kinds.add("torque_limit")
-    return kinds
+UNDESCRIBED = ("*", "undescribed failures")
+"""Signature entry of a failure table whose header has no failure description (it matches no
+declaration and is never taken for the nominal table)."""
 
 
 def table_signature(table: Any) -> frozenset[tuple[str, str]]:
     """The declared failures and task a table was built for: ``{(wheel, kind), ...}`` from its
-    scenario (a trench goal gives ``(wheel, "trench")``, the kind of :class:`rtctl.messages.Task`)."""
-    sc = table.meta.get("scenario") or {}
-    fails = sc.get("failures") or {}
-    out = set()
-    if isinstance(fails, dict):
-        for w, f in fails.items():
-            if w in WHEELS and isinstance(f, dict):
-                out |= {(w, k) for k in _failure_kinds(f)}
-    trench = sc.get("trench")
-    if isinstance(trench, dict) and trench.get("wheel") in WHEELS:
-        out.add((trench["wheel"], "trench"))
-    return frozenset(out)
+    header's ``failures`` and ``task`` (:func:`rtctl.failures.read_table_failures`; a trench goal
+    gives ``(wheel, "trench")``, the kind of :class:`rtctl.messages.Task`). A failure table
+    without the description gives ``{UNDESCRIBED}``: never matched, never nominal.
+
+    Raises
+    ------
+    rtctl.failures.FailureDescriptionError
+        A malformed description.
+    """
+    tf = read_table_failures(table.header, tuple(table.layout.wheels), str(getattr(table, "name", "table")))
+    return frozenset({UNDESCRIBED}) if tf is None else tf.signature()
 
 
 def _find_key(obj: Any, key: str) -> Any:
@@ -193,6 +180,15 @@ class _Index:
         self.varying = [self.speed, self.slope, self.cross, self.fy, self.mz]
         rows = {b.name: b.start for b in lay.constraints}
         self.torque = [rows.get(f"wheel torque {w}", -1) for w in lay.wheels]
+        self.var = {}  # wheel variable -> its position per wheel (the targets of the failure rules)
+        for v in ("omega", "beta", "W", "h", "h0"):
+            try:
+                self.var[v] = [int(lay.var(v, w)) for w in lay.wheels]
+            except (KeyError, ValueError, IndexError):
+                continue
+        names = list(lay.parameter_names)
+        self.contact = [names.index(f"contact {w}") if f"contact {w}" in names else -1 for w in lay.wheels]
+        self.pivot = names.index("pivot_locked") if "pivot_locked" in names else -1
 
 
 def load_tables(index_path: str | Path) -> dict[str, Any]:
@@ -273,6 +269,35 @@ class Controller:
         if not isinstance(tables, Mapping) or not tables:
             raise ControllerError("tables: expected a Table or a non-empty mapping name -> Table")
         tables = dict(tables)
+        unavailable = dict(unavailable or {})
+        self.kinds: dict[str, KindSpec] = {}
+        """Every failure kind the loaded tables describe (:mod:`rtctl.failures`), by its declared name."""
+        kind_from: dict[str, str] = {}
+        for name in sorted(tables):
+            t = tables[name]
+            try:
+                kinds = read_kinds(t.header, name)
+                sig = table_signature(t)
+            except FailureDescriptionError as exc:
+                unavailable[name] = f"its failure description is malformed ({exc})"
+                del tables[name]
+                continue
+            if UNDESCRIBED in sig:
+                unavailable[name] = ("a failure table without the failure description rtctl reads (built before it): "
+                                     "run 'offnominal tables describe'")
+                del tables[name]
+                continue
+            clash = sorted(k for k, spec in kinds.items() if k in self.kinds and not self.kinds[k].same_physics(spec))
+            if clash:
+                unavailable[name] = (f"it describes failure kind(s) {clash} differently from table "
+                                     f"{kind_from[clash[0]]} (rebuild or describe both with one library version)")
+                del tables[name]
+                continue
+            for k, spec in kinds.items():
+                self.kinds.setdefault(k, spec)
+                kind_from.setdefault(k, name)
+        if not tables:
+            raise ControllerError("no usable table: " + "; ".join(f"{k}: {v}" for k, v in sorted(unavailable.items())))
         self.mirrored: dict[str, str] = {}
         """Tables added as the left-right mirror of a loaded one (mirror name -> original), where no
         loaded table serves the mirrored failures (:func:`rtctl.mirror.mirror_table`)."""
@@ -297,9 +322,10 @@ class Controller:
                 self.mirrored[name] = str(of)
         self.tables = dict(sorted(tables.items()))
         self.config = config
-        self.unavailable = dict(sorted((unavailable or {}).items()))
-        """Tables of the index that did not load at start-up (name -> why): flagged on every tick."""
-        self._gap_flags = tuple(f"table {k} unavailable since start-up ({v}); failures it served are imposed on "
+        self.unavailable = dict(sorted(unavailable.items()))
+        """Tables that did not load at start-up or that the controller cannot use (name -> why): flagged
+        on every tick."""
+        self._gap_flags = tuple(f"table {k} unavailable since start-up: {v}; failures it served are imposed on "
                                 "another table" for k, v in self.unavailable.items())
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
@@ -385,6 +411,8 @@ class Controller:
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
         self._last_p: NDArray[np.float64] | None = None
         self._short_ticks = 0  # consecutive ticks whose linearised balance stayed out of reach
+        self._cmd_rules: list[tuple[float, float, bool, bool]] = [(-math.inf, math.inf, False, False)] * len(WHEELS)
+        self._param_fix: list[tuple[int, float]] = []
         self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
         self.prepare()
         if self._prep is None:
@@ -411,8 +439,11 @@ class Controller:
                          f"{sorted(self._failures) or 'none'}: driving on table {self.default_table}")
         if self._failures:
             self._count("unmatched_failure_preparations")
+            unknown = sorted({k for _, k in self._failures if k not in self.kinds})
+            if unknown:
+                self._count("unknown_failure_kind_preparations")
             flags.append(f"no table for the declared failures {_describe_failures(self._failures)}: driving on table "
-                         f"{self.default_table} with {_imposed(self._failures)}")
+                         f"{self.default_table} with {_imposed(self._failures, self.kinds)}")
         return self.default_table, flags
 
     def prepare(self) -> None:
@@ -431,7 +462,7 @@ class Controller:
         # shipped tables in the chapter-7 world took the fraction from 0.5 to 0.71 and the rover
         # turned 24 deg off its line); there the speed is left to the cap
         if prev is not None and prev.table == name and math.sqrt(P[3, 3]) < _SLIP_SIGMA_USE \
-                and "rim_speed_cap_fraction" not in table.axes:
+                and _per_speed_axis(table) is None:
             s_hat = min(max(float(x[3]), -0.5), 0.9)
             factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])
         try:
@@ -496,7 +527,7 @@ class Controller:
             return tp, factor
         cands = [speed] if factor != 1.0 else []
         sp = table.axes.get("speed")
-        capped = "rim_speed_cap_fraction" in table.axes
+        capped = _per_speed_axis(table) is not None
         if capped and sp is not None and len(sp) > 1:
             top, lo = min(speed, speed * factor), float(sp[0])
             cands += [top - (top - lo) * k / 10 for k in range(1, 11) if top > lo]
@@ -522,19 +553,22 @@ class Controller:
         outside or when nothing declares it: read at the axis middle)."""
         fam = table.meta.get("family") or {}
         w = fam.get("wheel")
+        dec = fam.get("declares") if isinstance(fam.get("declares"), Mapping) else {}
         tname = getattr(table, "name", "?")
         mid = float(values[len(values) // 2])
         v = math.nan
-        if w in WHEELS:
+        if w in WHEELS and fam.get("axis") == axis:
             i = WHEELS.index(w)
-            if axis == "steer_stuck":  # the axis is in encoder terms (the scenario's steer_stuck_deg)
-                v = self._steer_meas[i] - (float(self.steer_offset[i]) if self._offset_on else 0.0)
-                if not math.isfinite(v):
-                    v = self._failures.get((w, "steer_stuck"), math.nan)
-            elif axis == "rim_speed_cap_fraction":
-                cap = self._failures.get((w, "rim_speed_cap"), math.nan)
-                v = cap / speed if math.isfinite(cap) else math.nan
-            elif axis == "trench_depth" and self._task is not None and self._task.kind == "trench" \
+            kind = dec.get("kind")
+            if isinstance(kind, str):
+                spec = self.kinds.get(kind)
+                v = self._failures.get((w, kind), math.nan)
+                if spec is not None and any(r.prefer_measured for r in spec.rules) and math.isfinite(self._steer_meas[i]):
+                    # a measured steering angle, in encoder terms like the declared value and the axis
+                    v = self._steer_meas[i] - (float(self.steer_offset[i]) if self._offset_on else 0.0)
+                if dec.get("per_speed") is True:
+                    v = v / speed if speed > 0 else math.nan
+            elif dec.get("task") is not None and self._task is not None and self._task.kind == dec.get("task") \
                     and self._task.wheel == w:
                 v = self._task.value
         if not math.isfinite(v):
@@ -549,13 +583,18 @@ class Controller:
         return float(v)
 
     def _odometry_wheels(self) -> list[bool]:
-        """Wheels whose speed tells the travel speed: not locked, unpowered or raised, and not the
+        """Wheels whose speed tells the travel speed: not one whose declared failure's description says
+        it does not (locked, unpowered, raised), nor one with a failure kind no table describes, nor the
         wheel digging a trench (it spins at several times the travel speed on purpose: in the
         trench primitive of section 7.3.1 it would make the rover-level slip ~0.6, dominated by
         that wheel, and the slip correction would chase it)."""
         task = (self._task.wheel, self._task.kind) if self._task is not None else None
-        return [not any((w, k) in self._failures for k in ("locked", "unpowered", "raised")) and (w, "trench") != task
-                for w in WHEELS]
+        out = [(w, "trench") != task for w in WHEELS]
+        for (w, k) in self._failures:  # the kind's description says; an unknown kind: left out to be safe
+            spec = self.kinds.get(k)
+            if w in WHEELS and (spec is None or not spec.odometry):
+                out[WHEELS.index(w)] = False
+        return out
 
     def _primitive_slip(self, x: NDArray[np.float64], tp: Any, ix: _Index, carried: bool = False) -> float:
         """Rover-level slip of the model's solution ``x`` (the real-time iteration's iterate: the
@@ -707,6 +746,8 @@ class Controller:
         rti = prep.rti
         xk = rti.iterate if rti.iterate is not None else prep.allocator.x0
         box, lbg, ubg = self._bounds(prep, dt, xk)
+        for j, v in self._param_fix:  # contact and pivot lock of a declared failure (rtctl.failures)
+            p[j] = v
         if rti.no_model:
             self._count("first_order_model_ticks")
         res = rti.step(p, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
@@ -738,11 +779,22 @@ class Controller:
 
     # ------------------------------------------------------------------ pieces
     def _read_failures(self, inp: Inputs) -> None:
-        """The declared failures of this tick (well-formed ones, :mod:`rtctl.inputs`); the dropped
-        ones are counted."""
+        """The declared failures of this tick (well-formed ones, :mod:`rtctl.inputs`). A value outside
+        its kind's described range, or missing where the kind needs one, drops the declaration,
+        counted and flagged; a kind no table describes is kept (flagged at the preparation: nothing
+        can be imposed for it, and its wheel leaves the odometry)."""
         if inp.rejected_failures:
             self._count("rejected_failure_declaration", inp.rejected_failures)
-        self._failures = {(f.wheel, f.kind): f.value for f in inp.failures}
+        out: dict[tuple[str, str], float] = {}
+        for f in inp.failures:
+            spec = self.kinds.get(f.kind)
+            why = spec.check_value(f.value) if spec is not None else ""
+            if why:
+                self._count("rejected_failure_declaration")
+                self._tick_flags.append(f"failure declaration {f.wheel} {f.kind} rejected: {why}")
+                continue
+            out[(f.wheel, f.kind)] = f.value
+        self._failures = out
 
     def _read_task(self, inp: Inputs) -> None:
         """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m,
@@ -835,33 +887,42 @@ class Controller:
         lo, hi = merge_bounds(alo, ahi, (tlo, thi))
         lbg, ubg = prep.point.lbg, prep.point.ubg
         fixed = np.zeros(nx, dtype=bool)
-        f = self._failures
-        copied = False
-        for i, w in enumerate(lay.wheels):
-            if not f:
-                break
-            io, ib = int(ix.om[i]), int(ix.be[i])
-            if (w, "steer_stuck") in f:
-                v = (self._steer_meas[i] if math.isfinite(self._steer_meas[i])
-                     else f[(w, "steer_stuck")] + (float(self.steer_offset[i]) if self._offset_on else 0.0))
-                if not math.isfinite(v):
-                    v = float(x0[ib])
-                lo[ib] = hi[ib] = v
-                fixed[ib] = True
-            if (w, "locked") in f:
-                lo[io] = hi[io] = 0.0
-                fixed[io] = True
-            if (w, "rim_speed_cap") in f:
-                hi[io] = min(hi[io], f[(w, "rim_speed_cap")] / rs)
-                lo[io] = min(lo[io], hi[io])
-            j = ix.torque[i]
-            if j >= 0 and ((w, "unpowered") in f or (w, "torque_limit") in f):
-                if not copied:
-                    lbg, ubg, copied = np.array(lbg, dtype=float), np.array(ubg, dtype=float), True
-                if (w, "unpowered") in f:
-                    lbg[j] = ubg[j] = 0.0
-                else:
-                    lbg[j], ubg[j] = -f[(w, "torque_limit")], f[(w, "torque_limit")]
+        cmd_rules = [(-math.inf, math.inf, False, False)] * len(lay.wheels)
+        self._param_fix = []
+        if self._failures:
+            lbg, ubg = np.array(lbg, dtype=float), np.array(ubg, dtype=float)
+            speed = self.config.drive.speed * prep.speed_factor
+            for i, w in enumerate(lay.wheels):
+                mine = [(k, v) for (ww, k), v in sorted(self._failures.items()) if ww == w and k in self.kinds]
+                if not mine:
+                    continue
+                j = ix.torque[i]
+                cur_lo = {v: float(lo[pos[i]]) for v, pos in ix.var.items()}
+                cur_hi = {v: float(hi[pos[i]]) for v, pos in ix.var.items()}
+                if j >= 0:
+                    cur_lo["torque"], cur_hi["torque"] = float(lbg[j]), float(ubg[j])
+                own_lo: dict[str, float] = {}  # the failures' bounds alone: they hold in the commands at once
+                own_hi: dict[str, float] = {}
+                meas = self._steer_meas[i]
+                done: set[str] = set()
+                for k, v in mine:
+                    mb = meas if math.isfinite(meas) else (float(x0[ix.be[i]]) if math.isnan(v) else math.nan)
+                    off = float(self.steer_offset[i]) if self._offset_on else 0.0
+                    done |= apply_rules(self.kinds[k], v, speed, rs, cur_lo, cur_hi, off, mb)
+                    apply_rules(self.kinds[k], v, speed, rs, own_lo, own_hi, off, mb)
+                for var, pos in ix.var.items():
+                    a, b = cur_lo[var], cur_hi[var]
+                    lo[pos[i]], hi[pos[i]] = min(a, b), b  # a cap below a lower bound: the cap wins
+                    if var in done:
+                        fixed[pos[i]] = True
+                if j >= 0:
+                    lbg[j], ubg[j] = min(cur_lo["torque"], cur_hi["torque"]), cur_hi["torque"]
+                for par, pos_p in (("contact", ix.contact[i]), ("pivot_locked", ix.pivot)):
+                    if par in own_lo and pos_p >= 0 and own_lo[par] == own_hi.get(par):
+                        self._param_fix.append((pos_p, own_lo[par]))
+                cmd_rules[i] = (own_lo.get("omega", -math.inf) * rs, own_hi.get("omega", math.inf) * rs,
+                                "beta" in done, "omega" in done)
+        self._cmd_rules = cmd_rules
         rlo[fixed], rhi[fixed] = -np.inf, np.inf
         tb = prep.step_box
         zlo, zhi = np.where(fixed, -np.inf, x0 - tb), np.where(fixed, np.inf, x0 + tb)
@@ -889,23 +950,24 @@ class Controller:
 
     def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[_Quad, _Quad]:
         """Rate-limit from the previous command and clip into the actuator range; the result
-        is always finite (a non-finite target holds the previous command)."""
+        is always finite (a non-finite target holds the previous command). The bounds the declared
+        failures' rules put on a wheel's speed hold at once (a lock, a cap), and a steering they fix
+        is not rate-limited (:meth:`_bounds` leaves them in ``_cmd_rules``)."""
         act = self.config.actuators
         prev_rim, prev_steer = self._prev_cmd
         out_r, out_s = [], []
         for i in range(len(WHEELS)):
             a = rim[i] if math.isfinite(rim[i]) else prev_rim[i]
             b = steer[i] if math.isfinite(steer[i]) else prev_steer[i]
-            w = WHEELS[i]
             da, db = act.max_rim_accel * dt * (1 + 1e-9), act.max_steer_rate * dt * (1 + 1e-9)
-            if (w, "steer_stuck") not in self._failures:  # a stuck actuator is commanded where it is
+            r_lo, r_hi, steer_fixed, rim_fixed = self._cmd_rules[i] if self._failures else (-math.inf, math.inf, False, False)
+            if not steer_fixed:  # a steering fixed by a declared failure (stuck) is commanded where it is
                 b = min(max(b, prev_steer[i] - db), prev_steer[i] + db)
-            if (w, "locked") in self._failures:  # a locked wheel is commanded to stop at once
-                a = 0.0
+            if rim_fixed:  # a wheel speed fixed by a declared failure (locked: 0) is commanded at once
+                a = r_lo
             else:
                 a = min(max(a, prev_rim[i] - da), prev_rim[i] + da)
-                if (w, "rim_speed_cap") in self._failures:  # a declared cap holds at once, like a lock
-                    a = min(a, self._failures[(w, "rim_speed_cap")])
+                a = min(max(a, r_lo), r_hi)  # a declared cap holds at once, like a lock
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
         return (out_r[0], out_r[1], out_r[2], out_r[3]), (out_s[0], out_s[1], out_s[2], out_s[3])
@@ -973,19 +1035,26 @@ class Controller:
             flags=self._gap_flags + (prep.flags if prep else ()) + tuple(self._tick_flags))
 
 
-_IMPOSED = {"steer_stuck": "its steering fixed at the measured (else declared) angle",
-            "locked": "its wheel speed fixed at 0", "rim_speed_cap": "its wheel speed capped at the declared rim speed",
-            "unpowered": "its wheel torque row fixed at 0", "torque_limit": "its wheel torque row bounded by the declared limit",
-            "raised": "NOTHING imposed (a raised wheel changes the model's contact and pivot: it needs a table)"}
-
-
 def _describe_failures(failures: Mapping[tuple[str, str], float]) -> str:
     return ", ".join(f"{w} {k}" + (f" {v:.4g}" if math.isfinite(v) else "") for (w, k), v in sorted(failures.items()))
 
 
-def _imposed(failures: Mapping[tuple[str, str], float]) -> str:
-    """What :meth:`Controller._bounds` imposes for each declared failure (said in the flag)."""
-    return "; ".join(f"{w} {k}: {_IMPOSED.get(k, 'nothing imposed (unknown kind)')}" for (w, k) in sorted(failures))
+def _imposed(failures: Mapping[tuple[str, str], float], kinds: Mapping[str, KindSpec]) -> str:
+    """What :meth:`Controller._bounds` imposes for each declared failure, from its kind's rules
+    (said in the flag); a kind no table describes: nothing."""
+    return "; ".join(f"{w} {k}: " + (rule_text(kinds[k]) if k in kinds else
+                                     "NOTHING imposed (no loaded table describes this failure kind)")
+                     for (w, k) in sorted(failures))
+
+
+def _per_speed_axis(table: Any) -> str | None:
+    """The family axis of a table that follows a declared value divided by the travel speed (a
+    rim-speed cap as a fraction of the speed), or None."""
+    fam = table.meta.get("family") or {}
+    dec = fam.get("declares") if isinstance(fam, Mapping) else None
+    if isinstance(dec, Mapping) and dec.get("per_speed") is True and fam.get("axis") in table.axes:
+        return str(fam["axis"])
+    return None
 
 
 def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:

@@ -20,11 +20,9 @@ from typing import Literal
 
 from .layout import WHEELS
 
-__all__ = ["WHEELS", "FAILURE_KINDS", "TASK_KINDS", "MODES", "FailureDeclaration", "Task", "Pose", "Measurements",
+__all__ = ["WHEELS", "TASK_KINDS", "MODES", "FailureDeclaration", "Task", "Pose", "Measurements",
            "Commands", "Diagnostics"]
 
-FAILURE_KINDS: tuple[str, ...] = ("steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit")
-"""Failure kinds a rover can declare (see :class:`FailureDeclaration`)."""
 TASK_KINDS: tuple[str, ...] = ("trench",)
 """Driving tasks an operator can give besides driving the line (see :class:`Task`)."""
 MODES: tuple[str, ...] = ("qp", "fallback", "hold")
@@ -43,16 +41,20 @@ class FailureDeclaration:
     wheel : str
         One of ``FR``, ``FL``, ``RR``, ``RL``.
     kind : str
-        ``steer_stuck`` (value: the angle, rad, or NaN meaning "at the measured angle"),
-        ``rim_speed_cap`` (value: the largest rim speed, m/s), ``locked`` (omega = 0),
+        A failure kind described by the loaded tables (their headers' ``failure_kinds``,
+        :mod:`rtctl.failures`: rtctl has no list of its own). The optimizer's built-in kinds:
+        ``steer_stuck`` (value: the angle, rad, encoder terms, or NaN meaning "at the measured
+        angle"), ``rim_speed_cap`` (value: the largest rim speed, m/s), ``locked`` (omega = 0),
         ``unpowered`` (zero drive torque, the wheel turns freely), ``raised`` (no contact),
-        ``torque_limit`` (value: largest drive torque magnitude, N m).
+        ``torque_limit`` (value: largest drive torque magnitude, N m), ``steer_range`` (value:
+        the largest steering magnitude, rad). A kind no table describes is flagged and nothing is
+        imposed for it.
     value : float
         Kind-specific value (above); NaN where the kind has none.
     """
 
     wheel: str
-    kind: Literal["steer_stuck", "rim_speed_cap", "locked", "unpowered", "raised", "torque_limit"]
+    kind: str
     value: float = math.nan
 
 

@@ -199,6 +199,25 @@ def mirror_table(t: Table) -> Table:
                         f["steer_stuck"] = -float(f["steer_stuck"])
                 new[MIRROR_WHEEL.get(w, w)] = f
             scm["failures"] = new
+    recs = hm.get("failures")  # the failure description (rtctl.failures): wheels swapped, values by their kind's rule
+    if isinstance(recs, list):
+        kinds = hm.get("failure_kinds") if isinstance(hm.get("failure_kinds"), dict) else {}
+        new_recs = []
+        for r in recs:
+            if isinstance(r, dict):
+                r = dict(r)
+                r["wheel"] = MIRROR_WHEEL.get(r.get("wheel"), r.get("wheel"))
+                mv = (kinds.get(r.get("kind")) or {}).get("mirror_value") if isinstance(kinds.get(r.get("kind")), dict) else None
+                if isinstance(r.get("value"), (int, float)) and isinstance(mv, (int, float)):
+                    r["value"] = float(mv) * float(r["value"])
+                if isinstance(r.get("text"), str):  # the text names the original's value: say so (twice = back)
+                    t = r["text"]
+                    r["text"] = t[len("mirror of: "):] if t.startswith("mirror of: ") else "mirror of: " + t
+            new_recs.append(r)
+        hm["failures"] = new_recs
+    task = hm.get("task")
+    if isinstance(task, dict) and task.get("wheel") in MIRROR_WHEEL:
+        hm["task"] = {**task, "wheel": MIRROR_WHEEL[task["wheel"]]}
     world = hm.get("world")
     if isinstance(world, dict):
         for key in ("wheel_radius_m", "shearing_radius_m", "steer_offset_rad"):

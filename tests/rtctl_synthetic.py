@@ -144,16 +144,22 @@ def write_table(folder: Path, name: str = "linear_nominal", stuck_wheel: str | N
     arrays["status"] = np.zeros(shape, dtype=np.int8)
     arrays["active_x"] = np.zeros(shape + (lay.nx,), dtype=np.int8)
     arrays["active_g"] = np.zeros(shape + (lay.ng,), dtype=np.int8)
+    from offline.rover.failures import KINDS, StuckSteering
+
     failures = {}
     family = None
+    records = []
     if stuck_wheel:
         failures = {stuck_wheel: {"__class__": "WheelFailure", "steer_stuck": 0.0, "rim_speed_max": None}}
-        family = {"axis": "steer_stuck", "wheel": stuck_wheel, "kind": "stuck steering angle"}
+        family = {"axis": "steer_stuck", "wheel": stuck_wheel, "kind": "stuck steering angle",
+                  "declares": {"kind": "steer_stuck", "per_speed": False}}
+        records = [StuckSteering(0.0).rover_record(stuck_wheel)]
     header = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "name": name,
               "rover": {"name": "mini_rover", "weight": WEIGHT, "rocker_length": ROCKER, "pivot_height": 0.112,
                         "track_width": TRACK},
               "params": {"wheel": {"radius": 0.058, "grouser_height": 0.005}},
               "scenario": {"failures": failures}, "family": family,
+              "failure_kinds": {c.ROVER_KIND: c.rover_description() for c in KINDS}, "failures": records,
               "axis_order": list(axes), "axes": {k: {"values": v.tolist(), "unit": "SI"} for k, v in axes.items()},
               "layout": json.loads(lay.to_json()),
               "trust_radius": dict(TRUST),

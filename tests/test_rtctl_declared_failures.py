@@ -40,9 +40,9 @@ def _ticks(ctl, failures, n=3, steer=(0.0, 0.0, 0.0, 0.0)):
 
 
 @pytest.mark.parametrize("decl, imposed", [
-    (FailureDeclaration("FR", "raised", 1.0), "NOTHING imposed"),
-    (FailureDeclaration("FL", "steer_stuck", -30 * DEG), "steering fixed"),
-    (FailureDeclaration("FL", "unpowered", 1.0), "torque row fixed at 0"),  # RL: served by the mirror of rr_unpowered
+    (FailureDeclaration("FR", "raised"), "contact fixed at 0"),  # the raised wheel's model contact, from its rules
+    (FailureDeclaration("FL", "steer_stuck", -30 * DEG), "beta fixed at the measured angle"),
+    (FailureDeclaration("FL", "unpowered"), "torque fixed at 0"),  # RL: served by the mirror of rr_unpowered
 ])
 def test_unmatched_failure_is_flagged_and_counted(tables, decl, imposed):
     ctl = Controller(tables, ControllerConfig())
@@ -60,7 +60,7 @@ def test_two_unmatched_failures_are_both_named(tables):
     both = (FailureDeclaration("RR", "steer_stuck", -50 * DEG), FailureDeclaration("FL", "rim_speed_cap", 0.018))
     cmd, d = _ticks(ctl, both, steer=(0.0, 0.0, -50 * DEG, 0.0))
     flag = [f for f in d.flags if f.startswith("no table for the declared failures")][0]
-    assert "FL rim_speed_cap" in flag and "RR steer_stuck" in flag and "capped" in flag
+    assert "FL rim_speed_cap" in flag and "RR steer_stuck" in flag and "rim_speed <= v" in flag
     assert cmd.rim_speed[1] <= 0.018 + 1e-12 and cmd.steer_angle[2] == pytest.approx(-50 * DEG, abs=1e-9)
 
 

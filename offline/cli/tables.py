@@ -274,6 +274,25 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_describe(args: argparse.Namespace) -> int:
+    from rtctl.table import TableError
+
+    from ..files import OutputError
+    from ..rover.table_builder import BuildError, describe_table, write_index
+
+    done = []
+    try:
+        for f in args.files:
+            done.append(describe_table(f, args.out))
+            print(f"{done[-1]}: failure description added (failure_kinds, failures, task, family.declares); "
+                  "arrays unchanged")
+    except (TableError, BuildError, OutputError) as exc:
+        return fail(str(exc))
+    if not args.no_index:
+        print(f"index: {write_index(args.out, done)}")
+    return 0
+
+
 def cmd_mirror(args: argparse.Namespace) -> int:
     from rtctl.mirror import MirrorError, mirror_table
     from rtctl.table import TableError, load_table, table_bytes
@@ -300,7 +319,7 @@ def cmd_mirror(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``tables build|upgrade|mirror|info|verify``."""
+    """Add ``tables build|upgrade|describe|mirror|info|verify``."""
     p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
                        description="Lookup tables: driving primitives and the QP's data over slope, cross-slope, "
                                    "speed and the failure's parameter.")
@@ -346,6 +365,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
     u.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     u.set_defaults(func=cmd_upgrade)
+
+    d = ts.add_parser("describe", help="add the rover's failure description to tables built before it",
+                      description="Writes, from the table's own scenario, the failure kinds the optimizer knows "
+                                  "(failure_kinds: what each constrains, as data rtctl reads), the table's failures and "
+                                  "task, and which declared value its family axis follows; no solve, arrays unchanged. "
+                                  "rtctl does not use a failure table without it.")
+    d.add_argument("files", nargs="+", help=".npz tables")
+    d.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
+    d.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    d.set_defaults(func=cmd_describe)
 
     m = ts.add_parser("mirror", help="write the left-right mirror of tables (a rear-right table serves rear-left)",
                       description="Mirror image of each table (rtctl.mirror: right and left wheels swapped, every lateral "

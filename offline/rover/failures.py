@@ -11,7 +11,13 @@ Each kind says, in one place, everything the optimizer needs to know about it:
 * :meth:`FailureKind.check`: its residuals at a solution, for the independent numeric check;
 * :meth:`FailureKind.evidence`: what the furthest feasible point reached shows when the
   target could not be reached (e.g. the lowest rim speed actually reached by a capped wheel);
-* :meth:`FailureKind.start`: optional hints for start points (a stuck wheel's angle).
+* :meth:`FailureKind.start`: optional hints for start points (a stuck wheel's angle);
+* ``ROVER_KIND``, ``ROVER_VALUE``, ``RULES``, ``ODOMETRY`` and :meth:`FailureKind.rover_description`:
+  the same constraints as data for the rover. Every table header carries the description of
+  every kind the builder knew (``failure_kinds``) and the table's own failures (``failures``);
+  rtctl reads them (:mod:`rtctl.failures`) and has no list of kinds of its own, so a kind added
+  here drives on the rover with no rtctl change. ``RULES`` must say what :meth:`apply` does:
+  ``tests/test_failure_descriptions.py`` applies both to the same bounds for every kind.
 
 Adding a failure kind means adding one class here and listing it in :data:`KINDS`
 (see the recipe in :mod:`offline.rover.scenario`). The trenching goal (7.28)-(7.29) is
@@ -119,6 +125,61 @@ class FailureKind:
     TOML_KEYS: ClassVar[tuple[str, ...]] = ()
     """Keys of ``[wheels.<name>]`` this kind reads."""
 
+    ROVER_KIND: ClassVar[str] = ""
+    """The kind's name in the rover's :class:`rtctl.messages.FailureDeclaration` (``""``: the
+    rover cannot declare it)."""
+
+    ROVER_VALUE: ClassVar[Mapping[str, Any] | None] = None
+    """The declared value: ``name``, ``unit``, plausible range ``lo``/``hi`` (SI), ``required``
+    (False: NaN is allowed and means what the rules say, e.g. "at the measured angle"); None:
+    the kind takes no value (a flag)."""
+
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = ()
+    """What :meth:`apply` imposes, as data in the rover's vocabulary (:mod:`rtctl.failures`):
+    each rule names its target ``on`` (a wheel variable ``omega``, ``beta``, ``W``, ``h``,
+    ``h0``; ``rim_speed`` = omega x command radius; the wheel-torque row ``torque``; the
+    parameters ``contact`` and ``pivot_locked``) and either ``fix`` (both bounds set), ``lo``
+    / ``hi`` (tightened) or ``free`` (both bounds removed), each an affine expression
+    ``{"const": c, "value": a, "speed": b, "value_speed": d}`` = c + a v + b V + d v V of the
+    declared value v and the travel speed V (or ``{"bound": "lo"}``, the target's own lower
+    bound); ``frame: "encoder"`` on a steering rule means the value is an encoder angle (the
+    wheel's steering offset is added); ``prefer_measured: true`` that a measured steering angle
+    replaces the declared one."""
+
+    ODOMETRY: ClassVar[bool] = True
+    """Whether the failed wheel's speed still tells the travel speed (False: leave it out of the
+    odometry)."""
+
+    @classmethod
+    def from_declared(cls, value: float) -> "FailureKind":
+        """The kind from the rover's declared value (NaN for a flag kind)."""
+        return cls()
+
+    def declared_value(self) -> float:
+        """The value the rover declares for this failure (NaN: none, or not representable)."""
+        return math.nan
+
+    @classmethod
+    def rover_description(cls) -> dict[str, Any]:
+        """The kind as data for the rover (written into every table header's ``failure_kinds``):
+        ``kind``, ``class``, ``text``, ``value``, ``rules``, ``odometry`` and ``mirror_value``
+        (the factor the declared value takes on the mirror-image wheel, from :meth:`mirror`)."""
+        mirror_value = None
+        if cls.ROVER_VALUE is not None:
+            lo, hi = float(cls.ROVER_VALUE["lo"]), float(cls.ROVER_VALUE["hi"])
+            probe = 0.3 * hi if hi > 0 else 0.3 * lo
+            mirror_value = cls.from_declared(probe).mirror().declared_value() / probe
+        return {"kind": cls.ROVER_KIND, "class": f"{cls.__module__}.{cls.__qualname__}",
+                "text": (cls.__doc__ or cls.__name__).strip().splitlines()[0],
+                "value": dict(cls.ROVER_VALUE) if cls.ROVER_VALUE is not None else None,
+                "rules": [dict(r) for r in cls.RULES], "odometry": cls.ODOMETRY, "mirror_value": mirror_value}
+
+    def rover_record(self, wheel: str) -> dict[str, Any]:
+        """This failure on ``wheel`` as the table header's ``failures`` lists it."""
+        v = self.declared_value()
+        return {"wheel": wheel, "kind": self.ROVER_KIND, "value": v if math.isfinite(v) else None,
+                "text": self.describe()}
+
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "FailureKind | None":
         """The kind from the wheel table's values (only its own keys present), or ``None``."""
@@ -161,6 +222,20 @@ class SteerRange(FailureKind):
     steer_min: float = -math.pi / 2
     steer_max: float = math.pi / 2
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("steer_min_deg", "steer_max_deg")
+    ROVER_KIND: ClassVar[str] = "steer_range"
+    ROVER_VALUE: ClassVar[Mapping[str, Any] | None] = {"name": "half range", "unit": "rad", "lo": 0.0,
+                                                        "hi": math.pi / 2, "required": True}
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = (
+        {"on": "beta", "lo": {"value": -1.0}, "hi": {"value": 1.0}, "frame": "encoder"},)
+
+    @classmethod
+    def from_declared(cls, value: float) -> "SteerRange":
+        """A symmetric range ``|beta| <= value`` (the rover declares one number)."""
+        return cls(-float(value), float(value))
+
+    def declared_value(self) -> float:
+        """The half range of a symmetric range (NaN for an asymmetric one)."""
+        return self.steer_max if self.steer_min == -self.steer_max else math.nan
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "SteerRange | None":
@@ -196,6 +271,20 @@ class StuckSteering(FailureKind):
 
     angle: float
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("steer_stuck_deg",)
+    ROVER_KIND: ClassVar[str] = "steer_stuck"
+    ROVER_VALUE: ClassVar[Mapping[str, Any] | None] = {"name": "angle", "unit": "rad", "lo": -math.pi / 2,
+                                                        "hi": math.pi / 2, "required": False}
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = (
+        {"on": "beta", "fix": {"value": 1.0}, "frame": "encoder", "prefer_measured": True},)
+
+    @classmethod
+    def from_declared(cls, value: float) -> "StuckSteering":
+        """Stuck at ``value`` rad."""
+        return cls(float(value))
+
+    def declared_value(self) -> float:
+        """The angle, rad."""
+        return self.angle
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "StuckSteering | None":
@@ -245,6 +334,19 @@ class RimSpeedCap(FailureKind):
 
     cap: float
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("rim_speed_max_m_s",)
+    ROVER_KIND: ClassVar[str] = "rim_speed_cap"
+    ROVER_VALUE: ClassVar[Mapping[str, Any] | None] = {"name": "cap", "unit": "m/s", "lo": 0.0, "hi": 2.0,
+                                                        "required": True}
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = ({"on": "rim_speed", "hi": {"value": 1.0}},)
+
+    @classmethod
+    def from_declared(cls, value: float) -> "RimSpeedCap":
+        """Capped at ``value`` m/s."""
+        return cls(float(value))
+
+    def declared_value(self) -> float:
+        """The cap, m/s."""
+        return self.cap
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "RimSpeedCap | None":
@@ -286,6 +388,9 @@ class Locked(FailureKind):
     """Jammed wheel: ``omega = 0`` (it still steers unless its steering is stuck too)."""
 
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("locked",)
+    ROVER_KIND: ClassVar[str] = "locked"
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = ({"on": "omega", "fix": {"const": 0.0}},)
+    ODOMETRY: ClassVar[bool] = False
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "Locked | None":
@@ -319,6 +424,9 @@ class Unpowered(FailureKind):
     """Drive motor without power: free rolling, wheel torque ``M_y = 0``."""
 
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("unpowered",)
+    ROVER_KIND: ClassVar[str] = "unpowered"
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = ({"on": "torque", "fix": {"const": 0.0}},)
+    ODOMETRY: ClassVar[bool] = False
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "Unpowered | None":
@@ -352,6 +460,13 @@ class Raised(FailureKind):
     """
 
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("raised",)
+    ROVER_KIND: ClassVar[str] = "raised"
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = (
+        {"on": "contact", "fix": {"const": 0.0}}, {"on": "pivot_locked", "fix": {"const": 1.0}},
+        {"on": "rim_speed", "fix": {"speed": 1.0}}, {"on": "beta", "fix": {"const": 0.0}},
+        {"on": "W", "fix": {"const": 0.0}}, {"on": "h", "hi": {"bound": "lo"}}, {"on": "h0", "hi": {"bound": "lo"}},
+        {"on": "torque", "free": True})
+    ODOMETRY: ClassVar[bool] = False
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "Raised | None":
@@ -382,6 +497,19 @@ class TorqueLimit(FailureKind):
 
     limit: float
     TOML_KEYS: ClassVar[tuple[str, ...]] = ("torque_limit_Nm",)
+    ROVER_KIND: ClassVar[str] = "torque_limit"
+    ROVER_VALUE: ClassVar[Mapping[str, Any] | None] = {"name": "limit", "unit": "N m", "lo": 0.0, "hi": 1e4,
+                                                        "required": True}
+    RULES: ClassVar[tuple[Mapping[str, Any], ...]] = ({"on": "torque", "lo": {"value": -1.0}, "hi": {"value": 1.0}},)
+
+    @classmethod
+    def from_declared(cls, value: float) -> "TorqueLimit":
+        """Limited to ``value`` N m."""
+        return cls(float(value))
+
+    def declared_value(self) -> float:
+        """The limit, N m."""
+        return self.limit
 
     @classmethod
     def from_toml(cls, values: Mapping[str, Any]) -> "TorqueLimit | None":

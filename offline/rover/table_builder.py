@@ -67,7 +67,7 @@ from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
     "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
-    "family_of", "scenario_at", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
+    "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
     "CODE_SOURCES", "code_hash", "world_header", "relaxation_of", "relaxation_verdict",
@@ -1467,12 +1467,59 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "grid_points": spec.grid.size,
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }
+    header.update(failure_header(sc, spec.family))
     if refinement is not None:
         header["refinement"] = refinement
     world = world_header(sc, pb)
     if world:
         header["world"] = world
     return header, arrays
+
+
+def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The header's failure description for the rover (:mod:`rtctl.failures`), written by the
+    failure-kind objects themselves (:meth:`offline.rover.failures.FailureKind.rover_description`):
+
+    * ``failure_kinds``: every kind of :data:`offline.rover.failures.KINDS` and every other kind
+      the scenario uses, by its rover name;
+    * ``failures``: the scenario's failures (wheel, kind, declared value, text), and ``task``:
+      its trench goal's wheel (``{"kind": "trench", "wheel": ...}``), i.e. what the table serves;
+      a constraint on the task's wheel that the rover cannot declare (the trenching wheel's
+      one-sided steer range: no single declared value) is marked ``with_task`` (part of the task,
+      not of the signature);
+    * ``family`` (when the table has a family axis) gains ``declares``: which declared failure
+      or task gives the axis its value (``{"kind": k, "per_speed": b}``: the value of k, divided
+      by the travel speed when b; ``{"task": "trench"}``).
+    """
+    from .failures import KINDS
+
+    classes = list(KINDS)
+    records = []
+    for w in sorted(sc.failures):
+        for k in sc.failure(w).kinds():
+            if type(k) not in classes:
+                classes.append(type(k))
+            if k.ROVER_KIND:
+                rec = k.rover_record(w)
+                trench = getattr(sc, "trench", None)
+                if trench is not None and trench.wheel == w and rec["value"] is None and k.ROVER_VALUE is not None:
+                    rec["with_task"] = True  # e.g. the trenching wheel's one-sided steer range: part of the task
+                records.append(rec)
+    kinds = {c.ROVER_KIND: c.rover_description() for c in classes if c.ROVER_KIND}
+    out: dict[str, Any] = {"failure_kinds": kinds, "failures": records}
+    if getattr(sc, "trench", None) is not None:
+        out["task"] = {"kind": "trench", "wheel": sc.trench.wheel}
+    if family is not None:
+        fam = dict(family)
+        axis = fam.get("axis")
+        if axis == "steer_stuck":
+            fam["declares"] = {"kind": "steer_stuck", "per_speed": False}
+        elif axis == "rim_speed_cap_fraction":
+            fam["declares"] = {"kind": "rim_speed_cap", "per_speed": True}
+        elif axis == "trench_depth":
+            fam["declares"] = {"task": "trench"}
+        out["family"] = fam
+    return out
 
 
 def world_header(sc: Any, pb: Any) -> dict[str, Any]:
@@ -1621,6 +1668,32 @@ def upgrade_table(src: str | Path, out_dir: str | Path) -> Path:
                 trust_unverified_points={n: int(np.sum(unv[feas][:, lay.index(n)] > 0)) for n in _LIN_PARAMS} if feas.any() else {})
     if feas.any():
         head["trust_radius"] = {n: float(np.min(tr[feas][:, lay.index(n)])) for n in _LIN_PARAMS}
+    path = out / p.name
+    write_bytes(path, table_bytes(head, arrays))
+    return path
+
+
+def describe_table(src: str | Path, out_dir: str | Path) -> Path:
+    """Add the failure description for the rover (:func:`failure_header`) to a table built
+    before it (``offnominal tables describe``), without re-solving: the scenario is decoded from
+    the header and its failure-kind objects write the description; every array is unchanged.
+    A mirrored table (header ``mirror_of``) gets the mirror of its scenario's failures.
+
+    Raises
+    ------
+    TableError
+        ``src`` is not a readable table, or its content hash does not match.
+    """
+    from rtctl import table as T
+
+    p = Path(src)
+    header, arrays = T._read(p)
+    if header.get("content_hash") != content_hash(header, arrays):
+        raise TableError(f"{p}: content hash mismatch: the file is corrupted; rebuild it")
+    out = check_output_dir(out_dir, inputs=[p], names=[p.name])
+    sc = scenario_from_header(header)
+    head = {k: v for k, v in header.items() if k != "content_hash"}
+    head.update(failure_header(sc, header.get("family")))
     path = out / p.name
     write_bytes(path, table_bytes(head, arrays))
     return path

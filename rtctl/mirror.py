@@ -211,8 +211,8 @@ def mirror_table(t: Table) -> Table:
                 if isinstance(r.get("value"), (int, float)) and isinstance(mv, (int, float)):
                     r["value"] = float(mv) * float(r["value"])
                 if isinstance(r.get("text"), str):  # the text names the original's value: say so (twice = back)
-                    t = r["text"]
-                    r["text"] = t[len("mirror of: "):] if t.startswith("mirror of: ") else "mirror of: " + t
+                    txt = r["text"]
+                    r["text"] = txt[len("mirror of: "):] if txt.startswith("mirror of: ") else "mirror of: " + txt
             new_recs.append(r)
         hm["failures"] = new_recs
     task = hm.get("task")

@@ -44,6 +44,7 @@ __all__ = [
     "TrenchGoal",
     "KINDS",
     "FailureSpecError",
+    "with_task",
 ]
 
 
@@ -538,6 +539,14 @@ class TorqueLimit(FailureKind):
     def describe(self) -> str:
         """Limit in N m."""
         return f"|torque| <= {self.limit:.4f} N m"
+
+
+def with_task(kind: FailureKind, wheel: str, trench: Any) -> bool:
+    """Whether a failure kind on ``wheel`` is part of the scenario's task rather than a failure the
+    rover declares: a kind that takes a value but cannot state it as one number (the trenching
+    wheel's one-sided steer range), on the wheel of the trench goal ``trench`` (None: no task)."""
+    return (trench is not None and getattr(trench, "wheel", None) == wheel and kind.ROVER_VALUE is not None
+            and math.isnan(kind.declared_value()))
 
 
 KINDS: tuple[type[FailureKind], ...] = (SteerRange, StuckSteering, RimSpeedCap, Locked, Unpowered, Raised, TorqueLimit)

@@ -1491,7 +1491,7 @@ def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
       or task gives the axis its value (``{"kind": k, "per_speed": b}``: the value of k, divided
       by the travel speed when b; ``{"task": "trench"}``).
     """
-    from .failures import KINDS
+    from .failures import KINDS, with_task
 
     classes = list(KINDS)
     records = []
@@ -1501,8 +1501,7 @@ def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
                 classes.append(type(k))
             if k.ROVER_KIND:
                 rec = k.rover_record(w)
-                trench = getattr(sc, "trench", None)
-                if trench is not None and trench.wheel == w and rec["value"] is None and k.ROVER_VALUE is not None:
+                if with_task(k, w, getattr(sc, "trench", None)):
                     rec["with_task"] = True  # e.g. the trenching wheel's one-sided steer range: part of the task
                 records.append(rec)
     kinds = {c.ROVER_KIND: c.rover_description() for c in classes if c.ROVER_KIND}

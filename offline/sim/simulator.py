@@ -53,22 +53,17 @@ def plant_for(params: ParameterSet, rover: Rover, exit_angle: str = "classic", c
 
 
 def declared_failures(sc: Scenario) -> tuple[FailureDeclaration, ...]:
-    """The failures of a scenario as the rover's fault management declares them."""
+    """The failures of a scenario as the rover's fault management declares them: every failure
+    kind the rover can declare (``ROVER_KIND``) with its declared value
+    (:meth:`offline.rover.failures.FailureKind.declared_value`); a constraint that is part of the
+    scenario's task (:func:`offline.rover.failures.with_task`) is not a failure."""
+    from ..rover.failures import with_task
+
     out = []
     for k in ("FR", "FL", "RR", "RL"):
-        f = sc.failure(k)
-        if f.steer_stuck is not None:
-            out.append(FailureDeclaration(k, "steer_stuck", f.steer_stuck))
-        if math.isfinite(f.rim_speed_max):
-            out.append(FailureDeclaration(k, "rim_speed_cap", f.rim_speed_max))
-        if f.locked:
-            out.append(FailureDeclaration(k, "locked"))
-        if f.unpowered:
-            out.append(FailureDeclaration(k, "unpowered"))
-        if f.raised:
-            out.append(FailureDeclaration(k, "raised"))
-        if math.isfinite(f.torque_limit):
-            out.append(FailureDeclaration(k, "torque_limit", f.torque_limit))
+        for kind in sc.failure(k).kinds():
+            if kind.ROVER_KIND and not with_task(kind, k, sc.trench):
+                out.append(FailureDeclaration(k, kind.ROVER_KIND, kind.declared_value()))
     return tuple(out)
 
 

@@ -268,3 +268,24 @@ def test_the_new_kind_on_a_wheel_without_its_table_is_imposed_from_its_descripti
     assert all(d.table == "nominal" for d in diag)
     speed_factor = [d.speed_factor for d in diag]
     assert all(c.rim_speed[1] <= FRACTION * 0.03 * f + 1e-12 for c, f in zip(cmds[1:], speed_factor[1:]))
+
+
+def test_tables_describe_writes_what_a_build_writes(tables, tmp_path):
+    """``offnominal tables describe`` on a table stripped of its description gives back the same
+    description (the scenario's own kind objects write it), arrays untouched, input not overwritten."""
+    from offline.cli import main
+
+    t = tables["rr_rim_speed_cap"]
+    head = {k: v for k, v in t.header.items() if k not in ("content_hash", "failures", "failure_kinds")}
+    head["family"] = {k: v for k, v in head["family"].items() if k != "declares"}
+    src = tmp_path / "in" / "rr_rim_speed_cap.npz"
+    src.parent.mkdir()
+    src.write_bytes(table_bytes(head, t.arrays))
+    before = src.read_bytes()
+    assert main(["tables", "describe", str(src), "--out", str(tmp_path / "out")]) == 0
+    new = load_table(tmp_path / "out" / "rr_rim_speed_cap.npz")
+    assert src.read_bytes() == before
+    for k in ("failures", "failure_kinds", "family"):
+        assert new.header[k] == t.header[k], k
+    for k, v in t.arrays.items():
+        np.testing.assert_array_equal(new.arrays[k], v)  # NaN where NaN

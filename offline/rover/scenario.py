@@ -63,9 +63,15 @@ A failure kind is ONE object in :mod:`offline.rover.failures`:
    ``TOML_KEYS`` and ``from_toml`` (keys and their plausible ranges), ``apply`` (its
    constraints: bounds on the wheel's omega, beta, W, h, h0, its torque row, its contact),
    ``mirror``, ``check`` and ``evidence``; optionally ``start`` (start-point hints).
+   For the rover: ``ROVER_KIND`` (the name fault management declares), ``ROVER_VALUE`` (the
+   declared value's unit and range), ``RULES`` (what ``apply`` imposes, in the rover's
+   vocabulary of :mod:`rtctl.failures`), ``ODOMETRY``, ``from_declared`` and
+   ``declared_value``. Every table header then carries the description; rtctl reads it and
+   needs no change (``tests/test_failure_descriptions.py`` checks ``RULES`` against ``apply``
+   for every kind, and drives a kind defined in the test module).
 2. List it in :data:`offline.rover.failures.KINDS`. The scenario loader, the NLP bounds,
    the continuation (which moves every bound from the nominal primitive), the independent
-   check, the evidence and the mirror image then use it; nothing else changes.
+   check, the evidence, the mirror image and the rover then use it; nothing else changes.
 3. Add an example file to ``offline/scenarios/`` and a case to the catalog benchmark
    (``tests/bench/bench_primitives.py``) and to ``tests/test_failures.py``.
 

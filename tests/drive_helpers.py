@@ -26,6 +26,19 @@ class FlagRecorder:
         pass
 
 
+def ticks(ctl: Any, failures: tuple[Any, ...], n: int = 3, steer: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)) -> Any:
+    """``n`` controller steps standing still on flat ground with these declared failures; the last
+    ``(Commands, Diagnostics)``."""
+    from rtctl.messages import Measurements
+
+    out = None
+    for k in range(n):
+        m = Measurements(t=0.2 * (k + 1), seq=k, wheel_speed=(0.48,) * 4, steer_angle=steer, yaw_rate=0.0, pitch=0.0,
+                         roll=0.0, pose=None, failures=failures)
+        out = ctl.step(m)
+    return out
+
+
 def drive_rtctl(tmp_path: Path, scenario_toml: str, distance: float, truth_toml: str | None = None,
                 seed: int = 1, flags: list[tuple[str, ...]] | None = None) -> dict[str, Any]:
     """Drive the simulated mini rover with rtctl on the shipped tables; the drive's metrics.

@@ -27,7 +27,8 @@ from offline.rover.failures import KINDS, FailureKind, WheelBounds
 from rtctl.config import ControllerConfig
 from rtctl.controller import Controller, wheel_radius_of
 from rtctl.failures import FailureDescriptionError, apply_rules, read_kinds
-from rtctl.messages import FailureDeclaration, Measurements
+from rtctl.messages import FailureDeclaration
+from drive_helpers import ticks
 from rtctl.table import load_index, load_table, table_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,13 +90,7 @@ def test_malformed_descriptions_are_refused_by_name(bad, says):
         read_kinds({"failure_kinds": bad})
 
 
-def _ticks(ctl, failures, n=3, steer=(0.0, 0.0, 0.0, 0.0)):
-    out = None
-    for k in range(n):
-        m = Measurements(t=0.2 * (k + 1), seq=k, wheel_speed=(0.48,) * 4, steer_angle=steer, yaw_rate=0.0, pitch=0.0,
-                         roll=0.0, pose=None, failures=failures)
-        out = ctl.step(m)
-    return out
+_ticks = ticks
 
 
 def test_a_failure_table_without_description_is_never_driven_as_nominal(tables, tmp_path):

@@ -17,7 +17,8 @@ import pytest
 
 from rtctl.config import ControllerConfig
 from rtctl.controller import Controller, load_tables_tolerant
-from rtctl.messages import FailureDeclaration, Measurements
+from rtctl.messages import FailureDeclaration
+from drive_helpers import ticks
 from rtctl.table import load_index
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,13 +31,7 @@ def tables():
     return {k: v.load() for k, v in load_index(TABLES / "index.json").items()}
 
 
-def _ticks(ctl, failures, n=3, steer=(0.0, 0.0, 0.0, 0.0)):
-    out = None
-    for k in range(n):
-        m = Measurements(t=0.2 * (k + 1), seq=k, wheel_speed=(0.48,) * 4, steer_angle=steer, yaw_rate=0.0, pitch=0.0,
-                         roll=0.0, pose=None, failures=failures)
-        out = ctl.step(m)
-    return out
+_ticks = ticks
 
 
 @pytest.mark.parametrize("decl, imposed", [

@@ -318,6 +318,13 @@ def cmd_mirror(args: argparse.Namespace) -> int:
     return 0
 
 
+
+def _files_to_folder(p: argparse.ArgumentParser, what: str) -> None:
+    """The arguments of a command that writes new table files beside the inputs' (never over them)."""
+    p.add_argument("files", nargs="+", help=what)
+    p.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
+    p.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``tables build|upgrade|describe|mirror|info|verify``."""
     p = sub.add_parser("tables", help="build, inspect and verify lookup tables for the on-rover QP",
@@ -361,9 +368,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                       description="Adds hess_lag_xp (exact, from the stored primitive and multipliers) and "
                                   "trust_unverified; keeps the schema-1 trust radius (0 -> the fallback, flagged). "
                                   "A fresh 'tables build' gives the schema-2 trust radius and neighbour pass.")
-    u.add_argument("files", nargs="+", help="schema-1 .npz tables")
-    u.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
-    u.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    _files_to_folder(u, "schema-1 .npz tables")
     u.set_defaults(func=cmd_upgrade)
 
     d = ts.add_parser("describe", help="add the rover's failure description to tables built before it",
@@ -371,18 +376,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "(failure_kinds: what each constrains, as data rtctl reads), the table's failures and "
                                   "task, and which declared value its family axis follows; no solve, arrays unchanged. "
                                   "rtctl does not use a failure table without it.")
-    d.add_argument("files", nargs="+", help=".npz tables")
-    d.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
-    d.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    _files_to_folder(d, ".npz tables")
     d.set_defaults(func=cmd_describe)
 
     m = ts.add_parser("mirror", help="write the left-right mirror of tables (a rear-right table serves rear-left)",
                       description="Mirror image of each table (rtctl.mirror: right and left wheels swapped, every lateral "
                                   "quantity's sign flipped) without a solve; rtctl also does this itself at start-up for a "
                                   "failure no loaded table serves. Trench tables are refused.")
-    m.add_argument("files", nargs="+", help=".npz tables")
-    m.add_argument("--out", required=True, help="output folder (not the folder of the inputs)")
-    m.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
+    _files_to_folder(m, ".npz tables")
     m.set_defaults(func=cmd_mirror)
 
     i = ts.add_parser("info", help="describe a table file (checks its hash)")

@@ -553,7 +553,7 @@ def shadow_osqp(libraries: Mapping[str, str | Path], log: ShadowLog) -> type:
     adaptation, iterates) stays the same.
     """
 
-    class ShadowedOsqp(osqp.OSQP):  # type: ignore[misc]
+    class ShadowedOsqp(osqp.OSQP):
         def setup(self, P: Any, q: Any, A: Any, l: Any, u: Any, **settings: Any) -> None:
             super().setup(P, q, A, l, u, **settings)
             key = _pattern_of(P, A).key

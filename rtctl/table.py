@@ -351,7 +351,9 @@ class Table:
         self._offsets = np.array(offs, dtype=np.intp)
         # at()'s gather of the cell's corner rows goes into these (np.take with out=): before, a
         # fancy index allocated 2**d full rows per call (~125 kB per tick on the shipped tables,
-        # issue 25); the interpolated row itself stays a new array (the TablePoint keeps it)
+        # issue 25); the interpolated row itself stays a new array (the TablePoint keeps it).
+        # mode="clip": with the default mode="raise" numpy gathers into a temporary copy of
+        # ``out`` first (numpy.take docs); the indices are in range by construction
         self._idx_buf = np.empty(len(offs), dtype=np.intp)
         self._corner_rows = np.empty((len(offs), flat.shape[1]))
         # nearest feasible grid point of every grid point (axis-normalised distance)
@@ -432,13 +434,13 @@ class Table:
         idx = np.add(self._offsets, base, out=self._idx_buf)
         feas = self._feas_flat[idx]
         if feas.all():
-            row = w @ np.take(self._flat, idx, axis=0, out=self._corner_rows)
+            row = w @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
             corner = int(idx[int(np.argmax(w))])
             feasible, extrapolated, status = True, False, "interpolated"
         elif (s := float((wf := w * feas).sum())) > 1e-12:
             extrapolated = float(w.sum()) - s > 1e-12
             wf = wf / s
-            row = wf @ np.take(self._flat, idx, axis=0, out=self._corner_rows)
+            row = wf @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
             corner = int(idx[int(np.argmax(wf))])
             feasible = not extrapolated
             status = "extrapolated" if extrapolated else "interpolated"

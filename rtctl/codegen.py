@@ -42,6 +42,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -458,6 +459,7 @@ class GeneratedQp:
 
     def __init__(self, library: str | Path) -> None:
         self._dir = tempfile.mkdtemp(prefix="rtctl_qp_")
+        weakref.finalize(self, shutil.rmtree, self._dir, True)  # the loaded copy stays mapped until exit
         copy = Path(self._dir) / "librtctl_qp.so"
         shutil.copyfile(library, copy)
         try:

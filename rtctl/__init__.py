@@ -14,8 +14,9 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.mirror`: the left-right mirror of a table (a rear-right table serves rear-left);
 * :mod:`rtctl.physics`: the wheel-soil physics both sides share (numpy here, for the exact residual);
 * :mod:`rtctl.controller`: ``Controller(tables, config).step(measurements) -> (commands, diagnostics)``;
-* :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count.
+* :mod:`rtctl.runner`: the 5 Hz clock, step timing against the 200 ms deadline, overrun count;
+* :mod:`rtctl.codegen`: optional tool (not on the 5 Hz path): the QP as C code (OSQP's code generation) for a flight build.
 """
 
 __all__ = ["layout", "messages", "inputs", "table", "config", "estimator", "allocator", "rti", "mirror", "physics",
-           "controller", "runner"]
+           "controller", "runner", "codegen"]

@@ -37,7 +37,9 @@ operating point. Points outside the axes are clamped to them; corners without a 
 zero weight and the rest are renormalised (``extrapolated``); a cell with no feasible corner
 falls back to the nearest feasible grid point (``clamped``, ``feasible = False``). The result
 is never NaN. All per-point fields are precomputed into one row matrix, so a call is a few
-numpy operations on at most ``2**d`` rows.
+numpy operations on at most ``2**d`` rows, gathered into a buffer the table keeps (so a
+call allocates little more than the interpolated row it returns; one :class:`Table` must not be
+interpolated from two threads at once).
 """
 
 from __future__ import annotations
@@ -347,6 +349,13 @@ class Table:
         for i in self._multi:
             offs = [o + b * self._strides[i] for o in offs for b in (0, 1)]
         self._offsets = np.array(offs, dtype=np.intp)
+        # at()'s gather of the cell's corner rows goes into these (np.take with out=): before, a
+        # fancy index allocated 2**d full rows per call (~125 kB per tick on the shipped tables,
+        # issue 25); the interpolated row itself stays a new array (the TablePoint keeps it).
+        # mode="clip": with the default mode="raise" numpy gathers into a temporary copy of
+        # ``out`` first (numpy.take docs); the indices are in range by construction
+        self._idx_buf = np.empty(len(offs), dtype=np.intp)
+        self._corner_rows = np.empty((len(offs), flat.shape[1]))
         # nearest feasible grid point of every grid point (axis-normalised distance)
         coords = np.stack(np.meshgrid(*[np.linspace(0, 1, len(v)) if len(v) > 1 else np.zeros(1) for v in self._ax],
                                       indexing="ij"), axis=-1).reshape(n, -1)
@@ -422,16 +431,16 @@ class Table:
         for t in ts:  # corner weights, in the order of self._offsets
             wl = [x for a in wl for x in (a * (1.0 - t), a * t)]
         w = np.array(wl)
-        idx = self._offsets + base
+        idx = np.add(self._offsets, base, out=self._idx_buf)
         feas = self._feas_flat[idx]
         if feas.all():
-            row = w @ self._flat[idx]
+            row = w @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
             corner = int(idx[int(np.argmax(w))])
             feasible, extrapolated, status = True, False, "interpolated"
         elif (s := float((wf := w * feas).sum())) > 1e-12:
             extrapolated = float(w.sum()) - s > 1e-12
             wf = wf / s
-            row = wf @ self._flat[idx]
+            row = wf @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
             corner = int(idx[int(np.argmax(wf))])
             feasible = not extrapolated
             status = "extrapolated" if extrapolated else "interpolated"

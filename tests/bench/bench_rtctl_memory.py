@@ -27,6 +27,16 @@ Measured:
 Writes ``tests/bench/results_rtctl_memory.md``::
 
     nice python tests/bench/bench_rtctl_memory.py [--steps 144000] [--out FILE]
+
+``--allocation [--baseline REV]`` measures only the allocation per tick, for this tree and for
+rtctl as of git revision ``REV`` (exported with ``git archive``; the same script, tables and
+drive), each in its own process, in the same run: ``--ticks`` ticks of the drive above (without
+the rejected fixes), the last 1000 traced, each tick's transient peak split into its two
+phases (``Controller.feedback``, then ``Controller.prepare``, which is ``step``), and in a
+second pass the peak of every ``Table.at`` call alone. Writes
+``tests/bench/results_rtctl_memory_allocation.md``::
+
+    nice python tests/bench/bench_rtctl_memory.py --allocation --baseline 4af126b
 """
 
 from __future__ import annotations
@@ -39,12 +49,17 @@ import sys
 import time
 import tracemalloc
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
+if os.environ.get("BENCH_RTCTL_ROOT"):  # --allocation's baseline worker: rtctl from an exported revision
+    sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in repr(f).lower()]  # the editable install's finder
+    sys.path.insert(0, str(HERE.parents[1]))  # offline and the tables from this tree
+    sys.path.insert(0, os.environ["BENCH_RTCTL_ROOT"])  # rtctl from the baseline, first
 
 import bench_rtctl as B  # noqa: E402
 from offline.files import write_text  # noqa: E402
@@ -92,12 +107,170 @@ def _kept(snap: tracemalloc.Snapshot) -> tuple[int, list[str]]:
     return sum(s.size for s in stats), top
 
 
+def _drive_measurements(n: int, tables: dict) -> "Iterator[Measurements]":
+    """The drive of :func:`main` without the rejected fixes, open loop on the commands of a
+    controller that the caller steps (``send`` the commands back; None: the last ones)."""
+    from test_rtctl_controller import ROCKER, RS, TRACK
+
+    rng = np.random.default_rng(1)
+    x, y, psi, slip = 0.0, -0.05, math.radians(5.0), 0.2
+    rim, steer = np.full(4, 0.03 / 0.9), np.zeros(4)
+    pending: list[tuple[int, Pose]] = []
+    for k in range(n):
+        t = 0.2 * k
+        v = float(np.mean(rim * np.cos(steer))) * (1 - slip)
+        r = (((rim[0] + rim[2]) - (rim[1] + rim[3])) / 2 / TRACK * (1 - slip)
+             + v * (math.tan((steer[0] + steer[1]) / 2) - math.tan((steer[2] + steer[3]) / 2)) / ROCKER)
+        if k:
+            x += 0.2 * v * math.cos(psi)
+            y += 0.2 * v * math.sin(psi)
+            psi += 0.2 * r
+        if k % 5 == 0:
+            pending.append((k + 2, Pose(t, x + rng.normal(0, 0.005), y + rng.normal(0, 0.005), psi + rng.normal(0, 0.005))))
+        pose = next((p for due, p in pending if due == k), None)
+        pending = [(due, p) for due, p in pending if due > k]
+        fails = (FailureDeclaration("RR", "steer_stuck"),) if (k // 2000) % 2 == 1 and len(tables) > 1 else ()
+        cmd = yield Measurements(t, k, tuple(rim / RS + rng.normal(0, 0.02, 4)), tuple(steer + rng.normal(0, 0.005, 4)),
+                                 r + 0.002 + rng.normal(0, 0.002), pose=pose, failures=fails)
+        if cmd is not None:
+            rim, steer = np.array(cmd.rim_speed), np.array(cmd.steer_angle)
+
+
+def allocation_worker(ticks: int) -> dict[str, object]:
+    """Per-tick transient peaks (bytes) over the last 1000 of ``ticks`` ticks: the tick, its
+    feedback and preparation phases, and (second pass, same drive) every ``Table.at`` call."""
+    import rtctl
+    from rtctl.table import Table
+
+    tables, note = B.load_tables()
+    out: dict[str, object] = {"rtctl": str(Path(rtctl.__file__).parent), "tables": note}
+    start = ticks - 1000
+    for pass_ in ("phases", "table.at"):
+        ctl = Controller(tables, ControllerConfig())
+        at_peaks: list[int] = []
+        orig_at = Table.at
+        if pass_ == "table.at":
+            def at(self: Table, **op: float) -> object:
+                if not tracemalloc.is_tracing():
+                    return orig_at(self, **op)
+                b = tracemalloc.get_traced_memory()[0]
+                tracemalloc.reset_peak()
+                r = orig_at(self, **op)
+                at_peaks.append(tracemalloc.get_traced_memory()[1] - b)
+                return r
+            Table.at = at  # type: ignore[method-assign]
+        tick, fb, prep = [], [], []
+        gen = _drive_measurements(ticks, tables)
+        m = next(gen)
+        try:
+            for k in range(ticks):
+                if k == start:
+                    tracemalloc.start()
+                if k >= start and pass_ == "phases":
+                    b0 = tracemalloc.get_traced_memory()[0]
+                    tracemalloc.reset_peak()
+                    cmd, _ = ctl.feedback(m)
+                    c1, p1 = tracemalloc.get_traced_memory()
+                    tracemalloc.reset_peak()
+                    ctl.prepare()
+                    p2 = tracemalloc.get_traced_memory()[1]
+                    fb.append(p1 - b0)
+                    prep.append(p2 - c1)
+                    tick.append(max(p1, p2) - b0)
+                else:
+                    cmd, _ = ctl.step(m)
+                if k + 1 < ticks:
+                    m = gen.send(cmd)
+        finally:
+            Table.at = orig_at  # type: ignore[method-assign]
+            tracemalloc.stop()
+        if pass_ == "phases":
+            out.update(tick=tick, feedback=fb, prepare=prep)
+        else:
+            out["table_at"] = at_peaks
+    return out
+
+
+def allocation_compare(baseline: str | None, ticks: int, out_path: Path) -> str:
+    """Run :func:`allocation_worker` for this tree and (if given) for rtctl at ``baseline``, each
+    in its own process, and write the comparison."""
+    import json
+    import subprocess
+    import tarfile
+    import tempfile
+
+    root = HERE.parents[1]
+    runs: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix="rtctl_base_") as tmp:
+        env0 = {k: v for k, v in os.environ.items() if k != "BENCH_RTCTL_ROOT"}
+        todo = [(f"this tree ({B._COMMIT_AT_START})", env0)]
+        if baseline:
+            rev = subprocess.run(["git", "rev-parse", "--short", baseline], cwd=root, capture_output=True, text=True,
+                                 check=True).stdout.strip()
+            arch = Path(tmp) / "rtctl.tar"
+            subprocess.run(["git", "archive", "-o", str(arch), rev, "rtctl"], cwd=root, check=True)
+            with tarfile.open(arch) as tf:
+                tf.extractall(tmp, filter="data")
+            todo.insert(0, (f"baseline {rev}", {**env0, "BENCH_RTCTL_ROOT": tmp}))
+        for name, env in todo:
+            r = subprocess.run([sys.executable, __file__, "--allocation-worker", "--ticks", str(ticks)], env=env,
+                               capture_output=True, text=True)
+            if r.returncode != 0:
+                raise SystemExit(f"{name}: worker failed:\n{r.stderr[-3000:]}")
+            runs[name] = json.loads(r.stdout.strip().splitlines()[-1])
+    names = list(runs)
+    lines = [B._header(f"rtctl allocation per tick (tracemalloc), {' against '.join(names[::-1])}", runs[names[-1]]["tables"]),
+             f"Command: `nice python tests/bench/bench_rtctl_memory.py --allocation"
+             f"{f' --baseline {baseline}' if baseline else ''} --ticks {ticks}`. Each version in its own process, in the "
+             "same run, on the same drive (the memory benchmark's, without the rejected fixes; the RR steering declared "
+             "stuck in alternate blocks of 2000 ticks); the last 1000 ticks traced. rtctl measured: "
+             + "; ".join(f"{n}: {'exported by git archive' if 'rtctl_base_' in runs[n]['rtctl'] else 'this worktree'}"
+                         for n in names) + ".", "",
+             "Transient peak: the traced memory within the call above its level before it (median / p99 / max over "
+             "the calls, kB). A tick's peak is the larger of its two phases' (the estimator, the exact residual and "
+             "the QP in `feedback`; the table interpolation and the QP's matrices in `prepare`).", "",
+             "| measured | " + " | ".join(names) + (" | after / before (median) |" if len(names) == 2 else " |"),
+             "|---|" + "---|" * len(names) + ("---|" if len(names) == 2 else "")]
+    for key, label in (("tick", "tick (feedback + prepare)"), ("feedback", "feedback phase"),
+                       ("prepare", "prepare phase"), ("table_at", "one Table.at call")):
+        cells, meds = [], []
+        for n in names:
+            arr = np.asarray(runs[n][key], dtype=float) / 1024
+            meds.append(float(np.median(arr)))
+            cells.append(f"{np.median(arr):.1f} / {np.percentile(arr, 99):.1f} / {arr.max():.1f} ({len(arr)} calls)")
+        ratio = f" | {meds[1] / meds[0]:.3f} |" if len(names) == 2 and meds[0] > 0 else " |"
+        lines.append(f"| {label} | " + " | ".join(cells) + ratio)
+    lines += ["", "Where the remaining tick peak is: the `feedback` phase's exact residual and Jacobian of the shared "
+              "physics (`rtctl.rti.RealTimeIteration.linearise`), not the table; the table gather no longer allocates its "
+              "2**d corner rows (the interpolated row it returns, which the table point keeps, remains).", ""]
+    text = "\n".join(lines) + "\n"
+    write_text(out_path, text)
+    return text
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=144_000)
-    ap.add_argument("--out", default=str(HERE / "results_rtctl_memory.md"))
+    ap.add_argument("--out", default=None, help="results file (default results_rtctl_memory.md, with --allocation "
+                                                "results_rtctl_memory_allocation.md)")
     ap.add_argument("--no-trace", action="store_true", help="skip the tracemalloc windows (RSS without tracemalloc's own memory)")
+    ap.add_argument("--allocation", action="store_true", help="only the allocation per tick (module docstring)")
+    ap.add_argument("--baseline", help="with --allocation: also measure rtctl at this git revision, same run")
+    ap.add_argument("--ticks", type=int, default=3500, help="with --allocation: ticks driven (the last 1000 traced)")
+    ap.add_argument("--allocation-worker", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.allocation_worker:
+        import json
+
+        print(json.dumps(allocation_worker(a.ticks)))
+        return
+    if a.allocation:
+        if a.ticks < 1000:
+            raise SystemExit("--ticks must be >= 1000 (the traced window)")
+        B._COMMIT_AT_START = B._commit()
+        print(allocation_compare(a.baseline, a.ticks, Path(a.out or HERE / "results_rtctl_memory_allocation.md")))
+        return
+    a.out = a.out or str(HERE / "results_rtctl_memory.md")
     n = a.steps
     if n < 30_000:
         raise SystemExit("--steps must be >= 30000 (two 10,000-tick timing windows and the tracemalloc windows)")

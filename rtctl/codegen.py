@@ -1,0 +1,637 @@
+"""A C path for the allocation QP: OSQP's code generation for one table layout (optional tool).
+
+The allocator's QP (:mod:`rtctl.allocator`) has a sparsity fixed by the table layout alone
+(``nx`` variables, ``ng`` model rows: a dense upper triangle of the Hessian block, a diagonal
+slack block, and ``[J | -I | I]`` with explicit zeros in the Jacobian block), so one generated
+solver serves every table of that layout. :func:`generate` sets the allocator up on a table
+point, calls ``osqp.OSQP.codegen(folder, parameters="matrices")`` (OSQP's embedded mode 2:
+vectors *and* matrix values can change, the KKT system is refactorised in place, and the
+iteration-based rho adaptation of the Python solver is kept; embedded mode 1 would freeze the
+matrices, which the real-time iteration changes every tick), and adds a small C interface,
+``rtctl_qp.h`` / ``rtctl_qp.c``, whose calls mirror the Python path one for one:
+
+* ``rtctl_qp_setup(Px, Ax, q, l, u)``: load a table's QP (what ``osqp.OSQP.setup`` does in
+  :meth:`rtctl.allocator.QpAllocator.prepare` for a new table: data, Ruiz scaling from scratch,
+  rho reset to its initial value, rho vector from the bounds, refactorisation, cold start);
+* ``rtctl_qp_update(q, l, u, Px, Ax)``: one tick's values (``NULL`` keeps a value; vectors first,
+  then matrices, as ``osqp.OSQP.update`` does);
+* ``rtctl_qp_warm_start(x, y)`` and ``rtctl_qp_solve(x, y, &iter, &obj)`` (returns OSQP's status).
+
+Nothing on the rover's Python path imports this module. It needs a C compiler only in
+:func:`build_shared` (``cc``), and numpy and ctypes in :class:`GeneratedQp`, the loader used by
+the tests and the benchmark to compare the generated solver with OSQP-in-Python on every QP of a
+replay (:func:`shadow_osqp`). Command line::
+
+    python -m rtctl.codegen TABLE.npz --out DIR [--build]
+
+Regenerate when a table layout changes (``nx``, ``ng``: other wheels, variables or model rows)
+or when the QP's settings (``[qp]`` of the controller configuration: ``eps``, ``max_iter``) or
+the osqp version change; a new table of the same layout needs no regeneration (its values go
+through ``rtctl_qp_setup``). ``rtctl_qp_layout.json`` records what the code was generated for.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import weakref
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import osqp
+from numpy.typing import NDArray
+
+from .allocator import QpAllocator
+from .config import QpSettings
+from .layout import NlpLayout
+
+__all__ = ["CodegenError", "QpPattern", "qp_pattern", "generate", "build_shared", "CSolution", "GeneratedQp",
+           "ShadowLog", "shadow_osqp", "main"]
+
+PREFIX = "rtctl_"
+"""Prefix of OSQP's generated workspace (``rtctl_workspace.c``, symbol ``rtctl_solver``)."""
+LAYOUT_FILE = "rtctl_qp_layout.json"
+"""What the folder was generated for (layout sizes, sparsity, settings, osqp version)."""
+_INFTY = 1e30
+
+
+class CodegenError(RuntimeError):
+    """Code generation, compilation or loading failed, or a QP does not fit the generated layout."""
+
+
+@dataclass(frozen=True)
+class QpPattern:
+    """The allocator QP's fixed sparsity for one layout (CSC, P upper triangular).
+
+    Attributes
+    ----------
+    n, m : int
+        Variables (``nx + 2 ng``) and constraint rows (``ng + nx + 2 ng``).
+    p_indptr, p_indices, a_indptr, a_indices : ndarray
+        CSC column pointers and row indices of P and A.
+    """
+
+    n: int
+    m: int
+    p_indptr: NDArray[np.int64]
+    p_indices: NDArray[np.int64]
+    a_indptr: NDArray[np.int64]
+    a_indices: NDArray[np.int64]
+
+    @property
+    def key(self) -> str:
+        """sha256 (hex, 16 characters) of the sizes and both patterns: equal keys, same generated solver."""
+        h = hashlib.sha256(f"{self.n},{self.m}".encode())
+        for a in (self.p_indptr, self.p_indices, self.a_indptr, self.a_indices):
+            h.update(np.asarray(a, dtype=np.int64).tobytes())
+        return h.hexdigest()[:16]
+
+
+def qp_pattern(layout: NlpLayout, settings: QpSettings | None = None) -> QpPattern:
+    """The sparsity of :class:`rtctl.allocator.QpAllocator`'s QP for ``layout``."""
+    a = QpAllocator(layout, settings or QpSettings())
+    return QpPattern(a.n, a.m, np.asarray(a._p_indptr, dtype=np.int64), np.asarray(a._p_rows, dtype=np.int64),
+                     np.asarray(a._a_indptr, dtype=np.int64), np.asarray(a._a_rows, dtype=np.int64))
+
+
+def _pattern_of(P: Any, A: Any) -> QpPattern:
+    return QpPattern(int(P.shape[0]), int(A.shape[0]), np.asarray(P.indptr, dtype=np.int64),
+                     np.asarray(P.indices, dtype=np.int64), np.asarray(A.indptr, dtype=np.int64),
+                     np.asarray(A.indices, dtype=np.int64))
+
+
+_HEADER = """\
+/* rtctl_qp.h: the allocation QP of rtctl for one table layout (generated by rtctl.codegen).
+ *
+ *   min 1/2 z'Pz + q'z  s.t.  l <= Az <= u,   z in R^RTCTL_QP_N, RTCTL_QP_M rows,
+ *
+ * with P (upper triangle, RTCTL_QP_P_NNZ values) and A (RTCTL_QP_A_NNZ values) in the CSC order of
+ * rtctl_qp_layout.json (the order of rtctl.allocator.QpAllocator's Px and Ax). Per tick:
+ *   rtctl_qp_update(q, l, u, Px, Ax);    NULL keeps a value
+ *   rtctl_qp_warm_start(x, y);           NULL: keep the solver's own iterate
+ *   status = rtctl_qp_solve(x, y, &iter, &obj);   status 1 = OSQP_SOLVED
+ * and rtctl_qp_setup(Px, Ax, q, l, u) when another table (of this layout) is loaded.
+ * Every function returns 0 on success (rtctl_qp_solve: OSQP's status value). Not thread safe:
+ * one static workspace. */
+#ifndef RTCTL_QP_H
+#define RTCTL_QP_H
+
+#define RTCTL_QP_N {n}
+#define RTCTL_QP_M {m}
+#define RTCTL_QP_P_NNZ {p_nnz}
+#define RTCTL_QP_A_NNZ {a_nnz}
+#define RTCTL_QP_PATTERN_KEY "{key}"
+
+#ifdef __cplusplus
+extern "C" {{
+#endif
+
+int rtctl_qp_dimensions(int* n, int* m, int* p_nnz, int* a_nnz);
+int rtctl_qp_setup(const double* Px, const double* Ax, const double* q, const double* l, const double* u);
+int rtctl_qp_update(const double* q, const double* l, const double* u, const double* Px, const double* Ax);
+int rtctl_qp_warm_start(const double* x, const double* y);
+int rtctl_qp_solve(double* x, double* y, int* iter, double* obj);
+/* with -DRTCTL_QP_TIMING (POSIX clock_gettime): nanoseconds spent in the calls above since the last call */
+long long rtctl_qp_take_elapsed_ns(void);
+
+#ifdef __cplusplus
+}}
+#endif
+#endif
+"""
+
+_SOURCE = """\
+/* rtctl_qp.c: see rtctl_qp.h (generated by rtctl.codegen for pattern {key}). */
+#include "rtctl_qp.h"
+#include "osqp.h"
+#include "types.h"
+#include "auxil.h"
+#include "scaling.h"
+#include "lin_alg.h"
+#include "{prefix}workspace.h"
+
+#ifdef RTCTL_QP_TIMING
+#include <time.h>
+static long long rtctl_qp_ns = 0;
+static long long now_ns(void) {{
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (long long)t.tv_sec * 1000000000LL + t.tv_nsec;
+}}
+#define TIC long long t0_ = now_ns();
+#define TOC rtctl_qp_ns += now_ns() - t0_;
+#else
+#define TIC
+#define TOC
+#endif
+
+#define SOLVER (&{prefix}solver)
+#define RHO0 ({rho0!r})  /* the settings' rho at setup (OSQP's adaptation changes it between solves) */
+
+long long rtctl_qp_take_elapsed_ns(void) {{
+#ifdef RTCTL_QP_TIMING
+  long long t = rtctl_qp_ns;
+  rtctl_qp_ns = 0;
+  return t;
+#else
+  return -1;
+#endif
+}}
+
+int rtctl_qp_dimensions(int* n, int* m, int* p_nnz, int* a_nnz) {{
+  OSQPWorkspace* w = SOLVER->work;
+  *n = (int)w->data->n;
+  *m = (int)w->data->m;
+  *p_nnz = (int)OSQPMatrix_get_nz(w->data->P);
+  *a_nnz = (int)OSQPMatrix_get_nz(w->data->A);
+  return (*n == RTCTL_QP_N && *m == RTCTL_QP_M && *p_nnz == RTCTL_QP_P_NNZ && *a_nnz == RTCTL_QP_A_NNZ) ? 0 : 1;
+}}
+
+/* What osqp_setup does with new data, on the generated workspace: raw data in, Ruiz scaling from
+ * scratch, rho back to its initial value, rho vector from the (scaled) bounds, the KKT matrix
+ * refactorised, iterates zero, information reset. */
+int rtctl_qp_setup(const double* Px, const double* Ax, const double* q, const double* l, const double* u) {{
+  OSQPSolver* s = SOLVER;
+  OSQPWorkspace* w = s->work;
+  OSQPInt e;
+  TIC
+  OSQPMatrix_update_values(w->data->P, Px, OSQP_NULL, RTCTL_QP_P_NNZ);
+  OSQPMatrix_update_values(w->data->A, Ax, OSQP_NULL, RTCTL_QP_A_NNZ);
+  OSQPVectorf_from_raw(w->data->q, q);
+  OSQPVectorf_from_raw(w->data->l, l);
+  OSQPVectorf_from_raw(w->data->u, u);
+  if (!OSQPVectorf_all_leq(w->data->l, w->data->u)) {{ TOC return 2; }}
+  if (s->settings->scaling) scale_data(s);
+  s->settings->rho = RHO0;
+  set_rho_vec(s);
+  e = w->linsys_solver->update_rho_vec(w->linsys_solver, w->rho_vec, s->settings->rho);
+  if (!e) e = w->linsys_solver->update_matrices(w->linsys_solver, w->data->P, OSQP_NULL, RTCTL_QP_P_NNZ,
+                                                w->data->A, OSQP_NULL, RTCTL_QP_A_NNZ);
+  osqp_cold_start(s);
+  w->rho_updated = 0;
+  reset_info(s->info);
+  update_status(s->info, OSQP_UNSOLVED);
+  TOC
+  return e ? 3 : 0;
+}}
+
+int rtctl_qp_update(const double* q, const double* l, const double* u, const double* Px, const double* Ax) {{
+  OSQPInt e = 0;
+  TIC
+  if (q || l || u) e = osqp_update_data_vec(SOLVER, q, l, u);
+  if (!e && (Px || Ax)) e = osqp_update_data_mat(SOLVER, Px, OSQP_NULL, Px ? RTCTL_QP_P_NNZ : 0,
+                                                 Ax, OSQP_NULL, Ax ? RTCTL_QP_A_NNZ : 0);
+  TOC
+  return (int)e;
+}}
+
+int rtctl_qp_warm_start(const double* x, const double* y) {{
+  OSQPInt e;
+  TIC
+  e = osqp_warm_start(SOLVER, x, y);
+  TOC
+  return (int)e;
+}}
+
+int rtctl_qp_solve(double* x, double* y, int* iter, double* obj) {{
+  OSQPSolver* s = SOLVER;
+  int i;
+  TIC
+  osqp_solve(s);
+  for (i = 0; i < RTCTL_QP_N; i++) x[i] = s->solution->x[i];
+  for (i = 0; i < RTCTL_QP_M; i++) y[i] = s->solution->y[i];
+  *iter = (int)s->info->iter;
+  *obj = s->info->obj_val;
+  TOC
+  return (int)s->info->status_val;
+}}
+"""
+
+_README = """\
+# rtctl allocation QP in C (generated by `python -m rtctl.codegen`)
+
+Generated for table layout `{layout}` (nx = {nx}, ng = {ng}): n = {n} variables, m = {m} rows,
+P {p_nnz} values (upper triangle), A {a_nnz} values; pattern key `{key}`; osqp {osqp_version}, embedded
+mode 2 (matrix updates, rho adaptation every {rho_interval} iterations as in the Python solver).
+
+Link: compile `src/*.c`, `{prefix}workspace.c` and `rtctl_qp.c` with `-Iinc/public -Iinc/private -I.`
+and `-lm` (leave out `emosqp.c`, OSQP's example `main`). Include `rtctl_qp.h`. The Python side
+computes the values each tick (`rtctl.allocator.QpAllocator`: `Px`, `Ax`, `q`, `l`, `u`, warm
+start); a C port of it fills the same arrays in the CSC order of `{layout_file}`.
+Regenerate when the table layout, the `[qp]` settings or osqp change.
+"""
+
+
+def _settings_dict(solver: Any) -> dict[str, Any]:
+    st = solver.settings
+    out: dict[str, Any] = {}
+    for k in ("rho", "sigma", "alpha", "eps_abs", "eps_rel", "max_iter", "scaling", "adaptive_rho",
+              "adaptive_rho_interval", "adaptive_rho_tolerance", "check_termination", "polishing", "warm_starting",
+              "rho_is_vec", "scaled_termination"):
+        v = getattr(st, k)
+        out[k] = float(v) if isinstance(v, float) else int(v)
+    return out
+
+
+def _write_wrapper(folder: Path, pattern: QpPattern, solver: Any, meta: Mapping[str, Any]) -> None:
+    p_nnz, a_nnz = int(pattern.p_indptr[-1]), int(pattern.a_indptr[-1])
+    fmt = dict(n=pattern.n, m=pattern.m, p_nnz=p_nnz, a_nnz=a_nnz, key=pattern.key, prefix=PREFIX,
+               rho0=float(solver.settings.rho))
+    (folder / "rtctl_qp.h").write_text(_HEADER.format(**fmt))
+    (folder / "rtctl_qp.c").write_text(_SOURCE.format(**fmt))
+    settings = _settings_dict(solver)
+    info = {"pattern_key": pattern.key, "n": pattern.n, "m": pattern.m, "p_nnz": p_nnz, "a_nnz": a_nnz,
+            "p_indptr": pattern.p_indptr.tolist(), "p_indices": pattern.p_indices.tolist(),
+            "a_indptr": pattern.a_indptr.tolist(), "a_indices": pattern.a_indices.tolist(),
+            "osqp_version": osqp.__version__, "embedded_mode": 2, "settings": settings, **meta}
+    (folder / LAYOUT_FILE).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
+    (folder / "README.md").write_text(_README.format(layout=meta.get("layout_name", "?"), nx=meta.get("nx"),
+                                                     ng=meta.get("ng"), n=pattern.n, m=pattern.m, p_nnz=p_nnz,
+                                                     a_nnz=a_nnz, key=pattern.key, osqp_version=osqp.__version__,
+                                                     rho_interval=settings["adaptive_rho_interval"], prefix=PREFIX,
+                                                     layout_file=LAYOUT_FILE))
+
+
+def generate(table: Any, out: str | Path, settings: QpSettings | None = None, force: bool = False) -> Path:
+    """Generate the C solver of the allocation QP for ``table``'s layout into the folder ``out``.
+
+    The allocator is set up on the table's first grid point with a primitive (its values only
+    start the workspace: ``rtctl_qp_setup`` replaces them), then OSQP writes its embedded sources
+    (mode 2) and this module adds ``rtctl_qp.h``, ``rtctl_qp.c``, ``rtctl_qp_layout.json`` and a
+    README. The folder is written whole under a temporary name and renamed into place.
+
+    Parameters
+    ----------
+    table : rtctl.table.Table
+        Any table of the layout (its values do not matter).
+    out : str or Path
+        The folder to create.
+    settings : QpSettings, optional
+        The controller's QP settings (default: :class:`rtctl.config.QpSettings`); they go into
+        the generated workspace (tolerances, iteration budget).
+    force : bool
+        Replace an existing folder.
+
+    Returns
+    -------
+    Path
+        The folder.
+
+    Raises
+    ------
+    CodegenError
+        The folder exists (without ``force``), the table has no primitive, or OSQP's code
+        generation fails.
+    """
+    out = Path(out)
+    if out.exists() and not force:
+        raise CodegenError(f"{out} exists; pass force=True (--force) to replace it")
+    feas = np.argwhere(np.asarray(table.feasible))
+    if not len(feas):
+        raise CodegenError(f"table {getattr(table, 'name', '?')}: no grid point with a primitive to set the QP up on")
+    s = settings or QpSettings()
+    alloc = QpAllocator(table.layout, s)
+    alloc.prepare(table.at(**table.grid_point(tuple(int(i) for i in feas[0]))))
+    solver = alloc._solver
+    pattern = qp_pattern(table.layout, s)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        try:
+            solver.codegen(str(tmp), parameters="matrices", extension_name=None, prefix=PREFIX, force_rewrite=True)
+        except (AssertionError, OSError, ValueError) as exc:
+            raise CodegenError(f"OSQP code generation failed: {exc!r}") from None
+        lay = table.layout
+        _write_wrapper(tmp, pattern, solver, {"layout_name": getattr(table, "name", "?"), "nx": lay.nx, "ng": lay.ng,
+                                              "np": lay.np_, "wheels": list(lay.wheels)})
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+def build_shared(folder: str | Path, output: str | Path | None = None, cc: str | None = None,
+                 flags: Sequence[str] = ("-O2",), timing: bool = True) -> Path:
+    """Compile a generated folder into a shared library (for :class:`GeneratedQp`; a flight
+    build links the same sources statically, see the folder's README).
+
+    Parameters
+    ----------
+    folder : str or Path
+        Written by :func:`generate`.
+    output : str or Path, optional
+        The library (default ``folder/librtctl_qp.so``), written under a temporary name and renamed.
+    cc : str, optional
+        C compiler (default ``$CC`` or ``cc``).
+    flags : sequence of str
+        Optimisation and other flags.
+    timing : bool
+        Define ``RTCTL_QP_TIMING`` (``rtctl_qp_take_elapsed_ns``).
+
+    Raises
+    ------
+    CodegenError
+        No compiler, or the compilation failed (its output in the message).
+    """
+    folder = Path(folder)
+    lib = Path(output) if output is not None else folder / "librtctl_qp.so"
+    compiler = cc or os.environ.get("CC") or "cc"
+    if shutil.which(compiler) is None:
+        raise CodegenError(f"C compiler {compiler!r} not found (set CC or pass cc=)")
+    srcs = sorted(str(p) for p in (folder / "src").glob("*.c")) + [str(folder / f"{PREFIX}workspace.c"),
+                                                                    str(folder / "rtctl_qp.c")]
+    fd, tmp = tempfile.mkstemp(prefix=f".{lib.name}.", suffix=".so", dir=lib.parent)
+    os.close(fd)
+    cmd = [compiler, *flags, "-fPIC", "-shared", "-Wl,-Bsymbolic", *(["-DRTCTL_QP_TIMING"] if timing else []),
+           f"-I{folder / 'inc' / 'public'}", f"-I{folder / 'inc' / 'private'}", f"-I{folder}", *srcs, "-o", tmp, "-lm"]
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise CodegenError(f"compilation failed ({' '.join(cmd[:3])} ...):\n{r.stderr[-4000:]}")
+        os.replace(tmp, lib)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return lib
+
+
+@dataclass(frozen=True)
+class CSolution:
+    """One solve of the generated solver.
+
+    Attributes
+    ----------
+    x, y : ndarray
+        Primal (n,) and dual (m,) solution.
+    status_val : int
+        OSQP's status value (1: solved).
+    iterations : int
+    objective : float
+    elapsed_ns : int
+        Time spent in C since the previous solve (update, warm start, solve; -1 without timing).
+    """
+
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    status_val: int
+    iterations: int
+    objective: float
+    elapsed_ns: int
+
+
+_DP = ctypes.POINTER(ctypes.c_double)
+
+
+def _ptr(a: NDArray[np.float64] | None, size: int, name: str) -> Any:
+    if a is None:
+        return None
+    if a.dtype != np.float64 or not a.flags.c_contiguous or a.shape != (size,):
+        raise CodegenError(f"{name}: expected a contiguous float64 array of shape ({size},), got {a.dtype} {a.shape}")
+    return a.ctypes.data_as(_DP)
+
+
+def _vec(a: Any) -> NDArray[np.float64] | None:
+    return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
+
+
+class GeneratedQp:
+    """The generated solver of one layout, loaded with ctypes (one private copy of the library
+    per instance: the generated workspace is static, so two allocators need two copies).
+
+    Parameters
+    ----------
+    library : str or Path
+        Built by :func:`build_shared`.
+    """
+
+    def __init__(self, library: str | Path) -> None:
+        self._dir = tempfile.mkdtemp(prefix="rtctl_qp_")
+        weakref.finalize(self, shutil.rmtree, self._dir, True)  # the loaded copy stays mapped until exit
+        copy = Path(self._dir) / "librtctl_qp.so"
+        shutil.copyfile(library, copy)
+        try:
+            self._lib = ctypes.CDLL(str(copy), mode=ctypes.RTLD_LOCAL)
+        except OSError as exc:
+            raise CodegenError(f"cannot load {library}: {exc}") from None
+        L = self._lib
+        L.rtctl_qp_dimensions.argtypes = [ctypes.POINTER(ctypes.c_int)] * 4
+        L.rtctl_qp_setup.argtypes = [_DP] * 5
+        L.rtctl_qp_update.argtypes = [_DP] * 5
+        L.rtctl_qp_warm_start.argtypes = [_DP] * 2
+        L.rtctl_qp_solve.argtypes = [_DP, _DP, ctypes.POINTER(ctypes.c_int), _DP]
+        L.rtctl_qp_take_elapsed_ns.restype = ctypes.c_longlong
+        dims = [ctypes.c_int() for _ in range(4)]
+        if L.rtctl_qp_dimensions(*[ctypes.byref(d) for d in dims]) != 0:
+            raise CodegenError(f"{library}: workspace dimensions {[d.value for d in dims]} disagree with its header")
+        self.n, self.m, self.p_nnz, self.a_nnz = (d.value for d in dims)
+        self._x = np.zeros(self.n)
+        self._y = np.zeros(self.m)
+        self._it = ctypes.c_int()
+        self._obj = ctypes.c_double()
+
+    def setup(self, Px: NDArray[np.float64], Ax: NDArray[np.float64], q: NDArray[np.float64], l: NDArray[np.float64],
+              u: NDArray[np.float64]) -> None:
+        """Load a QP of this layout (``rtctl_qp_setup``); ``l``, ``u`` clipped to OSQP's infinity as osqp-python does."""
+        Px_, Ax_, q_ = _vec(Px), _vec(Ax), _vec(q)
+        l_ = np.maximum(np.asarray(l, dtype=np.float64), -_INFTY)
+        u_ = np.minimum(np.asarray(u, dtype=np.float64), _INFTY)
+        e = self._lib.rtctl_qp_setup(_ptr(Px_, self.p_nnz, "Px"), _ptr(Ax_, self.a_nnz, "Ax"), _ptr(q_, self.n, "q"),
+                                     _ptr(l_, self.m, "l"), _ptr(u_, self.m, "u"))
+        if e != 0:
+            raise CodegenError(f"rtctl_qp_setup failed with code {e}")
+
+    def update(self, q: Any = None, l: Any = None, u: Any = None, Px: Any = None, Ax: Any = None) -> int:
+        """``rtctl_qp_update`` (None keeps a value); returns its code (0: success)."""
+        q_, Px_, Ax_ = _vec(q), _vec(Px), _vec(Ax)
+        l_ = None if l is None else np.maximum(np.asarray(l, dtype=np.float64), -_INFTY)
+        u_ = None if u is None else np.minimum(np.asarray(u, dtype=np.float64), _INFTY)
+        return int(self._lib.rtctl_qp_update(_ptr(q_, self.n, "q"), _ptr(l_, self.m, "l"), _ptr(u_, self.m, "u"),
+                                             _ptr(Px_, self.p_nnz, "Px"), _ptr(Ax_, self.a_nnz, "Ax")))
+
+    def warm_start(self, x: Any = None, y: Any = None) -> int:
+        """``rtctl_qp_warm_start`` (None: that part of the iterate is kept)."""
+        x_, y_ = _vec(x), _vec(y)
+        return int(self._lib.rtctl_qp_warm_start(_ptr(x_, self.n, "x"), _ptr(y_, self.m, "y")))
+
+    def solve(self) -> CSolution:
+        """``rtctl_qp_solve``: the solution (copies) and the time spent in C since the last solve."""
+        st = self._lib.rtctl_qp_solve(self._x.ctypes.data_as(_DP), self._y.ctypes.data_as(_DP), ctypes.byref(self._it),
+                                      ctypes.byref(self._obj))
+        ns = int(self._lib.rtctl_qp_take_elapsed_ns())
+        return CSolution(self._x.copy(), self._y.copy(), int(st), int(self._it.value), float(self._obj.value), ns)
+
+
+@dataclass
+class ShadowLog:
+    """Every QP solved by a shadowed OSQP (:func:`shadow_osqp`), one entry per solve.
+
+    Attributes
+    ----------
+    max_abs_dx : list of float
+        ``max |x_C - x_Python|`` over the primal solution (scaled step and slacks).
+    max_abs_dy : list of float
+        The same for the duals.
+    same_status, same_iterations : list of bool
+    python_s, c_s, c_wall_s : list of float
+        Per solve: OSQP-in-Python's update + warm start + solve (``time.perf_counter``), the same
+        calls of the generated solver timed inside C, and around the ctypes calls.
+    """
+
+    max_abs_dx: list[float]
+    max_abs_dy: list[float]
+    same_status: list[bool]
+    same_iterations: list[bool]
+    python_s: list[float]
+    c_s: list[float]
+    c_wall_s: list[float]
+
+    @classmethod
+    def empty(cls) -> "ShadowLog":
+        """A log with no solves."""
+        return cls([], [], [], [], [], [], [])
+
+
+def shadow_osqp(libraries: Mapping[str, str | Path], log: ShadowLog) -> type:
+    """A subclass of ``osqp.OSQP`` that runs every call on a generated solver as well and logs
+    both answers (install it as ``rtctl.allocator.osqp.OSQP`` while replaying; pytest's
+    ``monkeypatch`` restores it).
+
+    ``libraries`` maps :attr:`QpPattern.key` to a library built by :func:`build_shared`; a QP
+    whose pattern has none raises :class:`CodegenError`. Both solvers get the same data, the
+    same warm starts and the same sequence of updates, so their internal state (scaling, rho
+    adaptation, iterates) stays the same.
+    """
+
+    class ShadowedOsqp(osqp.OSQP):
+        def setup(self, P: Any, q: Any, A: Any, l: Any, u: Any, **settings: Any) -> None:
+            super().setup(P, q, A, l, u, **settings)
+            key = _pattern_of(P, A).key
+            if key not in libraries:
+                raise CodegenError(f"no generated solver for QP pattern {key} (n = {P.shape[0]}, m = {A.shape[0]})")
+            self._c = GeneratedQp(libraries[key])
+            self._c.setup(np.asarray(P.data, dtype=float), np.asarray(A.data, dtype=float), q, l, u)
+            self._t_py = self._t_c = 0.0
+
+        def update(self, **kw: Any) -> None:
+            t0 = time.perf_counter()
+            super().update(**kw)
+            t1 = time.perf_counter()
+            e = self._c.update(kw.get("q"), kw.get("l"), kw.get("u"), kw.get("Px"), kw.get("Ax"))
+            t2 = time.perf_counter()
+            if e != 0:
+                raise CodegenError(f"rtctl_qp_update failed with code {e}")
+            self._t_py += t1 - t0
+            self._t_c += t2 - t1
+
+        def warm_start(self, x: Any = None, y: Any = None) -> Any:
+            t0 = time.perf_counter()
+            r = super().warm_start(x=x, y=y)
+            t1 = time.perf_counter()
+            self._c.warm_start(x, y)
+            self._t_c += time.perf_counter() - t1
+            self._t_py += t1 - t0
+            return r
+
+        def solve(self, raise_error: Any = None) -> Any:
+            t0 = time.perf_counter()
+            res = super().solve(raise_error=raise_error)
+            t1 = time.perf_counter()
+            c = self._c.solve()
+            t2 = time.perf_counter()
+            x = np.asarray(res.x, dtype=float)
+            y = np.asarray(res.y, dtype=float)
+            log.max_abs_dx.append(float(np.max(np.abs(c.x - x))) if np.all(np.isfinite(x)) else float("nan"))
+            log.max_abs_dy.append(float(np.max(np.abs(c.y - y))) if np.all(np.isfinite(y)) else float("nan"))
+            log.same_status.append(int(c.status_val) == int(res.info.status_val))
+            log.same_iterations.append(int(c.iterations) == int(res.info.iter))
+            log.python_s.append(self._t_py + (t1 - t0))
+            log.c_s.append(c.elapsed_ns * 1e-9)
+            log.c_wall_s.append(self._t_c + (t2 - t1))
+            self._t_py = self._t_c = 0.0
+            return res
+
+    return ShadowedOsqp
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m rtctl.codegen TABLE.npz --out DIR [--build] [--force]``."""
+    from .table import load_table
+
+    ap = argparse.ArgumentParser(prog="python -m rtctl.codegen", description=__doc__.splitlines()[0])
+    ap.add_argument("table", help="a table file (.npz) of the layout to generate for")
+    ap.add_argument("--out", required=True, help="folder to write (C sources, rtctl_qp.h, layout JSON)")
+    ap.add_argument("--config", help="controller configuration TOML (its [qp] settings go into the solver)")
+    ap.add_argument("--build", action="store_true", help="also compile librtctl_qp.so with cc (a check that it builds)")
+    ap.add_argument("--force", action="store_true", help="replace an existing folder")
+    a = ap.parse_args(argv)
+    settings = None
+    if a.config:
+        from .config import ControllerConfig
+
+        settings = ControllerConfig.from_toml(a.config).qp
+    try:
+        folder = generate(load_table(a.table), a.out, settings, force=a.force)
+        print(f"generated {folder} (pattern {json.loads((folder / LAYOUT_FILE).read_text())['pattern_key']})")
+        if a.build:
+            print(f"built {build_shared(folder)}")
+    except (CodegenError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -268,11 +268,12 @@ def test_effect_outside_the_library_is_never_explained_with_confidence(recording
         assert skid(v.regions_after) or any(ch == "Fx" for ch, *_ in v.misfit_after), v.summary()
 
 
-@pytest.mark.parametrize("seed", [101, 102])
+@pytest.mark.parametrize("seed", [101])
 def test_negative_control_agrees(recording, params, seed):
     """Told: recording and parameters. The data ARE the believed model plus noise at the stated
     level. Must answer "agree" with nothing named (false-alarm rate over 20 seeds is measured in
-    tests/bench/bench_discrepancy.py)."""
+    tests/bench/bench_discrepancy.py, seeds 1000-1019; one seed here: a second one, 102 until
+    the suite's budget cut, only sampled that rate again)."""
     truth = believed(recording, params)
     v = diagnose(noisy(recording, truth, seed), params)
     assert v.status == "agree", v.summary()

@@ -12,11 +12,16 @@ normal; a cable to a fixed anchor whose pull turns with the heading; an encoder 
 passed through the servo's rate limits).
 
 Budget: the tests run 24 s drives (32 s for the steering encoder: the crabs that separate the
-front wheels need that long) against a fixed library of eight candidates (the expected ones and
+front wheels need that long) against a library of eight candidates (the expected ones and
 their confounders: IMU mounting tilt vs slope, a drawbar pull vs an anchored tether vs soil vs a
-worn wheel, the other front wheel's steering), the same for every test, without the soil recalibration; the full library,
-40 s drives, every case, two effects at once and 20 negative seeds are in
-``tests/bench/bench_drive_discrepancy.py``.
+worn wheel, the other front wheel's steering), without the soil recalibration. The anchored
+tether (five parameters: about 45 % of a diagnosis's re-simulations) is in the library where it
+is a confounder -- the tether case, and the terrain plane, whose in-plane gravity is a pull of
+fixed world direction like a far anchor's -- and left out of the steering, hub drag and
+undulation cases (``LIBRARY_NO_ANCHOR``): there the constant drawbar pull stays as the tether
+look-alike, and with or without it these three get the same verdict and the same values (checked
+when the split was made). The full library, 40 s drives, every case, two effects at once and
+20 negative seeds are in ``tests/bench/bench_drive_discrepancy.py``.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from rtctl.recording import read_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = ("terrain_slope", "imu_tilt", "tether", "tether_anchor", "soil_stiffness", "wheel_radius_RR", "steer_offset_FL", "steer_offset_FR")
+LIBRARY_NO_ANCHOR = tuple(k for k in LIBRARY if k != "tether_anchor")  # module notes: budget
 QUIET = SensorConfig(wheel_speed_noise=0, steer_noise=0, gyro_noise=0, tilt_noise=0, torque_noise=0, pose_noise_xy=0,
                      pose_noise_heading=0, gyro_bias_walk=0)
 DURATION = 24.0
@@ -61,8 +67,8 @@ def sc():
     return SC
 
 
-def _diagnose(path, sc, seed):
-    lib = [c for c in DRIVE_CANDIDATES if c.key in LIBRARY]
+def _diagnose(path, sc, seed, library=LIBRARY):
+    lib = [c for c in DRIVE_CANDIDATES if c.key in library]
     return diagnose_drives([path], sc, segment=6, candidates=lib, recalibrate=False, seed=seed)
 
 
@@ -208,7 +214,7 @@ def steering_case(sc, tmp_path_factory):
     # equally ('ambiguous', FL best); from 32 s the crabs separate them
     f = record_concealed(tmp_path_factory.mktemp("steer") / "steer.mcap", sc,
                          SteeringEncoderMisaligned("FL", math.radians(3.0)), seed=4, duration=32.0)
-    return _diagnose(f, sc, 1)
+    return _diagnose(f, sc, 1, LIBRARY_NO_ANCHOR)
 
 
 def test_misaligned_steering_encoder_is_named_a_front_steering_offset(steering_case):
@@ -236,7 +242,7 @@ def test_hub_drag_is_not_given_a_confident_name(sc, tmp_path):
     unexplained, partly explained or ambiguous (nothing named) -- never 'explained' by a worn
     wheel or a soil change."""
     f = record_concealed(tmp_path / "hub.mcap", sc, HubDrag("RR"), seed=4, duration=DURATION)
-    v = _diagnose(f, sc, 1)
+    v = _diagnose(f, sc, 1, LIBRARY_NO_ANCHOR)
     assert v.status in ("unexplained", "partly_explained", "ambiguous"), v.summary()
 
 
@@ -246,5 +252,5 @@ def test_terrain_undulation_is_not_called_agreement(sc, tmp_path):
     (the mean slope is near zero), so the honest verdict is unexplained or partly explained --
     and never 'agree'."""
     f = record_concealed(tmp_path / "und.mcap", sc, Undulation(), seed=4, duration=DURATION)
-    v = _diagnose(f, sc, 1)
+    v = _diagnose(f, sc, 1, LIBRARY_NO_ANCHOR)
     assert v.status in ("unexplained", "partly_explained"), v.summary()

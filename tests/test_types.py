@@ -15,15 +15,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_rtctl_type_checks(tmp_path):
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """One fresh mypy cache for both runs of this module: the offline run reuses what the rtctl run
+    parsed (numpy's stubs, the standard library, rtctl itself; mypy re-checks any module whose
+    source or options changed, so the cache cannot hide an error). Fresh per test session."""
+    return tmp_path_factory.mktemp("mypy") / "cache"
+
+
+def test_rtctl_type_checks(cache_dir):
     api = pytest.importorskip("mypy.api", reason="mypy is in the [test] extra; install it to run this check")
-    out, err, status = api.run(["--config-file", str(ROOT / "pyproject.toml"), "--cache-dir", str(tmp_path / "cache"),
+    out, err, status = api.run(["--config-file", str(ROOT / "pyproject.toml"), "--cache-dir", str(cache_dir),
                                 str(ROOT / "rtctl")])
     assert status == 0, f"mypy found type errors in rtctl/:\n{out}{err}"
 
 
-def test_offline_type_checks(tmp_path):
+def test_offline_type_checks(cache_dir):
     api = pytest.importorskip("mypy.api", reason="mypy is in the [test] extra; install it to run this check")
-    out, err, status = api.run(["--config-file", str(ROOT / "pyproject.toml"), "--cache-dir", str(tmp_path / "cache"),
+    out, err, status = api.run(["--config-file", str(ROOT / "pyproject.toml"), "--cache-dir", str(cache_dir),
                                 str(ROOT / "offline")])
     assert status == 0, f"mypy found type errors in offline/:\n{out}{err}"

@@ -553,7 +553,8 @@ class Controller:
         outside or when nothing declares it: read at the axis middle)."""
         fam = table.meta.get("family") or {}
         w = fam.get("wheel")
-        dec = fam.get("declares") if isinstance(fam.get("declares"), Mapping) else {}
+        dec_any = fam.get("declares")
+        dec: Mapping[str, Any] = dec_any if isinstance(dec_any, Mapping) else {}
         tname = getattr(table, "name", "?")
         mid = float(values[len(values) // 2])
         v = math.nan

@@ -85,7 +85,7 @@ class Expr:
     def text(self) -> str:
         if self.own_lower:
             return "its lower bound"
-        terms = []
+        terms: list[str] = []
         for c, name in ((self.const, ""), (self.value, "v"), (self.speed, "V"), (self.value_speed, "v V")):
             if c != 0.0 or (not name and not terms and self.value == self.speed == self.value_speed == 0.0):
                 terms.append(f"{c:g}" if not name else (name if c == 1.0 else ("-" + name if c == -1.0 else f"{c:g} {name}")))
@@ -180,10 +180,10 @@ def _expr(e: Any, where: str) -> Expr:
     bad = set(e) - set(_EXPR_KEYS)
     if bad:
         raise FailureDescriptionError(f"{where}: unknown expression terms {sorted(bad)} (known: {list(_EXPR_KEYS)})")
-    vals = {k: _num(e, k, where, 0.0) for k in _EXPR_KEYS}
-    if not all(math.isfinite(v) for v in vals.values()):
+    c, a, b, d = (_num(e, k, where, 0.0) for k in _EXPR_KEYS)
+    if not all(math.isfinite(v) for v in (c, a, b, d)):
         raise FailureDescriptionError(f"{where}: expression terms must be finite, got {dict(e)!r}")
-    return Expr(**vals)
+    return Expr(const=c, value=a, speed=b, value_speed=d)
 
 
 def _rule(r: Any, where: str) -> Rule:

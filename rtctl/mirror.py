@@ -201,13 +201,16 @@ def mirror_table(t: Table) -> Table:
             scm["failures"] = new
     recs = hm.get("failures")  # the failure description (rtctl.failures): wheels swapped, values by their kind's rule
     if isinstance(recs, list):
-        kinds = hm.get("failure_kinds") if isinstance(hm.get("failure_kinds"), dict) else {}
+        fk = hm.get("failure_kinds")
+        kinds: dict[str, Any] = fk if isinstance(fk, dict) else {}
         new_recs = []
         for r in recs:
             if isinstance(r, dict):
                 r = dict(r)
-                r["wheel"] = MIRROR_WHEEL.get(r.get("wheel"), r.get("wheel"))
-                mv = (kinds.get(r.get("kind")) or {}).get("mirror_value") if isinstance(kinds.get(r.get("kind")), dict) else None
+                w0 = str(r.get("wheel"))
+                r["wheel"] = MIRROR_WHEEL.get(w0, w0)
+                kd = kinds.get(str(r.get("kind")))
+                mv = kd.get("mirror_value") if isinstance(kd, dict) else None
                 if isinstance(r.get("value"), (int, float)) and isinstance(mv, (int, float)):
                     r["value"] = float(mv) * float(r["value"])
                 if isinstance(r.get("text"), str):  # the text names the original's value: say so (twice = back)

@@ -1177,6 +1177,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         relax_known = {f: recs[f].get("relaxation_status") for f in recs if recs[f].get("relaxation_status")}
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
+        if continuation:  # one member of a speed-twin group is retried; the search carries its result
+            unsolved = [f for f in unsolved if not (f in pending and speed_twin(spec.grid, f) in pending)]
         retry_tasks, retried = [], {}
         for f in unsolved:
             got = ck.load("retry", f)
@@ -1272,13 +1274,18 @@ def _search_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], pending: set[
     for f in left:
         t = speed_twin(spec.grid, f)
         groups.setdefault(f if t is None else t, []).append(f)
+    members: dict[int, list[int]] = {}
+    for f in range(spec.grid.size):
+        t = speed_twin(spec.grid, f)
+        members.setdefault(f if t is None else t, []).append(f)
     tasks, got = [], {}
     for key in sorted(groups):
         c = ck.load("search", key)
         if c is not None:
             got[key] = c
         else:
-            tasks.append((search_group, (spec, groups[key]), key))
+            solved = [m for m in members[key] if recs[m]["status"] == "optimal"]
+            tasks.append((search_group, (spec, groups[key], recs[solved[0]] if solved else None), key))
     if tasks:
         bar.set_description(f"{spec.name} (search: {len(left)} points)")
 
@@ -1480,6 +1487,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
     number of points replaced."""
     shape = spec.grid.shape
     changed = set(recs)
+    polished_ever: set[int] = set()
     total = 0
     for sweep in range(spec.build.polish_sweeps):
         tasks, got = [], {}
@@ -1492,7 +1500,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
                 continue
             op = spec.grid.point(f)
             starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
-                      if recs[nb]["status"] == "optimal"]
+                      if recs[nb]["status"] == "optimal" and not _polish_redundant(spec, recs, f, nb, polished_ever)]
             if starts:
                 tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
         if tasks:
@@ -1504,6 +1512,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
 
         _run(tasks, ex, done)
         changed = {f for f, r in got.items() if r is not None}
+        polished_ever |= changed
         for f in sorted(changed):
             rec = got[f]
             assert rec is not None  # noqa: S101  (changed holds only the points with a result)
@@ -1512,6 +1521,23 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         if not changed:
             break
     return total
+
+
+def _polish_redundant(spec: TableSpec, recs: Mapping[int, dict[str, Any]], f: int, nb: int, polished: set[int]) -> bool:
+    """With the continuation schedule, a neighbour-pass start that cannot change ``f``: the
+    neighbour differs only in speed (its predicted start is ``f``'s own twin scaled exactly, and
+    the twin pass already gave the group its best optimum), or ``f`` was continued from it and
+    neither has changed since (the start is the one ``f`` was solved from). The former schedule
+    keeps every start."""
+    if spec.build.schedule != "continuation" or f in polished or nb in polished:
+        return False
+    if spec.build.speed_twins and "speed" in spec.grid.names:
+        a = spec.grid.names.index("speed")
+        i, j = np.unravel_index(f, spec.grid.shape), np.unravel_index(nb, spec.grid.shape)
+        if all(i[k] == j[k] for k in range(len(i)) if k != a):
+            return True
+    src = str(recs[f].get("continued_from", ""))
+    return src == f"neighbour {nb} on the failure axis" and "speed_twin_of" not in recs[f]
 
 
 def _library_version() -> str:

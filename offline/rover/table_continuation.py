@@ -381,17 +381,17 @@ def continuation_group(spec: Any, flats: Sequence[int], seed: SeedStart | None, 
     return [recs[f] for f in flats]
 
 
-def search_group(spec: Any, flats: Sequence[int]) -> list[dict[str, Any]]:
+def search_group(spec: Any, flats: Sequence[int], lead: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """The full search (:func:`~offline.rover.primitives.solve_primitive` from its automatic
     start, the table's budgets) for still-unsolved points of one operating point that differ
     only in speed (ascending). The first is searched; an optimum is carried to the others by
     the speed scaling (:func:`~offline.rover.table_builder.twin_resolve`), a confirmed
     ``infeasible`` verdict too (the same NLP); where the carried point does not verify, or the
-    first is ``not_found``, the next is searched as well (another start)."""
+    first is ``not_found``, the next is searched as well (another start). ``lead``: a solved
+    member of the same speed group (e.g. solved by the neighbour retries), carried first."""
     from .table_builder import _solve_point, twin_resolve
 
     out: dict[int, dict[str, Any]] = {}
-    lead: dict[str, Any] | None = None
     for f in flats:
         if lead is not None and lead["status"] == "optimal":
             r = twin_resolve(spec, f, lead)

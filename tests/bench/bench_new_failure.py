@@ -105,8 +105,17 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--grid", default="default", help="'default' (252 points) or a --grid string")
     ap.add_argument("--builds", default="chains,continuation", help=f"comma list of {sorted(BUILDS)}")
+    ap.add_argument("--dask-workers", type=int, default=0,
+                    help="build on a Dask LocalCluster of this many single-threaded worker processes "
+                         "(--scheduler's path) instead of --jobs local processes")
     ap.add_argument("--results", default=str(ROOT / "tests" / "bench" / "results_new_failure.md"))
     args = ap.parse_args()
+    cluster = None
+    if args.dask_workers:
+        from distributed import LocalCluster
+
+        cluster = LocalCluster(n_workers=args.dask_workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
     grid = None if args.grid == "default" else args.grid
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -119,7 +128,8 @@ def main() -> int:
             spec = table_spec(sc, grid, build=build)
             load0 = os.getloadavg()[0]
             t0, c0 = time.perf_counter(), _cpu()
-            path, summ = build_table(spec, Path(tmp) / key, jobs=args.jobs, progress=False)
+            path, summ = build_table(spec, Path(tmp) / key, jobs=args.jobs, progress=False,
+                                     scheduler=cluster.scheduler_address if cluster is not None else None)
             wall, cpu = time.perf_counter() - t0, _cpu() - c0
             n_opt, n_ok = recheck(spec, path)
             paths.append(path)
@@ -127,13 +137,17 @@ def main() -> int:
             rows.append((key, label, wall, cpu, summ["statuses"], summ["grid_points"], summ.get("relaxed", 0), load0,
                          (n_opt, n_ok), cmp_, summ.get("continuation")))
             print(rows[-1], flush=True)
+    if cluster is not None:
+        cluster.close()
     base = rows[0]
+    how = f"--dask-workers {args.dask_workers}" if args.dask_workers else f"--jobs {args.jobs}"
     lines = [
         "# README's worked example: former schedule against the continuation (issue 22)",
         "",
-        f"`nice python tests/bench/bench_new_failure.py --jobs {args.jobs} --grid \"{args.grid}\" --builds {args.builds}`; "
+        f"`nice python tests/bench/bench_new_failure.py {how} --grid \"{args.grid}\" --builds {args.builds}`; "
         f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, {os.cpu_count()} cores, "
-        "shared machine (load average at each build's start in the table). Builds one after the other in one run.",
+        "shared machine (load average at each build's start in the table). Builds one after the other in one run"
+        + (" on a Dask LocalCluster (CPU: this process only; the workers' CPU is not counted)." if args.dask_workers else "."),
         "",
         "| build | wall s | CPU s | wall / first | CPU / first | statuses | not_found | made infeasible (relaxation pass) "
         "| optimal re-checked | load |",

@@ -90,11 +90,12 @@ def test_same_bytes_with_dask_cluster_and_after_resume(nominal, tmp_path):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         p2, _ = build_table(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
     assert p2.read_bytes() == ref
-    # resume: a finished build's checkpoints minus one chain, and no table: same bytes again
+    # resume: a finished build's checkpoints minus one group (the continuation schedule's first
+    # phase: one per slope and cross slope), and no table: same bytes again
     part = path.parent / f".{spec.name}.partial"
     res = tmp_path / "resume"
     shutil.copytree(part, res / part.name)
-    chains = sorted((res / part.name).glob("chain_*.npz"))
+    chains = sorted((res / part.name).glob("group_*.npz"))
     assert len(chains) == 2
     chains[1].unlink()
     p3, s3 = build_table(spec, res, progress=False)

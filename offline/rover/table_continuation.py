@@ -354,9 +354,9 @@ def continuation_group(spec: Any, flats: Sequence[int], seed: SeedStart | None, 
         if seed is not None:
             starts.append((f"seed table {seed.source}", seed.x_scaled, None, None))
         if not starts:  # no seed and nothing solved yet: the optimizer's automatic start, as chains do
-            rec = _solve_point(spec, f, None)
-            recs[f] = {**rec, "continued_from": "automatic start"} if rec["status"] == "optimal" else \
-                {**rec, "pending": rec["status"] != "infeasible"}
+            auto = _solve_point(spec, f, None)
+            recs[f] = {**auto, "continued_from": "automatic start"} if auto["status"] == "optimal" else \
+                {**auto, "pending": auto["status"] != "infeasible"}
             continue
         rec, tried, its = _try_starts(spec, f, starts)
         recs[f] = rec if rec is not None else {"flat": f, "status": "not_found", "iterations": its, "pending": True,

@@ -1608,8 +1608,9 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "build_options": encode(spec.build),
         "evidence": evidence,
         "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
-        "speed_twins_rule": ("grid point -> the point at another speed whose better optimum it took in the twin pass "
-                             "(exact speed scaling of (7.25); verified by a warm re-solve and the independent check)"),
+        "speed_twins_rule": ("grid point -> the point at another speed whose optimum it took (the twin pass's better "
+                             "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
+                             "(7.25); verified by a warm re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
                               f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "

@@ -323,9 +323,24 @@ def continuation_group(spec: Any, flats: Sequence[int], seed: SeedStart | None, 
     seed table, a neighbour on the family axis or the speed twin), ``infeasible`` (relaxation
     evidence), or ``not_found`` with ``pending`` set (left to the builder's later passes).
 
-    ``decide_relaxation``: decide the relaxation first (the seed table has no primitive here).
-    ``point_seeds``: per first-speed point, a family seed table's primitive at that very point
-    (:func:`point_seed`, e.g. the mirror of the other side's table), tried first.
+    Parameters
+    ----------
+    spec : TableSpec
+        The table's spec.
+    flats : sequence of int
+        The group's grid points (:func:`group_points`).
+    seed : SeedStart or None
+        A seed table's primitive at the group's slope and cross slope (:func:`seed_start`).
+    decide_relaxation : bool
+        Decide the relaxation first (no seed table has a primitive here).
+    point_seeds : mapping or None
+        Per first-speed point, a family seed table's primitive at that very point
+        (:func:`point_seed`, e.g. the mirror of the other side's table), tried first.
+
+    Returns
+    -------
+    list of dict
+        One record per point of ``flats``, in that order.
     """
     from .table_builder import (_solve_point, relaxation_of, relaxation_verdict, scenario_at, speed_twin,
                                 twin_resolve)

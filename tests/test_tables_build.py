@@ -90,11 +90,12 @@ def test_same_bytes_with_dask_cluster_and_after_resume(nominal, tmp_path):
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
         p2, _ = build_table(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
     assert p2.read_bytes() == ref
-    # resume: a finished build's checkpoints minus one chain, and no table: same bytes again
+    # resume: a finished build's checkpoints minus one group (the continuation schedule's first
+    # phase: one per slope and cross slope), and no table: same bytes again
     part = path.parent / f".{spec.name}.partial"
     res = tmp_path / "resume"
     shutil.copytree(part, res / part.name)
-    chains = sorted((res / part.name).glob("chain_*.npz"))
+    chains = sorted((res / part.name).glob("group_*.npz"))
     assert len(chains) == 2
     chains[1].unlink()
     p3, s3 = build_table(spec, res, progress=False)
@@ -119,11 +120,11 @@ def test_checkpoints_of_other_library_code_are_discarded(nominal, tmp_path, monk
     shutil.copytree(path.parent / part.name, part)
     assert (part / "code.sha256").read_text().strip() == TB.code_hash()
     TB._Checkpoint(part, spec.key())  # same code: kept
-    assert len(list(part.glob("chain_*.npz"))) == 2 and "discarded" not in capsys.readouterr().out
+    assert len(list(part.glob("group_*.npz"))) == 2 and "discarded" not in capsys.readouterr().out
     monkeypatch.setattr(TB, "code_hash", lambda: "f" * 64)
     ck = TB._Checkpoint(part, spec.key())
     assert "discarded the checkpoints of a partial build made by other library code" in capsys.readouterr().out
-    assert not list(part.glob("chain_*.npz")) and ck.load("chain", 0) is None
+    assert not list(part.glob("group_*.npz")) and ck.load("group", 0) is None
     assert (part / "code.sha256").read_text().strip() == "f" * 64
     # a folder without a code record (an older builder) is discarded too
     (part / "code.sha256").unlink()
@@ -355,15 +356,15 @@ def test_trust_radius_verifies_steps_from_the_prediction_without_the_full_search
 
 def test_twin_resolve_carries_a_primitive_exactly_to_another_speed(nominal):
     """The 2 cm/s primitive carried to 4 cm/s (exact speed scaling of (7.25)) verifies in a few
-    warm iterations and equals the 4 cm/s primitive the chain found by its own search: the
-    scaling is checked, not assumed. The fixture's speeds agree, so the twin pass changed
-    nothing."""
+    warm iterations and equals the table's 4 cm/s primitive: the scaling is checked, not
+    assumed. The continuation schedule carried every 4 cm/s point from its 2 cm/s twin (the
+    header says so); carried again from either side, the same primitive."""
     from offline.rover.table_builder import speed_twin, twin_resolve
 
     spec, path, _ = nominal
     t = load_table(path)
     assert [speed_twin(spec.grid, f) for f in range(spec.grid.size)] == [None, 0, None, 2]
-    assert t.header["speed_twins"] == {}
+    assert t.header["speed_twins"] == {"1": 0, "3": 2}
     xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
     for src, dst in ((0, 1), (3, 2)):
         i0, i1 = np.unravel_index(src, t.shape), np.unravel_index(dst, t.shape)

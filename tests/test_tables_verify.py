@@ -243,10 +243,10 @@ def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
     sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
                   '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
     grid = "slope=25;cross_slope=0;speed=3;steer_stuck=-30"
-    path, summ = build_table(table_spec(sc, grid), tmp_path / "on", progress=False)
+    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains")), tmp_path / "on", progress=False)
     assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
     ev = load_table(path).header["evidence"]["0"]
     assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
-    _, off = build_table(table_spec(sc, grid, build=BuildOptions(relaxation_evidence=False)), tmp_path / "off",
+    _, off = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains", relaxation_evidence=False)), tmp_path / "off",
                          progress=False)
     assert off["statuses"] == {"not_found": 1}

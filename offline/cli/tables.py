@@ -113,7 +113,7 @@ def _base_index(choice: str, out: Path) -> Path | None:
 
 def cmd_build(args: argparse.Namespace) -> int:
     from ..files import OutputError
-    from ..rover.table_builder import BuildError, build_tables, table_spec, write_index
+    from ..rover.table_builder import BuildError, BuildOptions, build_tables, table_spec, write_index
 
     src = Path(args.scenario)
     files = sorted(f for f in src.glob("*.toml") if f.name != "grids.toml") if src.is_dir() else [src]
@@ -134,7 +134,8 @@ def cmd_build(args: argparse.Namespace) -> int:
         for f in files:
             g = args.grid if (len(files) == 1 or args.grid_all) and args.grid else grids.get(f.stem)
             specs.append(table_spec(f, g, args.family, refine=cli_refine or refines.get(f.stem),
-                                    world=_world(args.world, f) if args.world else None))
+                                    world=_world(args.world, f) if args.world else None,
+                                    build=BuildOptions(schedule=args.schedule, seed_index=args.seed_index)))
     except BuildError as exc:
         return fail(str(exc))
     if args.world:
@@ -355,6 +356,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--refine-rounds", type=int, default=2, help="refinement rounds (default 2)")
     b.add_argument("--refine-samples", type=int, default=3,
                    help="combinations of the other axes checked per cell (default 3)")
+    b.add_argument("--schedule", choices=("continuation", "chains"), default="continuation",
+                   help="continuation (default): easiest points first from a seed table's primitives, along the "
+                        "failure's axis, other speeds by the exact speed scaling, the full search only for the rest; "
+                        "chains: the former schedule (chains along the slope axis, every speed searched)")
+    b.add_argument("--seed-index", default="shipped", metavar="shipped|none|INDEX",
+                   help="index whose failure-free tables of the same rover, parameters and world seed the "
+                        "continuation (default: the shipped index)")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     b.add_argument("--base-index", default="shipped", metavar="shipped|none|INDEX",

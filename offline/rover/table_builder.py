@@ -337,7 +337,18 @@ class BuildOptions:
         Relaxation pass (:func:`_relaxation_pass`): a point still ``not_found`` becomes
         ``infeasible`` when the same operating point without the failures (a relaxation,
         :func:`relaxation_of`) is confirmed infeasible by the optimizer with its default budgets
-        (one solve per slope and cross slope, shared by every speed and family value).
+        (one solve per slope and cross slope, shared by every speed and family value). With the
+        continuation schedule the relaxation is decided *first* where no seed table has a
+        primitive, and decides those points without a search.
+    schedule : str
+        ``"continuation"`` (default): :mod:`offline.rover.table_continuation` -- easiest points
+        first from a seed table's primitive, along the failure's axis, the other speeds by the
+        exact speed scaling, the full search only for what is left. ``"chains"``: the former
+        schedule (chains along the slope axis, every speed searched, :func:`chains`).
+    seed_index : str
+        Where the continuation schedule looks for seed tables (tables without failures built
+        for the same NLP, :func:`~offline.rover.table_continuation.seed_tables`): ``"shipped"``
+        (the shipped ``tables/index.json``), ``"none"``, or an ``index.json`` path.
     """
 
     mz_offset: float = 0.2
@@ -350,6 +361,12 @@ class BuildOptions:
     polish_sweeps: int = 2
     speed_twins: bool = True
     relaxation_evidence: bool = True
+    schedule: str = "continuation"
+    seed_index: str = "shipped"
+
+    def __post_init__(self) -> None:
+        if self.schedule not in ("continuation", "chains"):
+            raise BuildError(f"BuildOptions.schedule = {self.schedule!r}: expected 'continuation' or 'chains'")
 
 
 @dataclass(frozen=True)
@@ -1114,28 +1131,54 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
 
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
-    ch = chains(spec.grid)
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}
     recs: dict[int, dict[str, Any]] = {}
-    todo = []
-    for i, c in enumerate(ch):
-        got = ck.load("chain", i)
-        if got is not None:
-            recs.update({r["flat"]: r for r in got})
-        else:
-            todo.append((solve_chain, (spec, c), i))
+    todo: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    continuation = spec.build.schedule == "continuation"
+    seeds: tuple[str, ...] = ()
+    if continuation:
+        from . import table_continuation as TC
+
+        index = _seed_index(spec.build.seed_index)
+        seeds = TC.seed_tables(spec, index)
+        fam_seeds = TC.family_seed_tables(spec, index)
+        kind = "group"
+        for i, g in enumerate(TC.group_points(spec.grid)):
+            got = ck.load(kind, i)
+            if got is not None:
+                recs.update({r["flat"]: r for r in got})
+                continue
+            first = min(g, key=lambda f: (TC._speed_index(spec.grid, f), f))
+            seed = TC.seed_start(spec, seeds, spec.grid.point(first))
+            pseeds = {f: s for f in g if TC._speed_index(spec.grid, f) == 0
+                      and (s := TC.point_seed(spec, fam_seeds, spec.grid.point(f))) is not None}
+            todo.append((TC.continuation_group,
+                         (spec, g, seed, seed is None and spec.build.relaxation_evidence, pseeds), i))
+        seeds = seeds + tuple(f"{p} (mirrored)" if m else p for p, m in fam_seeds)
+    else:
+        kind = "chain"
+        for i, c in enumerate(chains(spec.grid)):
+            got = ck.load(kind, i)
+            if got is not None:
+                recs.update({r["flat"]: r for r in got})
+            else:
+                todo.append((solve_chain, (spec, c), i))
     bar = tqdm(total=spec.grid.size, initial=len(recs), desc=f"{spec.name}", unit="pt", disable=not progress,
                leave=True, dynamic_ncols=True)
     ex, client = (executor, None) if executor is not None else _executor(jobs, scheduler)
     try:
         def chain_done(i: int, res: list[dict[str, Any]]) -> None:
-            ck.save("chain", i, res)
+            ck.save(kind, i, res)
             recs.update({r["flat"]: r for r in res})
             bar.update(len(res))
 
         _run(todo, ex, chain_done)
+        pending = {f for f in recs if recs[f].get("pending")}
+        relax_known = {f: recs[f].get("relaxation_status") for f in recs if recs[f].get("relaxation_status")}
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
+        if continuation:  # one member of a speed-twin group is retried; the search carries its result
+            unsolved = [f for f in unsolved if not (f in pending and speed_twin(spec.grid, f) in pending)]
         retry_tasks, retried = [], {}
         for f in unsolved:
             got = ck.load("retry", f)
@@ -1158,6 +1201,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             rec["evidence"] = {"first attempt": recs[f]["evidence"], **(rec.get("evidence") or {})} \
                 if rec["status"] != "optimal" else None
             recs[f] = rec
+        searched = 0
+        if continuation:
+            searched = _search_pass(spec, recs, pending, ck, ex, bar)
         if twin_of:
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
@@ -1166,6 +1212,14 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
             relaxed = _relaxation_pass(spec, recs, ck, ex)
+        if continuation:
+            from .table_continuation import hole_reason
+
+            for f in sorted(recs):
+                if recs[f]["status"] == "not_found":
+                    ev = dict(recs[f].get("evidence") or {})
+                    ev["undecided"] = hole_reason(spec, f, relax_known.get(f))
+                    recs[f] = {**recs[f], "evidence": ev}
         refinement = None
         if spec.refine is not None:
             from .table_refine import refine_grid
@@ -1180,6 +1234,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             elif ex is not None:
                 ex.shutdown()
     header, arrays = _assemble(spec, recs, refinement)
+    if continuation:
+        header["continuation"] = _continuation_header(spec, recs, seeds, searched)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -1190,8 +1246,86 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
                "retried": len(retried), "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
-               "refinement": header.get("refinement")}
+               "refinement": header.get("refinement"), "searched": searched,
+               "continuation": header.get("continuation", {}).get("counts")}
     return path, summary
+
+
+def _seed_index(choice: str) -> Path | None:
+    """The index whose failure-free tables seed a continuation build (``BuildOptions.seed_index``)."""
+    if choice == "none":
+        return None
+    if choice == "shipped":
+        from offnominal_tables import index_path
+
+        return Path(index_path())
+    return Path(choice)
+
+
+def _search_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], pending: set[int], ck: _Checkpoint,
+                 ex: cf.Executor | None, bar: Any) -> int:
+    """The full search for the points the continuation left unsolved (and the neighbour retries
+    did not solve): one task per operating point of the axes other than speed
+    (:func:`~offline.rover.table_continuation.search_group`). Returns the number of points searched."""
+    from .table_continuation import search_group
+
+    left = sorted(f for f in pending if recs[f]["status"] in ("not_found", "solver_failure"))
+    groups: dict[int, list[int]] = {}
+    for f in left:
+        t = speed_twin(spec.grid, f)
+        groups.setdefault(f if t is None else t, []).append(f)
+    members: dict[int, list[int]] = {}
+    for f in range(spec.grid.size):
+        t = speed_twin(spec.grid, f)
+        members.setdefault(f if t is None else t, []).append(f)
+    tasks, got = [], {}
+    for key in sorted(groups):
+        c = ck.load("search", key)
+        if c is not None:
+            got[key] = c
+        else:
+            solved = [m for m in members[key] if recs[m]["status"] == "optimal"]
+            tasks.append((search_group, (spec, groups[key], recs[solved[0]] if solved else None), key))
+    if tasks:
+        bar.set_description(f"{spec.name} (search: {len(left)} points)")
+
+    def done(key: int, res: list[dict[str, Any]]) -> None:
+        ck.save("search", key, res)
+        got[key] = res
+
+    _run(tasks, ex, done)
+    for key in sorted(got):
+        for rec in got[key]:
+            f = rec["flat"]
+            rec = dict(rec)
+            if rec["status"] != "optimal":
+                rec["evidence"] = {"continuation": recs[f].get("evidence"), **(rec.get("evidence") or {})}
+            recs[f] = rec
+    return len(left)
+
+
+def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],
+                         searched: int) -> dict[str, Any]:
+    """The header's ``continuation`` record: the seed tables (name and content hash), where each
+    optimal point's primitive was continued from, and counts."""
+    from rtctl.table import load_table
+
+    src = {str(f): str(r.get("continued_from", "")) for f, r in sorted(recs.items())
+           if r["status"] == "optimal" and r.get("continued_from")}
+    counts: dict[str, int] = {}
+    for v in src.values():
+        k = v.split(" ")[0] if not v.startswith("seed table") else "seed table"
+        k = {"neighbour": "failure-axis neighbour", "speed": "speed twin"}.get(k, k)
+        counts[k] = counts.get(k, 0) + 1
+    counts["full search"] = searched
+    return {"rule": ("continuation schedule (offline/rover/table_continuation.py): per slope and cross slope, the "
+                     "failure value whose bounds a seed table's primitive violates least first, then outward along "
+                     "the failure's axis, each from its solved neighbour; other speeds by the exact speed scaling; "
+                     "the relaxation decided first where no seed has a primitive; the full search only for the rest"),
+            "seed_tables": [{"name": load_table(p.removesuffix(" (mirrored)")).name,
+                             "content_hash": load_table(p.removesuffix(" (mirrored)")).header["content_hash"],
+                             "mirrored": p.endswith(" (mirrored)")} for p in seeds],
+            "started_from": src, "counts": counts}
 
 
 def relaxation_of(sc: Any) -> Any | None:
@@ -1264,14 +1398,16 @@ def _relaxation_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Chec
     for i, key in enumerate(keys):
         got = ck.load("relax", key)
         if got is not None:
-            verdicts[key] = got[0]
+            verdicts[key] = {"status": got[0]["verdict"], "evidence": got[0]["evidence"]}
         else:
             tasks.append((relaxation_verdict, (spec, {**spec.grid.point(groups[key][0]), **ops[key]}), i))
 
     def done(i: int, v: dict[str, Any]) -> None:
-        rec = {"flat": -1, **v}
-        ck.save("relax", keys[i], [rec])
-        verdicts[keys[i]] = rec
+        # the verdict under its own key: a checkpoint record with status "optimal" must carry a
+        # primitive, and a relaxation that solves has none to store (an "optimal" relaxation
+        # crashed the pass with KeyError 'x_scaled' on README's worked example)
+        ck.save("relax", keys[i], [{"flat": -1, "status": "none", "verdict": v["status"], "evidence": v["evidence"]}])
+        verdicts[keys[i]] = v
 
     _run(tasks, ex, done)
     n = 0
@@ -1351,6 +1487,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
     number of points replaced."""
     shape = spec.grid.shape
     changed = set(recs)
+    polished_ever: set[int] = set()
     total = 0
     for sweep in range(spec.build.polish_sweeps):
         tasks, got = [], {}
@@ -1363,7 +1500,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
                 continue
             op = spec.grid.point(f)
             starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
-                      if recs[nb]["status"] == "optimal"]
+                      if recs[nb]["status"] == "optimal" and not _polish_redundant(spec, recs, f, nb, polished_ever)]
             if starts:
                 tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
         if tasks:
@@ -1375,6 +1512,7 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
 
         _run(tasks, ex, done)
         changed = {f for f, r in got.items() if r is not None}
+        polished_ever |= changed
         for f in sorted(changed):
             rec = got[f]
             assert rec is not None  # noqa: S101  (changed holds only the points with a result)
@@ -1383,6 +1521,23 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         if not changed:
             break
     return total
+
+
+def _polish_redundant(spec: TableSpec, recs: Mapping[int, dict[str, Any]], f: int, nb: int, polished: set[int]) -> bool:
+    """With the continuation schedule, a neighbour-pass start that cannot change ``f``: the
+    neighbour differs only in speed (its predicted start is ``f``'s own twin scaled exactly, and
+    the twin pass already gave the group its best optimum), or ``f`` was continued from it and
+    neither has changed since (the start is the one ``f`` was solved from). The former schedule
+    keeps every start."""
+    if spec.build.schedule != "continuation" or f in polished or nb in polished:
+        return False
+    if spec.build.speed_twins and "speed" in spec.grid.names:
+        a = spec.grid.names.index("speed")
+        i, j = np.unravel_index(f, spec.grid.shape), np.unravel_index(nb, spec.grid.shape)
+        if all(i[k] == j[k] for k in range(len(i)) if k != a):
+            return True
+    src = str(recs[f].get("continued_from", ""))
+    return src == f"neighbour {nb} on the failure axis" and "speed_twin_of" not in recs[f]
 
 
 def _library_version() -> str:
@@ -1453,8 +1608,9 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "build_options": encode(spec.build),
         "evidence": evidence,
         "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
-        "speed_twins_rule": ("grid point -> the point at another speed whose better optimum it took in the twin pass "
-                             "(exact speed scaling of (7.25); verified by a warm re-solve and the independent check)"),
+        "speed_twins_rule": ("grid point -> the point at another speed whose optimum it took (the twin pass's better "
+                             "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
+                             "(7.25); verified by a warm re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
                               f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "

@@ -3,14 +3,17 @@
 Run from the repository root (one process, no workers, so every second is seen)::
 
     nice python tests/bench/profile_tables.py rr_rim_speed_cap [--grid "speed=3"] [--results FILE]
+    nice python tests/bench/profile_tables.py path/to/fl_steer_stuck.toml --schedule chains --grid "cross_slope=0"
 
 Phases (exclusive process time, IPOPT runs and iterations in each): the first solve of each
 grid point (``solve_primitive`` from the chain's warm start, split by its verdict: optimal /
 infeasible / not_found), the table data of a solved point (derivatives, KKT sensitivity,
 wrenches), the steering-controller re-solves, the trust-radius re-solves, the retries of
 unsolved points from their neighbours, the speed-twin pass, the neighbour pass, and grid
-refinement. The build is
-written to a temporary folder and discarded.
+refinement; with the continuation schedule (:mod:`offline.rover.table_continuation`) also its
+groups, warm starts, the relaxation decided first and the search of what is left, and
+everywhere the optimizer's independent numeric check. The build is written to a temporary
+folder and discarded.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 from offline.cli.tables import _folder_grids, _folder_refine  # noqa: E402
 from offline.rover import primitives as P  # noqa: E402
 from offline.rover import table_builder as TB  # noqa: E402
+from offline.rover import table_continuation as TC  # noqa: E402
 from offline.rover import table_refine as TR  # noqa: E402
 from rtctl.table import load_table  # noqa: E402
 
@@ -71,13 +75,19 @@ def _wrap(mod: Any, name: str, phase: str | Callable[..., str]) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("table")
+    ap.add_argument("table", help="a shipped table's name (tables/scenarios) or a scenario TOML file")
     ap.add_argument("--grid", help="override the grids.toml grid (display units)")
+    ap.add_argument("--schedule", choices=("continuation", "chains"), default="continuation")
     ap.add_argument("--results", help="append the breakdown to this markdown file")
     args = ap.parse_args()
     src = ROOT / "tables" / "scenarios"
-    grid = args.grid or _folder_grids(src).get(args.table)
-    spec = TB.table_spec(src / f"{args.table}.toml", grid, refine=_folder_refine(src).get(args.table))
+    build = TB.BuildOptions(schedule=args.schedule)
+    if args.table.endswith(".toml"):
+        grid = args.grid
+        spec = TB.table_spec(args.table, grid, build=build)
+    else:
+        grid = args.grid or _folder_grids(src).get(args.table)
+        spec = TB.table_spec(src / f"{args.table}.toml", grid, refine=_folder_refine(src).get(args.table), build=build)
 
     orig_solve = P.SteadyStateProblem.solve
 
@@ -119,6 +129,12 @@ def main() -> int:
     _wrap(TB, "retry_point", "retry from neighbours")
     _wrap(TB, "polish_point", "neighbour pass")
     _wrap(TB, "twin_resolve", "speed-twin pass")
+    _wrap(TB, "relaxation_verdict", "relaxation verdict")
+    _wrap(TC, "continuation_group", "continuation group")
+    _wrap(TC, "_try_starts", "continuation: warm starts")
+    _wrap(TC, "_order", "continuation: order")
+    _wrap(TC, "search_group", "search of what is left")
+    _wrap(P, "check_solution", "independent check")
     _wrap(TR, "_solve_point", "refinement: point")
     _wrap(TR, "retry_point", "refinement: retry")
     if hasattr(TR, "_midpoint"):
@@ -135,7 +151,8 @@ def main() -> int:
             v = t.arrays["trust_radius"][feas][:, j]
             u = int(np.sum(t.arrays["trust_unverified"][feas][:, j] > 0))
             radii.append(f"{name} {np.median(v):.3g} / {np.min(v):.3g} ({u} unverified)" if v.size else f"{name} -")
-    lines = [f"### {args.table} (grid {grid!r}: {summary['grid_points']} points, {summary['statuses']})", "",
+    lines = [f"### {Path(args.table).stem}, schedule {args.schedule} (grid {grid!r}: {summary['grid_points']} points, "
+             f"{summary['statuses']})", "",
              f"process CPU {cpu:.1f} s, wall {wall:.1f} s (one process); trust radius median / min: "
              + "; ".join(radii), "",
              "| phase | calls | CPU [s] | share | IPOPT runs | IPOPT iterations |", "|---|---|---|---|---|---|"]

@@ -1,0 +1,175 @@
+"""Continuation schedule of a table build (issue 22, :mod:`offline.rover.table_continuation`).
+
+README's worked example (front-left steering stuck, the calibrated sand by preset name) on tiny
+grids: a continued point is the same optimum as a cold solve, seeds come from the shipped
+nominal table scaled exactly in speed, and every hole is evidenced (a relaxation's confirmed
+verdict decides a whole operating point without a search; what stays ``not_found`` says why).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from offline.rover import primitives as P
+from offline.rover import table_builder as TB
+from offline.rover import table_continuation as TC
+from offline.rover.table_builder import BuildOptions, build_table, scenario_at, table_spec
+from rtctl.table import load_table
+
+FAST = BuildOptions(trust_steps=(0.0625, 0.125), trust_search=(0.0625, 0.25, 1.0), polish_sweeps=0)
+
+SCENARIO = """[scenario]
+name = "fl_steer_stuck"
+description = "Front-left steering actuator stuck at -30 deg"
+params = "calibrated-sand"
+rover = "mini-rover-t72"
+speed_m_s = 0.03
+
+[wheels.FL]
+steer_stuck_deg = -30.0
+"""
+
+
+@pytest.fixture(scope="module")
+def scenario_file(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("sc") / "fl_steer_stuck.toml"
+    p.write_text(SCENARIO)
+    return p
+
+
+@pytest.fixture(scope="module")
+def continued(scenario_file, tmp_path_factory):
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2,4;steer_stuck=-30,0", build=FAST)
+    path, summary = build_table(spec, tmp_path_factory.mktemp("cont"), progress=False)
+    return spec, path, summary
+
+
+def test_seed_is_the_nominal_tables_primitive_scaled_exactly_in_speed(scenario_file):
+    """The seed start at 3 cm/s is the shipped nominal table's 2 cm/s primitive with every wheel
+    speed times 1.5 and nothing else changed; the nominal table is found because it was built
+    for the same NLP (a scenario with other parameters gets no seed)."""
+    from dataclasses import replace
+
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=3;steer_stuck=0", build=FAST)
+    seeds = TC.seed_tables(spec, TB._seed_index("shipped"))
+    assert [load_table(p).name for p in seeds] == ["nominal"]
+    s = TC.seed_start(spec, seeds, {"slope": math.radians(5.0), "cross_slope": 0.0, "speed": 0.03})
+    assert s is not None and s.source.startswith("nominal@")
+    t = load_table(seeds[0])
+    idx = (t.axis_order.index("slope"), t.axis_order.index("cross_slope"), t.axis_order.index("speed"))
+    i = [0, 0, 0]
+    i[idx[0]] = int(np.argmin(np.abs(np.asarray(t.axes["slope"]) - math.radians(5.0))))
+    i[idx[1]] = int(np.argmin(np.abs(np.asarray(t.axes["cross_slope"]))))
+    i[idx[2]] = 0  # 2 cm/s
+    x_nom = t.arrays["x"][tuple(i)]
+    x = s.x_scaled * t.layout.variable_scale
+    om = [t.layout.var("omega", w) for w in t.layout.wheels]
+    other = np.setdiff1d(np.arange(x.size), om)
+    np.testing.assert_allclose(x[om], 1.5 * x_nom[om], rtol=1e-12)
+    np.testing.assert_array_equal(x[other], x_nom[other])
+    other_soil = replace(spec, scenario=replace(spec.scenario, params=replace(
+        spec.scenario.params, soil=replace(spec.scenario.params.soil, cohesion=spec.scenario.params.soil.cohesion * 1.1))))
+    assert TC.seed_tables(other_soil, TB._seed_index("shipped")) == ()
+
+
+def test_continuation_gives_the_cold_solves_optimum_without_a_search(continued):
+    """Every point of the tiny grid is continued (seed table -> failure axis -> speed twin),
+    none needed the full search, and each equals the optimizer's cold solve from its automatic
+    start to the solver's tolerance (x within 1e-6 of the variable scales, objective 1e-7)."""
+    spec, path, summary = continued
+    t = load_table(path)
+    assert summary["statuses"] == {"optimal": 4}
+    cont = t.header["continuation"]
+    assert cont["counts"]["full search"] == 0
+    assert [s["name"] for s in cont["seed_tables"]] == ["nominal"]
+    src = cont["started_from"]
+    assert sorted(src) == ["0", "1", "2", "3"]
+    assert any(v.startswith("seed table nominal@") for v in src.values())
+    assert any(v.startswith("neighbour") for v in src.values())
+    assert src["2"] == "speed twin 0" and src["3"] == "speed twin 1"
+    xsc = t.layout.variable_scale
+    for f in range(spec.grid.size):
+        idx = np.unravel_index(f, t.shape)
+        cold = P.solve_primitive(scenario_at(spec.scenario, spec.family, spec.grid.point(f)), spec.solver)
+        assert cold.status == "optimal", f
+        np.testing.assert_allclose(t.arrays["x"][idx] / xsc, np.asarray(cold.x), atol=1e-6, err_msg=str(f))
+        assert float(t.arrays["objective"][idx]) == pytest.approx(cold.objective, rel=1e-7, abs=1e-10)
+
+
+def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(scenario_file, tmp_path, monkeypatch):
+    """At 25 deg the seed table has no primitive, so the relaxation (the same point without the
+    failure) is decided first: confirmed infeasible (the optimizer's verdict, default budgets),
+    it makes every covered point ``infeasible`` at both speeds without any table search; the
+    +90 deg stuck angle lies outside the nominal problem's +-89 deg and is not covered: it is
+    searched, and if left ``not_found`` its evidence says why (no relaxation applies)."""
+    spec = table_spec(scenario_file, grid="slope=25;cross_slope=0;speed=2,4;steer_stuck=0,90", build=FAST)
+    searched: list[int] = []
+    real = TB._solve_point
+
+    def counting(spec_, flat, *a, **k):
+        searched.append(flat)
+        return real(spec_, flat, *a, **k)
+
+    monkeypatch.setattr(TB, "_solve_point", counting)
+    path, summary = build_table(spec, tmp_path, progress=False)
+    t = load_table(path)
+    ev = t.header["evidence"]
+    stuck = spec.grid.names.index("steer_stuck")
+    for f in range(spec.grid.size):
+        idx = np.unravel_index(f, t.shape)
+        if idx[stuck] == 0:  # 0 deg: covered by the relaxation
+            assert t.status_at(idx) == "infeasible", f
+            assert ev[str(f)]["relaxation"] == TC.RELAXED_EVIDENCE
+            assert ev[str(f)]["relaxation evidence"]["verdict"].startswith("no primitive")
+            assert f not in searched
+        else:  # +90 deg: searched once (first speed), the verdict carried by the twin rule or the hole explained
+            assert t.status_at(idx) in ("infeasible", "not_found"), f
+            if t.status_at(idx) == "not_found":
+                assert ev[str(f)]["undecided"].startswith("no relaxation applies")
+    assert len(searched) >= 1 and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
+
+
+def test_search_group_carries_a_confirmed_verdict_to_the_other_speed(scenario_file, monkeypatch):
+    """A point left by the continuation is searched at its first speed only; a confirmed
+    ``infeasible`` is the other speed's verdict too (the same NLP up to the exact speed
+    scaling), with the twin's evidence, and no second search."""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2,4;steer_stuck=0", build=FAST)
+    calls: list[int] = []
+
+    def fake(spec_, flat, x0, *a, **k):
+        calls.append(flat)
+        return {"flat": flat, "status": "infeasible", "iterations": 7, "evidence": {"verdict": "no primitive: test"}}
+
+    monkeypatch.setattr(TB, "_solve_point", fake)
+    out = TC.search_group(spec, [0, 1])
+    assert calls == [0]
+    assert out[1]["status"] == "infeasible" and out[1]["evidence"]["speed twin"] == TC.TWIN_EVIDENCE
+    assert out[1]["evidence"]["twin evidence"] == {"verdict": "no primitive: test"}
+
+
+def test_chains_schedule_is_kept_and_options_are_checked(scenario_file):
+    """The former schedule stays available (benchmarks compare both in one run); a typo is refused."""
+    with pytest.raises(TB.BuildError, match="schedule"):
+        BuildOptions(schedule="chain")
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2;steer_stuck=0",
+                      build=BuildOptions(schedule="chains"))
+    assert spec.build.schedule == "chains"
+
+
+def test_relaxation_pass_keeps_a_feasible_relaxations_verdict(scenario_file, tmp_path):
+    """A ``not_found`` point whose relaxation solves (flat ground: the nominal rover drives) is
+    left ``not_found``, and the verdict is checkpointed and read back; the pass used to crash
+    saving it (a checkpoint record "optimal" without a primitive: KeyError 'x_scaled'), which
+    ended README's worked example after 16 minutes."""
+    spec = table_spec(scenario_file, grid="slope=0;cross_slope=0;speed=2;steer_stuck=-30", build=FAST)
+    recs = {0: {"flat": 0, "status": "not_found", "iterations": 0, "evidence": {"test": 1}}}
+    ck = TB._Checkpoint(tmp_path / ".relax", spec.key())
+    assert TB._relaxation_pass(spec, recs, ck, None) == 0
+    assert recs[0]["status"] == "not_found"
+    assert ck.load("relax", next(iter(p.stem.split("_", 1)[1] for p in (tmp_path / ".relax").glob("relax_*.npz"))))[0][
+        "verdict"] == "optimal"
+    assert TB._relaxation_pass(spec, recs, ck, None) == 0  # from the checkpoint

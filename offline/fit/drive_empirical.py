@@ -98,7 +98,8 @@ from ..sim.simulator import DisturbanceForces
 from ..sim.truth import WHEELS
 from .significance import normalised
 
-__all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "interleaved_folds", "DIRECTIONS"]
+__all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
+           "DIRECTIONS"]
 
 DIRECTIONS: dict[str, tuple[str, str]] = {
     "drag.body": ("resisting force at the centre of mass against the rover's travel", "N"),
@@ -234,8 +235,11 @@ class EmpiricalTerm:
         if self.kind == "speed_loss":
             w = self.target
             if self.shape == "saturation" and self.lo > 0:
-                return (f"{w} wheel speed limited: it follows its command up to {self.lo:.3g} m/s and only "
-                        f"{1 - self.magnitude:.2f} of the command beyond ({self.magnitude:.2f} of the excess lost)")
+                if self.magnitude >= 0.95:
+                    return (f"{w} wheel speed limited to {self.lo:.3g} m/s: it follows its command below and loses "
+                            f"{self.magnitude:.2f} of the command's excess above")
+                return (f"{w} wheel speed saturates: it follows its command up to {self.lo:.3g} m/s and only "
+                        f"{1 - self.magnitude:.2f} of the command's excess beyond")
             return (f"{w} wheel speed reaches {1 - self.magnitude:.2f} of its command "
                     f"{self.localisation_text() if self.shape != 'saturation' else 'at every speed'}")
         sign = "" if m >= 0 else "negative (assisting) "
@@ -858,7 +862,7 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
         pa, _ = model.predict(obs, None, EmpiricalTerms(tuple(accepted), rover))
         misfit = _lack_of_fit(obs, pa, sum(t.n_params for t in accepted), alpha_after)
     excess = chi2_base - len(obs) * nc
-    frac = float((chi2_base - cv_after) / excess) if excess > 0 else 0.0
+    frac = float(min(1.0, (chi2_base - cv_after) / excess)) if excess > 0 else 0.0
     if not accepted:
         status = "none"
     elif frac >= 0.5 and not misfit:
@@ -868,3 +872,41 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     return EmpiricalResult(status, accepted, pvals, dlin, chi2_base, cv_after, len(obs) * nc, frac, misfit,
                            fold_terms if accepted else [], model.simulations - sims0, time.perf_counter() - t0,
                            len(fam.terms), n_boot, alpha)
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What :func:`search_empirical` reads of a verdict (for :func:`search_drives`)."""
+
+    observations: Any
+    model: Any
+    scale: dict[str, float]
+
+
+def search_drives(paths: Sequence[Any], scenario: Any, segment: int = 5, alpha: float | None = None,
+                  **kw: Any) -> EmpiricalResult:
+    """The empirical search alone on recorded drives, without the library's diagnosis: the drives
+    are segmented, their noise and dispersion estimated as
+    :func:`~offline.fit.drive_discrepancy.diagnose_drives` does, and :func:`search_empirical`
+    runs on the believed model's residuals (``kw`` passed on).
+
+    Parameters
+    ----------
+    paths : sequence of path
+        MCAP recordings or folders of them.
+    scenario : Scenario
+        The believed rover, parameter set and declared failures (flat nominal world).
+    segment : int
+        Ticks per row.
+    alpha : float, optional
+        Level (default :data:`~offline.fit.drive_discrepancy.DRIVE_ALPHA`).
+    """
+    from dataclasses import replace as _replace
+
+    from .drive_discrepancy import DRIVE_ALPHA, DriveModel, DriveRecording, load_drives
+
+    model = DriveModel(scenario)
+    a = DRIVE_ALPHA if alpha is None else float(alpha)
+    obs = _replace(DriveRecording.build(load_drives(paths), model, segment), family_alpha=a)
+    pred, _ = model.predict(obs, None)
+    return search_empirical(_Inputs(obs, model, obs.dispersion(pred)), alpha=a, **kw)

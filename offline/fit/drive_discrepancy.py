@@ -264,7 +264,7 @@ def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -
         return DisturbanceForces(body_force=(f.body_force[0] + g.body_force[0], f.body_force[1] + g.body_force[1]),
                                  body_moment_z=f.body_moment_z + g.body_moment_z,
                                  wheel_force=tuple((p[0] + q[0], p[1] + q[1]) for p, q in zip(f.wheel_force, g.wheel_force)),
-                                 wheel_torque=tuple(p + q for p, q in zip(f.wheel_torque, g.wheel_torque)))  # type: ignore[arg-type]
+                                 wheel_torque=tuple(p + q for p, q in zip(f.wheel_torque, g.wheel_torque)))
 
     return hook
 

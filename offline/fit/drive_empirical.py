@@ -84,6 +84,7 @@ empirical term; the report says so and gives the term as ``empirical_terms.json`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -204,10 +205,7 @@ class EmpiricalTerm:
 
     def with_(self, **kw: Any) -> "EmpiricalTerm":
         """A copy with fields replaced."""
-        d = {"direction": self.direction, "where": self.where, "shape": self.shape, "lo": self.lo, "hi": self.hi,
-             "magnitude": self.magnitude}
-        d.update(kw)
-        return EmpiricalTerm(**d)
+        return dataclasses.replace(self, **kw)
 
     def localisation_text(self) -> str:
         """Where / when / above what the term acts, in report units."""
@@ -628,7 +626,7 @@ class _Search:
                     a = _aggregate(self.obs, k, G, C)
                     acc = a if acc is None else acc + a
                 assert acc is not None
-                out[np.ix_(idx, rows[:acc.shape[1]])] = acc[:, :rows.size]
+                out[np.ix_(np.asarray(idx, dtype=int), rows[:acc.shape[1]])] = acc[:, :rows.size]
         return out.reshape(len(terms), -1)
 
     def _family(self) -> _Family:
@@ -900,6 +898,8 @@ def search_drives(paths: Sequence[Any], scenario: Any, segment: int = 5, alpha: 
         Ticks per row.
     alpha : float, optional
         Level (default :data:`~offline.fit.drive_discrepancy.DRIVE_ALPHA`).
+    **kw
+        Passed to :func:`search_empirical` (``seed``, ``n_boot``, ``max_terms``, ...).
     """
     from dataclasses import replace as _replace
 

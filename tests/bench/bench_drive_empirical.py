@@ -293,6 +293,7 @@ def main(argv: list[str]) -> int:
     sc = load_scenario(ROOT / "offline/scenarios/nominal.toml")
     tr = Truth.nominal(sc.params, sc.rover)
     load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     outdir = ROOT / "out/bench_drive_empirical"
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
@@ -307,7 +308,6 @@ def main(argv: list[str]) -> int:
     if sel:
         return 0  # a selection is a trial run: no results file
     data = json.loads(jpath.read_text()) if jpath.exists() else {"groups": {}, "rows": []}
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                              "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg())}
     data["rows"] = [r for r in data["rows"] if r["group"] != group] + [{**r, "group": group} for r in rows]

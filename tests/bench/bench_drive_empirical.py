@@ -157,7 +157,7 @@ def _held_out_drive(v: Any, path: Path) -> tuple[float, float, int]:
     return float((normalised(obs, p0, v.scale) ** 2).sum()), float((normalised(obs, p1, v.scale) ** 2).sum()), len(obs) * len(obs.channels)
 
 
-def run_out(sc: Any, tmp: Path, outdir: Path, sel: str) -> list[dict[str, Any]]:
+def run_out(sc: Any, tmp: Path, outdir: Path, sel: str, save: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
     rows = []
     for name, make, judge, indep in OUT_CASES:
         if sel and sel not in name:
@@ -184,10 +184,11 @@ def run_out(sc: Any, tmp: Path, outdir: Path, sel: str) -> list[dict[str, Any]]:
                      "seconds": secs, "empirical_seconds": em.seconds if em is not None else 0.0,
                      "simulations": v.model.simulations})
         print(json.dumps(rows[-1], default=float), flush=True)
+        save(rows[-1])
     return rows
 
 
-def run_inlib(sc: Any, tr: Truth, tmp: Path, outdir: Path, sel: str) -> list[dict[str, Any]]:
+def run_inlib(sc: Any, tr: Truth, tmp: Path, outdir: Path, sel: str, save: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
     rows = []
     inl = [c for c in library_cases(tr)["effects"] if c[2]]
     for name, make, _, seed in inl:
@@ -205,10 +206,11 @@ def run_inlib(sc: Any, tr: Truth, tmp: Path, outdir: Path, sel: str) -> list[dic
                      "empirical": v.empirical.status if v.empirical is not None else "not run",
                      "seconds": secs, "simulations": v.model.simulations})
         print(json.dumps(rows[-1], default=float), flush=True)
+        save(rows[-1])
     return rows
 
 
-def run_negatives(sc: Any, tmp: Path, sel: str, forced: bool) -> list[dict[str, Any]]:
+def run_negatives(sc: Any, tmp: Path, sel: str, forced: bool, save: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
     rows = []
     for seed in range(31, 51):
         if sel and sel != str(seed):
@@ -228,6 +230,7 @@ def run_negatives(sc: Any, tmp: Path, sel: str, forced: bool) -> list[dict[str, 
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
+        save(row)
     return rows
 
 
@@ -241,7 +244,7 @@ def _md(data: dict[str, Any]) -> str:
           "depend on the shared machine's load (load averages per group below).", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
-                  f"{info['load_after']} after (shared 2-core machine)")
+                  f"{info['load_after']} after (shared 2-core machine), {info.get('cases_run', '?')} case(s) run")
     rows = data["rows"]
     out = [r for r in rows if r["group"] == "out"]
     if out:
@@ -295,24 +298,32 @@ def main(argv: list[str]) -> int:
     load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     outdir = ROOT / "out/bench_drive_empirical"
+    if group not in ("out", "inlib", "negatives", "search_negatives"):
+        raise SystemExit(f"unknown group {group!r}: out, inlib, negatives, search_negatives, table")
+    start = json.loads(jpath.read_text()) if jpath.exists() else {"groups": {}, "rows": []}
+    done: list[dict[str, Any]] = []
+
+    def save(row: dict[str, Any]) -> None:
+        """The results file after every case (a group cut short keeps the cases it ran, and says so)."""
+        done.append(row)
+        if sel:
+            return  # a selection is a trial run: no results file
+        data = {"groups": dict(start["groups"]), "rows": [r for r in start["rows"] if r["group"] != group]}
+        data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                                 "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+                                 "cases_run": len(done)}
+        data["rows"] += [{**r, "group": group} for r in done]
+        write_text(jpath, json.dumps(data, indent=1, default=float))
+        write_text(RESULTS.with_suffix(".md"), _md(data))
+
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
         if group == "out":
-            rows = run_out(sc, tmp, outdir, sel)
+            run_out(sc, tmp, outdir, sel, save)
         elif group == "inlib":
-            rows = run_inlib(sc, tr, tmp, outdir, sel)
-        elif group in ("negatives", "search_negatives"):
-            rows = run_negatives(sc, tmp, sel, forced=group == "search_negatives")
+            run_inlib(sc, tr, tmp, outdir, sel, save)
         else:
-            raise SystemExit(f"unknown group {group!r}: out, inlib, negatives, search_negatives, table")
-    if sel:
-        return 0  # a selection is a trial run: no results file
-    data = json.loads(jpath.read_text()) if jpath.exists() else {"groups": {}, "rows": []}
-    data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                             "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg())}
-    data["rows"] = [r for r in data["rows"] if r["group"] != group] + [{**r, "group": group} for r in rows]
-    write_text(jpath, json.dumps(data, indent=1, default=float))
-    write_text(RESULTS.with_suffix(".md"), _md(data))
+            run_negatives(sc, tmp, sel, group == "search_negatives", save)
     return 0
 
 

@@ -308,7 +308,7 @@ def main(argv: list[str]) -> int:
         done.append(row)
         if sel:
             return  # a selection is a trial run: no results file
-        data = {"groups": dict(start["groups"]), "rows": [r for r in start["rows"] if r["group"] != group]}
+        data: dict[str, Any] = {"groups": dict(start["groups"]), "rows": [r for r in start["rows"] if r["group"] != group]}
         data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                                  "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
                                  "cases_run": len(done)}

@@ -244,7 +244,8 @@ def _md(data: dict[str, Any]) -> str:
           "depend on the shared machine's load (load averages per group below).", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
-                  f"{info['load_after']} after (shared 2-core machine), {info.get('cases_run', '?')} case(s) run")
+                  f"{info['load_after']} after (shared 2-core machine), {info.get('cases_run', '?')} case(s) run"
+                  + (f"; {info['note']}" if info.get("note") else ""))
     rows = data["rows"]
     out = [r for r in rows if r["group"] == "out"]
     if out:
@@ -260,7 +261,7 @@ def _md(data: dict[str, Any]) -> str:
                       f"{hd[0]:.0f} -> {hd[1]:.0f} ({hd[2]}) | {r['localisation']} | {'yes' if r['ok'] else 'NO'} | "
                       f"{r['seconds']:.0f} ({r['empirical_seconds']:.0f}) | {r['simulations']} |")
         md += ["", f"Out-of-library effects explained or partly explained by an empirical term with at least half the "
-               f"held-out excess removed and the localisation within 20 %: {sum(r['ok'] for r in out)}/{len(out)} "
+               f"held-out excess removed and the localisation within 20 %: {sum(bool(r['ok']) for r in out)}/{len(out)} "
                f"(library never confident: {sum(r['library_verdict'] in HONEST_OUT for r in out)}/{len(out)})."]
     inl = [r for r in rows if r["group"] == "inlib"]
     if inl:
@@ -272,7 +273,7 @@ def _md(data: dict[str, Any]) -> str:
                       f"{r['empirical']} | {r['seconds']:.0f} | {r['simulations']} |")
         n_par = sum(len(r["param_rel_errors"]) for r in inl)
         n_in = sum(e <= 0.2 for r in inl for e in r["param_rel_errors"].values())
-        md += ["", f"In-library named right: {sum(r['ok'] for r in inl)}/{len(inl)}; parameters within 20 %: {n_in}/{n_par}."]
+        md += ["", f"In-library named right: {sum(bool(r['ok']) for r in inl)}/{len(inl)}; parameters within 20 %: {n_in}/{n_par}."]
     for g, title in (("negatives", "Noise-only drives through the whole tool"),
                      ("search_negatives", "The empirical search alone, forced on noise-only drives")):
         neg = [r for r in rows if r["group"] == g]
@@ -283,6 +284,8 @@ def _md(data: dict[str, Any]) -> str:
             md.append(f"| {r['case']} | {r.get('verdict', '(search only, p = %.2g)' % r.get('p', math.nan))} | {r['empirical']} | "
                       f"{'; '.join(r['terms']) or '-'} | {r['seconds']:.0f} |")
         md += ["", f"False alarms: {sum(not r['ok'] for r in neg)}/{len(neg)}."]
+    md += ["", "Per-diagnosis time: the targets ask at most 120 s; the 's' columns are wall seconds on the shared "
+           "machine at the load averages above (the empirical stage's own seconds in brackets)."]
     return "\n".join(md) + "\n"
 
 

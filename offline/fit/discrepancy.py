@@ -269,6 +269,10 @@ class Verdict:
     ambiguity: str = ""
     noise_chi2: tuple[float, float, int, int] = (math.nan, math.nan, 0, 0)
     equal_fraction: float = 0.25
+    empirical: Any = None
+    """What the library lacks, modelled by an empirical term (drives,
+    :class:`offline.fit.drive_empirical.EmpiricalResult`), or None: the status above stays the
+    library's verdict (an empirical term names no library physics)."""
 
     @property
     def excess_removed(self) -> float:
@@ -346,6 +350,8 @@ class Verdict:
                          f"(p = {p:.2g})")
         if self.failed_after:
             lines.append(f"the explained model still fails in {self.failed_after} rows")
+        if self.empirical is not None:
+            lines += self.empirical.summary_lines()
         return "\n".join(lines)
 
     def _noise_units_line(self) -> str:
@@ -423,6 +429,7 @@ class Verdict:
             "candidates": [sc(s) for s in self.scores],
             "decision_criterion": self.criterion,
             "seconds": self.seconds,
+            "empirical": self.empirical.to_json() if self.empirical is not None else None,
         }
 
     def write(self, folder: str | Path) -> Path:

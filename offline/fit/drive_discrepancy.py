@@ -255,6 +255,20 @@ def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
         _step(sim, dt / 2, depth + 1)
 
 
+def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -> Callable[[float, Any], Any]:
+    """Two disturbance hooks at once (forces, moments and torques add)."""
+    from ..sim.simulator import DisturbanceForces
+
+    def hook(t: float, s: Any) -> Any:
+        f, g = a(t, s), b(t, s)
+        return DisturbanceForces(body_force=(f.body_force[0] + g.body_force[0], f.body_force[1] + g.body_force[1]),
+                                 body_moment_z=f.body_moment_z + g.body_moment_z,
+                                 wheel_force=tuple((p[0] + q[0], p[1] + q[1]) for p, q in zip(f.wheel_force, g.wheel_force)),
+                                 wheel_torque=tuple(p + q for p, q in zip(f.wheel_torque, g.wheel_torque)))
+
+    return hook
+
+
 def _recorded_pose(d: DriveData) -> Callable[[float], tuple[float, float, float]] | None:
     """The recorded pose at time t in the frame of the drive's start pose (for hooks that depend on
     where the rover is, :class:`offline.fit.drive_candidates.AnchoredTether`); None without pose
@@ -696,19 +710,24 @@ class DriveModel:
         assert self.truth is not None
         return self.truth.params
 
-    def simulate(self, d: DriveData, ext: RoverExtension | None, heading_offset: float
+    def simulate(self, d: DriveData, ext: RoverExtension | None, heading_offset: float, extra: Any = None
                  ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         """Re-simulate one drive (module notes): predicted tick readings, body velocities (n, 3), ok.
 
         Cached per drive, heading offset and the extension's physics (measurement-chain terms are
-        applied afterwards, so they cost no re-simulation).
+        applied afterwards, so they cost no re-simulation). ``extra``: an empirical term
+        (:class:`offline.fit.drive_empirical.EmpiricalTerms`) applied on top of the extension: its
+        ``hook(time_of, pose_of)`` (a disturbance hook or None), ``commands(rim, steer, t)`` (the
+        commands the servos really follow) and ``readings(ticks, t)`` (reading offsets), keyed by
+        its ``key()``.
         """
         ext = ext or RoverExtension()
         terms = rover_terms(ext)
-        key = (id(d), heading_offset, tuple(sorted(ext.soil.items())), terms.physics_key())
+        key = (id(d), heading_offset, tuple(sorted(ext.soil.items())), terms.physics_key(),
+               extra.key() if extra is not None else None)
         hit = self._cache.get(key)
         if hit is None:
-            hit = self._run(d, ext, heading_offset)
+            hit = self._run(d, ext, heading_offset, extra)
             if len(self._cache) >= self.cache_size:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = hit
@@ -722,9 +741,11 @@ class DriveModel:
             out["yaw_rate"] = (ticks["yaw_rate"] - b) * (1.0 + g) + b
         out["roll"] = ticks["roll"] + terms.get("imu_roll", 0.0)
         out["pitch"] = ticks["pitch"] + terms.get("imu_pitch", 0.0)
+        if extra is not None:
+            out = extra.readings(out, d.t)
         return out, body, True
 
-    def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float
+    def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         assert self.truth is not None and self.sensors is not None and self.actuators is not None
         n = len(d.t)
@@ -737,6 +758,12 @@ class DriveModel:
             path, clock = _recorded_pose(d), [0.0]
             hook = disturbance_from_terms(ext, self.params, self.scenario.rover,
                                           None if path is None else (lambda t: path(clock[0])))
+            if extra is not None:
+                more = extra.hook(lambda: clock[0], lambda tt: (float(np.interp(tt, d.t, d.pose[:, 0])),
+                                                                float(np.interp(tt, d.t, d.pose[:, 1])),
+                                                                float(np.interp(tt, d.t, d.pose[:, 2]))))
+                if more is not None:
+                    hook = more if hook is None else _sum_hooks(hook, more)
         except ValueError:
             return ticks, body, False
         acfg = replace(self.actuators, **act) if act else self.actuators
@@ -750,6 +777,8 @@ class DriveModel:
             sim.heading = float(hd[0])
             # the commands each wheel's servos really follow (per-wheel actuator terms)
             rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period)
+            if extra is not None:
+                rim_cmd, steer_cmd = extra.commands(rim_cmd, steer_cmd, d.t)
             sim.start(Commands(0.0, 0, tuple(rim_cmd[0]), tuple(steer_cmd[0])))
 
             servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
@@ -811,13 +840,15 @@ class DriveModel:
         body[failed] = np.nan
         return ticks, body, True
 
-    def predict(self, obs: DriveRecording, ext: RoverExtension | None = None) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:
-        """Predicted channels of every row of ``obs`` (NaN and ``ok = False`` where the re-simulation fails)."""
+    def predict(self, obs: DriveRecording, ext: RoverExtension | None = None, extra: Any = None
+                ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.bool_]]:
+        """Predicted channels of every row of ``obs`` (NaN and ``ok = False`` where the re-simulation
+        fails); ``extra``: an empirical term on top of ``ext`` (:meth:`simulate`)."""
         out = {c: np.full(len(obs), np.nan) for c in obs.channels}
         ok = np.zeros(len(obs), dtype=bool)
         for k in np.unique(obs.drive):
             d, seg = obs.drives[k], obs.segments[k]
-            ticks, body, good = self.simulate(d, ext, obs.heading_offset)
+            ticks, body, good = self.simulate(d, ext, obs.heading_offset, extra)
             rows = np.flatnonzero(obs.drive == k)
             if not good:
                 continue
@@ -855,7 +886,7 @@ def diagnose_drives(
     n_boot: int | None = None,
     n_points: int = 2, max_nfev: int = 8, stride: int = 3, seed: int = 0, candidates: Sequence[Any] = DRIVE_CANDIDATES,
     recalibrate: bool = True, max_tries: int = 3, fit_tol: float | None = 1e-4,
-    progress: Callable[[str], None] | None = None, alpha_after: float = DRIVE_ALPHA_AFTER,
+    progress: Callable[[str], None] | None = None, alpha_after: float = DRIVE_ALPHA_AFTER, empirical: bool = True,
 ) -> Verdict:
     """Locate, name and fit the missing physics of recorded drives (module notes) with the engine.
 
@@ -896,6 +927,11 @@ def diagnose_drives(
         (``forward="always"``).
     progress : callable, optional
         Called with a short message at each stage of the diagnosis.
+    empirical : bool
+        When the library does not explain the drive (verdict ``unexplained``, ``ambiguous`` or
+        ``partly_explained``), model what it lacks with the generic empirical family
+        (:func:`offline.fit.drive_empirical.search_empirical`, same seed and level); the result
+        is ``verdict.empirical`` and the library's verdict is kept.
 
     Returns
     -------
@@ -913,10 +949,18 @@ def diagnose_drives(
     assert model.sensors is not None
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = replace(DriveRecording.build(drives, model, segment), family_alpha=alpha)
-    return diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
-                    n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
-                    forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
-                    polish_nfev=0)
+    v = diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
+                 n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
+                 forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
+                 polish_nfev=0)
+    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
+        from .drive_empirical import search_empirical
+
+        t0 = time.perf_counter()
+        v.empirical = search_empirical(v, alpha=alpha, seed=seed, k_folds=k_folds, progress=progress,
+                                       alpha_after=max(alpha_after, alpha))
+        v.seconds += time.perf_counter() - t0
+    return v
 
 
 def accepted_extension(v: Verdict) -> RoverExtension:
@@ -987,6 +1031,15 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
                   "its terms: soil, slope, tether, anchored cable, per-wheel radius and steering offset).", "",
                   "Does the table builder take each accepted term?", ""]
         extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
+    if v.empirical is not None:
+        em = v.empirical
+        extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]
+        if em.terms:
+            write_text(out / "empirical_terms.json", json.dumps(em.to_json(), indent=2, default=float))
+            extra += ["", "`empirical_terms.json` holds the terms (SI). They are NOT in `accepted_truth.toml`: the truth "
+                      "format (`offline.sim.truth.load_truth`) has no section for an empirical term; the re-simulation "
+                      "applies them through `offline.fit.drive_empirical.EmpiricalTerms` (forces and torques as a "
+                      "disturbance hook, speed losses in the servo commands, reading offsets in the readings)."]
     md = (out / "report.md").read_text()
     write_text(out / "report.md", md + "\n".join(extra) + "\n")
     vj = json.loads((out / "verdict.json").read_text())

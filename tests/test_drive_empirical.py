@@ -1,0 +1,141 @@
+"""Empirical terms for what the drive library lacks (issue 24, :mod:`offline.fit.drive_empirical`).
+
+The concealed effects are written here, by code that shares nothing with the empirical family
+and follows other laws than the terms that should model them:
+
+- a band of drift whose bulldozing resistance grows with each wheel's *true sinkage squared*
+  (a Rankine-like face force), through the recording simulator's disturbance hook: modelled
+  by a constant resisting force per wheel localised in position;
+- a gyro whose bias follows a *fast exponential warm-up* from a time on (time constant 0.4 s),
+  in the sensor path: modelled by a reading offset stepping in time;
+
+plus noise-only drives (no effect), where no term may pass the test. Short drives (24 s, :data:`SCRIPT`) and
+a 0.01 level with 400 null draws keep each test within ~20 s; the benchmark
+(``tests/bench/bench_drive_empirical.py``) runs 40 s drives at the drive level 0.001.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from concealed_effects import WHEEL_XY, Effect, _forces, _Hooked, record_concealed  # noqa: E402
+from offline.fit.drive_empirical import EmpiricalTerm, EmpiricalTerms, search_drives  # noqa: E402
+from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, DriveSegment  # noqa: E402
+from offline.rover.scenario import load_scenario  # noqa: E402
+from rtctl.messages import Measurements  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = {"alpha": 0.01, "n_boot": 400, "max_terms": 1}
+_CAL = {s.label.split(",")[0]: s for s in CALIBRATION_SEGMENTS}
+SCRIPT = (DriveSegment(0.0, 10.0, _CAL["straight"].rim_speed, _CAL["straight"].steer, "straight 45 cm: both axles cross the band"),
+          replace(_CAL["Ackermann left"], start=10.0, end=16.0),
+          replace(_CAL["crab left"], start=16.0, end=20.0), replace(_CAL["crab right"], start=20.0, end=24.0))
+"""A 24 s drive: a long straight (both axles cross a band ahead of the front wheels), a left turn, crabs both ways."""
+
+
+@pytest.fixture(scope="module")
+def scenario() -> Any:
+    return load_scenario(ROOT / "offline/scenarios/nominal.toml")
+
+
+@dataclass
+class _SinkageDrift(_Hooked):
+    """A band of drift ``x_from <= X < x_to`` (m): each wheel inside meets a bulldozing resistance
+    ``coefficient * h^2`` (N, ``h`` its true sinkage in m) against its contact's velocity."""
+
+    x_from: float = 0.20
+    x_to: float = 0.30
+    coefficient: float = 1.0e4
+
+    def forces(self, t: float, s: Any) -> Any:
+        c, sn = math.cos(s.heading), math.sin(s.heading)
+        wf = []
+        for i, (x, y) in enumerate(WHEEL_XY):
+            X = s.x + c * x - sn * y
+            vx, vy = s.u - s.yaw_rate * y, s.v + s.yaw_rate * x
+            sp = math.hypot(vx, vy)
+            f = self.coefficient * s.sinkage[i] ** 2 if self.x_from <= X < self.x_to and sp > 1e-6 else 0.0
+            wf.append((-f * vx / sp, -f * vy / sp) if f else (0.0, 0.0))
+        return _forces(wheel_force=tuple(wf))
+
+
+@dataclass
+class _GyroWarmUp(Effect):
+    """From ``t_on`` (s) the gyro's bias rises to ``bias`` (rad/s) with time constant ``tau`` (s)."""
+
+    t_on: float = 9.0
+    bias: float = 0.007
+    tau: float = 0.4
+
+    def sensor_path(self, m: Measurements, s: Any) -> Measurements:
+        b = self.bias * (1.0 - math.exp(-(m.t - self.t_on) / self.tau)) if m.t >= self.t_on else 0.0
+        return replace(m, yaw_rate=m.yaw_rate + b)
+
+
+def test_term_checks_its_family() -> None:
+    with pytest.raises(ValueError, match="unknown direction"):
+        EmpiricalTerm("drag.XX")
+    with pytest.raises(ValueError, match="saturation"):
+        EmpiricalTerm("drag.RL", "command", "saturation", 0.03)
+    with pytest.raises(ValueError, match="localised in time only"):
+        EmpiricalTerm("offset.yaw_rate", "x", "box", 0.0, 1.0)
+    box = EmpiricalTerm("drag.each", "x", "box", 1.0, 1.6, 0.4)
+    assert box.weight(np.array([0.9, 1.0, 1.3, 1.6])).tolist() == [0.0, 1.0, 1.0, 0.0]
+    assert "0.4 N per wheel for x of each wheel in [1, 1.6) m" in box.law()
+    hinge = EmpiricalTerm("torque.RR", "sinkage", "hinge", 0.01, magnitude=2.0)
+    assert hinge.weight(np.array([0.005, 0.02])) == pytest.approx([0.0, 0.01])
+
+
+def test_speed_saturation_law_on_commands() -> None:
+    # follows up to 0.05 m/s, then 0.8 of the excess lost: 0.08 -> 0.05 + 0.2 * 0.03 (sign kept)
+    t = EmpiricalTerm("speed_loss.RL", "command", "saturation", 0.05, magnitude=0.8)
+    rim = np.array([[0.08, 0.08, 0.08, 0.08], [0.03, 0.03, 0.03, -0.08]])
+    out, _ = EmpiricalTerms((t,), None).commands(rim, np.zeros_like(rim), np.array([0.0, 0.2]))
+    assert out[:, 3] == pytest.approx([0.056, -0.056])
+    assert out[:, :3] == pytest.approx(rim[:, :3])
+
+
+def _located(res: Any) -> EmpiricalTerm:
+    assert res.status in ("explained", "partly_explained"), res.summary_lines()
+    assert res.terms, res.summary_lines()
+    return res.terms[0]
+
+
+def test_sinkage_drift_band_is_a_position_patch(scenario: Any, tmp_path: Path) -> None:
+    eff = _SinkageDrift()
+    f = record_concealed(tmp_path / "drift.mcap", scenario, eff, seed=5, duration=24.0, segments=SCRIPT)
+    res = search_drives([f], scenario, **FAST)
+    term = _located(res)
+    assert term.kind == "drag" and term.where == "x" and term.shape == "box", term.law()
+    width = eff.x_to - eff.x_from
+    assert abs(term.lo - eff.x_from) <= 0.2 * width and abs(term.hi - eff.x_to) <= 0.2 * width, term.law()
+    # the held-out (re-simulated) improvement removes at least half the excess
+    assert res.explained_fraction >= 0.5, res.summary_lines()
+
+
+def test_gyro_warm_up_is_a_reading_step(scenario: Any, tmp_path: Path) -> None:
+    eff = _GyroWarmUp()
+    f = record_concealed(tmp_path / "gyro.mcap", scenario, eff, seed=6, duration=24.0, segments=SCRIPT)
+    res = search_drives([f], scenario, **FAST)
+    term = _located(res)
+    assert term.direction == "offset.yaw_rate" and term.where == "time", term.law()
+    assert abs(term.lo - eff.t_on) <= 0.2 * eff.t_on, term.law()
+    assert term.magnitude == pytest.approx(eff.bias, rel=0.2)
+    assert res.explained_fraction >= 0.5, res.summary_lines()
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_noise_only_drives_get_no_term(scenario: Any, tmp_path: Path, seed: int) -> None:
+    f = record_concealed(tmp_path / "noise.mcap", scenario, Effect(), seed=seed, duration=24.0, segments=SCRIPT)
+    res = search_drives([f], scenario, **FAST)
+    assert res.status == "none" and not res.terms, res.summary_lines()
+    assert res.p_values[0] >= FAST["alpha"]

@@ -178,7 +178,7 @@ def test_concealed_cross_slope_is_named_with_its_angle(sc, nominal, tmp_path):
     the simulator reads. Library: six candidates (confounders included), no recalibration."""
     tr = replace(nominal, cross_slope=math.radians(3.5))
     f1 = record_drive(tmp_path / "cross.mcap", sc, tr, seed=4, duration=24.0)
-    v = diagnose_drives([f1], sc, segment=6, candidates=_sub(), recalibrate=False, seed=1)
+    v = diagnose_drives([f1], sc, segment=6, candidates=_sub(), recalibrate=False, empirical=False, seed=1)
     assert v.missing_physics == ["terrain_slope"], v.summary()
     vals = dict(zip(v.chosen.names, v.chosen.values))
     assert vals["cross_slope"] == pytest.approx(3.5, rel=0.2)
@@ -202,7 +202,7 @@ def test_negative_control_raises_no_alarm(sc, nominal, tmp_path):
     themselves) and the tool names an IMU mounting tilt of 0.05 ± 0.016 deg: an alarm of the kind
     the level allows, so this test uses the next seed."""
     f = record_drive(tmp_path / "nominal.mcap", sc, nominal, seed=22, duration=24.0)
-    v = diagnose_drives([f], sc, segment=6, candidates=_sub(), recalibrate=False, seed=2)
+    v = diagnose_drives([f], sc, segment=6, candidates=_sub(), recalibrate=False, empirical=False, seed=2)
     assert v.status == "agree", v.summary()
     assert v.missing_physics == []
 

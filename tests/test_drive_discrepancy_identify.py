@@ -63,7 +63,7 @@ def test_second_effect_is_put_on_the_right_wheel(sc, nominal, tmp_path, radius_w
     offset[steer_wheel] = math.radians(offset_deg)
     tr = replace(nominal, wheel_radius=tuple(radius), steer_offset=tuple(offset))
     f = record_drive(tmp_path / "two.mcap", sc, tr, seed=3, duration=20.0)
-    v = diagnose_drives([f], sc, candidates=WHEEL_LIB, recalibrate=False, seed=3)
+    v = diagnose_drives([f], sc, candidates=WHEEL_LIB, recalibrate=False, empirical=False, seed=3)
     names = ("FR", "FL", "RR", "RL")
     want = {f"wheel_radius_{names[radius_wheel]}", f"steer_offset_{names[steer_wheel]}"}
     assert v.chosen is not None and set(v.chosen.keys) == want, v.summary()
@@ -104,7 +104,7 @@ def test_straight_drive_cannot_separate_a_tether_from_a_worn_wheel(sc, nominal, 
     f = _straight_drive(tmp_path / "straight.mcap", sc, tr, 16.0, seed=5)
     lib = [c for c in DRIVE_CANDIDATES if c.key in ("tether", "soil_stiffness", "wheel_radius_RR", "wheel_radius_RL",
                                                    "steer_offset_RR", "steer_offset_FR")]
-    v = diagnose_drives([f], sc, candidates=lib, recalibrate=False, seed=5)
+    v = diagnose_drives([f], sc, candidates=lib, recalibrate=False, empirical=False, seed=5)
     assert v.status == "ambiguous", v.summary()
     assert v.missing_physics == [] and not v.parameters_off
     assert len(v.explanations) >= 2 or "do not determine" in v.ambiguity, v.summary()

@@ -901,24 +901,38 @@ def retry_point(spec: TableSpec, flat: int, starts: Sequence[tuple[int, NDArray[
     """Retry an unsolved point from each solved neighbour in turn (``(flat, x, lam_x, lam_g)``,
     fixed order): one warm-started IPOPT run each, accepted only if it converges and passes the
     optimizer's independent numeric check; ``not_found`` if none does."""
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    r, nb, tried, its = first_checked_start(spec, flat, [(f"neighbour {nb}", nb, x0, lx, lg) for nb, x0, lx, lg in starts])
+    if r is not None:
+        x = np.asarray(r["x"], dtype=float)
+        return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "retried_from": nb,
+                "x_scaled": x, "lam_x": np.asarray(r["lam_x"], dtype=float), "lam_g": np.asarray(r["lam_g"], dtype=float),
+                "data": point_data(spec, sc, x, np.asarray(r["lam_x"], dtype=float), np.asarray(r["lam_g"], dtype=float))}
+    return {"flat": flat, "status": "not_found", "iterations": its,
+            "evidence": {"retries": tried or ["no solved neighbour to start from"]}}
+
+
+def first_checked_start(spec: TableSpec, flat: int, starts: Sequence[tuple[str, Any, Any, Any, Any]]
+                        ) -> tuple[dict[str, Any] | None, Any, list[str], int]:
+    """One IPOPT run (the solver's ``max_iter``) from each start ``(label, tag, x0, lam_x, lam_g)``
+    in turn at grid point ``flat``; the first that converges and passes the optimizer's independent
+    numeric check wins. Returns ``(solver result or None, its tag, what each start gave, IPOPT
+    iterations)``."""
     from . import primitives as P
 
     sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
     pb = _problem(sc, spec.solver)
     b = pb.bounds(sc)
-    tried, its = [], 0
-    for nb, x0, lx, lg in starts:
+    tried: list[str] = []
+    its = 0
+    for label, tag, x0, lx, lg in starts:
         r = pb.solve(b, x0, lx, lg)
         its += int(r["iterations"])
         ok = bool(r["success"]) and P.check_solution(pb, sc, r["x"])[1]
-        tried.append(f"from neighbour {nb}: {r['status']}{'' if ok or not r['success'] else ' (failed the independent check)'}")
+        tried.append(f"from {label}: {r['status']}{'' if ok or not r['success'] else ' (failed the independent check)'}")
         if ok:
-            x = np.asarray(r["x"], dtype=float)
-            return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "retried_from": nb,
-                    "x_scaled": x, "lam_x": np.asarray(r["lam_x"], dtype=float), "lam_g": np.asarray(r["lam_g"], dtype=float),
-                    "data": point_data(spec, sc, x, np.asarray(r["lam_x"], dtype=float), np.asarray(r["lam_g"], dtype=float))}
-    return {"flat": flat, "status": "not_found", "iterations": its,
-            "evidence": {"retries": tried or ["no solved neighbour to start from"]}}
+            return r, tag, tried, its
+    return None, None, tried, its
 
 
 # ------------------------------------------------------------------------------ linearisation check

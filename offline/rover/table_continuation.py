@@ -271,21 +271,10 @@ def _try_starts(spec: Any, flat: int, starts: Sequence[tuple[str, NDArray[np.flo
                 ) -> tuple[dict[str, Any] | None, list[str], int]:
     """One IPOPT run (the solver's ``max_iter``) from each start in turn; the first that converges
     and passes the optimizer's independent check is the point's primitive."""
-    from . import primitives as P
-    from .table_builder import _problem, scenario_at
+    from .table_builder import first_checked_start
 
-    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
-    pb = _problem(sc, spec.solver)
-    b = pb.bounds(sc)
-    tried, its = [], 0
-    for label, x0, lx, lg in starts:
-        r = pb.solve(b, x0, lx, lg)
-        its += int(r["iterations"])
-        ok = bool(r["success"]) and P.check_solution(pb, sc, r["x"])[1]
-        tried.append(f"from {label}: {r['status']}{'' if ok or not r['success'] else ' (failed the independent check)'}")
-        if ok:
-            return _accept(spec, flat, r, label, its), tried, its
-    return None, tried, its
+    r, label, tried, its = first_checked_start(spec, flat, [(lb, lb, x0, lx, lg) for lb, x0, lx, lg in starts])
+    return (_accept(spec, flat, r, label, its) if r is not None else None), tried, its
 
 
 def _order(spec: Any, flats: Sequence[int], seed: SeedStart | None) -> list[tuple[int, int | None]]:

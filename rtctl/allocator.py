@@ -25,6 +25,14 @@ so a QP whose hard box leaves the linearised balance unreachable (a rate limit, 
 trust region) stays feasible and reports its slack; a feasible one has zero slack. The box
 ``[z_lo, z_hi]`` is built by :func:`merge_bounds` so that it is never empty.
 
+Two solvers answer the same QP. First the exact active-set solve (:mod:`rtctl.active_set`,
+``QpSettings.active_set_iterations``): from the last tick's active set (at the start, the
+table's active-set hints) the QP with zero slack is one dense KKT system, solved to rounding;
+it is taken when every KKT condition holds and every row multiplier is below ``rho_1`` (then
+zero slack is optimal for the soft QP too, so it is the same QP's minimiser). Otherwise OSQP,
+whose answer also gives the next tick's active set: a tick whose balance needs slack (a rate
+limit, a pinned variable), or whose active set does not settle within the budget.
+
 Set up once per table layout with OSQP (fixed sparsity: the Jacobian block is dense with
 explicit zeros); each tick changes values only: :meth:`QpAllocator.prepare` (between ticks:
 matrix values and the refactorisation, the preparation phase of real-time iteration) and
@@ -45,6 +53,7 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .active_set import ActiveSet, solve_active_set
 from .config import QpSettings
 from .layout import NlpLayout
 
@@ -101,9 +110,9 @@ class Allocation:
     ok : bool
         Solved, finite, and the model-row slack within the tolerance.
     status : str
-        OSQP status text (or why the result was refused).
+        Solver status text (``"solved (active set)"`` or OSQP's; or why the result was refused).
     iterations : int
-        ADMM iterations.
+        KKT systems of the active-set solve, or ADMM iterations of OSQP.
     slack : float
         Largest slack of a model row (scaled units); 0 when the linearised balance is met.
     objective : float
@@ -213,6 +222,10 @@ class QpAllocator:
         self._last_y: NDArray[np.float64] | None = None
         self._last_x: NDArray[np.float64] | None = None
         self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
+        self._active: ActiveSet | None = None  # the last tick's active set (the next guess)
+        self.last_active_set_iterations = 0
+        self.last_solver = ""
+        """Which solver answered the last :meth:`solve_at`: ``"active set"`` or ``"osqp"``."""
 
     # ------------------------------------------------------------------ preparation phase
     def prepare(self, tp: TablePointLike, hessian: NDArray[np.float64] | None = None) -> None:
@@ -261,6 +274,7 @@ class QpAllocator:
                 H = (V * np.maximum(w, s.regularization)) @ V.T
                 H.flat[::nx + 1] += s.regularization
         self._H = 0.5 * (H + H.T)
+        self._Hd = self._H + self._w_diag
         self._g = g
         self._cf = cf
         self._Hxp = sx[:, None] * hxp / cf  # normalised, scaled x, physical p
@@ -274,6 +288,15 @@ class QpAllocator:
             self._last_z = (self._last_x - x0_new) / sx
         self._x0 = x0_new
         self._p0 = f["p"].copy()
+        if self._active is None:  # the table's active-set hints start the exact solve
+            hint = getattr(tp, "active", None)
+            if isinstance(hint, dict) and all(k in hint for k in ("x_lower", "x_upper", "g_lower", "g_upper")):
+                try:
+                    self._active = ActiveSet(
+                        (np.asarray(hint["g_upper"], dtype=np.int8) - np.asarray(hint["g_lower"], dtype=np.int8)).reshape(ng),
+                        (np.asarray(hint["x_upper"], dtype=np.int8) - np.asarray(hint["x_lower"], dtype=np.int8)).reshape(nx))
+                except ValueError:
+                    self._active = None
         self._lbx = f["lbx"]
         self._ubx = f["ubx"]
         self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
@@ -333,6 +356,7 @@ class QpAllocator:
         if H.shape != (self.nx, self.nx) or not math.isfinite(float(H.sum())):
             raise AllocatorError(f"set_hessian: expected a finite ({self.nx}, {self.nx}) matrix, got shape {H.shape}")
         self._H = 0.5 * (H + H.T) / self._cf
+        self._Hd = self._H + self._w_diag
         self._Px = self._p_values()
         self._pending["Px"] = self._Px
 
@@ -467,9 +491,11 @@ class QpAllocator:
             finite = finite and J.shape == (self.ng, self.nx) and math.isfinite(float(J.sum()))
         if not (finite and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
             return self._refused("bad QP data (non-finite iterate, residual or Jacobian, or empty box)")
+        Js = self._J
         if jac_g_x is not None:
+            Js = J * self._sx_over_sg
             Ax = self._a_data.copy()
-            Ax[self._a_jac_pos_arr] = (J * self._sx_over_sg).T.ravel()
+            Ax[self._a_jac_pos_arr] = Js.T.ravel()
             self._Ax = Ax
             self._pending["Ax"] = Ax
         q = self._q_base.copy()
@@ -479,16 +505,58 @@ class QpAllocator:
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
-        solved, status, it, _, z, slack, obj = self._osqp(q, l, u, zlo, zhi, np.clip(np.zeros(self.nx), zlo, zhi))
-        if not solved:
-            self._last_y = None
-            return Allocation(x_lin.copy(), np.zeros(self.nx), False, f"OSQP: {status}", it, math.inf, math.nan)
+        exact = self._exact_step(Js, q, lg, ug, zlo, zhi) if s.active_set_iterations > 0 else None
+        if exact is not None:
+            z, it = exact
+            slack, obj, status = 0.0, float(0.5 * z @ self._Hd @ z + q[:self.nx] @ z), "solved (active set)"
+            self._q, self._l, self._u = q, l, u
+        else:
+            solved, status, it, zf, z, slack, obj = self._osqp(q, l, u, zlo, zhi, np.clip(np.zeros(self.nx), zlo, zhi))
+            if not solved:
+                self._last_y = None
+                self._active = None
+                return Allocation(x_lin.copy(), np.zeros(self.nx), False, f"OSQP: {status}", it, math.inf, math.nan)
+            self._active = self._active_from_osqp(zlo, zhi)
         dx = z * sx
         x = x_lin + dx
         self._last_y = self._res_y
         ok = slack <= s.balance_tolerance
         return Allocation(x, dx, ok, status if ok else f"{status}; model-row slack {slack:.3g} > {s.balance_tolerance}", it,
                           slack, obj)
+
+    def _exact_step(self, Js: NDArray[np.float64], q: NDArray[np.float64], lg: NDArray[np.float64],
+                    ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], int] | None:
+        """The QP of :meth:`solve_at` solved exactly on the last tick's active set
+        (:func:`rtctl.active_set.solve_active_set`), with zero slack: valid when every KKT
+        condition holds and every row multiplier is below the exact penalty ``slack_l1`` (then
+        zero slack is optimal for the soft QP as well, so this is the same QP's minimiser).
+        Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
+        s = self.settings
+        r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, self._active, s.active_set_iterations)
+        self.last_active_set_iterations = r.iterations
+        if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):
+            return None
+        self._active = r.active
+        z = np.clip(r.z, zlo, zhi)
+        ng = self.ng
+        # OSQP's multipliers of the same point (warm start of a later fallback): rows, bounds, and
+        # the slacks' lower bounds from the slack columns' stationarity at zero slack
+        self._res_y = np.concatenate([r.y, r.nu, r.y - s.slack_l1, -s.slack_l1 - r.y])
+        self.last_solution = np.concatenate([z, np.zeros(2 * ng)])
+        self.last_solver = "active set"
+        return z, r.iterations
+
+    def _active_from_osqp(self, zlo: NDArray[np.float64], zhi: NDArray[np.float64]) -> ActiveSet:
+        """The active set of OSQP's answer (the next tick's guess): bounds and rows whose
+        multiplier is not zero, on the side of its sign."""
+        y = self._res_y if self._res_y is not None else np.zeros(self.m)
+        tol = 1e-7
+        rows = np.where(y[:self.ng] > tol, 1, np.where(y[:self.ng] < -tol, -1, 0)).astype(np.int8)
+        yb = y[self.ng:self.ng + self.nx]
+        box = np.where(yb > tol, 1, np.where(yb < -tol, -1, 0)).astype(np.int8)
+        self.last_solver = "osqp"
+        return ActiveSet(rows, box)
 
     def _refused(self, why: str, iterations: int = 0) -> Allocation:
         return Allocation(self._x0.copy(), np.zeros(self.nx), False, why, iterations, math.inf, math.nan)

@@ -10,6 +10,13 @@ points are. The controller (:mod:`rtctl.controller`) adds the measurements, the 
 actuator and rate limits and the declared failures; the benchmark
 ``tests/bench/bench_online_step.py`` drives this class alone against the NLP.
 
+A tick may take more than one iteration (``QpSettings.iterations_per_tick``): another while the
+last step was longer than ``extra_iteration_step`` variable scales, so that after a jump of the
+operating point (a new table, a cross slope beyond the axes) the commanded point is balanced at
+the first tick; in steady driving the steps are short and a tick is one iteration. With
+``quasi_newton`` the table's Hessian is corrected by damped BFGS updates along the way (the
+table's Hessian is another point's, worst in the objective's flat directions).
+
 A table whose header does not define the physics (no ``params`` / ``rover`` records, as in a
 hand-made table) is iterated on its own first-order model at the iterate
 (:attr:`RealTimeIteration.no_model`: why; callers flag it).
@@ -18,6 +25,7 @@ hand-made table) is iterated on its own first-order model at the iterate
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -96,6 +104,8 @@ class RealTimeIteration:
         """Quasi-Newton updates applied since the iterate last restarted (diagnostics)."""
         self._point: Any = None
         self._free: NDArray[np.bool_] = np.zeros(table.layout.ng, dtype=bool)
+        self.sqp_iterations = 0
+        """SQP iterations of the last :meth:`step` (diagnostics)."""
 
     def prepare(self, tp: Any) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
@@ -127,10 +137,36 @@ class RealTimeIteration:
     def step(self, p: NDArray[np.float64], box: tuple[NDArray[np.float64], NDArray[np.float64]],
              lbg: NDArray[np.float64] | None = None, ubg: NDArray[np.float64] | None = None,
              x_ref: NDArray[np.float64] | None = None) -> Allocation:
-        """One SQP iteration at the measured parameters ``p`` from the carried iterate (the
-        feedback phase); the new iterate is carried when the QP succeeded, else the next
-        preparation restarts from the table's primitive."""
-        xk = self.iterate if self.iterate is not None else self.allocator.x0
+        """SQP iterations at the measured parameters ``p`` from the carried iterate (the feedback
+        phase): one, and more (up to ``iterations_per_tick``, all inside the same ``box``) while
+        the last step was longer than ``extra_iteration_step`` variable scales, so that after a
+        jump of the operating point the commanded point is balanced at once (a long step leaves
+        a second-order residual; a short one, the steady case, none worth another linearisation).
+        The new iterate is carried when the QP succeeded, else the next preparation restarts
+        from the table's primitive. The returned allocation's ``dx`` is the whole step of the
+        tick and ``iterations`` the QP iterations of every SQP iteration."""
+        s = self.settings
+        x_start = self.iterate if self.iterate is not None else self.allocator.x0
+        res = self._one(x_start, p, box, lbg, ubg, x_ref)
+        n, qp_it = 1, res.iterations
+        while res.ok and n < s.iterations_per_tick and \
+                float(np.max(np.abs(res.dx) / self.allocator.sx)) > s.extra_iteration_step:
+            more = self._one(res.x, p, box, lbg, ubg, x_ref)
+            n += 1
+            qp_it += more.iterations
+            if not more.ok:  # keep the last good iterate; the next tick goes on from it
+                self.iterate = res.x.copy()
+                break
+            res = more
+        self.sqp_iterations = n
+        if n > 1:
+            res = replace(res, dx=res.x - x_start, iterations=qp_it, status=f"{res.status}; {n} SQP iterations")
+        return res
+
+    def _one(self, xk: NDArray[np.float64], p: NDArray[np.float64], box: tuple[NDArray[np.float64], NDArray[np.float64]],
+             lbg: NDArray[np.float64] | None, ubg: NDArray[np.float64] | None,
+             x_ref: NDArray[np.float64] | None) -> Allocation:
+        """One SQP iteration from ``xk``; carries the iterate (see :meth:`step`)."""
         g, grad, jac = self.linearise(xk, p)
         if self.settings.quasi_newton and jac is not None:
             self._update_hessian(xk, grad, jac)

@@ -267,10 +267,16 @@ class QpSettings:
         converges in ~50 warm ADMM iterations where (100, 10) needs ~1000.
     regularization : float
         Proximal weight on the scaled step (Levenberg-Marquardt style), and the floor of the
-        Hessian's eigenvalues after convexification. At 1e-3 the QP step on a built table
-        matches the table's own sensitivity dx*/dp to ~0.2 % (1 % at 1e-2).
+        Hessian's eigenvalues after convexification. 1e-5: the exact active-set solve needs no
+        conditioning from it; at 1e-3 (the value while OSQP solved every tick) it dominated the
+        curvature in the objective's flat directions, and the iterate crept a few % a tick toward
+        the optimum (measured: tick-5 agreement with the NLP 14/76 points at 1e-3, 36/76 at 1e-5,
+        same at 1e-6; ``tests/bench/bench_online_step.py accuracy``).
     command_weight : float
         Weight on the change of the commanded variables from the previous command (smoothness).
+        At steady state the previous command is the iterate's, so it acts as a proximal term as
+        well and slows convergence in flat directions (tick-5 agreement 66/76 at 1e-5 against
+        46/76 at 1e-3, with the other defaults); the actuators' rate limits bound the changes.
     max_iter : int
         OSQP iteration budget per solve. 4000: the warm-started ADMM needs more than 1000 on the
         strongly slipping primitives of the rim-speed cap tables (measured: 196 of 253 ticks fell
@@ -282,41 +288,72 @@ class QpSettings:
         force row) before the step is refused and the fallback used; smaller slacks (a rate limit
         that keeps the balance out of reach for a tick) are commanded and reported.
     step_limit : float
-        Trust region of one real-time iteration: the largest step of each variable from the
+        Trust region of one tick: the largest change of each variable from the tick's starting
         iterate, in variable scales (the step in x is limited; the measured parameters never are).
+        1.0: a point beyond a table's axes (a 6-8 deg cross slope on a table built at 0) lies
+        0.5-1 scales from the table's primitive, and 0.5 left its first tick unbalanced.
     exact_jacobian : bool
         Linearise the rows with their exact Jacobian at the iterate (structured forward
         differences of the shared physics, :class:`rtctl.physics.steady_state.SteadyStateResidual`):
         the iteration's fixed point is then the NLP's KKT point anywhere. False: the table's
         interpolated Jacobian (exact residual and gradient still; the fixed point is then off by
         the Jacobian's interpolation error times the multipliers).
+    iterations_per_tick : int
+        Most SQP iterations (linearisation + QP) in one tick (:meth:`rtctl.rti.RealTimeIteration.step`):
+        after the first, another while the last step was longer than ``extra_iteration_step``.
+        Measured (``bench_online_step.py accuracy``, 76 off-grid points, residual after one tick
+        within 0.1 N / 0.01 N m / 0.2 N): 1 iteration 31/76, 2: 61/76, 3: 72/76, 5: 73/76. Each
+        iteration costs one exact linearisation (the step's largest part), so 3.
+    extra_iteration_step : float
+        Step length (largest change of a variable, in variable scales) above which the tick
+        iterates again: a step of ``dz`` leaves a second-order residual of about ``c dz^2``
+        (measured on the shipped tables: ~0.1 N after a step of 0.09 scales). 0.05 gives the same
+        agreement as 0.02 (73/76 and 66/76 at five iterations) with fewer iterations in closed
+        loop (ticks with more than one: 29 % at 0.02, 18 % at 0.05, kinematic rover of
+        ``bench_online_step.py timing``).
+    active_set_iterations : int
+        Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
+        OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
+        rounding (OSQP's ADMM stops at ``eps``) and without OSQP's refactorisation; when the set
+        does not settle within the budget, or the balance needs slack, OSQP solves the tick. 0:
+        OSQP alone (the C flight path of :mod:`rtctl.codegen` is OSQP's).
     quasi_newton : bool
-        Improve the table's Lagrangian Hessian from tick to tick by damped BFGS updates with the
-        exact Lagrangian gradients (:meth:`rtctl.rti.RealTimeIteration.step`); needs
+        Improve the table's Lagrangian Hessian from iteration to iteration by damped BFGS updates
+        with the exact Lagrangian gradients (:meth:`rtctl.rti.RealTimeIteration.step`); needs
         ``exact_jacobian``. Between grid points and beyond the axes the table's Hessian is
-        another point's: with it alone the iterates approach the optimum only linearly. Off by
-        default: measured in closed loop (kinematic rover, RR stuck at -50 deg, 600 ticks) the
-        updated Hessians raised OSQP's iterations from 225 to 2600 at p99 (with fallbacks), and
-        flooring their eigenvalues to keep the QP conditioned gave no gain in the drives.
+        another point's, and it is wrong where it matters most: in the directions the objective
+        hardly curves (measured at an off-grid rim-speed-cap point: table reduced-Hessian
+        eigenvalues 0.04 and 0.33 where the exact ones are 1e-6 and 1.3e-5). On (tick-5 agreement
+        with the NLP 66/76 against 36/76 off). It was off while OSQP solved every tick: the
+        updated Hessians raised OSQP's iterations from 225 to 2600 at p99; the exact active-set
+        solve does not care about conditioning.
     """
 
     slack_l1: float = 10.0
     slack_l2: float = 100.0
-    regularization: float = 1e-3
-    command_weight: float = 1e-3
+    regularization: float = 1e-5
+    command_weight: float = 1e-5
     max_iter: int = 4000
     eps: float = 1e-6
     balance_tolerance: float = 0.5
-    step_limit: float = 0.5
+    step_limit: float = 1.0
     exact_jacobian: bool = True
-    quasi_newton: bool = False
+    quasi_newton: bool = True
+    active_set_iterations: int = 8
+    iterations_per_tick: int = 3
+    extra_iteration_step: float = 0.05
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
             "max_iter": _key("max_iter", check=lambda v: None if (v >= 10 and v == int(v)) else "must be an integer >= 10"),
             "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos),
             "step_limit": _key("step_limit", check=_pos), "exact_jacobian": _key("exact_jacobian"),
-            "quasi_newton": _key("quasi_newton")}
+            "quasi_newton": _key("quasi_newton"),
+            "iterations_per_tick": _key("iterations_per_tick",
+                                        check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
+            "extra_iteration_step": _key("extra_iteration_step", check=_pos),
+            "active_set_iterations": _key("active_set_iterations",
+                                          check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0")}
 
 
 _SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
@@ -496,14 +533,17 @@ max_fy_offset = 2.0         # N
 [qp]
 slack_l1 = 10.0
 slack_l2 = 100.0
-regularization = 1e-3
-command_weight = 1e-3
+regularization = 1e-5
+command_weight = 1e-5
 max_iter = 4000
 eps = 1e-6
 balance_tolerance = 0.5
-step_limit = 0.5            # variable scales: the real-time iteration's step in x (never the parameters)
+step_limit = 1.0            # variable scales: the tick's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
-quasi_newton = false        # damped BFGS updates of the table's Hessian from tick to tick
+quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
+active_set_iterations = 8   # exact active-set solve first (0: OSQP alone, as the C flight path)
+iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
+extra_iteration_step = 0.05 # variable scales
 
 [timing]
 period = 0.2

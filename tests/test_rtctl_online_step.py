@@ -11,6 +11,8 @@ independent check (numpy wheel model, free-body balance). The full-size comparis
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import math
 from pathlib import Path
 
@@ -62,11 +64,11 @@ def _reference(t, op):
     return np.asarray(loc["x"]) * xsc, check
 
 
-def _iterate(t, op, ticks):
+def _iterate(t, op, ticks, settings=None):
     lay = t.layout
     xsc = np.asarray(lay.variable_scale)
     tp = t.at(**op)  # clamped into the axes: the Hessian, bounds and start come from there
-    rti = RealTimeIteration(t, QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
+    rti = RealTimeIteration(t, settings or QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
     rti.prepare(tp)
     p = np.array(tp.p, dtype=float)
     for k in ("speed", "slope", "cross_slope"):
@@ -119,7 +121,7 @@ def test_beyond_the_axis_the_parameter_enters_through_the_exact_residual(steer_t
 def test_slack_is_zero_only_when_the_linearised_step_meets_the_exact_residual(steer_table):
     t = steer_table
     lay = t.layout
-    tp, p, rti, _ = _iterate(t, BEYOND, 0)
+    tp, p, rti, _ = _iterate(t, BEYOND, 0, replace(QpSettings(), iterations_per_tick=1))  # one linearisation
     x = rti.iterate
     g, _, jac = rti.linearise(x, p)
     res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 2 * np.asarray(lay.variable_scale), x + 2 * np.asarray(lay.variable_scale))))

@@ -339,7 +339,7 @@ class QpSettings:
     step_limit: float = 1.0
     exact_jacobian: bool = True
     quasi_newton: bool = True
-    active_set_iterations: int = 8
+    active_set_iterations: int = 5
     iterations_per_tick: int = 3
     extra_iteration_step: float = 0.05
 
@@ -541,7 +541,7 @@ balance_tolerance = 0.5
 step_limit = 1.0            # variable scales: the tick's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
-active_set_iterations = 8   # exact active-set solve first (0: OSQP alone, as the C flight path)
+active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales
 

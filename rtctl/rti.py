@@ -99,7 +99,9 @@ class RealTimeIteration:
         self.iterate: NDArray[np.float64] | None = None
         """The physical iterate carried from step to step (None: start from the next prepared primitive)."""
         self._H: NDArray[np.float64] | None = None  # quasi-Newton Hessian (scaled, not normalised)
-        self._prev: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
+        # the last iteration's (x, Lagrangian gradient, multipliers, parameters): BFGS pairs are
+        # taken only at equal parameters (a change of p moves the gradient without any step)
+        self._prev: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
         self.hessian_updates = 0
         """Quasi-Newton updates applied since the iterate last restarted (diagnostics)."""
         self._point: Any = None
@@ -139,17 +141,27 @@ class RealTimeIteration:
              x_ref: NDArray[np.float64] | None = None) -> Allocation:
         """SQP iterations at the measured parameters ``p`` from the carried iterate (the feedback
         phase): one, and more (up to ``iterations_per_tick``, all inside the same ``box``) while
-        the last step was longer than ``extra_iteration_step`` variable scales, so that after a
+        the last step was exact with zero slack and longer than ``extra_iteration_step`` variable
+        scales, so that after a
         jump of the operating point the commanded point is balanced at once (a long step leaves
         a second-order residual; a short one, the steady case, none worth another linearisation).
         The new iterate is carried when the QP succeeded, else the next preparation restarts
         from the table's primitive. The returned allocation's ``dx`` is the whole step of the
         tick and ``iterations`` the QP iterations of every SQP iteration."""
         s = self.settings
+        if self._H is not None and self._prev is not None and not np.array_equal(self._prev[3], np.asarray(p, dtype=float)):
+            # the parameters moved: what BFGS learnt belongs to the last operating point, so the
+            # table's Hessian again (measured in closed loop, RR stuck at -65 deg on a 6 deg cross
+            # slope: max heading 2.4 deg keeping the learnt matrix across ticks, 2.1 without QN)
+            self._H, self.hessian_updates = None, 0
+            self.allocator.prepare(BoundedRows(self._point, self.keep_rows))
         x_start = self.iterate if self.iterate is not None else self.allocator.x0
         res = self._one(x_start, p, box, lbg, ubg, x_ref)
         n, qp_it = 1, res.iterations
-        while res.ok and n < s.iterations_per_tick and \
+        # again only after an exact zero-slack step (the active-set solve): a step that needed
+        # slack was held by the tick's box (rate limits, a pinned variable), and another
+        # linearisation cannot reach further inside the same box
+        while res.ok and n < s.iterations_per_tick and self.allocator.last_solver == "active set" and \
                 float(np.max(np.abs(res.dx) / self.allocator.sx)) > s.extra_iteration_step:
             more = self._one(res.x, p, box, lbg, ubg, x_ref)
             n += 1
@@ -169,12 +181,13 @@ class RealTimeIteration:
         """One SQP iteration from ``xk``; carries the iterate (see :meth:`step`)."""
         g, grad, jac = self.linearise(xk, p)
         if self.settings.quasi_newton and jac is not None:
-            self._update_hessian(xk, grad, jac)
+            self._update_hessian(xk, grad, jac, p)
         res = self.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=x_ref)
         if res.ok:
             self.iterate = res.x.copy()
             y = self.allocator.row_duals
-            self._prev = (xk.copy(), self._lagrangian_gradient(grad, jac, y), y) if (jac is not None and y is not None) else None
+            self._prev = (xk.copy(), self._lagrangian_gradient(grad, jac, y), y, np.array(p, dtype=float)) \
+                if (jac is not None and y is not None) else None
         elif math.isfinite(res.slack) and np.all(np.isfinite(res.x)):
             # solved, but the linearised balance was out of reach this tick (slack above the
             # tolerance: the caller commands its fallback): the step still went toward it, so the
@@ -190,15 +203,23 @@ class RealTimeIteration:
                              y: NDArray[np.float64] | None) -> NDArray[np.float64]:
         return grad if (jac is None or y is None) else grad + jac.T @ y
 
-    def _update_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64]) -> None:
+    def _update_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64],
+                        p: NDArray[np.float64]) -> None:
         """Powell-damped BFGS update of the QP's Hessian from the last step (Nocedal & Wright,
         Numerical Optimization, 2nd ed., procedure 18.2): ``s`` the step, ``y`` the change of the
         Lagrangian's gradient ``grad f + J^T lambda`` (exact, with the last QP's multipliers),
-        both in scaled variables. Damping keeps the matrix positive definite; the table's
-        Hessian is the start, so on a grid point at its own parameters nothing changes."""
+        both in scaled variables, taken only when the parameters are the same as at the last
+        iteration (another iteration of the same tick, or a tick at an unchanged operating
+        point): across a change of ``p`` the gradient moves without any step, and a pair taken
+        there teaches a curvature that is not the problem's (measured in closed loop with the
+        outer loop's offsets changing every tick: balance slack on 50 of 550 ticks, none
+        without). Damping keeps the matrix positive definite; the table's Hessian is the start,
+        so on a grid point at its own parameters nothing changes."""
         if self._prev is None:
             return
-        x0, gl0, lam = self._prev
+        x0, gl0, lam, p0 = self._prev
+        if not np.array_equal(p0, np.asarray(p, dtype=float)):
+            return
         sx = self.allocator.sx
         s = (x - x0) / sx
         if not np.any(s):

@@ -128,7 +128,7 @@ def test_allocator_exact_step_equals_osqp_on_a_built_table():
     p[lay.index("slope")] += 0.02
     out = {}
     for n in (0, 8):
-        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=n),
+        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=n, iterations_per_tick=1),
                                 [lay.index(f"wheel torque {w}") for w in lay.wheels])
         rti.prepare(tp)
         x = rti.iterate

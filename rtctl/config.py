@@ -303,7 +303,12 @@ class QpSettings:
         after the first, another while the last step was longer than ``extra_iteration_step``.
         Measured (``bench_online_step.py accuracy``, 76 off-grid points, residual after one tick
         within 0.1 N / 0.01 N m / 0.2 N): 1 iteration 31/76, 2: 61/76, 3: 72/76, 5: 73/76. Each
-        iteration costs one exact linearisation (the step's largest part), so 3.
+        iteration costs one exact linearisation (the step's largest part), so 3, and only on a
+        tick that starts the iterate or follows a jump of speed, slope or cross slope
+        (:meth:`rtctl.rti.RealTimeIteration.step`): allowed on every tick, the noise of a closed
+        loop made 18 % of ticks iterate again and the step's p99 thread CPU 4.0 times 40a08e8's;
+        on jumps only, 2.1 times (``bench_online_step.py timing``, same run), at the price of
+        tick-5 agreement 56/76 instead of 65/76.
     extra_iteration_step : float
         Step length (largest change of a variable, in variable scales) above which the tick
         iterates again: a step of ``dz`` leaves a second-order residual of about ``c dz^2``

@@ -38,6 +38,9 @@ from .physics.steady_state import SteadyStateModel, SteadyStateResidual
 
 __all__ = ["RealTimeIteration", "BoundedRows", "free_rows"]
 
+_TILT_JUMP = math.radians(1.0)
+"""A change of slope or cross slope between ticks (rad) beyond which a tick may iterate again."""
+
 
 def free_rows(lbg: NDArray[np.float64], ubg: NDArray[np.float64], keep: Sequence[int] = ()) -> NDArray[np.bool_]:
     """Rows without bounds (``lbg = -inf``, ``ubg = +inf``), except the rows in ``keep`` (the
@@ -108,6 +111,10 @@ class RealTimeIteration:
         self._free: NDArray[np.bool_] = np.zeros(table.layout.ng, dtype=bool)
         self.sqp_iterations = 0
         """SQP iterations of the last :meth:`step` (diagnostics)."""
+        self._last_p: NDArray[np.float64] | None = None
+        names = list(table.layout.parameter_names)
+        self._i_speed = names.index("speed") if "speed" in names else -1
+        self._i_tilt = np.array([names.index(k) for k in ("slope", "cross_slope") if k in names], dtype=int)
 
     def prepare(self, tp: Any) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
@@ -140,9 +147,11 @@ class RealTimeIteration:
              lbg: NDArray[np.float64] | None = None, ubg: NDArray[np.float64] | None = None,
              x_ref: NDArray[np.float64] | None = None) -> Allocation:
         """SQP iterations at the measured parameters ``p`` from the carried iterate (the feedback
-        phase): one, and more (up to ``iterations_per_tick``, all inside the same ``box``) while
-        the last step was exact with zero slack and longer than ``extra_iteration_step`` variable
-        scales, so that after a
+        phase): one, and on a tick that starts the iterate or follows a jump of the operating
+        point (speed by more than 10 %, slope or cross slope by more than 1 deg since the last
+        tick; not the outer loop's offsets, which move every tick) more, up to
+        ``iterations_per_tick`` and all inside the same ``box``, while the last step was exact
+        with zero slack and longer than ``extra_iteration_step`` variable scales, so that after a
         jump of the operating point the commanded point is balanced at once (a long step leaves
         a second-order residual; a short one, the steady case, none worth another linearisation).
         The new iterate is carried when the QP succeeded, else the next preparation restarts
@@ -155,13 +164,18 @@ class RealTimeIteration:
             # slope: max heading 2.4 deg keeping the learnt matrix across ticks, 2.1 without QN)
             self._H, self.hessian_updates = None, 0
             self.allocator.prepare(BoundedRows(self._point, self.keep_rows))
+        fresh = self.iterate is None
         x_start = self.iterate if self.iterate is not None else self.allocator.x0
+        p = np.asarray(p, dtype=float)
+        jumped = fresh or self._jumped(p)
+        self._last_p = p.copy()
         res = self._one(x_start, p, box, lbg, ubg, x_ref)
         n, qp_it = 1, res.iterations
+        limit = s.iterations_per_tick if jumped else 1
         # again only after an exact zero-slack step (the active-set solve): a step that needed
         # slack was held by the tick's box (rate limits, a pinned variable), and another
         # linearisation cannot reach further inside the same box
-        while res.ok and n < s.iterations_per_tick and self.allocator.last_solver == "active set" and \
+        while res.ok and n < limit and self.allocator.last_solver == "active set" and \
                 float(np.max(np.abs(res.dx) / self.allocator.sx)) > s.extra_iteration_step:
             more = self._one(res.x, p, box, lbg, ubg, x_ref)
             n += 1
@@ -174,6 +188,16 @@ class RealTimeIteration:
         if n > 1:
             res = replace(res, dx=res.x - x_start, iterations=qp_it, status=f"{res.status}; {n} SQP iterations")
         return res
+
+    def _jumped(self, p: NDArray[np.float64]) -> bool:
+        """The operating point jumped since the last tick: speed by more than 10 %, slope or cross
+        slope by more than 1 deg (:meth:`step`)."""
+        last = self._last_p
+        if last is None or last.shape != p.shape:
+            return True
+        if self._i_speed >= 0 and abs(p[self._i_speed] - last[self._i_speed]) > 0.1 * abs(last[self._i_speed]):
+            return True
+        return bool(np.any(np.abs(p[self._i_tilt] - last[self._i_tilt]) > _TILT_JUMP))
 
     def _one(self, xk: NDArray[np.float64], p: NDArray[np.float64], box: tuple[NDArray[np.float64], NDArray[np.float64]],
              lbg: NDArray[np.float64] | None, ubg: NDArray[np.float64] | None,

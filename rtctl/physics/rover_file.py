@@ -211,6 +211,20 @@ class RoverSpec:
                 return w
         raise KeyError(f"{self.path or self.name}: no wheel {name!r}; wheels: {list(self.wheel_names)}")
 
+    def wheel_params(self, name: str) -> str:
+        """The wheel's ``params`` resolved: a ``.toml`` name becomes a path beside the rover file
+        (when the spec was read from a file); a preset name is returned as it is.
+
+        Parameters
+        ----------
+        name : str
+            Wheel name.
+        """
+        value = self.wheel(name).params
+        if value.endswith(".toml") and self.path:
+            return str(Path(self.path).parent / value)
+        return value
+
     def link(self, name: str) -> LinkSpec:
         """The link called ``name`` (KeyError naming the known links otherwise)."""
         for lk in self.links:

@@ -1,16 +1,17 @@
-"""A six-wheel steady state solves: the MER-class rover file's rocker-bogie balance
-(rtctl.physics.suspension) with the numpy wheel model (rtctl.physics.terramechanics.wrench_core)
-and scipy's least squares, driving straight at its nominal speed on flat ground and up a 10 deg
-slope.
+"""Steady states of rovers from their files solve: the MER-class six-wheel rocker-bogie and the
+four-wheel skid-steer (rigid) balance of rtctl.physics.suspension with the numpy wheel model
+(rtctl.physics.terramechanics.wrench_core) and scipy's least squares, driving straight at the
+nominal speed on flat ground and up a 10 deg slope.
 
-Unknowns: one common wheel speed (every wheel commanded alike, no steering), the six sinkages
-and the six loads; equations: each wheel's F_z(h, omega) = W_i (5.34)/(7.19)-(7.22) and every
-balance row (9), scaled by the weight (N) and the weight times 1 m (N m). 13 unknowns, 15
-equations; a solution with zero residual is a steady state. Checked at the solution: the total
-normal load is W cos(slope) (from the wheel model's F_z, not only the loads), the bogie and
-differential rows of the independent free body of tests/test_suspension.py vanish, the two
-sides are mirror images, the loads shift downhill on the slope, the wheel speed is within the
-file's drive limit.
+Unknowns: one common wheel speed (every wheel commanded alike, no steering), each wheel's
+sinkage and load; equations: each wheel's F_z(h, omega) = W_i (5.34)/(7.19)-(7.22) and every
+balance row, scaled by the weight (N) and the weight times 1 m (N m). Six wheels: 13 unknowns,
+15 equations; four rigid wheels: 9 unknowns, 11 equations (with the height compatibility that
+closes the indeterminate loads). A solution with zero residual is a steady state. Checked at
+the solution: the total normal load is W cos(slope) (from the wheel model's F_z, not only the
+loads), the rows of the independent free body of tests/test_suspension.py vanish (bogie,
+differential; for the rigid frame the heights lie on a plane), the two sides are mirror images,
+the loads shift downhill on the slope, the wheel speed is within the file's drive limit.
 
 Not covered here: standing still (the wheel model's slip is undefined at zero speed), steering,
 failures, the NLP's objective (7.24).
@@ -26,6 +27,7 @@ from scipy.optimize import least_squares
 from test_suspension import FreeBody
 
 from offline.physics.params import load_toml
+from offline.rover.scenario import PARAM_PRESETS
 from rtctl.physics.backend import NUMPY
 from rtctl.physics.rover_file import shipped_rover
 from rtctl.physics.suspension import SuspensionStatics
@@ -102,3 +104,36 @@ def test_the_slope_costs_slip_and_torque(mer):
     assert up[2] > flat[2]  # a faster wheel for the same travel speed: more slip
     torque = lambda s: sum(w[4] ** 2 for w in s[5].values())  # noqa: E731  (7.24)
     assert torque(up) > torque(flat)
+
+
+@pytest.fixture(scope="module")
+def skid():
+    rv = shipped_rover("skid_steer_4w")
+    ps = PARAM_PRESETS[rv.wheel_params("FR")]
+    assert all(w.params == "dissertation-ch7" for w in rv.wheels)
+    return rv, PhysParams.from_sets(ps.soil, ps.wheel, ps.tuning), ps.wheel.radius + ps.wheel.grouser_height
+
+
+@pytest.mark.parametrize("slope_deg", [0.0, 10.0])
+def test_skid_steer_drives_straight_in_steady_state(skid, slope_deg):
+    rv, p, rs = skid
+    slope = math.radians(slope_deg)
+    st, sol, omega, h, load, wr, diag = _solve(rv, p, rs, slope)
+    W = rv.weight
+    assert sol.success, sol.message
+    assert np.abs(sol.fun).max() < TOL_BALANCE_REL
+    assert sum(load.values()) == pytest.approx(W * math.cos(slope), rel=1e-12)
+    assert sum(w[2] for w in wr.values()) == pytest.approx(W * math.cos(slope), rel=1e-9)
+    free_body = FreeBody(rv)
+    zero = {k: 0.0 for k in st.wheels}
+    fb = free_body.rows(wr, zero, h, load, slope, 0.0, 0.0, 0.0)
+    for name, v in fb.items():
+        assert abs(v) < TOL_BALANCE_REL * W, (name, v)
+    assert np.abs(free_body.plane_residual(h)).max() < 1e-12  # the wheel centres of one rigid frame
+    for r_, l_ in (("FR", "FL"), ("RR", "RL")):
+        assert h[r_] == pytest.approx(h[l_], rel=1e-7) and load[r_] == pytest.approx(load[l_], rel=1e-7)
+    assert np.all(diag["slip"] > 0) and omega <= rv.actuators.drive_speed_max
+    if slope_deg == 0.0:
+        assert load["FR"] > load["RR"]  # the centre of mass is 2 cm ahead of the frame's centre
+    else:
+        assert load["RR"] > load["FR"]  # uphill: the load shifts to the rear

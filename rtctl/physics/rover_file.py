@@ -267,7 +267,7 @@ class _Ctx:
             hint = f" (wrong unit? expected {near})" if near and "_" in k else ""
             raise self.err(section, k, f"unknown key{hint}; known keys: {sorted(known)}")
 
-    def number(self, table: Mapping[str, Any], section: str, key: str, lo: float | None = None,
+    def opt_number(self, table: Mapping[str, Any], section: str, key: str, lo: float | None = None,
                hi: float | None = None, lo_open: bool = False, required: bool = True) -> float | None:
         if key not in table:
             if required:
@@ -285,6 +285,13 @@ class _Ctx:
             raise self.err(section, key, f"= {v!r} is out of range: expected <= {hi:g}")
         return x
 
+    def number(self, table: Mapping[str, Any], section: str, key: str, lo: float | None = None,
+               hi: float | None = None, lo_open: bool = False) -> float:
+        x = self.opt_number(table, section, key, lo, hi, lo_open, required=True)
+        if x is None:  # unreachable: a required key raises in opt_number
+            raise self.err(section, key, "missing key (expected a finite number)")
+        return x
+
     def vector3(self, table: Mapping[str, Any], section: str, key: str) -> tuple[float, float, float]:
         if key not in table:
             raise self.err(section, key, "missing key (expected [x, y, z] in metres)")
@@ -298,7 +305,7 @@ class _Ctx:
             out.append(float(c))
         return out[0], out[1], out[2]
 
-    def string(self, table: Mapping[str, Any], section: str, key: str, required: bool = True) -> str | None:
+    def opt_string(self, table: Mapping[str, Any], section: str, key: str, required: bool = True) -> str | None:
         if key not in table:
             if required:
                 raise self.err(section, key, "missing key (expected a string)")
@@ -306,6 +313,12 @@ class _Ctx:
         v = table[key]
         if not isinstance(v, str) or not v.strip():
             raise self.err(section, key, f"expected a non-empty string, got {v!r}")
+        return v
+
+    def string(self, table: Mapping[str, Any], section: str, key: str) -> str:
+        v = self.opt_string(table, section, key, required=True)
+        if v is None:  # unreachable: a required key raises in opt_string
+            raise self.err(section, key, "missing key (expected a string)")
         return v
 
     def boolean(self, table: Mapping[str, Any], section: str, key: str) -> bool:
@@ -325,7 +338,6 @@ def _parse_wheel(c: _Ctx, name: str, t: Any) -> WheelSpec:
     link = c.string(t, sec, "link")
     pos = c.vector3(t, sec, "position_m")
     params = c.string(t, sec, "params")
-    assert link is not None and params is not None  # required=True
     if params.startswith("/") or params.startswith("\\") or (len(params) > 1 and params[1] == ":"):
         raise c.err(sec, "params", f"expected a preset name or a path relative to the rover file, got the absolute path {params!r}")
     driven = c.boolean(t, sec, "driven")
@@ -333,7 +345,6 @@ def _parse_wheel(c: _Ctx, name: str, t: Any) -> WheelSpec:
     if steerable:
         lo = c.number(t, sec, "steer_min_deg", -180.0, 180.0)
         hi = c.number(t, sec, "steer_max_deg", -180.0, 180.0)
-        assert lo is not None and hi is not None
         if not lo < hi:
             raise c.err(sec, "steer_max_deg", f"= {hi!r} must exceed steer_min_deg = {lo!r}")
         if not lo <= 0.0 <= hi:
@@ -449,8 +460,7 @@ def parse_rover(data: Mapping[str, Any], path: str = "") -> RoverSpec:
     rv = c.table(data, "rover")
     c.unknown(rv, "rover", _ROVER_KEYS)
     name = c.string(rv, "rover", "name")
-    source = c.string(rv, "rover", "source", required=False) or ""
-    assert name is not None
+    source = c.opt_string(rv, "rover", "source", required=False) or ""
     if "weight_N" in rv:
         for k in ("mass_kg", "gravity_m_s2"):
             if k in rv:
@@ -459,20 +469,18 @@ def parse_rover(data: Mapping[str, Any], path: str = "") -> RoverSpec:
     elif "mass_kg" in rv or "gravity_m_s2" in rv:
         m = c.number(rv, "rover", "mass_kg", 0.0, lo_open=True)
         g = c.number(rv, "rover", "gravity_m_s2", 0.0, 30.0, lo_open=True)
-        assert m is not None and g is not None
         weight = m * g
     else:
         raise c.err("rover", "weight_N", "missing key (expected weight_N, or mass_kg with gravity_m_s2)")
-    assert weight is not None
     com = c.vector3(rv, "rover", "centre_of_mass_m")
-    speed = c.number(rv, "rover", "travel_speed_m_s", 0.0, 10.0, lo_open=True, required=False)
+    speed = c.opt_number(rv, "rover", "travel_speed_m_s", 0.0, 10.0, lo_open=True, required=False)
 
     sus = c.table(data, "suspension")
     c.unknown(sus, "suspension", _SUSPENSION_KEYS)
     kind = c.string(sus, "suspension", "kind")
     if kind not in SUSPENSION_KINDS:
         raise c.err("suspension", "kind", f"= {kind!r}: expected one of {list(SUSPENSION_KINDS)}")
-    body_fixed_to = c.string(sus, "suspension", "body_fixed_to", required=(kind == "rocker"))
+    body_fixed_to = c.opt_string(sus, "suspension", "body_fixed_to", required=(kind == "rocker"))
     if kind != "rocker" and body_fixed_to is not None:
         raise c.err("suspension", "body_fixed_to", f"only for kind = 'rocker' (the body of a {kind!r} rover is "
                     + ("carried by the differential)" if kind == "rocker_bogie" else "itself the frame)"))
@@ -485,7 +493,6 @@ def parse_rover(data: Mapping[str, Any], path: str = "") -> RoverSpec:
             raise c.err(sec, None, f"expected a TOML table, got {t!r}")
         c.unknown(t, sec, _LINK_KEYS)
         parent = c.string(t, sec, "parent")
-        assert parent is not None
         links.append(LinkSpec(ln, parent, c.vector3(t, sec, "pivot_m")))
 
     wt = c.table(data, "wheels")
@@ -497,9 +504,8 @@ def parse_rover(data: Mapping[str, Any], path: str = "") -> RoverSpec:
     c.unknown(act, "actuators", _ACTUATOR_KEYS)
     speed_max = c.number(act, "actuators", "drive_speed_max_rad_s", 0.0, lo_open=True)
     torque_max = c.number(act, "actuators", "drive_torque_max_N_m", 0.0, lo_open=True)
-    assert speed_max is not None and torque_max is not None
     any_steer = any(w.steerable for w in wheels)
-    rate = c.number(act, "actuators", "steer_rate_max_deg_s", 0.0, lo_open=True, required=any_steer)
+    rate = c.opt_number(act, "actuators", "steer_rate_max_deg_s", 0.0, lo_open=True, required=any_steer)
     if rate is not None and not any_steer:
         raise c.err("actuators", "steer_rate_max_deg_s", "given but no wheel is steerable (remove it)")
     actuators = ActuatorLimits(speed_max, torque_max, None if rate is None else math.radians(rate))

@@ -149,6 +149,8 @@ def test_suspension_tree_must_fit_the_kind(tmp_path):
     # a rocker wheel moved to the other rocker: three supports on one link
     _refused(tmp_path, _replace(MINI, 'link = "rocker_left"', 'link = "rocker_right"'), "links.rocker_right", None,
              "exactly two supports")
+    _refused(tmp_path, _replace(MINI, "position_m = [-0.16, -0.1655, -0.112]", "position_m = [0.16, -0.1655, -0.3]"),
+             "links.rocker_right", None, "apart along x")
     _refused(tmp_path, _replace(MINI, 'link = "rocker_left"', 'link = "rocker_middle"'), "wheels.FL", "link",
              "expected 'body' or one of the links")
     _refused(tmp_path, _replace(MINI, "pivot_m = [0.0, 0.1655, 0.0]", "pivot_m = [0.01, 0.1655, 0.0]"),

@@ -392,9 +392,9 @@ def _check_tree(c: _Ctx, kind: str, links: tuple[LinkSpec, ...], wheels: tuple[W
              f"a passive link must rest on exactly two supports (wheels or child pivots); it has {supports} "
              f"(wheels {[w.name for w in on[lk.name]]}, child links {[x.name for x in children[lk.name]]})")
         xs = [w.position[0] for w in on[lk.name]] + [x.pivot[0] for x in children[lk.name]]
-        zs = [w.position[2] for w in on[lk.name]] + [x.pivot[2] for x in children[lk.name]]
-        need(math.hypot(xs[0] - xs[1], zs[0] - zs[1]) > 1e-6, f"links.{lk.name}", None,
-             "its two supports coincide in x and z: its pitch angle is not defined")
+        need(abs(xs[0] - xs[1]) > 1e-6, f"links.{lk.name}", None,
+             f"its two supports must be apart along x (got x = {xs[0]!r} and {xs[1]!r} m): its pitch angle "
+             "follows from their height difference")
     if kind == "rigid":
         need(not links, "links", None, "a rigid rover has no passive links (remove the [links] tables)")
         need(len(on["body"]) >= 3, "wheels", None, f"a rigid rover needs at least three wheels on 'body', got {len(on['body'])}")

@@ -29,7 +29,7 @@ centre where the file puts it (the nominal pose).
     pivot_m = [0.0, -0.1655, 0.0]         # the link's pitch pivot, body frame
 
     [actuators]
-    drive_speed_max_rad_s = 4.8
+    drive_speed_max_rad_s = 4.817
     drive_torque_max_N_m = 4.1
     steer_rate_max_deg_s = 582.0          # required when a wheel is steerable
 

@@ -40,6 +40,11 @@ parent's pivot plus ``R_y(-phi)`` times the nominal offset; the centre of mass `
 
 Free bodies (which body each row is about)
 ------------------------------------------
+The links and wheels are massless: the whole weight acts at the body's centre of mass. A
+wheel's soil moment ``M_y`` acts on the link carrying it (the motor torque is internal to
+that free body); ``pitch_includes_wheel_torque=False`` drops it from the link rows as the
+printed (7.16)-(7.17) do.
+
 * ``Fx``, ``Fy``, ``Fz``, ``Mx``, ``Mz`` (and ``My`` except for ``rocker``): the whole rover.
   Net force of the wheel forces and the weight
   ``W (-sin alpha, -cos alpha sin gamma, -cos alpha cos gamma)`` (slope alpha, cross slope gamma;
@@ -52,7 +57,7 @@ Free bodies (which body each row is about)
 * ``rocker``: the two rockers are joined by a passive pivot and the body is fixed to one of
   them, so the rows are each rocker's pitch about the common pivot axis, ``My_right`` (with the
   body's weight if the body is fixed to it) and ``My_left``: (7.16)-(7.17). Their sum is the
-  whole rover's pitch, which therefore is not a separate row.
+  whole rover's pitch about that axis, which therefore is not a separate row.
 * ``rocker_bogie``: the differential makes the body pitch ``(phi_R + phi_L) / 2``. With the
   moments ``m_R``, ``m_L``, ``m_B`` it exerts on the rockers and the body, an ideal
   (massless, frictionless) differential does no work: ``m_R w_R + m_L w_L + m_B (w_R + w_L) / 2 = 0``

@@ -491,3 +491,36 @@ def test_links_and_wheels_other_than_the_file_are_refused():
     with pytest.raises(ValueError, match=r"shearing_radius has no value for wheel\(s\) \['RL'\]"):
         SuspensionStatics(rover, shearing_radius={"FR": 0.06, "FL": 0.06, "RR": 0.06})
     assert isinstance(rover.links[0], LinkSpec) and isinstance(rover.wheels[0], WheelSpec)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_mini_rover_file_swaps_into_the_steady_state_rows(seed):
+    """The rows and objective of (7.25) (rtctl.physics.steady_state.steady_state_rows, wheel model
+    included) with the mini rover file's statics in place of FourWheelRocker: equal to 1e-12
+    (raised wheel, locked pivot, cross slope, offsets, pull)."""
+    from offline.rover.scenario import PARAM_PRESETS
+    from rtctl.physics.steady_state import SteadyStateModel, steady_state_rows
+    from rtctl.physics.terramechanics import ModelOptions, PhysParams
+
+    ps = PARAM_PRESETS["dissertation-ch7"]
+    wheels = ("FR", "FL", "RR", "RL")
+    rs = ps.wheel.radius + ps.wheel.grouser_height
+    phys = PhysParams.from_sets(ps.soil, ps.wheel, ps.tuning)
+    ext = (0.3, -0.2, 0.05)
+    ref = SteadyStateModel(wheels, (phys,) * 4, (rs,) * 4, ModelOptions(), FourWheelRocker(ROVER_MINI_T72), ps.soil,
+                           external=ext, torque_scale=ROVER_MINI_T72.weight / 4 * rs)
+    new = dataclasses.replace(ref, statics=SuspensionStatics(shipped_rover("mini_rover_t72")))
+    rng = np.random.default_rng(seed)
+    v = 0.03
+    x = {k: (v / rs * rng.uniform(1.0, 1.4), rng.normal(0, 0.2), rng.uniform(5, 12), rng.uniform(0.005, 0.02),
+             rng.uniform(0.005, 0.02)) for k in wheels}
+    P = {"speed": v, "slope": rng.uniform(-0.2, 0.2), "cross_slope": rng.uniform(-0.1, 0.1), "fy_offset": rng.normal(),
+         "mz_offset": rng.normal(), "pivot_locked": float(seed == 1),
+         **{f"contact {k}": (0.0 if (seed == 2 and k == "RR") else 1.0) for k in wheels}}
+    a_rows, a_f, _ = steady_state_rows(NUMPY, ref, x, P)
+    b_rows, b_f, _ = steady_state_rows(NUMPY, new, x, P)
+    val = lambda q: float(np.asarray(q, dtype=float).reshape(-1)[0])  # noqa: E731
+    assert list(a_rows) == list(b_rows)
+    for n in a_rows:
+        assert val(b_rows[n]) == pytest.approx(val(a_rows[n]), abs=TOL_ROW_ABS), n
+    assert val(b_f) == val(a_f)  # the objective does not involve the statics

@@ -10,6 +10,8 @@ same functions (``offline.physics.backend.CASADI``). Modules:
 * :mod:`rtctl.physics.soil_flow`: the soil-flow trench model of ch. 4;
 * :mod:`rtctl.physics.hub_drag`: hub / body face drag below the clearance;
 * :mod:`rtctl.physics.statics`: the rocker rover's balance (7.12)-(7.18);
+* :mod:`rtctl.physics.rover_file`: a rover described by a TOML file (wheels, suspension, limits);
+* :mod:`rtctl.physics.suspension`: the balance of any rover file's suspension, from its free bodies;
 * :mod:`rtctl.physics.steady_state`: the rows and objective of (7.25), and the rover's exact residual.
 
 Submodules load on first use (``rtctl.physics.soil_flow`` only where a trench row needs it).
@@ -18,7 +20,7 @@ Submodules load on first use (``rtctl.physics.soil_flow`` only where a trench ro
 import importlib
 from typing import Any
 
-__all__ = ["backend", "parameters", "terramechanics", "soil_flow", "hub_drag", "statics", "steady_state"]
+__all__ = ["backend", "parameters", "terramechanics", "soil_flow", "hub_drag", "statics", "steady_state", "rover_file", "suspension"]
 
 
 def __getattr__(name: str) -> Any:

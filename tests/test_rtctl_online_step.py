@@ -68,7 +68,8 @@ def _iterate(t, op, ticks, settings=None):
     lay = t.layout
     xsc = np.asarray(lay.variable_scale)
     tp = t.at(**op)  # clamped into the axes: the Hessian, bounds and start come from there
-    rti = RealTimeIteration(t, settings or QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
+    settings = settings or QpSettings()
+    rti = RealTimeIteration(t, settings, [lay.index(f"wheel torque {w}") for w in lay.wheels])
     rti.prepare(tp)
     p = np.array(tp.p, dtype=float)
     for k in ("speed", "slope", "cross_slope"):
@@ -76,7 +77,8 @@ def _iterate(t, op, ticks, settings=None):
     xs = []
     for _ in range(ticks):
         x = rti.iterate
-        res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 0.5 * xsc, x + 0.5 * xsc)))
+        sl = settings.step_limit  # the controller's trust region (rtctl.controller._bounds)
+        res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - sl * xsc, x + sl * xsc)))
         assert res.ok, res.status
         xs.append(res.x)
     return tp, p, rti, xs
@@ -111,6 +113,9 @@ def test_beyond_the_axis_the_parameter_enters_through_the_exact_residual(steer_t
     xstar, check = _reference(t, BEYOND)
     tp, p, rti, xs = _iterate(t, BEYOND, 8)
     assert check(tp.x)[0] > 2.0  # the table's primitive at cross slope 0: the rover's weight is not balanced
+    # the first tick (a fresh iterate) iterates while its steps are long: balanced at once
+    f1, m1, l1 = check(xs[0])
+    assert f1 <= 0.1 and m1 <= 0.01 and l1 <= 0.2, (f1, m1, l1)
     f8, m8, l8 = check(xs[-1])
     assert f8 <= 0.1 and m8 <= 0.01 and l8 <= 0.2, (f8, m8, l8)
     ds, db = _close(t.layout, xs[-1], xstar)
@@ -163,3 +168,27 @@ def test_closed_loop_on_a_cross_slope_the_table_was_not_built_for(tmp_path):
     assert m["max_abs_cross_track_cm"] <= 3.0, m
     assert m["max_abs_heading_deg"] <= 2.5, m  # target 2 deg; 0.5 deg of margin for another machine's arithmetic
     assert abs(m["mean_speed_cm_s"] / 3.0 - 1.0) <= 0.05, m
+
+
+def test_a_tick_iterates_again_only_after_a_jump(steer_table):
+    """More than one SQP iteration in a tick only when the iterate starts or the operating point
+    jumped (speed 10 %, slope or cross slope 1 deg): the steady ticks of a drive take one. With
+    one iteration a tick, the first tick beyond the axis is not balanced (the behaviour before)."""
+    t = steer_table
+    lay = t.layout
+    xsc = np.asarray(lay.variable_scale)
+    _, check = _reference(t, BEYOND)
+    tp, p, rti, xs = _iterate(t, BEYOND, 3)
+    assert rti.sqp_iterations == 1  # ticks 2 and 3 at the same point
+    x = rti.iterate
+    p2 = p.copy()
+    p2[lay.index("cross_slope")] -= 2 * DEG  # a jump of the measured cross slope
+    rti.step(p2, merge_bounds(tp.lbx, tp.ubx, (x - xsc, x + xsc)))
+    assert rti.sqp_iterations >= 2
+    p3 = p2.copy()
+    p3[lay.index("cross_slope")] += 0.2 * DEG  # a small move: one iteration
+    x = rti.iterate
+    rti.step(p3, merge_bounds(tp.lbx, tp.ubx, (x - xsc, x + xsc)))
+    assert rti.sqp_iterations == 1
+    _, _, _, one = _iterate(t, BEYOND, 1, replace(QpSettings(), iterations_per_tick=1))
+    assert check(one[0])[0] > 0.1

@@ -71,30 +71,36 @@ def _solve(rv, p, rs, slope):
     return st, sol, omega, dict(zip(names, h)), dict(zip(names, load)), {k: tuple(wr[i]) for i, k in enumerate(names)}, diag
 
 
-@pytest.mark.parametrize("slope_deg", [0.0, 10.0])
-def test_mer_class_drives_straight_in_steady_state(mer, slope_deg):
-    rv, p, rs = mer
+def _straight(rv, p, rs, slope_deg, rows, pairs):
+    """Solve straight driving and check what every rover must satisfy: balanced, total normal
+    load W cos(slope) (loads and the wheel model's F_z), the independent free body's ``rows``
+    zero, the mirror ``pairs`` equal, every wheel slipping forward within the drive limit."""
     slope = math.radians(slope_deg)
     st, sol, omega, h, load, wr, diag = _solve(rv, p, rs, slope)
     W = rv.weight
     assert sol.success, sol.message
     assert np.abs(sol.fun).max() < TOL_BALANCE_REL
-    # total normal load: the wheel model's F_z as well as the loads
     assert sum(load.values()) == pytest.approx(W * math.cos(slope), rel=1e-12)
     assert sum(w[2] for w in wr.values()) == pytest.approx(W * math.cos(slope), rel=1e-9)
-    # the independent free body: bogie, differential, whole-rover rows all vanish
-    zero = {k: 0.0 for k in st.wheels}
-    fb = FreeBody(rv).rows(wr, zero, h, load, slope, 0.0, 0.0, 0.0)
-    for name in ("My_bogie_right", "My_bogie_left", "My_differential", "My", "Fx", "Fz", "Mx", "Mz", "Fy"):
+    free_body = FreeBody(rv)
+    fb = free_body.rows(wr, {k: 0.0 for k in st.wheels}, h, load, slope, 0.0, 0.0, 0.0)
+    for name in (rows or fb):
         assert abs(fb[name]) < TOL_BALANCE_REL * W, (name, fb[name])
-    # mirror image sides (nothing in the problem tells them apart)
-    for r_, l_ in (("RF", "LF"), ("RM", "LM"), ("RR", "LR")):
+    for r_, l_ in pairs:  # mirror image sides (nothing in the problem tells them apart)
         assert h[r_] == pytest.approx(h[l_], rel=1e-7) and load[r_] == pytest.approx(load[l_], rel=1e-7)
-    # driving: every wheel slips forward and the speed is within the file's drive limit
     assert np.all(diag["slip"] > 0) and omega <= rv.actuators.drive_speed_max
+    return free_body, h, load, wr
+
+
+@pytest.mark.parametrize("slope_deg", [0.0, 10.0])
+def test_mer_class_drives_straight_in_steady_state(mer, slope_deg):
+    rv, p, rs = mer
+    _, h, load, wr = _straight(rv, p, rs, slope_deg,
+                               ("My_bogie_right", "My_bogie_left", "My_differential", "My", "Fx", "Fz", "Mx", "Mz", "Fy"),
+                               (("RF", "LF"), ("RM", "LM"), ("RR", "LR")))
     if slope_deg > 0:
         assert load["RR"] > load["RM"] > 0 and load["RR"] > load["RF"]  # load shifts downhill
-        assert sum(w[0] for w in wr.values()) == pytest.approx(W * math.sin(slope), rel=1e-9)
+        assert sum(w[0] for w in wr.values()) == pytest.approx(rv.weight * math.sin(math.radians(slope_deg)), rel=1e-9)
 
 
 def test_the_slope_costs_slip_and_torque(mer):
@@ -117,22 +123,8 @@ def skid():
 @pytest.mark.parametrize("slope_deg", [0.0, 10.0])
 def test_skid_steer_drives_straight_in_steady_state(skid, slope_deg):
     rv, p, rs = skid
-    slope = math.radians(slope_deg)
-    st, sol, omega, h, load, wr, diag = _solve(rv, p, rs, slope)
-    W = rv.weight
-    assert sol.success, sol.message
-    assert np.abs(sol.fun).max() < TOL_BALANCE_REL
-    assert sum(load.values()) == pytest.approx(W * math.cos(slope), rel=1e-12)
-    assert sum(w[2] for w in wr.values()) == pytest.approx(W * math.cos(slope), rel=1e-9)
-    free_body = FreeBody(rv)
-    zero = {k: 0.0 for k in st.wheels}
-    fb = free_body.rows(wr, zero, h, load, slope, 0.0, 0.0, 0.0)
-    for name, v in fb.items():
-        assert abs(v) < TOL_BALANCE_REL * W, (name, v)
+    free_body, h, load, _ = _straight(rv, p, rs, slope_deg, None, (("FR", "FL"), ("RR", "RL")))
     assert np.abs(free_body.plane_residual(h)).max() < 1e-12  # the wheel centres of one rigid frame
-    for r_, l_ in (("FR", "FL"), ("RR", "RL")):
-        assert h[r_] == pytest.approx(h[l_], rel=1e-7) and load[r_] == pytest.approx(load[l_], rel=1e-7)
-    assert np.all(diag["slip"] > 0) and omega <= rv.actuators.drive_speed_max
     if slope_deg == 0.0:
         assert load["FR"] > load["RR"]  # the centre of mass is 2 cm ahead of the frame's centre
     else:

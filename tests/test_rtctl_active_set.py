@@ -39,7 +39,10 @@ def _reference(H, q, J, lg, ug, zlo, zhi):
     lo = ~eq & (lg > -1e20)
     G = np.vstack([J[up], -J[lo]])
     h = np.concatenate([ug[up], -lg[lo]])
-    return qpsolvers.solve_qp(H, q, G, h, J[eq], ug[eq], lb=zlo, ub=zhi, solver="clarabel",
+    import scipy.sparse as sp
+
+    return qpsolvers.solve_qp(sp.csc_matrix(H), q, sp.csc_matrix(G), h, sp.csc_matrix(J[eq]), ug[eq], lb=zlo, ub=zhi,
+                              solver="clarabel",
                               tol_feas=1e-11, tol_gap_abs=1e-11, tol_gap_rel=1e-11)
 
 

@@ -235,7 +235,7 @@ def main() -> int:
         "",
         f"- CPU: {n_sweep} points x {per_point:.2f} s = **{n_sweep * per_point / 3600:.1f} CPU-hours** "
         f"(assumes every kind costs per point what `{spec.name}` cost here; the worked example "
-        "(stuck steering) measured 681 CPU-s for 252 points, 2.7 s per point, in results_worked_example_i22.md).",
+        "(stuck steering) measured 681 CPU-s for 252 points, 2.7 s per point, in results_new_failure.md).",
         f"- Perfect division over {sw} workers: {n_sweep * per_point / sw / 60:.1f} min.",
         f"- Tables one after the other, as `build_tables` runs them today, each table's waves on all {sw} "
         f"workers (a table with k times the points of `{spec.name}` taken as k times as many tasks of the "

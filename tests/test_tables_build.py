@@ -87,8 +87,17 @@ def test_same_bytes_with_dask_cluster_and_after_resume(nominal, tmp_path):
 
     spec, path, _ = nominal
     ref = path.read_bytes()
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+    # worker processes (not threads of this one), reached only by the tcp:// address: the spec,
+    # the tasks and their results cross process boundaries as on a remote cluster
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
         p2, _ = build_table(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+        # the command line's --scheduler on the same cluster (one point, default build options)
+        out = tmp_path / "cli"
+        rc = main(["tables", "build", str(NOMINAL), "--grid", "slope=0;cross_slope=0;speed=2", "--out", str(out),
+                   "--scheduler", cluster.scheduler_address, "--seed-index", "none", "--no-index", "--quiet"])
+        assert rc == 0
+        assert load_table(out / "nominal.npz").feasible.all()
     assert p2.read_bytes() == ref
     # resume: a finished build's checkpoints minus one group (the continuation schedule's first
     # phase: one per slope and cross slope), and no table: same bytes again

@@ -20,6 +20,7 @@ from offline.rover import table_continuation as TC
 from offline.rover.table_builder import BuildOptions, build_table, scenario_at, table_spec
 from rtctl.table import load_table
 
+ROOT = Path(__file__).resolve().parents[1]
 FAST = BuildOptions(trust_steps=(0.0625, 0.125), trust_search=(0.0625, 0.25, 1.0), polish_sweeps=0)
 
 SCENARIO = """[scenario]
@@ -131,6 +132,30 @@ def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(sce
             if t.status_at(idx) == "not_found":
                 assert ev[str(f)]["undecided"].startswith("no relaxation applies")
     assert len(searched) >= 1 and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
+
+
+def test_a_group_the_relaxation_decides_entirely_has_nothing_left_to_order(monkeypatch):
+    """One speed and no failure axis (the shipped rr_locked grid): where the relaxation is
+    infeasible it decides the group's only point, and no first-speed point is left to solve.
+    The continuation crashed there (IndexError in ``_order`` on an empty list) and stopped a
+    from-scratch build of the shipped tables; now the point is ``infeasible`` with the
+    relaxation's evidence, and nothing is searched. The relaxation's verdict is faked (no solve):
+    what is tested is the schedule's bookkeeping, not the verdict."""
+    spec = table_spec(ROOT / "tables" / "scenarios" / "rr_locked.toml", grid="slope=25;cross_slope=0;speed=3",
+                      build=FAST)
+    assert spec.family is None and spec.grid.size == 1
+    monkeypatch.setattr(TB, "relaxation_verdict",
+                        lambda spec_, op: {"status": "infeasible", "evidence": {"verdict": "no primitive: test"}})
+
+    def no_search(*a, **k):
+        raise AssertionError("a point the relaxation decided was searched")
+
+    monkeypatch.setattr(TB, "_solve_point", no_search)
+    assert TC._order(spec, [], None) == []
+    out = TC.continuation_group(spec, [0], None, True)
+    assert [r["status"] for r in out] == ["infeasible"]
+    assert out[0]["evidence"]["relaxation"] == TC.RELAXED_EVIDENCE
+    assert out[0]["evidence"]["relaxation evidence"] == {"verdict": "no primitive: test"}
 
 
 def test_search_group_carries_a_confirmed_verdict_to_the_other_speed(scenario_file, monkeypatch):

@@ -284,8 +284,8 @@ def _order(spec: Any, flats: Sequence[int], seed: SeedStart | None) -> list[tupl
     steering angle); then outward along the axis, each from the previous one."""
     from .table_builder import _problem, scenario_at
 
-    if len(flats) == 1:
-        return [(flats[0], None)]
+    if len(flats) <= 1:  # none: the relaxation decided every point of the group (e.g. one speed, no family axis)
+        return [(f, None) for f in flats]
     if seed is None:
         k0 = 0
     else:

@@ -47,6 +47,12 @@ PASSED only when every part of every check is within its tolerance (:attr:`Verif
      the artifact is recorded here, not fixed (the wheel model is being moved to
      ``rtctl/physics``).
 
+   * (not a boundary layer but the model's edge) a wheel stuck at +-90 deg (``rr_steer_stuck``)
+     moves sideways: ``v_x = 0`` at the optimum, and the numpy wheel model refuses ``v_x < 0``
+     with ``omega > 0`` (slip ratio outside its domain). There the quotient in ``v_x`` is the
+     one-sided one from inside the domain (:func:`_central`; the smaller steps likewise use only
+     the sides that exist); the check crashed there before (issue 22's rebuild).
+
    Every entry that needed the smaller steps is listed with its row, column, side and step
    (:attr:`VerifyReport.jacobian_entries`), so the second tier hides nothing.
 2. **Linearisation** (the trust radius): at each sampled point and for each continuous
@@ -215,11 +221,23 @@ def spec_from_table(t: Table) -> TableSpec:
 
 
 def _central(fun: Any, x: NDArray[np.float64], step: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Central quotients; where one side is outside the function's domain (``fun`` returns NaN
+    there), the one-sided quotient from the other side (the point itself is in the domain)."""
+    f0 = np.asarray(fun(x), dtype=float)
     cols = []
     for i in range(x.size):
         e = np.zeros_like(x)
         e[i] = step[i]
-        cols.append((np.asarray(fun(x + e)) - np.asarray(fun(x - e))) / (2 * step[i]))
+        fp, fm = np.asarray(fun(x + e), dtype=float), np.asarray(fun(x - e), dtype=float)
+        if np.all(np.isfinite(fp)) and np.all(np.isfinite(fm)):
+            cols.append((fp - fm) / (2 * step[i]))
+        elif np.all(np.isfinite(fp)):
+            cols.append((fp - f0) / step[i])
+        elif np.all(np.isfinite(fm)):
+            cols.append((f0 - fm) / step[i])
+        else:
+            raise ValueError(f"Jacobian check: both sides of variable {i} at step {step[i]:.3g} are outside the "
+                             "model's domain; no difference quotient exists there")
     return np.stack(cols, axis=-1)
 
 
@@ -316,7 +334,15 @@ def check_jacobians(t: Table, spec: TableSpec, flats: list[int],
             # numpy path of the wheel's own model (its radius) plus the hub drag, if any
 
             def wrench(z: NDArray[np.float64], w: str = w) -> NDArray[np.float64]:
-                return np.array(pb.wheel_wrench(w, *z)[0], dtype=float)
+                # NaN outside the numpy model's domain (omega against the travel direction): a wheel
+                # steered at +-90 deg (stuck) moves sideways, v_x = 0 at the optimum, and a step of
+                # v_x to the negative side leaves the domain; the quotients then take the inside side
+                try:
+                    return np.array(pb.wheel_wrench(w, *z)[0], dtype=float)
+                except ValueError as exc:
+                    if "outside the model's domain" not in str(exc):
+                        raise
+                    return np.full(len(wrench_rows), np.nan)
 
             e = _check_block(wrench, s, FD_STEP * np.maximum(np.abs(s), 1e-3), t.arrays["wrench_jac"][idx][k],
                              "wrench_jac", pt, [f"{r} {w}" for r in wrench_rows], [f"{c} {w}" for c in wheel_inputs],

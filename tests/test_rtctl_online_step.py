@@ -159,7 +159,8 @@ def test_controller_feeds_the_measured_cross_slope_unclipped():
 def test_closed_loop_on_a_cross_slope_the_table_was_not_built_for(tmp_path):
     """RR stuck at -65 deg on a 6 deg cross slope (the simulated world's truth), the shipped
     rr_steer_stuck table built at cross slope 0, 1.5 m at 3 cm/s. The previous design ran 21 %
-    fast and left the path by 3.7 cm; measured now 1.8 deg, 1.8 cm, -0.1 %."""
+    fast and left the path by 3.7 cm; measured now (the rebuilt table, exact active-set QP) 1.80 deg,
+    2.29 cm, -1.4 %."""
     from drive_helpers import drive_rtctl
 
     m = drive_rtctl(tmp_path, '[scenario]\nname = "rr_stuck_65"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'

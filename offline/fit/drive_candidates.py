@@ -86,7 +86,7 @@ from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
-           "PER_WHEEL_ACTUATOR_KEYS", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
+           "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
            "AnchoredTether", "Hooks", "PosePath",
            "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
@@ -108,6 +108,16 @@ PER_WHEEL_ACTUATOR_KEYS = (*(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fr
 MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
 
+NEUTRAL_VALUES: dict[str, float] = {
+    "slope": 0.0, "cross_slope": 0.0, "tether": 0.0, "radius_scale_all": 1.0,
+    **{f"radius_scale.{w}": 1.0 for w in WHEELS}, **{f"steer_offset.{w}": 0.0 for w in WHEELS},
+    **{f"speed_fraction.{w}": 1.0 for w in WHEELS}, **{f"wheel_lag.{w}": 0.0 for w in WHEELS},
+}
+"""Rover terms whose value changes nothing (:func:`truth_from_terms` and :func:`actuator_commands`
+multiply by 1 or add 0): :meth:`RoverTerms.physics_key` leaves them out, so the drive model's
+cache serves them with the believed model's simulation. Terms with absolute values
+(``wheel_lag``, ``torque_limit``, the caps, the hooks' parameters) have no neutral value here."""
+
 
 class DriveCandidateError(ValueError):
     """An extension carries an unknown rover term or a value the simulator cannot take."""
@@ -117,8 +127,12 @@ class RoverTerms(dict[str, float]):
     """Rover terms of one extension: ``{key: value}`` over :data:`ROVER_KEYS` (absent = no change)."""
 
     def physics_key(self) -> tuple[tuple[str, float], ...]:
-        """The terms that need a re-simulation (all but :data:`MEASUREMENT_KEYS`), sorted."""
-        return tuple(sorted((k, float(v)) for k, v in self.items() if k not in MEASUREMENT_KEYS))
+        """The terms that need a re-simulation (all but :data:`MEASUREMENT_KEYS`), sorted; a term
+        at its :data:`NEUTRAL_VALUES` value is left out (it multiplies by 1 or adds 0, so the
+        re-simulation is bit for bit the one without it, and a fit's start at the believed model
+        is the believed model's simulation)."""
+        return tuple(sorted((k, float(v)) for k, v in self.items()
+                            if k not in MEASUREMENT_KEYS and NEUTRAL_VALUES.get(k, math.nan) != v))
 
 
 @dataclass(frozen=True)

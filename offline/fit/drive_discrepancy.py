@@ -686,14 +686,19 @@ class DriveModel:
         so the interpolation error is that of a slowly turning gravity vector.
     cache_size : int
         Re-simulated drives kept (keyed by the drive, heading offset and the extension's
-        physics), oldest dropped first.
+        physics; a soil field at the believed value and a rover term at its neutral value,
+        :data:`~offline.fit.drive_candidates.NEUTRAL_VALUES`, are left out of the key), least
+        recently used dropped first. A diagnosis re-simulates a 40 s drive 400-800 times at about
+        25 kB each, so the default keeps them all: the held-out refits start where the full-data
+        fits started, the null's linearisation points and the forward step's score test sit on
+        fitted points, and each of those is simulated once.
     """
 
     scenario: Scenario
     truth: Truth | None = None
     actuators: ActuatorConfig | None = None
     sensors: SensorConfig | None = None
-    cache_size: int = 96
+    cache_size: int = 2048
     stride: int = 3
     _cache: dict[Any, Any] = field(default_factory=dict, init=False, repr=False)
     simulations: int = field(default=0, init=False)
@@ -723,14 +728,15 @@ class DriveModel:
         """
         ext = ext or RoverExtension()
         terms = rover_terms(ext)
-        key = (id(d), heading_offset, tuple(sorted(ext.soil.items())), terms.physics_key(),
-               extra.key() if extra is not None else None)
-        hit = self._cache.get(key)
+        believed = self.params.soil
+        soil = tuple(sorted((k, v) for k, v in ext.soil.items() if getattr(believed, k, math.nan) != v))
+        key = (id(d), heading_offset, soil, terms.physics_key(), extra.key() if extra is not None else None)
+        hit = self._cache.pop(key, None)
         if hit is None:
             hit = self._run(d, ext, heading_offset, extra)
-            if len(self._cache) >= self.cache_size:
+            while len(self._cache) >= max(self.cache_size, 1):
                 self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = hit
+        self._cache[key] = hit  # most recently used last
         ticks, body, ok = hit
         if not ok:
             return ticks, body, False

@@ -293,3 +293,27 @@ def test_neutral_terms_share_the_believed_simulation(sc, nominal, tmp_path):
     assert m.simulations == 3
     m.simulate(d, RoverExtension(terms={"tether": 0.5}), 0.0)
     assert m.simulations == 4
+
+
+def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, nominal, tmp_path, monkeypatch):
+    """A plant with no equilibrium from t = 2 s on (as for a candidate value the plant cannot
+    carry) loses every later tick; the drive is not re-simulated (ok False) and the
+    re-simulation stops at the lost tick that makes more than half of them lost instead of
+    trying every remaining tick (each lost tick costs failing Newton solves and a restart)."""
+    import offline.fit.drive_discrepancy as dd
+
+    f = record_drive(tmp_path / "n.mcap", sc, nominal, seed=1, duration=8.0)
+    d = load_drives([f])[0]
+    lost = [0]
+
+    def no_equilibrium_after_2s(sim, dt, depth=0):
+        if sim.t >= 2.0:
+            lost[0] += 1
+            raise dd.SimulationError("no equilibrium (test)")
+        sim.dt = dt
+        sim.step()
+
+    monkeypatch.setattr(dd, "_step", no_equilibrium_after_2s)
+    _, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
+    assert not ok
+    assert lost[0] == len(d.t) // 2 + 1

@@ -822,6 +822,12 @@ class DriveModel:
                     # no equilibrium (e.g. a wheel speed through zero with a slow servo): this tick
                     # is lost and the plant restarts from the steady state of these commands
                     failed[k] = True
+                    if failed.sum() > 0.5 * n:
+                        # more than half the ticks lost: the drive is not re-simulated whatever the
+                        # rest does (the check below), and its callers discard what it holds, so the
+                        # rest is not simulated (a parameter far outside what the plant can carry
+                        # costs up to four failing 40-iteration Newton solves per tick)
+                        return ticks, body, False
                     sim.start(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))
                     settled = False
                     continue

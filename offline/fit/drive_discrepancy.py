@@ -1019,6 +1019,12 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     pngs = _drive_plots(v, out, ext)
     extra = ["", "## Drive plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
     truth_file = None
+    em = v.empirical
+    entries: list[dict[str, Any]] = []
+    if em is not None and em.terms:
+        from .drive_empirical import truth_entries
+
+        entries = truth_entries(em.terms)
     if v.chosen is not None and v.status not in ("agree", "unexplained", "ambiguous"):
         assert model.truth is not None
         truth, act, meas = truth_from_terms(model.params, model.truth, ext)
@@ -1035,23 +1041,32 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         # per-wheel actuator terms: not in the truth format (ActuatorConfig has no per-wheel entries);
         # written with the sensor and actuator comments
         act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
+        if entries:
+            header["empirical_terms"] = "; ".join(t.law() for t in em.terms)  # type: ignore[union-attr]
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
-                                      meas, act, header, dist)
+                                      meas, act, header, dist, entries)
         extra += ["", "## Accepted terms as a simulator truth file", "",
                   f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
                   f"and `offnominal tables build SCENARIO --world {truth_file.name} --out DIR` rebuilds the tables with "
                   "its terms: soil, slope, tether, anchored cable, per-wheel radius and steering offset).", "",
                   "Does the table builder take each accepted term?", ""]
         extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
-    if v.empirical is not None:
-        em = v.empirical
+    elif entries:
+        # the library explains nothing it would write; the empirical force and torque terms alone
+        assert model.truth is not None and em is not None
+        header = {"verdict": v.status, "empirical_terms": "; ".join(t.law() for t in em.terms),
+                  "held_out_chi2": f"{em.chi2_cv_base:.1f} -> {em.chi2_cv_after:.1f}", "recordings": obs.source}
+        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", model.truth,
+                                      model.truth, {}, None, header, None, entries)
+    if em is not None:
         extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]
         if em.terms:
             write_text(out / "empirical_terms.json", json.dumps(em.to_json(), indent=2, default=float))
-            extra += ["", "`empirical_terms.json` holds the terms (SI). They are NOT in `accepted_truth.toml`: the truth "
-                      "format (`offline.sim.truth.load_truth`) has no section for an empirical term; the re-simulation "
-                      "applies them through `offline.fit.drive_empirical.EmpiricalTerms` (forces and torques as a "
-                      "disturbance hook, speed losses in the servo commands, reading offsets in the readings)."]
+            extra += ["", "`empirical_terms.json` holds every term (SI). The force and torque terms are also in "
+                      "`accepted_truth.toml` as `[[empirical_force]]` tables (`offline.sim.truth.load_truth` reads them; "
+                      "`offnominal drive --truth` applies them as a disturbance hook, localised by the simulator's own "
+                      "time and pose); speed losses and reading offsets are not part of the world a truth file describes "
+                      "(the lines above say which terms were written)."]
     md = (out / "report.md").read_text()
     write_text(out / "report.md", md + "\n".join(extra) + "\n")
     vj = json.loads((out / "verdict.json").read_text())

@@ -1042,7 +1042,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         # written with the sensor and actuator comments
         act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
         if entries:
-            header["empirical_terms"] = "; ".join(t.law() for t in em.terms)  # type: ignore[union-attr]
+            header["empirical_terms"] = "; ".join(t.law() for t in em.terms)
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
                                       meas, act, header, dist, entries)
         extra += ["", "## Accepted terms as a simulator truth file", "",

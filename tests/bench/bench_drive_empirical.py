@@ -281,10 +281,10 @@ def _md(data: dict[str, Any]) -> str:
         neg = [r for r in rows if r["group"] == g]
         if not neg:
             continue
-        md += ["", f"## {title}", "", "| drive | verdict | empirical | terms | s |", "|---|---|---|---|---|"]
+        md += ["", f"## {title}", "", "| drive | verdict | empirical | terms | s | commit |", "|---|---|---|---|---|---|"]
         for r in neg:
             md.append(f"| {r['case']} | {r.get('verdict', '(search only, p = %.2g)' % r.get('p', math.nan))} | {r['empirical']} | "
-                      f"{'; '.join(r['terms']) or '-'} | {r['seconds']:.0f} |")
+                      f"{'; '.join(r['terms']) or '-'} | {r['seconds']:.0f} | {r.get('commit', '-')} |")
         md += ["", f"False alarms: {sum(not r['ok'] for r in neg)}/{len(neg)}."]
     md += ["", "Per-diagnosis time: the targets ask at most 120 s; the 's' columns are wall seconds on the shared "
            "machine at the load averages above (the empirical stage's own seconds in brackets)."]
@@ -324,9 +324,10 @@ def main(argv: list[str]) -> int:
             fcntl.flock(lock, fcntl.LOCK_EX)
             now = json.loads(jpath.read_text()) if shard and jpath.exists() else start
             mine = {r["case"] for r in done}
-            # a shard keeps the group's rows other shards of this commit wrote (an earlier run's go)
+            # a shard keeps the group's rows other shards wrote (each row names its commit); rows of a
+            # run before shards existed (no commit) go
             keep = [r for r in now["rows"] if r["group"] != group
-                    or (shard and r["case"] not in mine and r.get("commit") == commit)]
+                    or (shard and r["case"] not in mine and "commit" in r)]
             data: dict[str, Any] = {"groups": dict(now["groups"]), "rows": keep + [{**r, "group": group} for r in done]}
             n_group = sum(r["group"] == group for r in data["rows"])
             data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),

@@ -190,3 +190,26 @@ def test_force_terms_written_to_the_truth_file_are_what_the_simulator_applies(sc
     bad.write_text('[[empirical_force]]\ndirection = "speed_loss.RL"\nmagnitude_si = 1.0\n')
     with pytest.raises(TruthError, match="direction"):
         load_truth(bad, sc.rover)
+
+
+def test_drive_report_writes_the_empirical_force_term_to_the_truth_file(scenario: Any, tmp_path: Path) -> None:
+    """The whole drive tool on the drift band with a library that cannot explain it (only the IMU
+    mounting tilt, no recalibration): verdict unexplained, the empirical drag patch found, and the
+    report folder's accepted_truth.toml carries it as [[empirical_force]] that load_truth reads
+    back with the reported term's values (before issue 24's section, no truth file was written)."""
+    from offline.fit.drive_candidates import DRIVE_CANDIDATES
+    from offline.fit.drive_discrepancy import diagnose_drives, write_drive_report
+    from offline.sim.truth import load_truth
+
+    f = record_concealed(tmp_path / "drift.mcap", scenario, _SinkageDrift(), seed=5, duration=24.0, segments=SCRIPT)
+    v = diagnose_drives([f], scenario, candidates=[c for c in DRIVE_CANDIDATES if c.key == "imu_tilt"],
+                        recalibrate=False, alpha=0.01, seed=5)
+    assert v.status == "unexplained" and v.empirical is not None and v.empirical.terms, v.summary()
+    out = write_drive_report(v, tmp_path / "report")
+    truth = load_truth(out / "accepted_truth.toml", scenario.rover)
+    forces = [t for t in v.empirical.terms if t.kind in ("drag", "torque")]
+    assert forces and len(truth.empirical) == len(forces)
+    for t, e in zip(forces, truth.empirical):
+        assert (e["direction"], e["where"], e["shape"]) == (t.direction, t.where, t.shape)
+        assert e["magnitude"] == pytest.approx(t.magnitude, rel=1e-12) and e["lo"] == pytest.approx(t.lo, rel=1e-12)
+    assert "written to accepted_truth.toml ([[empirical_force]])" in (out / "report.md").read_text()

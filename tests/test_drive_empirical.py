@@ -213,3 +213,17 @@ def test_drive_report_writes_the_empirical_force_term_to_the_truth_file(scenario
         assert (e["direction"], e["where"], e["shape"]) == (t.direction, t.where, t.shape)
         assert e["magnitude"] == pytest.approx(t.magnitude, rel=1e-12) and e["lo"] == pytest.approx(t.lo, rel=1e-12)
     assert "written to accepted_truth.toml ([[empirical_force]])" in (out / "report.md").read_text()
+
+
+def test_truth_description_of_an_empirical_term_is_plain_json(scenario: Any, tmp_path: Path) -> None:
+    """A recording's metadata holds Truth.describe(): an open edge (no lo or hi) is null, not Infinity."""
+    import json
+
+    from offline.sim.truth import load_truth
+
+    p = tmp_path / "t.toml"
+    p.write_text('[[empirical_force]]\ndirection = "torque.RR"\nmagnitude_si = 0.03\n')
+    d = load_truth(p, scenario.rover).describe()
+    assert d["empirical_force_SI"] == [{"direction": "torque.RR", "where": "everywhere", "shape": "constant", "lo": None,
+                                        "hi": None, "magnitude": 0.03}]
+    json.dumps(d, allow_nan=False)

@@ -149,7 +149,8 @@ class Truth:
             "source": Path(self.source).name if self.source else "",
             **({"tether_anchor_SI": dict(self.anchor)} if self.anchor is not None else {}),
             **({"hub_contact_SI": dict(self.hub)} if self.hub is not None else {}),
-            **({"empirical_force_SI": [dict(e) for e in self.empirical]} if self.empirical else {}),
+            **({"empirical_force_SI": [{k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+                                        for k, v in e.items()} for e in self.empirical]} if self.empirical else {}),
         }
 
 

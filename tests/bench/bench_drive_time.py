@@ -6,8 +6,9 @@ diagnoses it with the whole drive tool (:func:`offline.fit.drive_discrepancy.dia
 library and empirical stage, defaults) twice, each in its own process: once with the baseline's
 code (``PYTHONPATH`` = a worktree of the baseline commit) and once with this tree's, the order
 alternating from case to case so that a change of the shared machine's load falls on both. The
-ratio of the two wall times is the result; seconds alone depend on the load (load averages in
-the results file). Each run also reports its re-simulations, and the two verdicts are compared
+ratio of the two times is the result: wall seconds, and the processes' own CPU seconds, which an
+overloaded shared machine changes far less (``--parallel`` runs both at the same time, so the same
+load falls on both); seconds alone depend on the load (load averages in the results file). Each run also reports its re-simulations, and the two verdicts are compared
 whole (``verdict.json`` without its seconds): a speed-up that changes nothing must give the same
 verdict to the last digit.
 
@@ -16,6 +17,7 @@ rows of the same cases)::
 
     git worktree add --detach /tmp/base <commit>
     nice python tests/bench/bench_drive_time.py --baseline /tmp/base current_limited noise31 terrain_plane
+    nice python tests/bench/bench_drive_time.py --baseline /tmp/base --parallel noise31
 
 Case names: a substring of an out-of-library case of ``bench_drive_empirical.py``, of an
 in-library case of ``bench_drive_discrepancy.py``, or ``noiseN`` (noise-only drive, seed N).
@@ -53,10 +55,10 @@ def run_one(path: str, seed: int) -> None:
     from offline.rover.scenario import load_scenario
 
     sc = load_scenario(Path(dd.__file__).resolve().parents[1] / "scenarios/nominal.toml")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     v = dd.diagnose_drives([path], sc, seed=seed)
-    secs = time.perf_counter() - t0
-    print(json.dumps({"code": str(Path(dd.__file__).resolve().parents[2]), "seconds": secs,
+    secs, cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(json.dumps({"code": str(Path(dd.__file__).resolve().parents[2]), "seconds": secs, "cpu_seconds": cpu,
                       "simulations": v.model.simulations, "status": v.status, "named": v.missing_physics,
                       "empirical": [t.law() for t in v.empirical.terms] if v.empirical is not None else None,
                       "verdict": _strip(json.loads(json.dumps(v.to_json(), default=float)))}, default=float))
@@ -86,13 +88,17 @@ def _record(name: str, tmp: Path) -> tuple[Path, int]:
     return record_concealed(f, sc, make(), seed=seed, duration=DURATION), seed
 
 
-def _child(code: Path, path: Path, seed: int) -> dict[str, Any]:
+def _start(code: Path, path: Path, seed: int) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(code))
-    out = subprocess.run([sys.executable, __file__, "--run-one", str(path), str(seed)], env=env, capture_output=True,
-                         text=True, cwd=tempfile.gettempdir())
-    if out.returncode:
-        raise RuntimeError(f"{code}: {out.stderr[-2000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return subprocess.Popen([sys.executable, __file__, "--run-one", str(path), str(seed)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
+
+
+def _result(code: Path, p: subprocess.Popen[str]) -> dict[str, Any]:
+    out, err = p.communicate()
+    if p.returncode:
+        raise RuntimeError(f"{code}: {err[-2000:]}")
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def _diff(a: Any, b: Any, where: str = "") -> list[str]:
@@ -108,18 +114,25 @@ def _md(data: dict[str, Any]) -> str:
           "`nice python tests/bench/bench_drive_time.py --baseline WORKTREE CASE ...` (module docstring). Each case's "
           "40 s drive is diagnosed by the baseline's code and by this tree's code in separate processes, one after "
           "the other (order alternating), on the shared 2-core machine; the ratio is the result, seconds depend on "
-          "the load.", ""]
+          "the load. CPU seconds (the process's own, `time.process_time`) depend on it far less than wall seconds on "
+          "an overloaded machine; `--parallel` runs both at the same time. Differences in verdict.json are listed by "
+          "key (a count of re-simulations differs when the cache serves more).", ""]
     for r in data["rows"]:
         same = "identical" if not r["differences"] else f"{len(r['differences'])} differences: {', '.join(r['differences'][:6])}"
         md.append(f"- `{r['case']}`: baseline `{r['baseline']}` {r['base']['seconds']:.0f} s, {r['base']['simulations']} "
                   f"simulations; this tree `{r['commit']}` {r['new']['seconds']:.0f} s, {r['new']['simulations']} simulations; "
-                  f"time ratio new / baseline **{r['ratio']:.2f}**; verdict `{r['new']['status']}` "
+                  f"time ratio new / baseline **{r['ratio']:.2f}**"
+                  + (f", CPU seconds {r['base']['cpu_seconds']:.0f} -> {r['new']['cpu_seconds']:.0f}, CPU ratio "
+                     f"**{r['cpu_ratio']:.2f}** ({'at the same time' if r.get('parallel') else 'one after the other'})"
+                     if "cpu_ratio" in r else " (wall seconds only)")
+                  + f"; verdict `{r['new']['status']}` "
                   f"({' + '.join(r['new']['named']) or '-'}); verdict.json without seconds: {same}; "
                   f"{r['when']}, load average {r['load_before']} before, {r['load_after']} after")
-    md += ["", "| case | baseline s | new s | ratio | baseline sims | new sims | verdict | same verdict.json |",
-           "|---|---|---|---|---|---|---|---|"]
+    md += ["", "| case | baseline s | new s | ratio | CPU ratio | baseline sims | new sims | verdict | same verdict.json |",
+           "|---|---|---|---|---|---|---|---|---|"]
     for r in data["rows"]:
-        md.append(f"| {r['case']} | {r['base']['seconds']:.0f} | {r['new']['seconds']:.0f} | {r['ratio']:.2f} | "
+        cr = f"{r['cpu_ratio']:.2f}" if "cpu_ratio" in r else "-"
+        md.append(f"| {r['case']} | {r['base']['seconds']:.0f} | {r['new']['seconds']:.0f} | {r['ratio']:.2f} | {cr} | "
                   f"{r['base']['simulations']} | {r['new']['simulations']} | {r['new']['status']} | "
                   f"{'yes' if not r['differences'] else 'NO'} |")
     return "\n".join(md) + "\n"
@@ -131,6 +144,8 @@ def main(argv: list[str]) -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline", required=True, type=Path, help="a worktree of the baseline commit")
+    ap.add_argument("--parallel", action="store_true",
+                    help="run the baseline and this tree at the same time (on a loaded machine the same load falls on both)")
     ap.add_argument("cases", nargs="+")
     a = ap.parse_args(argv)
     from offline.files import write_text
@@ -145,15 +160,23 @@ def main(argv: list[str]) -> int:
             path, seed = _record(name, Path(tmpd))
             load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
             runs = {}
-            for which in (("base", "new") if i % 2 == 0 else ("new", "base")):
-                runs[which] = _child(a.baseline if which == "base" else ROOT, path, seed)
-                print(name, which, runs[which]["seconds"], runs[which]["simulations"], runs[which]["status"], flush=True)
+            code = {"base": a.baseline, "new": ROOT}
+            if a.parallel:  # both at once: the same load falls on both
+                procs = {w: _start(code[w], path, seed) for w in ("base", "new")}
+                runs = {w: _result(code[w], p) for w, p in procs.items()}
+            else:
+                for which in (("base", "new") if i % 2 == 0 else ("new", "base")):
+                    runs[which] = _result(code[which], _start(code[which], path, seed))
+            for which in ("base", "new"):
+                print(name, which, runs[which]["seconds"], runs[which].get("cpu_seconds"), runs[which]["simulations"],
+                      runs[which]["status"], flush=True)
             row = {"case": name, "baseline": commit(a.baseline), "commit": commit(ROOT),
                    "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_before": load0,
                    "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
                    "base": {k: v for k, v in runs["base"].items() if k != "verdict"},
                    "new": {k: v for k, v in runs["new"].items() if k != "verdict"},
                    "ratio": runs["new"]["seconds"] / runs["base"]["seconds"],
+                   "cpu_ratio": runs["new"]["cpu_seconds"] / runs["base"]["cpu_seconds"], "parallel": a.parallel,
                    "differences": _diff(runs["base"]["verdict"], runs["new"]["verdict"])}
             data["rows"] = [r for r in data["rows"] if r["case"] != name] + [row]
             write_text(jpath, json.dumps(data, indent=1, default=float))

@@ -262,3 +262,58 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     assert len(keys) == 16 and keys <= set(TABLE_BUILDER_TAKES)
     assert not keys & {c.key for c in DRIVE_CANDIDATES}
     assert keys <= {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS}
+
+
+def test_neutral_terms_share_the_believed_simulation(sc, nominal, tmp_path):
+    """The drive model's cache serves a term at its neutral value (NEUTRAL_VALUES) and a soil field
+    at the believed value with the believed model's simulation; that is only right if such a
+    simulation is bit for bit the believed one, checked here on fresh models (no cache). A
+    changed term still re-simulates, and the least recently used entry is the one dropped."""
+    from offline.fit.drive_candidates import NEUTRAL_VALUES
+
+    f = record_drive(tmp_path / "n.mcap", sc, nominal, seed=1, duration=8.0)
+    d = load_drives([f])[0]
+    base, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
+    assert ok
+    neutral = RoverExtension(soil={"k": nominal.params.soil.k}, terms=dict(NEUTRAL_VALUES))
+    fresh = DriveModel(sc, nominal)
+    got, _, ok = fresh.simulate(d, neutral, 0.0)
+    assert ok and fresh.simulations == 1
+    for ch in base:
+        assert np.array_equal(got[ch], base[ch], equal_nan=True), ch
+    m = DriveModel(sc, nominal, cache_size=2)
+    m.simulate(d, None, 0.0)
+    m.simulate(d, neutral, 0.0)
+    assert m.simulations == 1
+    m.simulate(d, RoverExtension(terms={"tether": 0.5}), 0.0)
+    m.simulate(d, None, 0.0)  # used last: kept when the next one enters
+    m.simulate(d, RoverExtension(terms={"slope": 0.02}), 0.0)
+    assert m.simulations == 3
+    m.simulate(d, None, 0.0)
+    assert m.simulations == 3
+    m.simulate(d, RoverExtension(terms={"tether": 0.5}), 0.0)
+    assert m.simulations == 4
+
+
+def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, nominal, tmp_path, monkeypatch):
+    """A plant with no equilibrium from t = 2 s on (as for a candidate value the plant cannot
+    carry) loses every later tick; the drive is not re-simulated (ok False) and the
+    re-simulation stops at the lost tick that makes more than half of them lost instead of
+    trying every remaining tick (each lost tick costs failing Newton solves and a restart)."""
+    import offline.fit.drive_discrepancy as dd
+
+    f = record_drive(tmp_path / "n.mcap", sc, nominal, seed=1, duration=8.0)
+    d = load_drives([f])[0]
+    lost = [0]
+
+    def no_equilibrium_after_2s(sim, dt, depth=0):
+        if sim.t >= 2.0:
+            lost[0] += 1
+            raise dd.SimulationError("no equilibrium (test)")
+        sim.dt = dt
+        sim.step()
+
+    monkeypatch.setattr(dd, "_step", no_equilibrium_after_2s)
+    _, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
+    assert not ok
+    assert lost[0] == len(d.t) // 2 + 1

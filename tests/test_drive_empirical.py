@@ -139,3 +139,91 @@ def test_noise_only_drives_get_no_term(scenario: Any, tmp_path: Path, seed: int)
     res = search_drives([f], scenario, **FAST)
     assert res.status == "none" and not res.terms, res.summary_lines()
     assert res.p_values[0] >= FAST["alpha"]
+
+
+def test_force_terms_written_to_the_truth_file_are_what_the_simulator_applies(scenario: Any, tmp_path: Path) -> None:
+    """Issue 24: an empirical term goes to accepted_truth.toml where the simulator can apply it.
+    Force and torque terms are written as [[empirical_force]] tables; load_truth reads them and
+    the simulator (offnominal drive --truth's hook, disturbance_from_truth: localised by its own
+    time and pose) driving the recorded commands reproduces what the discrepancy tool's
+    re-simulation with the fitted terms predicts. A speed loss and a reading offset are not
+    written (the report says why)."""
+    from offline.fit.drive_candidates import disturbance_from_truth, write_truth_toml
+    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
+    from offline.fit.drive_empirical import simulator_applies, truth_entries
+    from offline.fit.drive_synthetic import record_drive
+    from offline.sim.sensors import SensorConfig
+    from offline.sim.truth import EMPIRICAL_FORCE_DIRECTIONS, Truth, TruthError, load_truth
+    from offline.fit.drive_empirical import DIRECTIONS
+
+    assert set(EMPIRICAL_FORCE_DIRECTIONS) == {d for d in DIRECTIONS if d.split(".")[0] in ("drag", "torque")}
+    sc = scenario
+    believed = Truth.nominal(sc.params, sc.rover)
+    torque = EmpiricalTerm("torque.RR", magnitude=0.03)
+    patch = EmpiricalTerm("drag.each", "x", "box", 0.10, 0.25, 0.6)
+    loss = EmpiricalTerm("speed_loss.RL", "command", "saturation", 0.04, magnitude=1.0)
+    offset = EmpiricalTerm("offset.roll", magnitude=0.01)
+    assert [bool(simulator_applies(t)) for t in (torque, patch, loss, offset)] == [False, False, True, True]
+    p = write_truth_toml(tmp_path / "accepted_truth.toml", "dissertation-ch7", believed, believed, {}, None,
+                         {"test": "empirical terms"}, None, truth_entries((torque, patch, loss, offset)))
+    truth = load_truth(p, sc.rover)
+    assert [e["direction"] for e in truth.empirical] == ["torque.RR", "drag.each"]
+    assert truth.empirical[1]["lo"] == 0.10 and truth.empirical[1]["hi"] == 0.25 and truth.empirical[1]["magnitude"] == 0.6
+    quiet = SensorConfig(wheel_speed_noise=0, steer_noise=0, gyro_noise=0, tilt_noise=0, torque_noise=0,
+                         pose_noise_xy=0, pose_noise_heading=0)
+    f = record_drive(tmp_path / "applied.mcap", sc, truth, seed=0, duration=24.0, sensors=quiet,
+                     disturbance=disturbance_from_truth(truth, sc.rover), segments=SCRIPT)
+    model = DriveModel(sc, believed, sensors=quiet)
+    obs = DriveRecording.build(load_drives([f]), model, segment=5)
+    without, _ = model.predict(obs)
+    fitted, ok = model.predict(obs, None, EmpiricalTerms((torque, patch), sc.rover))
+    assert ok.all()
+    # the terms' predicted effect is what the simulator applied: of the recording's sum of squared
+    # differences from the believed model, at least 85 % goes with the terms (measured 88-99.7 %; what
+    # stays is the quasi-static re-simulation against the simulator's 0.1 s body dynamics at
+    # command steps, test_drive_discrepancy.py's first test)
+    for ch in ("torque_RR", "torque_FL", "torque_FR", "dx_body"):
+        before = float(((obs.measured[ch] - without[ch]) ** 2).sum())
+        after = float(((obs.measured[ch] - fitted[ch]) ** 2).sum())
+        assert after < 0.15 * before, (ch, before, after)
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[empirical_force]]\ndirection = "speed_loss.RL"\nmagnitude_si = 1.0\n')
+    with pytest.raises(TruthError, match="direction"):
+        load_truth(bad, sc.rover)
+
+
+def test_drive_report_writes_the_empirical_force_term_to_the_truth_file(scenario: Any, tmp_path: Path) -> None:
+    """The whole drive tool on the drift band with a library that cannot explain it (only the IMU
+    mounting tilt, no recalibration): verdict unexplained, the empirical drag patch found, and the
+    report folder's accepted_truth.toml carries it as [[empirical_force]] that load_truth reads
+    back with the reported term's values (before issue 24's section, no truth file was written)."""
+    from offline.fit.drive_candidates import DRIVE_CANDIDATES
+    from offline.fit.drive_discrepancy import diagnose_drives, write_drive_report
+    from offline.sim.truth import load_truth
+
+    f = record_concealed(tmp_path / "drift.mcap", scenario, _SinkageDrift(), seed=5, duration=24.0, segments=SCRIPT)
+    v = diagnose_drives([f], scenario, candidates=[c for c in DRIVE_CANDIDATES if c.key == "imu_tilt"],
+                        recalibrate=False, alpha=0.01, seed=5)
+    assert v.status == "unexplained" and v.empirical is not None and v.empirical.terms, v.summary()
+    out = write_drive_report(v, tmp_path / "report")
+    truth = load_truth(out / "accepted_truth.toml", scenario.rover)
+    forces = [t for t in v.empirical.terms if t.kind in ("drag", "torque")]
+    assert forces and len(truth.empirical) == len(forces)
+    for t, e in zip(forces, truth.empirical):
+        assert (e["direction"], e["where"], e["shape"]) == (t.direction, t.where, t.shape)
+        assert e["magnitude"] == pytest.approx(t.magnitude, rel=1e-12) and e["lo"] == pytest.approx(t.lo, rel=1e-12)
+    assert "written to accepted_truth.toml ([[empirical_force]])" in (out / "report.md").read_text()
+
+
+def test_truth_description_of_an_empirical_term_is_plain_json(scenario: Any, tmp_path: Path) -> None:
+    """A recording's metadata holds Truth.describe(): an open edge (no lo or hi) is null, not Infinity."""
+    import json
+
+    from offline.sim.truth import load_truth
+
+    p = tmp_path / "t.toml"
+    p.write_text('[[empirical_force]]\ndirection = "torque.RR"\nmagnitude_si = 0.03\n')
+    d = load_truth(p, scenario.rover).describe()
+    assert d["empirical_force_SI"] == [{"direction": "torque.RR", "where": "everywhere", "shape": "constant", "lo": None,
+                                        "hi": None, "magnitude": 0.03}]
+    json.dumps(d, allow_nan=False)

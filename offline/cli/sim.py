@@ -108,14 +108,13 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
 
 
 def _truth_hooks(truth: Any, rover: Any) -> Any:
-    """The disturbance hook of a truth file's ``[tether_anchor]`` / ``[hub_contact]`` (None without them)."""
-    if truth.anchor is None and truth.hub is None:
+    """The disturbance hook of a truth file's ``[tether_anchor]`` / ``[hub_contact]`` /
+    ``[[empirical_force]]`` (None without them)."""
+    if truth.anchor is None and truth.hub is None and not truth.empirical:
         return None
-    from ..fit.drive_candidates import RoverExtension, disturbance_from_terms
+    from ..fit.drive_candidates import disturbance_from_truth
 
-    terms = {f"anchor_{k}": v for k, v in (truth.anchor or {}).items()}
-    terms.update({f"hub_{k}": v for k, v in (truth.hub or {}).items()})
-    return disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover)
+    return disturbance_from_truth(truth, rover)
 
 
 def _cmd_drive(args: argparse.Namespace) -> int:

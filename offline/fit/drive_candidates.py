@@ -72,7 +72,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, cast
+from typing import Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -86,8 +86,9 @@ from ..sim.truth import WHEELS, Truth
 from .candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
-           "PER_WHEEL_ACTUATOR_KEYS", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
+           "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
+           "disturbance_from_truth",
            "AnchoredTether", "Hooks", "PosePath",
            "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
 
@@ -108,6 +109,16 @@ PER_WHEEL_ACTUATOR_KEYS = (*(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fr
 MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
 
+NEUTRAL_VALUES: dict[str, float] = {
+    "slope": 0.0, "cross_slope": 0.0, "tether": 0.0, "radius_scale_all": 1.0,
+    **{f"radius_scale.{w}": 1.0 for w in WHEELS}, **{f"steer_offset.{w}": 0.0 for w in WHEELS},
+    **{f"speed_fraction.{w}": 1.0 for w in WHEELS}, **{f"wheel_lag.{w}": 0.0 for w in WHEELS},
+}
+"""Rover terms whose value changes nothing (:func:`truth_from_terms` and :func:`actuator_commands`
+multiply by 1 or add 0): :meth:`RoverTerms.physics_key` leaves them out, so the drive model's
+cache serves them with the believed model's simulation. Terms with absolute values
+(``wheel_lag``, ``torque_limit``, the caps, the hooks' parameters) have no neutral value here."""
+
 
 class DriveCandidateError(ValueError):
     """An extension carries an unknown rover term or a value the simulator cannot take."""
@@ -117,8 +128,12 @@ class RoverTerms(dict[str, float]):
     """Rover terms of one extension: ``{key: value}`` over :data:`ROVER_KEYS` (absent = no change)."""
 
     def physics_key(self) -> tuple[tuple[str, float], ...]:
-        """The terms that need a re-simulation (all but :data:`MEASUREMENT_KEYS`), sorted."""
-        return tuple(sorted((k, float(v)) for k, v in self.items() if k not in MEASUREMENT_KEYS))
+        """The terms that need a re-simulation (all but :data:`MEASUREMENT_KEYS`), sorted; a term
+        at its :data:`NEUTRAL_VALUES` value is left out (it multiplies by 1 or adds 0, so the
+        re-simulation is bit for bit the one without it, and a fit's start at the believed model
+        is the believed model's simulation)."""
+        return tuple(sorted((k, float(v)) for k, v in self.items()
+                            if k not in MEASUREMENT_KEYS and NEUTRAL_VALUES.get(k, math.nan) != v))
 
 
 @dataclass(frozen=True)
@@ -344,6 +359,27 @@ def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rov
     if not hooks:
         return None
     return hooks[0] if len(hooks) == 1 else Hooks(tuple(hooks))
+
+
+def disturbance_from_truth(truth: Truth, rover: Rover) -> Any:
+    """The simulator's disturbance hook of a truth file's hook sections: ``[tether_anchor]``,
+    ``[hub_contact]`` and ``[[empirical_force]]`` (:class:`~offline.fit.drive_empirical.EmpiricalTerms`
+    localised by the simulator's own time and pose); None without any.
+
+    Raises
+    ------
+    ValueError
+        An ``[[empirical_force]]`` combination the empirical family does not have.
+    """
+    terms = {f"anchor_{k}": v for k, v in (truth.anchor or {}).items()}
+    terms.update({f"hub_{k}": v for k, v in (truth.hub or {}).items()})
+    hook = disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover) if terms else None
+    if not truth.empirical:
+        return hook
+    from .drive_empirical import EmpiricalTerms, terms_from_truth
+
+    more = EmpiricalTerms(terms_from_truth(truth.empirical), rover).hook()
+    return more if hook is None else Hooks((hook, more))
 
 
 def _term_build(key: str, base: float) -> Callable[[NDArray[np.float64], ParameterSet], RoverExtension]:
@@ -606,7 +642,8 @@ _HOOK_KEYS = {"tether_anchor": {"anchor_tension_N": ("tension_N", 1.0), "anchor_
 
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
                      actuator: Mapping[str, float] | None, header: Mapping[str, Any],
-                     disturbance: Mapping[str, float] | None = None) -> Path:
+                     disturbance: Mapping[str, float] | None = None,
+                     empirical: Sequence[Mapping[str, Any]] = ()) -> Path:
     """Write the accepted terms as a truth file :func:`offline.sim.truth.load_truth` reads.
 
     Only what differs from the believed world is written. Terms the truth format has no key
@@ -614,8 +651,9 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     comment block with their values, since they belong to the sensor and actuator
     configuration, not to the world; ``disturbance`` (hub contact, anchored tether: their
     parameters, SI, keys ``anchor_tension_N`` ... ``hub_arm_m``) goes to the truth format's
-    ``[tether_anchor]`` and ``[hub_contact]`` sections. ``header`` lines become comments (fitted values,
-    standard errors, held-out improvement).
+    ``[tether_anchor]`` and ``[hub_contact]`` sections; ``empirical`` (the ``[[empirical_force]]``
+    tables of :func:`offline.fit.drive_empirical.truth_entries`) goes to that array of tables.
+    ``header`` lines become comments (fitted values, standard errors, held-out improvement).
     """
     lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
              "# (offline.sim.truth.load_truth reads it; the simulator and the table builder take it)"]
@@ -650,6 +688,9 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     if hub:
         lines += ["", "# disturbance parameters the truth format has no key for, SI:"]
         lines += [f"#   {k} = {v:.6g}" for k, v in hub.items()]
+    for e in empirical:
+        lines += ["", "[[empirical_force]]"]
+        lines += [f'{k} = "{v}"' if isinstance(v, str) else f"{k} = {float(v)!r}" for k, v in e.items()]
     extra = {k: v for k, v in measurement.items() if v}
     extra.update(actuator or {})
     if extra:

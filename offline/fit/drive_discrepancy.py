@@ -686,14 +686,19 @@ class DriveModel:
         so the interpolation error is that of a slowly turning gravity vector.
     cache_size : int
         Re-simulated drives kept (keyed by the drive, heading offset and the extension's
-        physics), oldest dropped first.
+        physics; a soil field at the believed value and a rover term at its neutral value,
+        :data:`~offline.fit.drive_candidates.NEUTRAL_VALUES`, are left out of the key), least
+        recently used dropped first. A diagnosis re-simulates a 40 s drive 400-800 times at about
+        25 kB each, so the default keeps them all: the held-out refits start where the full-data
+        fits started, the null's linearisation points and the forward step's score test sit on
+        fitted points, and each of those is simulated once.
     """
 
     scenario: Scenario
     truth: Truth | None = None
     actuators: ActuatorConfig | None = None
     sensors: SensorConfig | None = None
-    cache_size: int = 96
+    cache_size: int = 2048
     stride: int = 3
     _cache: dict[Any, Any] = field(default_factory=dict, init=False, repr=False)
     simulations: int = field(default=0, init=False)
@@ -723,14 +728,15 @@ class DriveModel:
         """
         ext = ext or RoverExtension()
         terms = rover_terms(ext)
-        key = (id(d), heading_offset, tuple(sorted(ext.soil.items())), terms.physics_key(),
-               extra.key() if extra is not None else None)
-        hit = self._cache.get(key)
+        believed = self.params.soil
+        soil = tuple(sorted((k, v) for k, v in ext.soil.items() if getattr(believed, k, math.nan) != v))
+        key = (id(d), heading_offset, soil, terms.physics_key(), extra.key() if extra is not None else None)
+        hit = self._cache.pop(key, None)
         if hit is None:
             hit = self._run(d, ext, heading_offset, extra)
-            if len(self._cache) >= self.cache_size:
+            while len(self._cache) >= max(self.cache_size, 1):
                 self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = hit
+        self._cache[key] = hit  # most recently used last
         ticks, body, ok = hit
         if not ok:
             return ticks, body, False
@@ -816,6 +822,12 @@ class DriveModel:
                     # no equilibrium (e.g. a wheel speed through zero with a slow servo): this tick
                     # is lost and the plant restarts from the steady state of these commands
                     failed[k] = True
+                    if failed.sum() > 0.5 * n:
+                        # more than half the ticks lost: the drive is not re-simulated whatever the
+                        # rest does (the check below), and its callers discard what it holds, so the
+                        # rest is not simulated (a parameter far outside what the plant can carry
+                        # costs up to four failing 40-iteration Newton solves per tick)
+                        return ticks, body, False
                     sim.start(Commands(float(d.t[k - 1]), k - 1, tuple(c[0]), tuple(c[1])))
                     settled = False
                     continue
@@ -1007,6 +1019,12 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     pngs = _drive_plots(v, out, ext)
     extra = ["", "## Drive plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
     truth_file = None
+    em = v.empirical
+    entries: list[dict[str, Any]] = []
+    if em is not None and em.terms:
+        from .drive_empirical import truth_entries
+
+        entries = truth_entries(em.terms)
     if v.chosen is not None and v.status not in ("agree", "unexplained", "ambiguous"):
         assert model.truth is not None
         truth, act, meas = truth_from_terms(model.params, model.truth, ext)
@@ -1023,23 +1041,32 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         # per-wheel actuator terms: not in the truth format (ActuatorConfig has no per-wheel entries);
         # written with the sensor and actuator comments
         act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
+        if entries:
+            header["empirical_terms"] = "; ".join(t.law() for t in em.terms)
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
-                                      meas, act, header, dist)
+                                      meas, act, header, dist, entries)
         extra += ["", "## Accepted terms as a simulator truth file", "",
                   f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
                   f"and `offnominal tables build SCENARIO --world {truth_file.name} --out DIR` rebuilds the tables with "
                   "its terms: soil, slope, tether, anchored cable, per-wheel radius and steering offset).", "",
                   "Does the table builder take each accepted term?", ""]
         extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
-    if v.empirical is not None:
-        em = v.empirical
+    elif entries:
+        # the library explains nothing it would write; the empirical force and torque terms alone
+        assert model.truth is not None and em is not None
+        header = {"verdict": v.status, "empirical_terms": "; ".join(t.law() for t in em.terms),
+                  "held_out_chi2": f"{em.chi2_cv_base:.1f} -> {em.chi2_cv_after:.1f}", "recordings": obs.source}
+        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", model.truth,
+                                      model.truth, {}, None, header, None, entries)
+    if em is not None:
         extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]
         if em.terms:
             write_text(out / "empirical_terms.json", json.dumps(em.to_json(), indent=2, default=float))
-            extra += ["", "`empirical_terms.json` holds the terms (SI). They are NOT in `accepted_truth.toml`: the truth "
-                      "format (`offline.sim.truth.load_truth`) has no section for an empirical term; the re-simulation "
-                      "applies them through `offline.fit.drive_empirical.EmpiricalTerms` (forces and torques as a "
-                      "disturbance hook, speed losses in the servo commands, reading offsets in the readings)."]
+            extra += ["", "`empirical_terms.json` holds every term (SI). The force and torque terms are also in "
+                      "`accepted_truth.toml` as `[[empirical_force]]` tables (`offline.sim.truth.load_truth` reads them; "
+                      "`offnominal drive --truth` applies them as a disturbance hook, localised by the simulator's own "
+                      "time and pose); speed losses and reading offsets are not part of the world a truth file describes "
+                      "(the lines above say which terms were written)."]
     md = (out / "report.md").read_text()
     write_text(out / "report.md", md + "\n".join(extra) + "\n")
     vj = json.loads((out / "verdict.json").read_text())

@@ -74,12 +74,16 @@ otherwise. An empirical term never names library physics: the engine's status is
 report adds the term with its law, localisation, held-out improvement and the experiment that
 would confirm its physics.
 
-What the simulator can apply: force and torque terms as a disturbance hook
-(:meth:`EmpiricalTerms.hook`, contract C5) and speed losses in the commands the servos follow
-(:meth:`EmpiricalTerms.commands`), both through :class:`~offline.fit.drive_discrepancy.DriveModel`;
-the truth file format (:func:`offline.sim.truth.load_truth`) has no section for either, and
-reading offsets are the sensor chain's. So ``accepted_truth.toml`` is not written for an
-empirical term; the report says so and gives the term as ``empirical_terms.json``.
+What the simulator can apply: the re-simulation applies force and torque terms as a disturbance
+hook (:meth:`EmpiricalTerms.hook`, contract C5), speed losses in the commands the servos follow
+(:meth:`EmpiricalTerms.commands`) and reading offsets in the readings, all through
+:class:`~offline.fit.drive_discrepancy.DriveModel`. The simulator itself takes a truth file:
+force and torque terms are written to ``accepted_truth.toml`` as ``[[empirical_force]]`` tables
+(:func:`truth_entries`; :func:`offline.sim.truth.load_truth` reads them and
+:func:`offline.fit.drive_candidates.disturbance_from_truth` makes the simulator's hook of them,
+localised by the simulator's own time and pose). Speed losses (the servo commands) and reading
+offsets (the sensor chain) are not part of the world a truth file describes: the report says so
+for each (:func:`simulator_applies`), and every term is in ``empirical_terms.json``.
 """
 
 from __future__ import annotations
@@ -100,7 +104,7 @@ from ..sim.truth import WHEELS
 from .significance import normalised
 
 __all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
-           "DIRECTIONS"]
+           "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth"]
 
 DIRECTIONS: dict[str, tuple[str, str]] = {
     "drag.body": ("resisting force at the centre of mass against the rover's travel", "N"),
@@ -300,8 +304,16 @@ class EmpiricalTerms:
             return ("log", id(self.logger))
         return tuple((t.direction, t.where, t.shape, t.lo, t.hi, t.magnitude) for t in self.terms)
 
-    def hook(self, time_of: Callable[[], float], pose_of: Callable[[float], tuple[float, float, float]]) -> Any:
-        """The disturbance hook of the drag and torque terms (None without them and without a logger)."""
+    def hook(self, time_of: Callable[[], float] | None = None,
+             pose_of: Callable[[float], tuple[float, float, float]] | None = None) -> Any:
+        """The disturbance hook of the drag and torque terms (None without them and without a logger).
+
+        ``time_of()`` and ``pose_of(t) -> (x, y, heading)`` give the time and pose the terms are
+        localised by: the re-simulation's recorded ones (:class:`~offline.fit.drive_discrepancy.DriveModel`
+        solves the plant at the recorded heading, skipping ticks); None: the simulator's own (the
+        hook's time argument and the truth state's pose, as a truth file's ``[[empirical_force]]``
+        is applied, :func:`offline.fit.drive_candidates.disturbance_from_truth`).
+        """
         forces = [t for t in self.terms if t.kind in ("drag", "torque")]
         if not forces and self.logger is None:
             return None
@@ -309,14 +321,14 @@ class EmpiricalTerms:
         log = self.logger
 
         def hook(tt: float, s: Any) -> DisturbanceForces:
-            now = time_of()
+            now = tt if time_of is None else time_of()
             if log is not None:
                 log.append((now, s))
             bf = np.zeros(2)
             wf = np.zeros((4, 2))
             wt = np.zeros(4)
             if forces:
-                X, Y, H = pose_of(now)
+                X, Y, H = (s.x, s.y, s.heading) if pose_of is None else pose_of(now)
                 c, sn = math.cos(H), math.sin(H)
                 vx, vy = s.u - s.yaw_rate * xy[:, 1], s.v + s.yaw_rate * xy[:, 0]
                 state = {"sinkage": np.asarray(s.sinkage, float), "slip": np.asarray(s.slip, float),
@@ -373,6 +385,45 @@ class EmpiricalTerms:
                 v = t if term.where == "time" else np.zeros(len(t))
                 out[term.target] = out[term.target] + term.magnitude * term.weight(v)
         return out
+
+
+def simulator_applies(term: EmpiricalTerm) -> str:
+    """Empty when a truth file's ``[[empirical_force]]`` carries the term to the simulator,
+    otherwise why not (module notes)."""
+    if term.kind in ("drag", "torque"):
+        return ""
+    if term.kind == "speed_loss":
+        return ("a speed loss acts on the commands a wheel's servo follows; the truth format describes the world, "
+                "and the simulator's actuators take no per-wheel command law from it")
+    return "a reading offset belongs to the sensor chain (SensorConfig), not to the simulated world"
+
+
+def truth_entries(terms: Sequence[EmpiricalTerm]) -> list[dict[str, Any]]:
+    """The ``[[empirical_force]]`` tables (:func:`offline.sim.truth.load_truth`) of the terms the
+    simulator applies (:func:`simulator_applies`), SI, in file keys."""
+    out = []
+    for t in terms:
+        if simulator_applies(t):
+            continue
+        e: dict[str, Any] = {"direction": t.direction, "where": t.where, "shape": t.shape}
+        if math.isfinite(t.lo):
+            e["lo_si"] = t.lo
+        if math.isfinite(t.hi):
+            e["hi_si"] = t.hi
+        e["magnitude_si"] = t.magnitude
+        out.append(e)
+    return out
+
+
+def terms_from_truth(entries: Sequence[dict[str, Any]]) -> tuple[EmpiricalTerm, ...]:
+    """The terms of :attr:`offline.sim.truth.Truth.empirical` (SI dicts).
+
+    Raises
+    ------
+    ValueError
+        A combination the family does not have (e.g. a body drag localised in a wheel's sinkage).
+    """
+    return tuple(EmpiricalTerm(e["direction"], e["where"], e["shape"], e["lo"], e["hi"], e["magnitude"]) for e in entries)
 
 
 @dataclass
@@ -432,8 +483,11 @@ class EmpiricalResult:
                        "held-out excess removed")
             for ch, c2, n, p in self.misfit_after:
                 out.append(f"  misfit left with the term in {ch}: chi2 {c2:.0f} for {n} rows in noise units (p = {p:.2g})")
-            out.append("  not written to accepted_truth.toml: the truth format has no section for an empirical term "
-                       "(the simulator applies it through offline.fit.drive_empirical.EmpiricalTerms; see empirical_terms.json)")
+            for t in self.terms:
+                why = simulator_applies(t)
+                out.append(f"  {t.direction} {t.where}: " + ("written to accepted_truth.toml ([[empirical_force]]), which "
+                                                             "the simulator applies as a disturbance hook" if not why else
+                                                             f"not written to accepted_truth.toml: {why}"))
         out.append(f"  searched {self.n_columns} localised terms; null: the same nested search on {self.n_boot} draws of "
                    f"the drive's correlated noise, level {self.alpha:g}; {self.simulations} re-simulations, {self.seconds:.1f} s")
         return out
@@ -448,7 +502,7 @@ class EmpiricalResult:
                 "fold_terms": [[t.to_json() for t in ts] for ts in self.fold_terms],
                 "simulations": self.simulations, "seconds": self.seconds, "columns_searched": self.n_columns,
                 "null_draws": self.n_boot, "alpha": self.alpha,
-                "accepted_truth_toml": "not written: the truth format has no section for an empirical term"}
+                "accepted_truth_toml": [simulator_applies(t) or "written ([[empirical_force]])" for t in self.terms]}
 
 
 # --------------------------------------------------------------------------- the linear family

@@ -35,9 +35,20 @@ File format (every key optional; units in the key names)
     face_width_mm = 40.0
     arm_mm = 20.0
 
-The last two are disturbance hooks (contract C5): :attr:`Truth.anchor` and :attr:`Truth.hub`
-carry their parameters (SI); ``offnominal drive --truth`` applies them through
-:func:`offline.fit.drive_candidates.disturbance_from_terms`, and the table builder takes the
+    [[empirical_force]]              # an empirical force or torque term (offline.fit.drive_empirical), repeatable
+    direction = "drag.each"          # drag.<body|FR|FL|RR|RL|each> (N) or torque.<FR|FL|RR|RL|each> (N m)
+    where = "x"                      # everywhere, time (s), x, y (m, world frame), sinkage (m), slip, slip_angle (rad)
+    shape = "box"                    # constant, box [lo, hi), step (from lo on), hinge (magnitude per unit above lo)
+    lo_si = 0.12                     # edges / threshold in SI units of `where`
+    hi_si = 0.30
+    magnitude_si = 0.8               # N or N m (hinge: per unit of `where`)
+
+The last three are disturbance hooks (contract C5): :attr:`Truth.anchor`, :attr:`Truth.hub` and
+:attr:`Truth.empirical` carry their parameters (SI); ``offnominal drive --truth`` applies them
+through :func:`offline.fit.drive_candidates.disturbance_from_truth` (an empirical term in ``time``
+counts from the simulation's start; one in ``x`` / ``y`` is in the simulator's world frame, which is
+the recording's pose frame when the drive starts where the recording's did; the discrepancy tool
+writes only the force and torque terms here, :mod:`offline.fit.drive_empirical`), and the table builder takes the
 anchored tether (``--world``; a constant bearing in steady straight driving) and the hub contact
 (``--world``; a drag per wheel in the NLP, :mod:`rtctl.physics.hub_drag`). The simulator
 itself takes them as its ``disturbance`` argument.
@@ -59,7 +70,8 @@ from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_tom
 from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
-__all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path"]
+__all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path",
+           "EMPIRICAL_FORCE_DIRECTIONS", "EMPIRICAL_FORCE_WHERE", "EMPIRICAL_FORCE_SHAPES"]
 
 WHEELS = ("FR", "FL", "RR", "RL")
 
@@ -109,6 +121,9 @@ class Truth:
     ``spring_rate`` N/m), or None."""
     hub: dict[str, float] | None = None
     """Hub contact (SI: ``clearance``, ``face_width``, ``arm``, m), or None."""
+    empirical: tuple[dict[str, Any], ...] = ()
+    """Empirical force and torque terms (``[[empirical_force]]``: ``direction``, ``where``,
+    ``shape``, ``lo``, ``hi``, ``magnitude``, SI), applied as a disturbance hook."""
 
     @classmethod
     def nominal(cls, params: ParameterSet, rover: Rover, **kw: Any) -> "Truth":
@@ -134,6 +149,8 @@ class Truth:
             "source": Path(self.source).name if self.source else "",
             **({"tether_anchor_SI": dict(self.anchor)} if self.anchor is not None else {}),
             **({"hub_contact_SI": dict(self.hub)} if self.hub is not None else {}),
+            **({"empirical_force_SI": [{k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+                                        for k, v in e.items()} for e in self.empirical]} if self.empirical else {}),
         }
 
 
@@ -167,6 +184,44 @@ def _hook(path: Path, data: dict[str, Any], section: str) -> dict[str, float] | 
     return out
 
 
+EMPIRICAL_FORCE_DIRECTIONS = (*(f"drag.{w}" for w in ("body", *WHEELS, "each")),
+                              *(f"torque.{w}" for w in (*WHEELS, "each")))
+"""Directions of ``[[empirical_force]]`` (the force and torque directions of
+:data:`offline.fit.drive_empirical.DIRECTIONS`; a test keeps the two equal)."""
+EMPIRICAL_FORCE_WHERE = ("everywhere", "time", "x", "y", "sinkage", "slip", "slip_angle")
+EMPIRICAL_FORCE_SHAPES = ("constant", "box", "step", "hinge")
+_EMPIRICAL_KEYS = {"direction", "where", "shape", "lo_si", "hi_si", "magnitude_si"}
+
+
+def _empirical(path: Path, data: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+    """The ``[[empirical_force]]`` entries in SI (names and numbers checked here; the term's own
+    class checks the combination when the hook is built)."""
+    if "empirical_force" not in data:
+        return ()
+    entries = data["empirical_force"]
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        raise TruthError(f"{path}: empirical_force must be an array of tables ([[empirical_force]])")
+    out = []
+    for i, e in enumerate(entries):
+        where = f"empirical_force #{i + 1}"
+        bad = sorted(set(e) - _EMPIRICAL_KEYS)
+        if bad:
+            raise TruthError(f"{path}: [{where}] unknown key(s) {bad}; known: {sorted(_EMPIRICAL_KEYS)}")
+        for key, allowed, default in (("direction", EMPIRICAL_FORCE_DIRECTIONS, None),
+                                      ("where", EMPIRICAL_FORCE_WHERE, "everywhere"),
+                                      ("shape", EMPIRICAL_FORCE_SHAPES, "constant")):
+            v = e.get(key, default)
+            if v not in allowed:
+                raise TruthError(f"{path}: [{where}] {key} = {v!r}; expected one of {list(allowed)}")
+        if "magnitude_si" not in e:
+            raise TruthError(f"{path}: [{where}] magnitude_si is required")
+        out.append({"direction": e["direction"], "where": e.get("where", "everywhere"), "shape": e.get("shape", "constant"),
+                    "lo": _num(path, where, "lo_si", e["lo_si"], -1e9, 1e9) if "lo_si" in e else -math.inf,
+                    "hi": _num(path, where, "hi_si", e["hi_si"], -1e9, 1e9) if "hi_si" in e else math.inf,
+                    "magnitude": _num(path, where, "magnitude_si", e["magnitude_si"], -1e6, 1e6)})
+    return tuple(out)
+
+
 def _num(path: Path, where: str, key: str, v: Any, lo: float, hi: float) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
         raise TruthError(f"{path}: [{where}] {key} must be a finite number, got {v!r}")
@@ -191,10 +246,10 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         raise TruthError(f"{p}: no such truth file") from None
     except tomllib.TOMLDecodeError as exc:
         raise TruthError(f"{p}: not valid TOML ({exc})") from None
-    bad = sorted(set(data) - {"truth", "wheels", *_HOOKS})
+    bad = sorted(set(data) - {"truth", "wheels", "empirical_force", *_HOOKS})
     if bad:
         raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth], [wheels.<FR|FL|RR|RL>], [tether_anchor], "
-                         "[hub_contact]")
+                         "[hub_contact], [[empirical_force]]")
     t = data.get("truth", {})
     bad = sorted(set(t) - set(_TRUTH_KEYS))
     if bad:
@@ -237,7 +292,7 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
         yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)),
         wheel_inertia=vals.get("wheel_inertia_kg_m2", default_wheel_inertia(ps)), source=str(p),
-        anchor=_hook(p, data, "tether_anchor"), hub=_hook(p, data, "hub_contact"),
+        anchor=_hook(p, data, "tether_anchor"), hub=_hook(p, data, "hub_contact"), empirical=_empirical(p, data),
     )
 
 

@@ -34,6 +34,7 @@ group's rows of an earlier run; report folders under out/bench_drive_empirical/)
     nice python tests/bench/bench_drive_empirical.py search_negatives
     nice python tests/bench/bench_drive_empirical.py inlib
     nice python tests/bench/bench_drive_empirical.py negatives
+    nice python tests/bench/bench_drive_empirical.py negatives 31-40   # a shard (seeds 31-40): its rows merged
     python tests/bench/bench_drive_empirical.py table
 """
 
@@ -212,8 +213,9 @@ def run_inlib(sc: Any, tr: Truth, tmp: Path, outdir: Path, sel: str, save: Calla
 
 def run_negatives(sc: Any, tmp: Path, sel: str, forced: bool, save: Callable[[dict[str, Any]], None]) -> list[dict[str, Any]]:
     rows = []
-    for seed in range(31, 51):
-        if sel and sel != str(seed):
+    lo, hi = (int(sel.split("-")[0]), int(sel.split("-")[1])) if "-" in sel else (31, 50)
+    for seed in range(lo, hi + 1):
+        if sel and "-" not in sel and sel != str(seed):
             continue
         f = record_concealed(tmp / "neg.mcap", sc, Effect(), seed=seed, duration=DURATION)
         t0 = time.perf_counter()
@@ -279,10 +281,10 @@ def _md(data: dict[str, Any]) -> str:
         neg = [r for r in rows if r["group"] == g]
         if not neg:
             continue
-        md += ["", f"## {title}", "", "| drive | verdict | empirical | terms | s |", "|---|---|---|---|---|"]
+        md += ["", f"## {title}", "", "| drive | verdict | empirical | terms | s | commit |", "|---|---|---|---|---|---|"]
         for r in neg:
             md.append(f"| {r['case']} | {r.get('verdict', '(search only, p = %.2g)' % r.get('p', math.nan))} | {r['empirical']} | "
-                      f"{'; '.join(r['terms']) or '-'} | {r['seconds']:.0f} |")
+                      f"{'; '.join(r['terms']) or '-'} | {r['seconds']:.0f} | {r.get('commit', '-')} |")
         md += ["", f"False alarms: {sum(not r['ok'] for r in neg)}/{len(neg)}."]
     md += ["", "Per-diagnosis time: the targets ask at most 120 s; the 's' columns are wall seconds on the shared "
            "machine at the load averages above (the empirical stage's own seconds in brackets)."]
@@ -306,18 +308,37 @@ def main(argv: list[str]) -> int:
     start = json.loads(jpath.read_text()) if jpath.exists() else {"groups": {}, "rows": []}
     done: list[dict[str, Any]] = []
 
+    shard = "-" in sel  # seeds lo-hi of a negatives group: one of several processes filling the group
+
     def save(row: dict[str, Any]) -> None:
-        """The results file after every case (a group cut short keeps the cases it ran, and says so)."""
-        done.append(row)
-        if sel:
+        """The results file after every case (a group cut short keeps the cases it ran, and says so).
+        A shard (``negatives 31-40``) merges its rows into the group's rows of the file as it is
+        now (under a lock: other shards of the group write beside it); otherwise the group's rows
+        are replaced."""
+        done.append({**row, "commit": commit})
+        if sel and not shard:
             return  # a selection is a trial run: no results file
-        data: dict[str, Any] = {"groups": dict(start["groups"]), "rows": [r for r in start["rows"] if r["group"] != group]}
-        data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                                 "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
-                                 "cases_run": len(done)}
-        data["rows"] += [{**r, "group": group} for r in done]
-        write_text(jpath, json.dumps(data, indent=1, default=float))
-        write_text(RESULTS.with_suffix(".md"), _md(data))
+        import fcntl
+
+        with open(Path(tempfile.gettempdir()) / "results_drive_empirical.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            now = json.loads(jpath.read_text()) if shard and jpath.exists() else start
+            mine = {r["case"] for r in done}
+            # a shard keeps the group's rows other shards wrote (each row names its commit); rows of a
+            # run before shards existed (no commit) go
+            keep = [r for r in now["rows"] if r["group"] != group
+                    or (shard and r["case"] not in mine and "commit" in r)]
+            data: dict[str, Any] = {"groups": dict(now["groups"]), "rows": keep + [{**r, "group": group} for r in done]}
+            n_group = sum(r["group"] == group for r in data["rows"])
+            data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                                     "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
+                                     "cases_run": n_group,
+                                     **({"note": "run as shards (seed ranges) in parallel processes; commit, time and "
+                                                 "load of the last shard to write"} if shard else {})}
+            data["rows"].sort(key=lambda r: (r["group"], r["case"]) if r["group"] in ("negatives", "search_negatives")
+                              else (r["group"], ""))
+            write_text(jpath, json.dumps(data, indent=1, default=float))
+            write_text(RESULTS.with_suffix(".md"), _md(data))
 
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)

@@ -15,10 +15,11 @@ A gain left at ``nan`` means "from the table" (the section 7.2.4 steering contro
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
+
+from .physics.parameters import read_toml
 
 __all__ = ["ConfigError", "Actuators", "Drive", "Noise", "EstimatorSettings", "OuterLoop", "QpSettings",
            "ControllerConfig", "DEFAULT_TOML"]
@@ -400,12 +401,7 @@ class ControllerConfig:
     def from_toml(cls, path: str | Path) -> "ControllerConfig":
         """Read a TOML file; raises :class:`ConfigError` naming the file and key on any problem."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: no such config file; pass the path of a controller TOML file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        data = read_toml(path, ConfigError, "config file", "; pass the path of a controller TOML file")
         cfg = cls.from_dict(data, source=path.name)
         if cfg.tables_index:
             cfg = replace(cfg, tables_index=str((path.parent / cfg.tables_index)))

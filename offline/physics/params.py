@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -59,7 +58,7 @@ __all__ = [
 ]
 
 
-from rtctl.physics.parameters import ParameterError  # noqa: E402  (one class on both sides)
+from rtctl.physics.parameters import ParameterError, read_toml  # noqa: E402  (one class on both sides)
 
 
 def _check_finite(owner: str, name: str, value: float) -> None:
@@ -591,12 +590,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         message names the file, section and key.
     """
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ParameterError(f"{p}: no such parameter file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{p}: not valid TOML ({exc})") from None
+    data = read_toml(p, ParameterError, "parameter file")
     out: dict[str, Any] = {}
     for section, table in data.items():
         if section == "meta":

@@ -99,13 +99,13 @@ with a hint that it looks like cm/s; slopes beyond 60 deg are refused (degrees e
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
 from rtctl.physics.hub_drag import HUB_KEYS, HubFace
+from rtctl.physics.parameters import read_toml
 from ..physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
@@ -444,12 +444,7 @@ def load_scenario(path: str | Path) -> Scenario:
         ``stuck.toml: [wheels.RR] steer_stuck_deg = 400 outside [-90, 90]``.
     """
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ScenarioError(f"{p}: no such scenario file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{p}: not valid TOML ({exc})") from None
+    data = read_toml(p, ScenarioError, "scenario file")
     unknown = sorted(set(data) - {"scenario", "wheels", "trench", "tether", "hub_contact"})
     if unknown:
         raise ScenarioError(f"{p}: unknown section(s) {unknown}; expected [scenario], [wheels.<FR|FL|RR|RL>], [trench], "

@@ -9,7 +9,9 @@ on the ground side's classes (arrows point down only: offline imports rtctl, nev
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping, Protocol
 
 __all__ = ["ParameterError", "SoilLike", "WheelLike", "TuningLike", "RoverLike", "Record", "record"]
@@ -155,3 +157,16 @@ def record(values: Mapping[str, Any], required: tuple[str, ...], owner: str) -> 
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
             raise ParameterError(f"{owner}.{k}: expected a finite number, got {v!r}")
     return Record(dict(values))
+
+
+def read_toml(path: str | Path, error: type[Exception], what: str, hint: str = "") -> dict[str, Any]:
+    """The TOML document of a file, or ``error`` naming the file: missing (``"<path>: no such
+    <what>"`` plus ``hint``) or not TOML (``"<path>: not valid TOML (<reason>)"``). One reader for
+    every file the library takes (parameter, scenario, rover and controller files)."""
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise error(f"{p}: no such {what}{hint}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{p}: not valid TOML ({exc})") from None

@@ -61,12 +61,11 @@ what was expected.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from .parameters import ParameterError
+from .parameters import ParameterError, read_toml
 
 __all__ = ["RoverFileError", "WheelSpec", "LinkSpec", "ActuatorLimits", "RoverSpec", "load_rover_file",
            "parse_rover", "SHIPPED_ROVERS", "shipped_rover", "SUSPENSION_KINDS"]
@@ -532,13 +531,7 @@ def load_rover_file(path: str | Path) -> RoverSpec:
         The file is missing or not TOML, or :func:`parse_rover` rejects it.
     """
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise RoverFileError(f"{p}: no such rover file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise RoverFileError(f"{p}: not valid TOML ({exc})") from None
-    return parse_rover(data, str(p))
+    return parse_rover(read_toml(p, RoverFileError, "rover file"), str(p))
 
 
 def shipped_rover(name: str) -> RoverSpec:

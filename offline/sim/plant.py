@@ -204,6 +204,7 @@ class PlantModel:
         else:
             W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
         JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
+        _stiction(W, JW, X, rs)
         if raised:  # no ground contact: no soil wrench, slip undefined
             idx = raised + [4 + i for i in raised]
             W[:, idx] = 0.0
@@ -281,6 +282,19 @@ class PlantModel:
         for row, idx in ((5, [0, 2]), (6, [1, 3])):
             res[row] = np.sum(F[idx, 4] + pz[idx] * F[idx, 0] - px[idx] * F[idx, 2]) / M
             J[row] = (dF[idx, 4] + pz[idx, None] * dF[idx, 0] - px[idx, None] * dF[idx, 2]).sum(0) / M
+        if self.rocker_jacobian:  # the rocker angles' dependence on the sinkages (left out by default)
+            for side, (fr, re) in enumerate(((0, 2), (1, 3))):
+                src = 1 - side if raised and raised[0] % 2 == side else side
+                sf, sr = (0, 2) if src == 0 else (1, 3)
+                sp = sps[side]
+                cp = math.sqrt(max(1.0 - sp * sp, 1e-12))
+                dsp = np.zeros(N_UNKNOWNS)
+                dsp[7 + sr], dsp[7 + sf] = h[sr] / lr, -h[sf] / lr
+                dpx = {fr: -lr / 2 * sp / cp + hr, re: lr / 2 * sp / cp + hr}
+                dpz = {fr: lr / 2 + hr * sp / cp, re: -lr / 2 + hr * sp / cp}
+                for i in (fr, re):
+                    J[4] -= F[i, 1] * dpz[i] * dsp / M
+                    J[5 + side] += (F[i, 0] * dpz[i] - F[i, 2] * dpx[i]) * dsp / M
         om_scale = ro.travel_speed / rs
         t_scale = weight / 4 * rs
         res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
@@ -306,6 +320,12 @@ class PlantModel:
                 res[7 + i], J[7 + i] = (omega[i] - omega0[i]) / om_scale[i], 0.0
                 J[7 + i, 3 + i] = 1.0 / om_scale[i]
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
+
+    rocker_jacobian = False
+    """Include the rocker angles' dependence on the sinkages in the Jacobian (exact Newton).
+    Off by default (the documented approximation, kept so that every simulation that converges
+    without it stays bit for bit as it was); the simulator turns it on for a step whose Newton
+    solve failed (:meth:`offline.sim.simulator.RoverSimulator.step`)."""
 
     MAX_NEWTON = 40
     TOL = 1e-8
@@ -434,6 +454,73 @@ class _DenseCall:
 
 
 _I4 = np.arange(4)
+
+STICTION_SPEED = 1e-4
+"""m/s: the stiction tolerance of a wheel at rest on the soil (see :func:`_stiction`)."""
+_STICTION_CUTOFF = 20.0
+"""``tanh(x)`` rounds to exactly 1.0 for ``x > 19.1``: above ``20 * STICTION_SPEED`` a factor is
+not applied at all, so every drive whose wheels move is bit-for-bit the unregularised plant."""
+_LONGITUDINAL = np.array([0, 4])  # F_x, M_y: shear along the rim (needs the rim or the wheel to move)
+_LATERAL = np.array([1, 3, 5])  # F_y, M_x, M_z: lateral shear and sidewall bulldozing (need the wheel to move)
+
+
+def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64], X: NDArray[np.float64],
+              rs: NDArray[np.float64]) -> None:
+    """Regularised static friction of a wheel at rest on the soil (in place).
+
+    The wheel model's forces are rate-independent: a locked wheel (``omega = 0``) develops its
+    full skid resistance at any travel speed ``v > 0`` and the opposite one at ``v < 0``, and
+    the sidewall bulldozing of any wheel follows the direction of travel, however slow. At rest
+    these forces are set-valued (static friction anywhere in between). A rover that cannot drag
+    a locked wheel is at rest with that wheel's force inside the set, and Newton's method on
+    the discontinuous force finds no root (issue 21: "no equilibrium of the rover found",
+    u = 3e-4 m/s, three driven wheels at slip 0.99 pulling 10.1 N against the locked wheel's
+    10.1 N).
+
+    As rigid-body simulators do with Coulomb friction (a "stiction tolerance", e.g. Drake's
+    ``v_s``), the forces that need the wheel to move are scaled by ``tanh(speed / v_s)``
+    (:data:`STICTION_SPEED`), continuous through rest, so a stall is a creep at a fraction of a
+    millimetre per second with the resting wheel's force wherever the balance needs it, up to
+    its sliding value:
+
+    * ``F_x, M_y`` (shear along the rim) by ``tanh(q / v_s)``,
+      ``q = sqrt(v_x^2 + v_y^2 + (r_s omega)^2)``: a wheel spinning in place on a stalled
+      rover slides under its rim at centimetres per second and keeps its full (slip 1) thrust;
+    * ``F_y, M_x, M_z`` (lateral shear and sidewall bulldozing, which follow the direction of
+      travel) by ``tanh(v / v_s)``, ``v = sqrt(v_x^2 + v_y^2)``.
+
+    ``F_z`` is not scaled (the wheel still carries its load and sinks). Only the wheel states
+    ``W[:, :4]`` are touched (not the zero-slip twins, whose ``F_z`` alone is used), and only
+    below ``20 v_s`` (2 mm/s), where ``tanh`` differs from 1 in double precision: a drive whose
+    wheels all travel faster is bit for bit the unregularised plant. Not modelled: the sinkage
+    growth of a wheel spinning in place (digging); the plant is quasi-static in sinkage.
+
+    Parameters
+    ----------
+    W : ndarray (6, 8)
+        Wrenches of the 8 wheel states (wheel frame), scaled in place.
+    JW : ndarray (8, 6, 5)
+        Their derivatives with respect to the states ``(v_x, v_y, omega, h, h0)``, in place.
+    X : ndarray (5, 8)
+        The states.
+    rs : ndarray (4,)
+        Shearing radius of each wheel, m.
+    """
+    vx, vy, om = X[0, :4], X[1, :4], X[2, :4]
+    floor2 = (1e-3 * STICTION_SPEED) ** 2
+    v = np.sqrt(vx * vx + vy * vy + floor2)
+    q = np.sqrt(vx * vx + vy * vy + (rs * om) ** 2 + floor2)
+    cut = _STICTION_CUTOFF * STICTION_SPEED
+    for i in np.nonzero(v < cut)[0]:
+        groups = [(_LATERAL, v[i], np.array([vx[i], vy[i], 0.0, 0.0, 0.0]) / v[i])]
+        if q[i] < cut:
+            groups.append((_LONGITUDINAL, q[i], np.array([vx[i], vy[i], rs[i] ** 2 * om[i], 0.0, 0.0]) / q[i]))
+        for rows, speed, dspeed in groups:
+            f = math.tanh(speed / STICTION_SPEED)
+            dfdx = (1.0 - f * f) / STICTION_SPEED * dspeed
+            w = W[rows, i].copy()
+            JW[i, rows] = f * JW[i, rows] + np.outer(w, dfdx)
+            W[rows, i] = f * w
 
 
 def _XS(lr: float) -> NDArray[np.float64]:

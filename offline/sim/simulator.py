@@ -249,6 +249,7 @@ class RoverSimulator:
         self.mode = np.ones(4)
         self.torque = np.zeros(4)
         self.newton_iterations = 0
+        self.substepped = 0  # steps that needed sub-steps (see :meth:`step`)
         self.contact = self.act.contact()
         self.motor = np.zeros(4)
         if disturbance is not None and not callable(disturbance):
@@ -373,17 +374,58 @@ class RoverSimulator:
             raise SimulationError("call start(first_commands) before stepping the simulator")
         self._disturb()
         self.gyro_bias.advance(self.dt)
+        om_prev, steer_prev = self.act.omega_servo.copy(), self.act.steer.copy()
         self.act.advance(self.dt)
-        self._solve(1.0 / self.dt)
-        u, v, r = self.z[0], self.z[1], self.z[2]
-        hm = self.heading + 0.5 * r * self.dt
-        self.x += self.dt * (u * math.cos(hm) - v * math.sin(hm))
-        self.y += self.dt * (u * math.sin(hm) + v * math.cos(hm))
-        self.heading += r * self.dt
-        self.travelled += self.dt * math.hypot(u, v)
+        om_new, steer_new = self.act.omega_servo.copy(), self.act.steer.copy()
+        keep = (self.z.copy(), self.sol, self.motor.copy(), self.act.omega_servo.copy(), self.mode.copy(),
+                self.torque.copy())
+        try:
+            self._solve(1.0 / self.dt)
+            self._integrate(self.dt)
+        except SimulationError as first:
+            # Newton from the last state found no root over the whole step (the body's velocity
+            # changes too much in one step, e.g. when a rover stalls on a locked wheel): the
+            # same implicit-Euler step in n equal sub-steps, each a continuation from the last,
+            # with the servos' speeds and angles moving linearly from the last step's to this
+            # step's over them (the servos reach this step's values at its end, as in one
+            # step). Steps that converge never come here (bit for bit).
+            self.plant.rocker_jacobian = True  # exact Newton from here on, for this step only
+            for n in (1, *self.SUBSTEPS):
+                (self.z, self.sol, m, om, self.mode, self.torque) = (keep[0].copy(), keep[1], keep[2].copy(),
+                                                                     keep[3].copy(), keep[4].copy(), keep[5].copy())
+                self.motor, self.act.omega_servo = m, om
+                pose = (self.x, self.y, self.heading, self.travelled)
+                try:
+                    for k in range(1, n + 1):
+                        self.act.omega_servo = om_prev + k / n * (om_new - om_prev)
+                        self.act.steer = steer_prev + k / n * (steer_new - steer_prev)
+                        self._solve(n / self.dt)
+                        self._integrate(self.dt / n)
+                except SimulationError:
+                    self.x, self.y, self.heading, self.travelled = pose
+                    continue
+                self.substepped += 1
+                break
+            else:
+                self.plant.rocker_jacobian = False
+                raise SimulationError(f"t={self.t + self.dt:.6g} s: {first} (also with the exact Jacobian and in "
+                                      f"{self.SUBSTEPS[-1]} sub-steps)") from None
+            self.plant.rocker_jacobian = False
         self.steps += 1
         self.t = self.steps * self.dt
         self.pose_source.take(self.t, self.x, self.y, self.heading, self.travelled)
+
+    SUBSTEPS = (2, 4, 8, 16)
+    """Sub-step counts tried, in order, for a step whose Newton solve fails (see :meth:`step`)."""
+
+    def _integrate(self, dt: float) -> None:
+        """Advance the pose over ``dt`` at the body velocities just solved (midpoint heading)."""
+        u, v, r = self.z[0], self.z[1], self.z[2]
+        hm = self.heading + 0.5 * r * dt
+        self.x += dt * (u * math.cos(hm) - v * math.sin(hm))
+        self.y += dt * (u * math.sin(hm) + v * math.cos(hm))
+        self.heading += r * dt
+        self.travelled += dt * math.hypot(u, v)
 
     def advance(self, duration: float) -> None:
         """Advance ``round(duration / dt)`` steps."""

@@ -1,0 +1,124 @@
+"""A rover held by a locked wheel: the plant's static friction at rest and its exact Newton
+fallback (issue 21: "locked wheels: the simulator finds no equilibrium at the start").
+
+The wheel model's forces are rate-independent, so a wheel at rest has a set-valued force; the
+plant regularises it with a stiction tolerance (:func:`offline.sim.plant._stiction`). These
+tests check the physics of that (continuity through rest, a stall where the driven wheels
+cannot drag the locked one, no change at all for wheels that move) and the rocker-angle terms
+of the Jacobian against finite differences.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from offline.rover.scenario import load_scenario
+from offline.scenarios import __path__ as _SCENARIOS
+from offline.sim.plant import STICTION_SPEED, _stiction
+from offline.sim.simulator import RoverSimulator
+from rtctl.messages import Commands
+
+
+def _sim(name: str = "fl_locked") -> RoverSimulator:
+    return RoverSimulator(load_scenario(f"{_SCENARIOS[0]}/{name}.toml"), seed=1)
+
+
+def _straight(sim: RoverSimulator) -> Commands:
+    rim = sim.scenario.speed / 0.92  # the nominal primitive's slip, about 8 %
+    return Commands(t=0.0, seq=0, rim_speed=(rim,) * 4, steer_angle=(0.0,) * 4)
+
+
+def test_locked_front_wheel_stalls_the_rover() -> None:
+    """Dissertation soil, FL locked, the other wheels driven straight at the nominal speed: the
+    optimizer finds no primitive (the three wheels cannot drag it at 3 cm/s), and the plant
+    finds the rover at rest (a creep below 1 mm/s) with the driven wheels spinning at slip
+    near 1. Before the stiction tolerance the start raised "no equilibrium of the rover found"."""
+    sim = _sim()
+    sim.start(_straight(sim))
+    sim.advance(2.0)
+    sol = sim.sol
+    assert sol is not None
+    assert 0.0 < sol.u < 10 * STICTION_SPEED, sol.u
+    assert abs(sol.omega[1]) < 1e-12
+    driven = [0, 2, 3]
+    assert np.all(sol.slip[driven] > 0.95), sol.slip
+    # the locked wheel holds the rover: its force opposes the driven wheels' pull
+    assert sol.wrench[1, 0] < -1.0 and np.sum(sol.wrench[driven, 0]) > 1.0
+
+
+def test_resting_wheel_force_is_continuous_through_rest() -> None:
+    """The locked wheel's soil force is continuous in the body speed through u = 0 and takes
+    every value between its two sliding forces (without the regularisation it jumps between
+    them, about 10 N, at u = 0). The driven wheels spinning on the resting rover are not
+    continuous through u = 0 in the wheel model (its mirror image for v_x < 0 treats a wheel
+    turning against its travel as a skid at slip -1): a stalled rover creeps forward, u > 0."""
+    sim = _sim()
+    sim.start(_straight(sim))
+    z = sim.z.copy()
+    a = sim._inputs(0.0)
+    fx = {}
+    for u in (-1e-3, -1e-7, 0.0, 1e-7, 1e-3):
+        z[0], z[1], z[2] = u, 0.0, 0.0
+        fx[u] = sim.plant.evaluate(z, a, sim.q)[2][1, 0]  # FL's F_x, wheel frame
+    assert fx[1e-3] < -5.0 and fx[-1e-3] > 5.0  # sliding: the full skid resistance, either way
+    assert abs(fx[1e-7] - fx[-1e-7]) < 0.01 * abs(fx[1e-3])
+    assert abs(fx[0.0]) < 1e-3 * abs(fx[1e-3])
+
+
+def test_stiction_leaves_moving_wheels_bit_for_bit() -> None:
+    """Above 20 stiction speeds (2 mm/s) nothing is changed: every drive whose wheels move is the
+    unregularised plant bit for bit."""
+    rng = np.random.default_rng(3)
+    W = rng.normal(size=(6, 8))
+    JW = rng.normal(size=(8, 6, 5))
+    X = np.abs(rng.normal(size=(5, 8)))
+    X[0, :4] = 20.5 * STICTION_SPEED  # travel just above the cut-off
+    X[1, :4] = 0.0
+    X[2, :4] = 0.0  # not even turning (a locked wheel dragged at 2 mm/s)
+    W0, J0 = W.copy(), JW.copy()
+    _stiction(W, JW, X, np.full(4, 0.068))
+    assert np.array_equal(W, W0) and np.array_equal(JW, J0)
+    # below the cut-off the resting wheel's shear is scaled, F_z is not
+    X[0, 1] = STICTION_SPEED
+    _stiction(W, JW, X, np.full(4, 0.068))
+    f = math.tanh(1.0)
+    assert np.allclose(W[[0, 1, 3, 4, 5], 1], f * W0[[0, 1, 3, 4, 5], 1], rtol=1e-5)
+    assert W[2, 1] == W0[2, 1]
+    assert np.array_equal(W[:, [0, 2, 3]], W0[:, [0, 2, 3]])
+
+
+@pytest.mark.parametrize("raised", [False, True])
+def test_rocker_jacobian_matches_finite_differences(raised: bool) -> None:
+    """With ``rocker_jacobian`` on, the plant's Jacobian is exact (central differences, 1e-6);
+    off, the documented approximation differs in the sinkage columns."""
+    sim = _sim("rr_steer_stuck_50")
+    plant = sim.plant
+    rng = np.random.default_rng(0)
+    z = plant.initial_guess(0.03, sim.q)
+    z[7:11] += rng.normal(0.0, 0.3, 4)
+    z[0:3] += [0.0, 0.002, 0.01]
+    om = [0.6, 0.5, 0.55, 0.7]
+    a = np.concatenate([om, np.ones(4), np.zeros(4), np.radians([10.0, 5.0, -8.0, 3.0]), [0.03, 0.0, 0.0, 0.1, 10.0],
+                        om, [1.0, 0.0 if raised else 1.0, 1.0, 1.0]])
+
+    def fd() -> np.ndarray:
+        out = np.zeros((15, 15))
+        for j in range(15):
+            zp, zm = z.copy(), z.copy()
+            zp[j] += 1e-7
+            zm[j] -= 1e-7
+            out[:, j] = (plant.evaluate(zp, a, sim.q)[0] - plant.evaluate(zm, a, sim.q)[0]) / 2e-7
+        return out
+
+    ref = fd()
+    try:
+        plant.rocker_jacobian = True
+        exact = plant.evaluate(z, a, sim.q)[1]
+    finally:
+        plant.rocker_jacobian = False
+    approx = plant.evaluate(z, a, sim.q)[1]
+    assert np.max(np.abs(exact - ref)) < 1e-6
+    assert np.max(np.abs(approx - ref)) > 1e-4

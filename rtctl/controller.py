@@ -76,7 +76,7 @@ from numpy.typing import NDArray
 from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
-from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds, read_table_failures, rule_text
+from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds, read_table_failures, read_task_kinds, rule_text
 from .inputs import Inputs, TickClock, read_measurements
 from .layout import WHEELS
 from .messages import Commands, Diagnostics, Measurements, Task
@@ -272,11 +272,14 @@ class Controller:
         unavailable = dict(unavailable or {})
         self.kinds: dict[str, KindSpec] = {}
         """Every failure kind the loaded tables describe (:mod:`rtctl.failures`), by its declared name."""
+        self.task_kinds: dict[str, KindSpec] = {}
+        """Every task kind the loaded task tables describe (:func:`rtctl.failures.read_task_kinds`)."""
         kind_from: dict[str, str] = {}
         for name in sorted(tables):
             t = tables[name]
             try:
                 kinds = read_kinds(t.header, name)
+                task_kinds = read_task_kinds(t.header, name)
                 sig = table_signature(t)
             except FailureDescriptionError as exc:
                 unavailable[name] = f"its failure description is malformed ({exc})"
@@ -293,9 +296,19 @@ class Controller:
                                      f"{kind_from[clash[0]]} (rebuild or describe both with one library version)")
                 del tables[name]
                 continue
+            tclash = sorted(k for k, spec in task_kinds.items()
+                            if k in self.task_kinds and not self.task_kinds[k].same_physics(spec))
+            if tclash:
+                unavailable[name] = (f"it describes task kind(s) {tclash} differently from table "
+                                     f"{kind_from['task:' + tclash[0]]} (rebuild or describe both with one library version)")
+                del tables[name]
+                continue
             for k, spec in kinds.items():
                 self.kinds.setdefault(k, spec)
                 kind_from.setdefault(k, name)
+            for k, spec in task_kinds.items():
+                self.task_kinds.setdefault(k, spec)
+                kind_from.setdefault("task:" + k, name)
         if not tables:
             raise ControllerError("no usable table: " + "; ".join(f"{k}: {v}" for k, v in sorted(unavailable.items())))
         self.mirrored: dict[str, str] = {}
@@ -586,11 +599,14 @@ class Controller:
     def _odometry_wheels(self) -> list[bool]:
         """Wheels whose speed tells the travel speed: not one whose declared failure's description says
         it does not (locked, unpowered, raised), nor one with a failure kind no table describes, nor the
-        wheel digging a trench (it spins at several times the travel speed on purpose: in the
-        trench primitive of section 7.3.1 it would make the rover-level slip ~0.6, dominated by
-        that wheel, and the slip correction would chase it)."""
-        task = (self._task.wheel, self._task.kind) if self._task is not None else None
-        out = [(w, "trench") != task for w in WHEELS]
+        wheel of a task whose description says so (a trench's digging wheel spins at several times
+        the travel speed on purpose: in the trench primitive of section 7.3.1 it would make the
+        rover-level slip ~0.6, dominated by that wheel, and the slip correction would chase it)."""
+        out = [True] * len(WHEELS)
+        if self._task is not None and self._task.wheel in WHEELS:  # the task's description says
+            spec = self.task_kinds.get(self._task.kind)
+            if spec is None or not spec.odometry:
+                out[WHEELS.index(self._task.wheel)] = False
         for (w, k) in self._failures:  # the kind's description says; an unknown kind: left out to be safe
             spec = self.kinds.get(k)
             if w in WHEELS and (spec is None or not spec.odometry):
@@ -798,13 +814,27 @@ class Controller:
         self._failures = out
 
     def _read_task(self, inp: Inputs) -> None:
-        """Accept a well-formed :class:`Task` (kind known, wheel known, trench depth in (0, 0.5) m,
-        checked in :mod:`rtctl.inputs`); anything else is counted and ignored (no task)."""
+        """Accept a well-formed :class:`Task` (:mod:`rtctl.inputs`) of a kind a loaded table
+        describes, with its value in the described range; anything else is counted, flagged and
+        ignored (no task)."""
+        task = inp.task
+        why = ""
         if inp.rejected_task:
+            why = f"task {inp.rejected_task} rejected: expected Task(kind, wheel, finite value)"
+        elif task is not None:
+            spec = self.task_kinds.get(task.kind)
+            if spec is None:
+                known = ", ".join(sorted(self.task_kinds)) or "none"
+                why = f"task {task.kind} {task.wheel} rejected: no loaded table describes task kind {task.kind!r} (described: {known})"
+            else:
+                bad = spec.check_value(task.value)
+                why = f"task {task.kind} {task.wheel} rejected: {bad}" if bad else ""
+            if why:
+                task = None
+        if why:
             self._count("rejected_task")
-            self._tick_flags.append(f"task {inp.rejected_task} rejected: expected Task('trench', wheel, depth in m, "
-                                    "0 < depth < 0.5)")
-        self._task = inp.task
+            self._tick_flags.append(why)
+        self._task = task
 
     def _read_wheels(self, inp: Inputs) -> tuple[list[float], list[float], list[bool]]:
         """Wheel speeds and steering angles (physical angles: the encoder plus its offset); a

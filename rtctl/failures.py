@@ -10,7 +10,8 @@ carries, as data written by the optimizer's own failure-kind objects
   serves the odometry, and the factor its value takes on the mirror-image wheel;
 * ``failures``: the table's own failures (wheel, kind, value), i.e. what the table was built
   for (its signature; a record marked ``with_task`` is a constraint of the task, not a declared
-  failure), and ``task`` (a trench goal's wheel).
+  failure), and ``task`` (a task's kind and wheel, and the task kind as data in its
+  ``description``: value name, unit, range, odometry; :func:`read_task_kinds`).
 
 A rule is one constraint in this small vocabulary, which is all the rover interprets:
 
@@ -254,6 +255,28 @@ def read_kinds(header: Mapping[str, Any], source: str = "table") -> dict[str, Ki
     return {name: _kind(name, d, source) for name, d in sorted(fk.items())}
 
 
+def read_task_kinds(header: Mapping[str, Any], source: str = "table") -> dict[str, KindSpec]:
+    """The task kind a table header describes (its ``task`` entry's ``description``, written by
+    the task's own class offline, e.g. ``offline.rover.failures.TrenchGoal``): ``{kind: spec}``
+    with the value's name, unit and range and whether the task's wheel still serves the
+    odometry; empty for a table without a task (or a task without a description).
+
+    Raises
+    ------
+    FailureDescriptionError
+        A description outside the vocabulary, or a task kind with rules (a task is served by its
+        own table, never imposed on another).
+    """
+    task = header.get("task")
+    if not isinstance(task, Mapping) or task.get("description") is None:
+        return {}
+    name = str(task.get("kind"))
+    spec = _kind(name, task.get("description"), f"{source}: task")
+    if spec.rules:
+        raise FailureDescriptionError(f"{source}: task {name!r}: a task kind has no rules")
+    return {str(name): spec}
+
+
 def read_table_failures(header: Mapping[str, Any], wheels: tuple[str, ...], source: str = "table") -> TableFailures | None:
     """The failures and task a table was built for, from its header's ``failures`` and ``task``;
     None for a header without them that has failures or a task in its scenario (built before the
@@ -288,6 +311,8 @@ def read_table_failures(header: Mapping[str, Any], wheels: tuple[str, ...], sour
     if task is not None:
         if not (isinstance(task, Mapping) and task.get("wheel") in wheels and isinstance(task.get("kind"), str)):
             raise FailureDescriptionError(f"{source}: task must name a kind and a wheel of {list(wheels)}")
+        if task.get("description") is None:  # built before task kinds were data: undescribed
+            return None
         tk = (str(task["kind"]), str(task["wheel"]))
     return TableFailures(tuple(sorted(out)), tk)
 

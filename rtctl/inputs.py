@@ -31,8 +31,10 @@ nothing after it sees the raw values, and nothing in it raises.
   tuple or list counts once and declares nothing. Whether the value fits its kind (its range,
   whether the kind needs one) is judged by the controller against the kind's description in
   the tables (:mod:`rtctl.failures`).
-* ``task``: None, or a :class:`rtctl.messages.Task` of a known kind and wheel whose value is a
-  finite real in (0, 0.5) m; anything else is counted and means "no task".
+* ``task``: None, or a :class:`rtctl.messages.Task` with a well-formed kind name, a known wheel
+  and a finite value; anything else is counted and means "no task". Whether the kind is one a
+  table describes, and its value within the described range, the controller checks against the
+  tables' descriptions (:func:`rtctl.failures.read_task_kinds`).
 
 Time stamps and sequence numbers (:class:`TickClock`)
 -----------------------------------------------------
@@ -84,7 +86,7 @@ import numpy as np
 
 from .layout import WHEELS
 from .failures import KIND_NAME
-from .messages import TASK_KINDS, FailureDeclaration, Pose, Task
+from .messages import FailureDeclaration, Pose, Task
 
 __all__ = ["MAX_ABS_TIME", "MAX_ABS_SEQ", "RATE_TOLERANCE", "SLACK_TICKS", "MAX_STEP_TIME", "MAX_STEP_SEQ",
            "REBASE_AFTER", "real", "finite_real", "integer", "Inputs", "read_measurements", "TickClock",
@@ -235,9 +237,9 @@ def _task(task: Any) -> Task | None:
         return None
     k, w = _get(task, "kind", None), _get(task, "wheel", None)
     v = finite_real(_get(task, "value", None))
-    if not (isinstance(k, str) and k in TASK_KINDS and isinstance(w, str) and w in WHEELS and 0.0 < v < 0.5):
-        return None
-    return Task(k, w, v)  # type: ignore[arg-type]
+    if not (isinstance(k, str) and KIND_NAME.match(k) and isinstance(w, str) and w in WHEELS and math.isfinite(v)):
+        return None  # the kind and its value's range are checked against the tables' descriptions
+    return Task(k, w, v)
 
 
 def read_measurements(m: Any) -> Inputs:

@@ -16,15 +16,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
 
 from .layout import WHEELS
 
-__all__ = ["WHEELS", "TASK_KINDS", "MODES", "FailureDeclaration", "Task", "Pose", "Measurements",
+__all__ = ["WHEELS", "MODES", "FailureDeclaration", "Task", "Pose", "Measurements",
            "Commands", "Diagnostics"]
 
-TASK_KINDS: tuple[str, ...] = ("trench",)
-"""Driving tasks an operator can give besides driving the line (see :class:`Task`)."""
 MODES: tuple[str, ...] = ("qp", "fallback", "hold")
 """What produced a tick's commands: the QP; the safe fallback (the interpolated primitive,
 rate-limited) after a failed, infeasible or refused QP; or the previous commands held because
@@ -68,11 +65,15 @@ class Task:
     Attributes
     ----------
     kind : str
-        ``trench``: dig a clean-sided trench with ``wheel`` (section 7.2.5, eqs. (7.28)-(7.29)).
+        A task kind described by the loaded tables (a task table's header ``task.description``,
+        written offline by the task's own class; rtctl keeps no list of kinds). The shipped
+        one is ``trench``: dig a clean-sided trench with ``wheel`` (section 7.2.5, eqs.
+        (7.28)-(7.29)).
     wheel : str
         One of ``FR``, ``FL``, ``RR``, ``RL``.
     value : float
-        Kind-specific value: for ``trench`` the target trench depth below the surface, m.
+        The kind's value in its described unit and range: for ``trench`` the target trench
+        depth below the surface, m.
 
     Examples
     --------
@@ -80,7 +81,7 @@ class Task:
     Task(kind='trench', wheel='RR', value=0.02)
     """
 
-    kind: Literal["trench"]
+    kind: str
     wheel: str
     value: float = math.nan
 

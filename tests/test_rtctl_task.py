@@ -202,3 +202,72 @@ def test_unreachable_speed_cap_on_slope_is_flagged(tables):
             assert dict(d.operating_point)["speed"] == pytest.approx(0.025)
             assert dict(d.operating_point)["rim_speed_cap_fraction"] == pytest.approx(0.6)
             assert "2.50 cm/s (-17 % of the target)" in flagged[0]
+
+
+# ---------------------------------------------------------------- tasks as data (issue 21)
+def _retasked(tables, tmp_path, task):
+    """The trench table with its header's ``task`` replaced (re-hashed, arrays unchanged)."""
+    from rtctl.table import load_table, table_bytes
+
+    old = tables["rr_trench_clean"]
+    head = {k: v for k, v in old.header.items() if k != "content_hash"}
+    head["task"] = task
+    head["family"] = dict(head["family"], declares={"task": task["kind"]})  # the axis follows the task's value
+    f = tmp_path / "rr_trench_clean.npz"
+    f.write_bytes(table_bytes(head, old.arrays))
+    return load_table(f)
+
+
+def test_task_kind_is_the_offline_classes_description(tables):
+    """The trench table's header carries the task kind as data written by the goal's own class
+    (``TrenchGoal.rover_description``), and rtctl takes its kinds from there only."""
+    from offline.rover.failures import TrenchGoal
+
+    task = tables["rr_trench_clean"].header["task"]
+    assert task["kind"] == "trench" and task["description"] == TrenchGoal.rover_description()
+    ctl = Controller(tables, ControllerConfig())
+    assert set(ctl.task_kinds) == {"trench"}
+    spec = ctl.task_kinds["trench"]
+    assert (spec.value_unit, spec.value_lo, spec.value_hi, spec.odometry) == ("m", 0.0, 0.5, False)
+    import rtctl.messages
+
+    assert not hasattr(rtctl.messages, "TASK_KINDS")  # no list of its own
+
+
+def test_a_task_kind_new_to_the_rover_works_from_its_description(tables, tmp_path):
+    """A task table whose header describes another kind (here the trench table relabelled
+    "furrow", depth range [0, 0.04] m, its wheel still in the odometry): rtctl serves a
+    ``Task("furrow", ...)`` from it with no change to rtctl, range-checks it by the description,
+    keeps the wheel in the odometry as described, and refuses "trench" (no table describes it)."""
+    from offline.rover.failures import TrenchGoal
+
+    desc = dict(TrenchGoal.rover_description(), kind="furrow", odometry=True,
+                value={"name": "depth", "unit": "m", "lo": 0.0, "hi": 0.04})
+    t = _retasked(tables, tmp_path, {"kind": "furrow", "wheel": "RR", "description": desc})
+    tabs = {"nominal": tables["nominal"], "rr_furrow": t}
+    ctl, out = _run(tabs, Task("furrow", "RR", 0.022))
+    d = out[-1][1]
+    assert d.table == "rr_furrow" and not d.flags
+    assert dict(d.operating_point)["trench_depth"] == pytest.approx(0.022)
+    assert ctl._odometry_wheels() == [True, True, True, True]
+    ctl, out = _run(tabs, Task("furrow", "RR", 0.05))  # outside the described range
+    d = out[-1][1]
+    assert d.table == "nominal" and d.counter("rejected_task") == 3
+    assert any("furrow depth 0.05 m outside [0, 0.04]" in f for f in d.flags), d.flags
+    ctl, out = _run(tabs, Task("trench", "RR", 0.022))
+    d = out[-1][1]
+    assert d.table == "nominal" and d.counter("rejected_task") == 3
+    assert any("no loaded table describes task kind 'trench'" in f for f in d.flags), d.flags
+    # the trench's own description keeps its digging wheel out of the odometry
+    ctl, _ = _run(tables, Task("trench", "RR", 0.022))
+    assert ctl._odometry_wheels() == [True, True, False, True]
+
+
+def test_a_task_table_without_description_is_unavailable(tables, tmp_path):
+    """A trench table built before task kinds were data (``task`` without ``description``) is not
+    driven: unavailable at start-up with the command that fixes it, and the task is refused."""
+    t = _retasked(tables, tmp_path, {"kind": "trench", "wheel": "RR"})
+    ctl = Controller({"nominal": tables["nominal"], "rr_trench_clean": t}, ControllerConfig())
+    assert "offnominal tables describe" in ctl.unavailable["rr_trench_clean"]
+    out = [ctl.step(_m(k, Task("trench", "RR", 0.022))) for k in range(2)]
+    assert out[-1][1].table == "nominal" and out[-1][1].counter("rejected_task") == 2

@@ -568,6 +568,24 @@ class TrenchGoal:
     min_flat_width: float = 0.0
     target_depth: float | None = None
 
+    ROVER_KIND: ClassVar[str] = "trench"
+    """The task's name in the rover's :class:`rtctl.messages.Task`."""
+    ROVER_VALUE: ClassVar[Mapping[str, Any]] = {"name": "depth", "unit": "m", "lo": 0.0, "hi": 0.5}
+    """The task's value on the rover: the target trench depth below the surface (SI)."""
+    ODOMETRY: ClassVar[bool] = False
+    """The digging wheel spins at several times the travel speed on purpose (section 7.3.1): its
+    speed does not tell the travel speed."""
+
+    @classmethod
+    def rover_description(cls) -> dict[str, Any]:
+        """The task kind as data for the rover, in the format of a failure kind's description
+        (:meth:`FailureKind.rover_description`; no rules: a task is served by its own table,
+        never imposed on another): written into a trench table header's ``task``, and read by
+        :func:`rtctl.failures.read_task_kinds`."""
+        return {"kind": cls.ROVER_KIND, "class": f"{cls.__module__}.{cls.__qualname__}",
+                "text": (cls.__doc__ or cls.__name__).strip().splitlines()[0],
+                "value": dict(cls.ROVER_VALUE), "rules": [], "odometry": cls.ODOMETRY, "mirror_value": 1.0}
+
     def row_bounds(self) -> dict[str, tuple[float, float]]:
         """Physical bounds per trench row (``clean-side pile``, ``depth``, ``flat width``)."""
         out = {"clean-side pile": (-math.inf, 0.0 if self.clean_side else math.inf)}

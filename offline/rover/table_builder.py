@@ -1653,7 +1653,10 @@ def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
     * ``failure_kinds``: every kind of :data:`offline.rover.failures.KINDS` and every other kind
       the scenario uses, by its rover name;
     * ``failures``: the scenario's failures (wheel, kind, declared value, text), and ``task``:
-      its trench goal's wheel (``{"kind": "trench", "wheel": ...}``), i.e. what the table serves;
+      its trench goal's wheel and the task kind as data, written by the goal's own class
+      (``{"kind": "trench", "wheel": ..., "description": TrenchGoal.rover_description()}``: the
+      value's name, unit and range, and whether the wheel still serves the odometry), i.e. what
+      the table serves;
       a constraint on the task's wheel that the rover cannot declare (the trenching wheel's
       one-sided steer range: no single declared value) is marked ``with_task`` (part of the task,
       not of the signature);
@@ -1677,7 +1680,8 @@ def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
     kinds = {c.ROVER_KIND: c.rover_description() for c in classes if c.ROVER_KIND}
     out: dict[str, Any] = {"failure_kinds": kinds, "failures": records}
     if getattr(sc, "trench", None) is not None:
-        out["task"] = {"kind": "trench", "wheel": sc.trench.wheel}
+        out["task"] = {"kind": type(sc.trench).ROVER_KIND, "wheel": sc.trench.wheel,
+                       "description": type(sc.trench).rover_description()}
     if family is not None:
         fam = dict(family)
         axis = fam.get("axis")
@@ -1686,7 +1690,7 @@ def failure_header(sc: Any, family: Mapping[str, Any] | None) -> dict[str, Any]:
         elif axis == "rim_speed_cap_fraction":
             fam["declares"] = {"kind": "rim_speed_cap", "per_speed": True}
         elif axis == "trench_depth":
-            fam["declares"] = {"task": "trench"}
+            fam["declares"] = {"task": type(sc.trench).ROVER_KIND}
         out["family"] = fam
     return out
 

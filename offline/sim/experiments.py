@@ -207,7 +207,7 @@ def declared_task(sc: Scenario) -> Task | None:
     if tr is None:
         return None
     depth = tr.target_depth if tr.target_depth is not None else tr.min_depth
-    return Task("trench", tr.wheel, float(depth))
+    return Task(type(tr).ROVER_KIND, tr.wheel, float(depth))
 
 
 def with_task(m: Measurements, task: Task | None) -> Measurements:

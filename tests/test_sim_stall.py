@@ -122,3 +122,39 @@ def test_rocker_jacobian_matches_finite_differences(raised: bool) -> None:
     approx = plant.evaluate(z, a, sim.q)[1]
     assert np.max(np.abs(exact - ref)) < 1e-6
     assert np.max(np.abs(approx - ref)) > 1e-4
+
+
+@pytest.mark.parametrize("tables", ["shipped", "test"])
+def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: str) -> None:
+    """FR locked, no FR table (imposed on the nominal table, flagged), dissertation world: the
+    optimizer has no primitive and the rover stalls against the locked wheel (before, the
+    simulator raised "no equilibrium of the rover found" on the first stalled step). With the
+    shipped tables (another soil) rtctl steers the locked wheel and a wheel sinks below its
+    shearing radius: the drive ends there with the reason in the result (``stuck``,
+    ``stuck_at_s``). With the world's own test tables the rover creeps to the time limit. Every
+    command is valid and the locked wheel is never driven."""
+    from pathlib import Path
+
+    from drive_helpers import FlagRecorder
+    from offline.sim.experiments import run_drive
+    from offline.sim.rtctl_bridge import rtctl_factory
+    from rtctl.config import ControllerConfig
+
+    sc = tmp_path / "fr_locked.toml"
+    sc.write_text('[scenario]\nname = "fr_locked"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
+                  '[wheels.FR]\nlocked = true\n')
+    scenario = load_scenario(sc)
+    index = None if tables == "shipped" else str(Path(__file__).parent / "data" / "tables" / "index.json")
+    rec = FlagRecorder()
+    res = run_drive(RoverSimulator(scenario, seed=1), rtctl_factory(index)(scenario), distance=0.3, recorder=rec)
+    if tables == "shipped":
+        assert res.stuck and "the rover is stuck, dug in" in res.stuck and "shearing radius" in res.stuck
+        assert 0.0 < res.metrics["stuck_at_s"] < 30.0
+    else:
+        assert not res.stuck and res.metrics["time_s"] >= 29.9
+    assert res.metrics["distance_m"] < 0.05
+    act = ControllerConfig().actuators
+    assert all(c.is_valid(act.max_rim_speed, act.max_steer) for c in res.commands)
+    flags = {f for tick in rec.flags for f in tick}
+    assert any(f.startswith("no table for the declared failures FR locked") for f in flags), flags
+    assert all(c.rim_speed[0] == 0.0 for c in res.commands[1:])  # the locked wheel is never driven

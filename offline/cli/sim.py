@@ -38,7 +38,8 @@ def _metrics_table(rows: list[dict[str, Any]]) -> str:
         m = r["metrics"]
         lines.append(f"| {r['scenario']} | {r['truth']} | {r['controller']} | {m['final_heading_deg']:.2f} | {m['max_abs_heading_deg']:.2f} | "
                      f"{m['final_cross_track_cm']:.2f} | {m['max_abs_cross_track_cm']:.2f} | {m['mean_speed_cm_s']:.2f} | "
-                     f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f} |")
+                     f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f}"
+                     + (" (STUCK)" if "stuck" in r else "") + " |")
     return "\n".join(lines)
 
 
@@ -191,7 +192,9 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                     return fail(f"{name} / {label} / {kind}: {exc}")
                 runs.append(r)
                 rows.append({"scenario": sc.name, "truth": label, "controller": kind, "metrics": r.metrics,
-                             "wall_seconds": r.wall_seconds})
+                             "wall_seconds": r.wall_seconds, **({"stuck": r.stuck} if r.stuck else {})})
+                if r.stuck:
+                    bar.write(f"{name} / {label} / {kind}: STUCK, the drive ended early: {r.stuck}")
                 bar.update(1)
             plot_runs(runs, out / f"{sc.name}{tag}.png",
                       f"{sc.name} ({label}): yaw and y error (cf. Figs. 7.6, 7.9, 7.11)")

@@ -40,7 +40,7 @@ from rtctl.messages import Commands, Measurements, Task
 
 from ..rover.primitives import PrimitiveResult, solve_primitive, steering_controllers
 from ..rover.scenario import Scenario, load_scenario
-from .simulator import RoverSimulator, TruthState
+from .simulator import RoverStuck, RoverSimulator, TruthState
 
 __all__ = [
     "ControllerLike", "PidGains", "PrimitiveController", "PidSteeringController", "DriveResult", "run_drive",
@@ -319,6 +319,9 @@ class DriveResult:
     metrics: dict[str, float] = field(default_factory=dict)
     wall_seconds: float = 0.0
     step_seconds: list[float] = field(default_factory=list)
+    stuck: str = ""
+    """Why the drive ended early because the rover got stuck (:class:`offline.sim.simulator.RoverStuck`;
+    "" when it did not): the metrics then cover the drive up to that step and hold ``stuck_at_s``."""
 
     def series(self, name: str) -> NDArray[np.float64]:
         """A truth field over time as an array."""
@@ -378,10 +381,16 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
                 recorder.truth(m.t, truth)
         if truth.x - res.truth[0].x >= distance or sim.t >= max_time:
             break
-        sim.advance(period)
+        try:
+            sim.advance(period)
+        except RoverStuck as exc:  # the physical end of this drive (a wheel dug in), said in the result
+            res.stuck = str(exc)
+            break
     res.wall_seconds = time.perf_counter() - t0
     res.metrics = drive_metrics(res.truth, sc.speed)
     res.metrics.update(trench_metrics(res.truth, sc, sim.truth.params))
+    if res.stuck:
+        res.metrics["stuck_at_s"] = float(sim.t)
     return res
 
 

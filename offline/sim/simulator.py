@@ -31,18 +31,23 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from rtctl.messages import Commands, FailureDeclaration, Measurements, Pose
+from rtctl.messages import WHEELS, Commands, FailureDeclaration, Measurements, Pose
 
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions
 from ..rover.scenario import Scenario
 from .actuators import ActuatorConfig, Actuators
-from .plant import DISTURBANCE_NAMES, GRAVITY, PlantModel, PlantSolution, SimulationError
+from .plant import DISTURBANCE_NAMES, GRAVITY, STICTION_SPEED, PlantModel, PlantSolution, SimulationError
 from .sensors import GyroBias, PoseSource, SensorConfig
 from .truth import Truth
 
-__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "Disturbance",
+__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "RoverStuck", "Disturbance",
            "DisturbanceForces", "DisturbanceError", "DISTURBANCE_NAMES"]
+
+
+class RoverStuck(SimulationError):
+    """The rover stalled and a wheel dug in below its axle: the simulation cannot go on (the wheel
+    model holds to an entry angle of 90 deg). A drive ends here (:func:`offline.sim.experiments.run_drive`)."""
 
 
 @functools.lru_cache(maxsize=8)
@@ -389,11 +394,17 @@ class RoverSimulator:
             # with the servos' speeds and angles moving linearly from the last step's to this
             # step's over them (the servos reach this step's values at its end, as in one
             # step). Steps that converge never come here (bit for bit).
+            # Last, one step from the rover at rest (a creep of STICTION_SPEED / 10): a rover that
+            # stalls within the step (e.g. its driven wheels reach slip 1 against a locked wheel)
+            # has its root there, far from the moving state Newton started from.
             self.plant.rocker_jacobian = True  # exact Newton from here on, for this step only
-            for n in (1, *self.SUBSTEPS):
+            attempts = [(n, False) for n in (1, *self.SUBSTEPS)] + [(1, True)]
+            for n, from_rest in attempts:
                 (self.z, self.sol, m, om, self.mode, self.torque) = (keep[0].copy(), keep[1], keep[2].copy(),
                                                                      keep[3].copy(), keep[4].copy(), keep[5].copy())
                 self.motor, self.act.omega_servo = m, om
+                if from_rest:
+                    self.z[0:3] = (0.1 * STICTION_SPEED, 0.0, 0.0)
                 pose = (self.x, self.y, self.heading, self.travelled)
                 try:
                     for k in range(1, n + 1):
@@ -408,12 +419,27 @@ class RoverSimulator:
                 break
             else:
                 self.plant.rocker_jacobian = False
-                raise SimulationError(f"t={self.t + self.dt:.6g} s: {first} (also with the exact Jacobian and in "
-                                      f"{self.SUBSTEPS[-1]} sub-steps)") from None
+                (self.z, self.sol, self.motor, self.act.omega_servo, self.mode, self.torque) = keep  # as before the step
+                self._raise_if_dug_in(keep[0], first)
+                raise SimulationError(f"t={self.t + self.dt:.6g} s: {first} (also with the exact Jacobian, in "
+                                      f"{self.SUBSTEPS[-1]} sub-steps and from rest)") from None
             self.plant.rocker_jacobian = False
         self.steps += 1
         self.t = self.steps * self.dt
         self.pose_source.take(self.t, self.x, self.y, self.heading, self.travelled)
+
+    def _raise_if_dug_in(self, z: NDArray[np.float64], err: SimulationError) -> None:
+        """Raise :class:`RoverStuck` when a step failed with a wheel on the ground sunk deeper than
+        its shearing radius (the wheel model's domain ends at an entry angle of 90 deg)."""
+        h = np.exp(z[7:11]) * self.contact
+        deep = [i for i in range(4) if h[i] > self.rs_true[i]]
+        if not deep:
+            return
+        slip = self.sol.slip if self.sol is not None else np.full(4, math.nan)
+        what = ", ".join(f"{WHEELS[i]} {1e3 * h[i]:.1f} mm at slip {slip[i]:.2f}" for i in deep)
+        raise RoverStuck(f"t={self.t + self.dt:.6g} s: the rover is stuck, dug in: {what}, deeper than the wheel's "
+                         f"{1e3 * float(self.rs_true[deep[0]]):.0f} mm shearing radius, where the wheel model ends "
+                         f"(x = {self.x:.3f} m; {err})")
 
     SUBSTEPS = (2, 4, 8, 16)
     """Sub-step counts tried, in order, for a step whose Newton solve fails (see :meth:`step`)."""

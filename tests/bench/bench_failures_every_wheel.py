@@ -98,6 +98,9 @@ def main() -> None:
             how = ("imposed on another table" if any(f.startswith("no table for the declared failures") for f in flags)
                    else "mirror" if any("left-right mirror" in f for f in flags) else "exact table")
             ok = (m["max_abs_heading_deg"] <= 3 and m["max_abs_cross_track_cm"] <= 3 and abs(m["speed_error_pct"]) <= 10)
+            row["stuck"] = (f"stuck at t = {m['stuck_at_s']:.1f} s, x = {100 * m['distance_m']:.1f} cm: "
+                            + res.stuck.split("the rover is stuck, ")[-1].split(" (x =")[0]) if res.stuck else ""
+            ok = ok and not res.stuck
             row.update(table=",".join(tables_used), how=how, flagged=how != "exact table" and bool(flags), valid=valid,
                        heading=m["max_abs_heading_deg"], y=m["max_abs_cross_track_cm"], speed=m["speed_error_pct"],
                        unreachable=any(f.startswith(("target unreachable", "unreachable")) for f in flags), ok=ok)
@@ -121,6 +124,8 @@ def main() -> None:
             continue
         verdict = ("pass" if r["ok"] else "FAIL") if r["primitive"] == "optimal" else ("no primitive" + (
             ", said unreachable" if r["unreachable"] else ", NOT said unreachable"))
+        if r["stuck"]:
+            verdict += f"; {r['stuck']}"
         lines.append(f"| {r['case']} | {r['failures']} | {r['primitive']} | {r['table']} | {r['how']} | "
                      f"{'yes' if r['flagged'] else ('n/a' if r['how'] == 'exact table' else 'NO')} | {'yes' if r['valid'] else 'NO'} | "
                      f"{r['heading']:.2f} | {r['y']:.2f} | {r['speed']:+.1f} | {verdict} |")

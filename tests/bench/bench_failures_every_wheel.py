@@ -39,8 +39,8 @@ PAIRS = [(("RR", "steer_stuck_deg = -50.0"), ("FL", "rim_speed_max_m_s = 0.018")
          (("RR", "unpowered = true"), ("FL", "steer_stuck_deg = -20.0"))]
 
 
-def _scenario(tmp: Path, name: str, wheels: list[tuple[str, str]]) -> Path:
-    text = f'[scenario]\nname = "{name}"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n'
+def _scenario(tmp: Path, name: str, wheels: list[tuple[str, str]], params: str = "dissertation-ch7") -> Path:
+    text = f'[scenario]\nname = "{name}"\nparams = "{params}"\nspeed_m_s = 0.03\n'
     for w, line in wheels:
         text += f"\n[wheels.{w}]\n{line}\n"
     p = tmp / f"{name}.toml"
@@ -55,6 +55,9 @@ def main() -> None:
     ap.add_argument("--tables", default=None,
                     help="table index for rtctl (default: the shipped tables, on the calibrated sand; "
                          "tests/data/tables/index.json: tables on the world's own soil)")
+    ap.add_argument("--params", default="dissertation-ch7",
+                    help="the simulated world's wheel and soil parameters (a preset): dissertation-ch7 (section 7.3's "
+                         "world, default) or calibrated-sand (the shipped tables' own soil)")
     args = ap.parse_args()
 
     import tempfile
@@ -76,7 +79,7 @@ def main() -> None:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for name, wheels in cases:
-            sc = load_scenario(_scenario(Path(tmp), name, wheels))
+            sc = load_scenario(_scenario(Path(tmp), name, wheels, args.params))
             prim = solve_primitive(sc)
             ctl = rtctl_factory(args.tables)(sc)
             row = {"case": name, "failures": "; ".join(f"{w} {line}" for w, line in wheels), "primitive": prim.status}
@@ -106,16 +109,21 @@ def main() -> None:
                        unreachable=any(f.startswith(("target unreachable", "unreachable")) for f in flags), ok=ok)
             rows.append(row)
             print(name, row, flush=True)
+    same = args.params == "calibrated-sand"
+    world = ("calibrated-sand world (the shipped tables' own soil)" if same else
+             f"Section 7.3 world ({args.params}: dissertation ch. 7 soil)" if args.params == "dissertation-ch7" else
+             f"world {args.params}")
     if args.tables is None:
-        where = ("rtctl on the shipped tables (calibrated sand: the model differs from the world; rear-right failures "
-                 "only: rear-left by their mirror, front wheels imposed on the nominal table)")
+        where = ("rtctl on the shipped tables (calibrated sand" + ("" if same else ": the model differs from the world")
+                 + "; rear-right failures only: rear-left by their mirror, front wheels imposed on the nominal table)")
     else:
         where = (f"rtctl on the tables of `{Path(args.tables).as_posix()}` (front wheels imposed on the nominal table, "
                  "rear-left by mirrors)")
     cmd = (f"`nice python tests/bench/bench_failures_every_wheel.py --distance {args.distance:g} --seed {args.seed}"
-           + (f" --tables {Path(args.tables).as_posix()}" if args.tables else "") + "`")
+           + (f" --tables {Path(args.tables).as_posix()}" if args.tables else "")
+           + (f" --params {args.params}" if args.params != "dissertation-ch7" else "") + "`")
     lines = ["# Every shipped failure kind on every wheel, and pairs (issue 21)", "",
-             f"{cmd}, {time.perf_counter() - t0:.0f} s. Section 7.3 world (dissertation ch. 7 soil); {where}.", "",
+             f"{cmd}, {time.perf_counter() - t0:.0f} s. {world}; {where}.", "",
              "| case | failures | optimizer | table driven | how | flagged | commands valid | max heading [deg] | "
              "max y [cm] | speed [%] | 3/3/10 |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -129,7 +137,9 @@ def main() -> None:
         lines.append(f"| {r['case']} | {r['failures']} | {r['primitive']} | {r['table']} | {r['how']} | "
                      f"{'yes' if r['flagged'] else ('n/a' if r['how'] == 'exact table' else 'NO')} | {'yes' if r['valid'] else 'NO'} | "
                      f"{r['heading']:.2f} | {r['y']:.2f} | {r['speed']:+.1f} | {verdict} |")
-    out = "results_failures_every_wheel.md" if args.tables is None else "results_failures_every_wheel_world_tables.md"
+    out = ("results_failures_every_wheel.md" if args.tables is None else "results_failures_every_wheel_world_tables.md")
+    if args.params != "dissertation-ch7":
+        out = out.replace(".md", f"_{args.params.replace('-', '_')}.md")
     write_text(ROOT / "tests" / "bench" / out, "\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -159,8 +159,8 @@ def test_rover_file_primitives_solve_and_pass_the_independent_check(solved, name
         spec = sc.rover_file.wheel(k)
         if not spec.steerable:
             assert w.steer == 0.0
-        assert w.omega <= sc.rover_file.actuators.drive_speed_max * (1 + 1e-8)
-        assert abs(w.torque) <= sc.rover_file.actuators.drive_torque_max * (1 + 1e-8)
+        assert w.omega <= sc.rover_file.actuators.drive_speed_max * (1 + 1e-6)
+        assert abs(w.torque) <= sc.rover_file.actuators.drive_torque_max * (1 + 1e-6)
     f = sc.failure
     for k in sc.wheels:
         if f(k).unpowered:
@@ -216,3 +216,14 @@ def test_rover_file_parameters_are_the_files_unless_the_scenario_names_them(tmp_
     own = load_scenario(_scenario(tmp_path, "own", '[scenario]\nrover = "mer_class_rocker_bogie"\nparams = "dissertation-ch7"\n'))
     assert own.params.wheel.radius != pytest.approx(0.13)
     assert replace(sc, name="x").rover_file is sc.rover_file
+
+
+def test_rim_speed_cap_on_a_six_wheel_bogie_wheel(tmp_path):
+    p = _scenario(tmp_path, "mer_rr_cap", '[scenario]\nrover = "mer_class_rocker_bogie"\nspeed_m_s = 0.03\n'
+                  '[wheels.RR]\nrim_speed_max_m_s = 0.02\n')
+    sc = load_scenario(p)
+    r = solve_primitive(sc)
+    assert r.status == "optimal" and r.check_passed
+    # IPOPT relaxes bounds by ~1e-8 relative; the failure kind's check allows check_rtol x travel speed
+    assert r.wheels["RR"].rim_speed <= 0.02 + SolverOptions().check_rtol * sc.speed
+    assert "rim speed RR" in r.residuals  # the failure kind's own check ran on the named wheel

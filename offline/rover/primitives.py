@@ -35,6 +35,20 @@ Design (the dissertation's section 7.2.7 lists what made its solver fragile)
   furthest point reached is feasible for its intermediate problem and passes the
   independent check); ``not_found`` (budget spent without a verdict); ``solver_failure``
   (IPOPT converged on a point the independent check rejects, or could not evaluate).
+
+Any rover from a file (issue 23)
+--------------------------------
+A scenario that names a rover file (:attr:`offline.rover.scenario.Scenario.rover_file`) gets an
+NLP with five variables per wheel of the file (file order), the balance rows its suspension
+implies (:class:`rtctl.physics.suspension.SuspensionStatics`: rocker, rocker-bogie with
+differential, rigid with height compatibility), the file's steering ranges, driven flags and
+actuator limits as bounds, every failure kind on any named wheel, and the independent check by
+:class:`offline.rover.statics.FreeBodyBalance` (root-found link angles, rotation matrices: not
+the NLP's row function). The mirror-image search step uses the mirror map found from the file's
+positions (:func:`mirror_wheels`; skipped for an asymmetric rover). Without a rover file the NLP
+is the mini rover's, variable for variable as before (``tests/test_any_rover_nlp.py`` re-solves
+seven scenarios against a stored reference). Driving backward is a rover turned half round
+(:func:`rtctl.physics.rover_file.driving_backward`).
 """
 
 from __future__ import annotations
@@ -130,7 +144,7 @@ class SolverOptions:
         Passed to :class:`~offline.physics.terramechanics.ModelOptions`.
     check_rtol : float
         Tolerance of the independent numeric check, relative to the rover weight (forces)
-        and weight times rocker length (moments).
+        and weight times rocker length (moments; a rover file: weight times wheelbase).
     feasibility_tol : float
         Largest scaled constraint violation of a point called feasible.
     hessian : str

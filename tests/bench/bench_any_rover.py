@@ -71,6 +71,20 @@ def _mini_cases(tmp: Path) -> list[tuple[str, Scenario]]:
     return out
 
 
+def _fast_drive_case(tmp: Path) -> tuple[str, Scenario]:
+    """MER-class, right-front locked, forward at 3 cm/s, with the drive speed limit raised from
+    0.385 to 1.0 rad/s (a copy of the rover file): is the forward verdict the drive limit's?"""
+    src = ROOT / "rtctl" / "physics" / "rovers"
+    text = (src / "mer_class_rocker_bogie.toml").read_text()
+    if "drive_speed_max_rad_s = 0.385" not in text:
+        raise RuntimeError("mer_class_rocker_bogie.toml: drive_speed_max_rad_s is no longer 0.385; update the bench")
+    (tmp / "mer_fast.toml").write_text(text.replace("drive_speed_max_rad_s = 0.385", "drive_speed_max_rad_s = 1.0"))
+    (tmp / "mer_class_wheel.toml").write_text((src / "mer_class_wheel.toml").read_text())
+    p = tmp / "mer_fast_rf_locked.toml"
+    p.write_text('[scenario]\nname = "mer_fast_rf_locked"\nrover = "mer_fast.toml"\nspeed_m_s = 0.03\n[wheels.RF]\nlocked = true\n')
+    return "mer_rf_locked, drive limit 1.0 rad/s (copy of the file)", load_scenario(p)
+
+
 def _row(label: str, sc: Scenario, r: PrimitiveResult, seconds: float) -> str:
     ok = ""
     if r.ok:
@@ -101,6 +115,7 @@ def main() -> int:
             for name in (fwd, back):
                 if name:
                     runs.append((name, load_scenario(ROVERS / f"{name}.toml")))
+        runs.append(_fast_drive_case(Path(tmp)))
         runs += _mini_cases(Path(tmp))
         for label, sc in runs:
             t = time.perf_counter()
@@ -135,7 +150,9 @@ def main() -> int:
         "",
         "Objective (7.24): `sum_i M_y,i^2 / (W r_s / N)^2` (N wheels), the optimizer's own. Power: `sum T_i omega_i`. "
         "Rover files: `rtctl/physics/rovers/`; scenarios: `offline/scenarios/rovers/`. The MER-class rover's drive "
-        "limit (0.385 rad/s, 5.0 cm/s rim speed) and torque limit (30 N m) are bounds of its NLP.",
+        "limit (0.385 rad/s, 5.0 cm/s rim speed) and torque limit (30 N m) are bounds of its NLP. For a status other "
+        "than optimal the columns describe the furthest point the search reached, not a primitive; 'dead wheel' is "
+        "shown for optimal rows only.",
         "",
         header, sep, *lines,
         "",

@@ -8,13 +8,13 @@
 * The mini rover through its rover file (``rover = "mini_rover_t72"``): the rover-file path
   (``SuspensionStatics`` rows, ``FreeBodyBalance`` check) solves the nominal scenario to the same
   primitive as the four-wheel path (the drive actuator limits of the file do not bind there).
-* The independent free body (:class:`offline.rover.statics.FreeBodyBalance`) equals the NLP's rows
-  (:class:`rtctl.physics.suspension.SuspensionStatics`) on random states of the three shipped rovers,
-  and differs from them by construction (root finding vs closed form): checked by a perturbed
-  geometry where the two must still agree.
-* Six-wheel MER-class rover: nominal, right-front unpowered, right-front steering stuck at 7 deg,
-  forward and backward (the rover turned half round); right-front locked backward at 1 cm/s:
-  optimal and passing the independent check; the balance rows vanish at the solution by the
+* The independent free body (:class:`offline.rover.statics.FreeBodyBalance`: link angles by root
+  finding, rotation matrices) equals the NLP's rows (:class:`rtctl.physics.suspension.SuspensionStatics`:
+  closed-form angles) on random states of the three shipped rovers, as filed and turned half round
+  (driving backward); for the rigid rover its plane row sees sinkages off one plane.
+* Six-wheel MER-class rover: nominal and right-front unpowered, forward and backward (the rover
+  turned half round); right-front steering stuck at 7 deg; right-front locked backward at 1 cm/s;
+  a rim-speed cap on a bogie wheel: optimal and passing the independent check; the balance rows vanish at the solution by the
   independent free body; a non-steering wheel points straight; the failure holds.
 * Skid-steer rover, one wheel unpowered: optimal, checked; the wheel centres on one plane.
 * Scenario errors name the file and key (unknown wheel, steering stuck on a fixed wheel, raised

@@ -108,7 +108,8 @@ class NlpLayout:
     @classmethod
     def build(cls, variable_scales: dict[str, float], constraint_scales: dict[str, float],
               trench_wheel: str | None = None, wheels: Sequence[str] = WHEELS,
-              parameter_scales: dict[str, float] | None = None) -> "NlpLayout":
+              parameter_scales: dict[str, float] | None = None,
+              balance_rows: Sequence[str] = BALANCE_ROWS) -> "NlpLayout":
         """The layout of (7.25) for a rover with ``wheels``.
 
         Parameters
@@ -116,10 +117,21 @@ class NlpLayout:
         variable_scales : dict
             Scale per wheel variable name (``omega``, ``beta``, ``W``, ``h``, ``h0``).
         constraint_scales : dict
-            ``force`` (N), ``moment`` (N m), ``load`` (N), ``torque`` (N m); and, with a trench
+            ``force`` (N), ``moment`` (N m), ``load`` (N), ``torque`` (N m); ``height`` (m) with
+            height-compatibility balance rows; and, with a trench
             wheel, ``trench_area`` (m^2) and ``trench_length`` (m).
         trench_wheel : str, optional
             Wheel whose trench goal rows (clean-side pile, depth, flat width) are present.
+        wheels : sequence of str
+            Wheel names in storage order (default the mini rover's :data:`WHEELS`; a rover file's
+            wheels in file order).
+        parameter_scales : dict, optional
+            Scales replacing the defaults of the parameters.
+        balance_rows : sequence of str
+            Names of the balance rows (default :data:`BALANCE_ROWS`, the four-wheel rocker's; a
+            rover file's suspension gives its own,
+            :attr:`rtctl.physics.suspension.SuspensionStatics.balance_names`). A row whose name
+            starts with ``F`` is a force (N), any other a moment (N m).
         """
         units = {"omega": "rad/s", "beta": "rad", "W": "N", "h": "m", "h0": "m"}
         var, pos = [], 0
@@ -141,7 +153,10 @@ class NlpLayout:
             con.append(Block(name, pos, pos + 1, unit, float(scale)))
             pos += 1
 
-        for r in BALANCE_ROWS:
+        for r in balance_rows:
+            if r.startswith("height_compatibility"):  # a rigid frame's wheel heights on one plane, m
+                add(f"balance {r}", "m", constraint_scales["height"])
+                continue
             force = r.startswith("F")
             add(f"balance {r}", "N" if force else "N m", constraint_scales["force" if force else "moment"])
         for kind, unit, key in (("load", "N", "load"), ("zero-slip load", "N", "load"), ("wheel torque", "N m", "torque")):

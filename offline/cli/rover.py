@@ -31,6 +31,10 @@ def cmd_primitive(args: argparse.Namespace) -> int:
     print(f"scenario {sc.name}: {sc.description}")
     print(f"slope {math.degrees(sc.slope):.1f} deg, cross slope {math.degrees(sc.cross_slope):.1f} deg, "
           f"speed {sc.speed * 100:.2f} cm/s")
+    if sc.rover_file is not None:
+        rf = sc.rover_file
+        print(f"rover {rf.name}: {len(rf.wheels)} wheels {', '.join(rf.wheel_names)}, suspension {rf.suspension}, "
+              f"weight {rf.weight:.1f} N (file {rf.path})")
     print(f"status: {r.status}  ({r.stats['n_attempts']} IPOPT runs, {r.stats['iterations']} iterations, "
           f"{r.stats['seconds']:.2f} s)")
     print("  " + "\n  ".join(r.stats["attempts"]))

@@ -35,6 +35,20 @@ Design (the dissertation's section 7.2.7 lists what made its solver fragile)
   furthest point reached is feasible for its intermediate problem and passes the
   independent check); ``not_found`` (budget spent without a verdict); ``solver_failure``
   (IPOPT converged on a point the independent check rejects, or could not evaluate).
+
+Any rover from a file (issue 23)
+--------------------------------
+A scenario that names a rover file (:attr:`offline.rover.scenario.Scenario.rover_file`) gets an
+NLP with five variables per wheel of the file (file order), the balance rows its suspension
+implies (:class:`rtctl.physics.suspension.SuspensionStatics`: rocker, rocker-bogie with
+differential, rigid with height compatibility), the file's steering ranges, driven flags and
+actuator limits as bounds, every failure kind on any named wheel, and the independent check by
+:class:`offline.rover.statics.FreeBodyBalance` (root-found link angles, rotation matrices: not
+the NLP's row function). The mirror-image search step uses the mirror map found from the file's
+positions (:func:`mirror_wheels`; skipped for an asymmetric rover). Without a rover file the NLP
+is the mini rover's, variable for variable as before (``tests/test_any_rover_nlp.py`` re-solves
+seven scenarios against a stored reference). Driving backward is a rover turned half round
+(:func:`rtctl.physics.rover_file.driving_backward`).
 """
 
 from __future__ import annotations
@@ -51,14 +65,16 @@ from numpy.typing import NDArray
 from rtctl.layout import PARAMETERS, WHEEL_VARIABLES, NlpLayout
 
 from rtctl.physics.hub_drag import HubFace
+from rtctl.physics.rover_file import RoverSpec
 from rtctl.physics.steady_state import SteadyStateModel, steady_state_rows, with_hub
+from rtctl.physics.suspension import SuspensionStatics
 
 from ..physics.backend import CASADI, NUMPY, Backend
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
 from .failures import SolutionView, WheelBounds
 from .scenario import Scenario, WheelFailure
-from .statics import BALANCE_NAMES, WHEELS, FourWheelRocker, free_body_residuals
+from .statics import WHEELS, FourWheelRocker, FreeBodyBalance, free_body_residuals
 
 __all__ = [
     "SolverOptions",
@@ -76,6 +92,7 @@ __all__ = [
     "lowest_speed_cap",
     "mirror_scenario",
     "mirror_x",
+    "mirror_wheels",
 ]
 
 STATUSES = ("optimal", "infeasible", "not_found", "solver_failure")
@@ -127,7 +144,7 @@ class SolverOptions:
         Passed to :class:`~offline.physics.terramechanics.ModelOptions`.
     check_rtol : float
         Tolerance of the independent numeric check, relative to the rover weight (forces)
-        and weight times rocker length (moments).
+        and weight times rocker length (moments; a rover file: weight times wheelbase).
     feasibility_tol : float
         Largest scaled constraint violation of a point called feasible.
     hessian : str
@@ -157,17 +174,20 @@ class SolverOptions:
 @functools.lru_cache(maxsize=16)
 def get_problem(params: ParameterSet, rover: Rover, exit_angle: str = "classic", trench_wheel: str | None = None,
                 options: SolverOptions | None = None, external: tuple[float, float, float] | None = None,
-                wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None) -> "SteadyStateProblem":
+                wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None,
+                rover_file: RoverSpec | None = None) -> "SteadyStateProblem":
     """The (cached) NLP of one parameter set, rover, exit-angle model and trench wheel, with an
-    optional constant external pull, per-wheel rim radii and hub contact (:class:`SteadyStateProblem`)."""
+    optional constant external pull, per-wheel rim radii, hub contact and rover file
+    (:class:`SteadyStateProblem`)."""
     return SteadyStateProblem(params, rover, exit_angle, trench_wheel, options or SolverOptions(), external, wheel_radius,
-                              hub)
+                              hub, rover_file)
 
 
 def world_of(sc: Scenario) -> dict[str, Any]:
     """The NLP-structure arguments of a scenario's world terms (:func:`get_problem`): ``external``
-    (body-frame ``(F_x, F_y, M_z)``), ``wheel_radius`` and ``hub`` (the hub contact), each only
-    when set, so a scenario without them keys (and builds) exactly the NLP it always did."""
+    (body-frame ``(F_x, F_y, M_z)``), ``wheel_radius``, ``hub`` (the hub contact) and
+    ``rover_file``, each only when set, so a scenario without them keys (and builds) exactly
+    the NLP it always did."""
     out: dict[str, Any] = {}
     if sc.external is not None and not sc.external.zero:
         out["external"] = (float(sc.external.fx), float(sc.external.fy), float(sc.external.mz))
@@ -175,6 +195,8 @@ def world_of(sc: Scenario) -> dict[str, Any]:
         out["wheel_radius"] = tuple(float(r) for r in sc.wheel_radius)
     if sc.hub_contact is not None:
         out["hub"] = sc.hub_contact
+    if sc.rover_file is not None:
+        out["rover_file"] = sc.rover_file
     return out
 
 
@@ -214,12 +236,29 @@ class SteadyStateProblem:
         Hub contact on every wheel: the drag of :func:`rtctl.physics.hub_drag.hub_wrench`
         (the parameter set's soil) added to each wheel's wrench (:meth:`with_hub`) in the graph,
         the independent check and the tables' stored wrenches; None: no term in the graph.
+    rover_file : RoverSpec, optional
+        A rover described by a file (:mod:`rtctl.physics.rover_file`): the wheels are its wheels
+        in file order, the balance rows those its suspension implies
+        (:class:`rtctl.physics.suspension.SuspensionStatics`: the generalisation of
+        (7.12)-(7.18), (7.23), (7.32)-(7.33)), the independent check its free bodies
+        (:class:`offline.rover.statics.FreeBodyBalance`); its steering ranges, driven flags and
+        actuator limits bound each wheel (:meth:`wheel_bounds`). ``rover`` then only carries
+        the weight, speed and the length of the moment scale (the wheelbase,
+        :func:`offline.rover.scenario.rover_scale_record`). None: the mini rover of Table 7.2
+        (:class:`~offline.rover.statics.FourWheelRocker`), exactly as before.
+
+    Notes
+    -----
+    Scales: loads and torques by ``W / N`` (``N`` wheels; for the mini rover ``W / 4`` as
+    before), moment rows by ``W`` times the rocker length (mini rover) or wheelbase (rover
+    file), the height-compatibility rows of a rigid frame by ``r_s / 4``.
     """
 
     def __init__(self, params: ParameterSet, rover: Rover, exit_angle: str = "classic",
                  trench_wheel: str | None = None, options: SolverOptions | None = None,
                  external: tuple[float, float, float] | None = None,
-                 wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None) -> None:
+                 wheel_radius: tuple[float, ...] | None = None, hub: HubFace | None = None,
+                 rover_file: RoverSpec | None = None) -> None:
         import casadi as ca
 
         t0 = time.perf_counter()
@@ -227,27 +266,44 @@ class SteadyStateProblem:
         self.options = options or SolverOptions()
         self.model_options = ModelOptions(exit_angle=exit_angle,  # type: ignore[arg-type]
                                           shear_direction_smoothing=self.options.shear_direction_smoothing)
-        self.statics = FourWheelRocker(rover, self.options.pitch_includes_wheel_torque)
+        self.rover_file = rover_file
+        self.wheels: tuple[str, ...] = WHEELS if rover_file is None else rover_file.wheel_names
+        """Wheel names in layout order."""
+        WH = self.wheels
+        self.statics: FourWheelRocker | SuspensionStatics
+        if rover_file is None:
+            self.statics = FourWheelRocker(rover, self.options.pitch_includes_wheel_torque)
+            self.free_body: FreeBodyBalance | None = None
+        else:
+            self.statics = SuspensionStatics(rover_file, None, self.options.pitch_includes_wheel_torque)
+            self.free_body = FreeBodyBalance(rover_file, self.options.pitch_includes_wheel_torque)
+        self.mirror = mirror_wheels(rover_file)
+        """Left-right mirror-image wheel of each wheel (None: the rover is not symmetric)."""
+        self.weight = float(rover.weight if rover_file is None else rover_file.weight)
+        self.length = float(rover.rocker_length)
+        """Length of the moment scale, m: rocker length (mini rover) or wheelbase (rover file)."""
         self.model = WheelModel(params.soil, params.wheel, params.tuning, self.model_options)
         wheel = params.wheel
         self.rs = wheel.shearing_radius
         self.external, self.wheel_radius, self.hub = external, wheel_radius, hub
         self._wheel_functions: dict[str, Any] = {}
         wheel_of = {k: wheel if wheel_radius is None or wheel_radius[i] == wheel.radius
-                    else replace(wheel, radius=float(wheel_radius[i])) for i, k in enumerate(WHEELS)}
+                    else replace(wheel, radius=float(wheel_radius[i])) for i, k in enumerate(WH)}
         self.rs_of = {k: w.shearing_radius for k, w in wheel_of.items()}
         self.radius_of = {k: w.radius for k, w in wheel_of.items()}
         self.model_of = {k: self.model if w is wheel else WheelModel(params.soil, w, params.tuning, self.model_options)
                          for k, w in wheel_of.items()}
-        W = rover.weight
-        self.torque_scale = W / 4 * self.rs
+        W = self.weight
+        n = len(WH)
+        self.torque_scale = W / n * self.rs
         self.layout = NlpLayout.build(
-            {"omega": rover.travel_speed / self.rs, "beta": 0.3, "W": W / 4, "h": self.rs / 4, "h0": self.rs / 4},
-            {"force": W, "moment": W * rover.rocker_length, "load": W / 4, "torque": self.torque_scale,
-             "trench_area": 1e-4, "trench_length": 1e-2},
-            trench_wheel=trench_wheel, wheels=WHEELS)
+            {"omega": rover.travel_speed / self.rs, "beta": 0.3, "W": W / n, "h": self.rs / 4, "h0": self.rs / 4},
+            {"force": W, "moment": W * self.length, "load": W / n, "torque": self.torque_scale,
+             "trench_area": 1e-4, "trench_length": 1e-2, "height": self.rs / 4},
+            trench_wheel=trench_wheel, wheels=WH, balance_rows=self.statics.balance_names)
         L = self.layout
-        assert tuple(L.parameter_names) == PARAMETERS  # noqa: S101  (internal consistency, not input)
+        if rover_file is None and tuple(L.parameter_names) != PARAMETERS:
+            raise RuntimeError(f"internal: the mini rover's layout parameters {L.parameter_names} are not {PARAMETERS}")
         self.xscale = L.variable_scale
         self.gscale = L.constraint_scale
         self.ng = L.ng
@@ -259,10 +315,10 @@ class SteadyStateProblem:
         x = xs * ca.DM(self.xscale)
         P = {n: p[L.index(n)] for n in L.parameter_names}
         self.steady_state = SteadyStateModel(
-            tuple(WHEELS), tuple(phys_of[k] for k in WHEELS), tuple(self.rs_of[k] for k in WHEELS), self.model_options,
+            tuple(WH), tuple(phys_of[k] for k in WH), tuple(self.rs_of[k] for k in WH), self.model_options,
             self.statics, params.soil, hub, external, trench_wheel, self.torque_scale)
         """The rows' definition shared with the rover's exact residual (:mod:`rtctl.physics.steady_state`)."""
-        xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in WHEELS}
+        xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in WH}
         rows, f, _ = steady_state_rows(CASADI, self.steady_state, xw, P)
         g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
         self.symbols = {"x": xs, "p": p, "f": f, "g": g}
@@ -315,15 +371,25 @@ class SteadyStateProblem:
 
     # ------------------------------------------------------------------ bounds
     def wheel_bounds(self, sc: Scenario, wheel: str) -> WheelBounds:
-        """Physical bounds of one wheel: the general bounds (7.2)-(7.5), then every failure kind
+        """Physical bounds of one wheel: the general bounds (7.2)-(7.5), with a rover file its
+        wheel's steering range (a wheel that does not steer: ``beta = 0``), drive (an undriven
+        wheel: torque row 0) and actuator limits (wheel speed, torque), then every failure kind
         (steering angles in physical terms: :meth:`~offline.rover.scenario.Scenario.physical_failure`)."""
         w = self.params.wheel
         rs = self.rs_of[wheel]
         hmin, hmax = w.grouser_height, 1.5 * self.radius_of[wheel] + w.grouser_height
         wb = WheelBounds(lo={"omega": 0.0, "beta": -BETA_LIMIT, "W": 0.0, "h": hmin, "h0": hmin},
                          hi={"omega": self.options.max_rim_speed_factor * sc.speed / rs, "beta": BETA_LIMIT,
-                             "W": self.rover.weight / 2, "h": hmax, "h0": hmax},
+                             "W": self.weight / 2, "h": hmax, "h0": hmax},
                          rim_radius=self.rs, speed=sc.speed)  # command radius: caps are on rim-speed commands
+        if self.rover_file is not None:
+            spec, act = self.rover_file.wheel(wheel), self.rover_file.actuators
+            if spec.steerable:
+                wb.lo["beta"], wb.hi["beta"] = max(wb.lo["beta"], spec.steer_min), min(wb.hi["beta"], spec.steer_max)
+            else:
+                wb.lo["beta"] = wb.hi["beta"] = 0.0
+            wb.hi["omega"] = min(wb.hi["omega"], act.drive_speed_max)
+            wb.torque = (0.0, 0.0) if not spec.driven else (-act.drive_torque_max, act.drive_torque_max)
         for kind in sc.physical_failure(wheel).kinds():
             kind.apply(wb)
         return wb
@@ -335,7 +401,7 @@ class SteadyStateProblem:
         lbg, ubg = np.zeros(L.ng), np.zeros(L.ng)
         par = {"speed": sc.speed, "slope": sc.slope, "cross_slope": sc.cross_slope, "fy_offset": sc.fy_offset,
                "mz_offset": sc.mz_offset}
-        for k in WHEELS:
+        for k in self.wheels:
             wb = self.wheel_bounds(sc, k)
             for v in WHEEL_VARIABLES:
                 lbx[L.var(v, k)], ubx[L.var(v, k)] = wb.lo[v], wb.hi[v]
@@ -343,7 +409,7 @@ class SteadyStateProblem:
             lbg[j], ubg[j] = wb.torque
             par[f"contact {k}"] = wb.contact
         # a raised wheel means a stuck suspension: the pivot transmits the pitch moment
-        par["pivot_locked"] = float(any(par[f"contact {k}"] == 0.0 for k in WHEELS))
+        par["pivot_locked"] = float(any(par[f"contact {k}"] == 0.0 for k in self.wheels))
         if self.trench_wheel:
             for row, (lo, hi) in (sc.trench.row_bounds() if sc.trench is not None else {
                     "clean-side pile": (-math.inf, math.inf), "depth": (-math.inf, math.inf),
@@ -364,29 +430,29 @@ class SteadyStateProblem:
             h = np.where(sol.converged, sol.h, self.rs / 4)
             h0 = np.where(sol.converged, sol.h_zero_slip, h)
         else:  # one wheel model per radius
-            h, h0 = np.zeros(len(WHEELS)), np.zeros(len(WHEELS))
-            for i, k in enumerate(WHEELS):
+            h, h0 = np.zeros(len(self.wheels)), np.zeros(len(self.wheels))
+            for i, k in enumerate(self.wheels):
                 si = self.model_of[k].sinkage_from_load(np.maximum(W[i:i + 1], 1e-3), vx[i:i + 1], vy[i:i + 1], om[i:i + 1])
                 h[i] = float(np.where(si.converged, si.h, self.rs / 4)[0])
                 h0[i] = float(np.where(si.converged, si.h_zero_slip, h[i])[0])
         x = np.zeros(self.layout.nx)
-        for i, k in enumerate(WHEELS):
+        for i, k in enumerate(self.wheels):
             for v, val in zip(WHEEL_VARIABLES, (om[i], b[i], W[i], h[i], h0[i])):
                 x[self.layout.var(v, k)] = val
         return x / self.xscale
 
     def nominal_guess(self, sc: Scenario, slip: float = 0.08) -> NDArray[np.float64]:
         """Symmetric start: straight wheels at a slip (negative: skid), equal loads, sinkage from load."""
-        n = len(WHEELS)
-        load = self.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
+        n = len(self.wheels)
+        load = self.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
         om = [sc.speed / (self.rs_of[k] * (1 - slip)) if slip >= 0 else sc.speed * (1 + slip) / self.rs_of[k]
-              for k in WHEELS]
+              for k in self.wheels]
         return self.guess(sc, om, [0.0] * n, [load] * n)
 
     def physical(self, x: NDArray[np.float64]) -> dict[str, dict[str, float]]:
         """Physical variables by wheel: ``{wheel: {omega, beta, W, h, h0}}``."""
         xp = np.asarray(x, dtype=float) * self.xscale
-        return {k: {v: float(xp[self.layout.var(v, k)]) for v in WHEEL_VARIABLES} for k in WHEELS}
+        return {k: {v: float(xp[self.layout.var(v, k)]) for v in WHEEL_VARIABLES} for k in self.wheels}
 
     def violation(self, b: dict[str, NDArray[np.float64]], x: NDArray[np.float64], g: NDArray[np.float64]) -> float:
         """Largest scaled violation of the bounds ``b`` by the point ``x`` with rows ``g``."""
@@ -533,7 +599,7 @@ def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64
     xs = pb.physical(x)
     out: dict[str, WheelSolution] = {}
     power = 0.0
-    for k in WHEELS:
+    for k in pb.wheels:
         om, b, Wi, hi, h0 = (xs[k][v] for v in WHEEL_VARIABLES)
         f = sc.failure(k)
         if f.raised:
@@ -551,13 +617,14 @@ def _wheel_solutions(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64
 
 def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np.float64]) -> dict[str, Any]:
     """Independent numeric evaluation of a point: wheel wrenches (numpy model), zero-slip
-    loads and the free-body balance (:func:`offline.rover.statics.free_body_residuals`)."""
+    loads and the free-body balance (:func:`offline.rover.statics.free_body_residuals`; with a
+    rover file :class:`offline.rover.statics.FreeBodyBalance`)."""
     L = pb.layout
     P = {n: float(p[L.index(n)]) for n in L.parameter_names}
     xs = pb.physical(x)
     wr: dict[str, tuple[float, ...]] = {}
     beta, h, load, contact, fz0 = {}, {}, {}, {}, {}
-    for k in WHEELS:
+    for k in pb.wheels:
         om, b, Wi, hi, h0 = (xs[k][v] for v in WHEEL_VARIABLES)
         contact[k] = P[f"contact {k}"]
         vx, vy = pb.statics.wheel_velocity(NUMPY, P["speed"], b)
@@ -567,9 +634,13 @@ def _numeric_point(pb: SteadyStateProblem, x: NDArray[np.float64], p: NDArray[np
             wr[k] = tuple(q * contact[k] for q in pb.wheel_wrench(k, vx, vy, om, hi, h0)[0])
             fz0[k] = float(np.asarray(pb.model_of[k].wrench(vx, vy, P["speed"] / pb.rs_of[k], h0, h0).Fz).ravel()[0])
         beta[k], h[k], load[k] = b, hi, Wi
-    bal = free_body_residuals(pb.rover, wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"], P["mz_offset"],
-                              contact, pb.options.pitch_includes_wheel_torque, pb.external)
-    if P["pivot_locked"]:
+    if pb.free_body is None:
+        bal = free_body_residuals(pb.rover, wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"],
+                                  P["mz_offset"], contact, pb.options.pitch_includes_wheel_torque, pb.external)
+    else:
+        bal = pb.free_body.residuals(wr, beta, h, load, P["slope"], P["cross_slope"], P["fy_offset"], P["mz_offset"],
+                                     contact, pb.external)
+    if P["pivot_locked"] and "My_right" in bal:
         bal["My_right"], bal["My_left"] = bal["My_right"] + bal["My_left"], 0.0
     return {"wrench": wr, "fz0": fz0, "balance": bal, "phys": xs, "P": P}
 
@@ -580,17 +651,26 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
     each failure kind's and the trench goal's own check.
 
     Returns every residual in physical units and whether all are within
-    ``options.check_rtol`` (relative to the weight, or weight times rocker length; speeds to
-    the travel speed; trench dimensions to 0.5 mm absolute).
+    ``options.check_rtol`` (relative to the weight, or weight times rocker length / wheelbase;
+    speeds to the travel speed; trench dimensions to 0.5 mm absolute; a rigid frame's wheel
+    heights from their plane to ``check_rtol`` times the shearing radius). With a rover file
+    also its wheels' own constraints: a wheel that does not steer points straight
+    (``steer <wheel>``), an undriven wheel has no torque (``undriven torque <wheel>``).
     """
-    W, lr = pb.rover.weight, pb.rover.rocker_length
+    W, lr = pb.weight, pb.length
     b = pb.bounds(sc)
     num = _numeric_point(pb, x, b["p"])
     res: dict[str, float] = {}
     tol: dict[str, float] = {}
     rtol = pb.options.check_rtol
-    for k in WHEELS:
+    for k in pb.wheels:
         ph = num["phys"][k]
+        if pb.rover_file is not None:
+            spec = pb.rover_file.wheel(k)
+            if not spec.steerable:
+                res[f"steer {k}"], tol[f"steer {k}"] = ph["beta"], 1e-9
+            if not spec.driven:
+                res[f"undriven torque {k}"], tol[f"undriven torque {k}"] = num["wrench"][k][4], rtol * W * lr
         if num["P"][f"contact {k}"] != 0.0:
             res[f"load {k}"] = num["wrench"][k][2] - ph["W"]
             res[f"zero-slip load {k}"] = num["fz0"][k] - ph["W"]
@@ -609,9 +689,9 @@ def check_solution(pb: SteadyStateProblem, sc: Scenario, x: NDArray[np.float64])
         tp = trench_profile(ph["h"], ph["beta"], ph["omega"], sc.speed * math.cos(ph["beta"]), pb.params.wheel, pb.params.soil)
         for name, (val, t) in sc.trench.check(tp).items():
             res[name], tol[name] = float(val), t
-    for n in BALANCE_NAMES:
-        res[f"balance {n}"] = float(num["balance"][n])
-        tol[f"balance {n}"] = rtol * (W if n in ("Fx", "Fy", "Fz") else W * lr)
+    for n, v in num["balance"].items():
+        res[f"balance {n}"] = float(v)
+        tol[f"balance {n}"] = rtol * (W if n in ("Fx", "Fy", "Fz") else pb.rs if n == "height_plane" else W * lr)
     ok = all(math.isfinite(res[k]) and abs(res[k]) <= tol[k] for k in res)
     return res, ok
 
@@ -620,12 +700,12 @@ def _point_check(pb: SteadyStateProblem, x: NDArray[np.float64], b: dict[str, ND
     """Is ``x`` feasible for the (intermediate) problem ``b``, by the independent numeric
     evaluation? Balance rows and loads to ``check_rtol``; bounds and the torque and trench
     rows (casadi) to ``feasibility_tol``. Returns (passed, largest relative residual)."""
-    W, lr = pb.rover.weight, pb.rover.rocker_length
+    W, lr = pb.weight, pb.length
     num = _numeric_point(pb, x, b["p"])
     worst = 0.0
     for n, v in num["balance"].items():
-        worst = max(worst, abs(v) / (W if n.startswith("F") else W * lr))
-    for k in WHEELS:
+        worst = max(worst, abs(v) / (W if n.startswith("F") else pb.rs if n == "height_plane" else W * lr))
+    for k in pb.wheels:
         if num["P"][f"contact {k}"] != 0.0:
             worst = max(worst, abs(num["wrench"][k][2] - num["phys"][k]["W"]) / W,
                         abs(num["fz0"][k] - num["phys"][k]["W"]) / W)
@@ -806,13 +886,13 @@ def _jumps(pb: SteadyStateProblem, sc: Scenario, x_partial: NDArray[np.float64],
     out = [("jump from the continuation end", x_partial)]
     for s in (-0.05, 0.1):
         xj = x_partial.copy()
-        for k in WHEELS:
+        for k in pb.wheels:
             om = sc.speed / (pb.rs_of[k] * (1 - s)) if s >= 0 else sc.speed * (1 + s) / pb.rs_of[k]
             if sc.failure(k).nominal:
                 xj[L.var("omega", k)] = om / pb.xscale[L.var("omega", k)]
         out.append((f"jump with free wheels at {'skid' if s < 0 else 'slip'} {s:+.2f}", xj))
-    om_i = [L.var("omega", k) for k in WHEELS]
-    b_i = [L.var("beta", k) for k in WHEELS]
+    om_i = [L.var("omega", k) for k in pb.wheels]
+    b_i = [L.var("beta", k) for k in pb.wheels]
     for j in range(2):
         pert = x_partial * (1 + 0.3 * rng.standard_normal(x_partial.size) * _pattern(pb, 1.0, 0.0, 0.5, 0.3, 0.3))
         pert[b_i] += rng.uniform(-1.0, 1.0, len(b_i))
@@ -824,13 +904,47 @@ def _jumps(pb: SteadyStateProblem, sc: Scenario, x_partial: NDArray[np.float64],
 def _pattern(pb: SteadyStateProblem, *per_var: float) -> NDArray[np.float64]:
     """A vector with one value per wheel variable kind (omega, beta, W, h, h0), in layout order."""
     out = np.zeros(pb.layout.nx)
-    for k in WHEELS:
+    for k in pb.wheels:
         for v, val in zip(WHEEL_VARIABLES, per_var):
             out[pb.layout.var(v, k)] = val
     return out
 
 
 _MIRROR = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
+
+
+def mirror_wheels(rover_file: RoverSpec | None) -> dict[str, str] | None:
+    """The left-right mirror-image wheel of every wheel: the mini rover's FR-FL, RR-RL without a
+    rover file; with one, the wheel at ``(x, -y, z)`` on a link of the same kind, found from the
+    file's positions (to 1e-9 m). None when the rover (wheels, links or centre of mass) is not
+    left-right symmetric or a steering range does not mirror.
+
+    Parameters
+    ----------
+    rover_file : RoverSpec or None
+        The rover file (None: the mini rover).
+    """
+    if rover_file is None:
+        return dict(_MIRROR)
+    tol = 1e-9
+    if abs(rover_file.centre_of_mass[1]) > tol:
+        return None
+    out: dict[str, str] = {}
+    for w in rover_file.wheels:
+        match = [v for v in rover_file.wheels
+                 if all(abs(a - b) <= tol for a, b in zip(v.position, (w.position[0], -w.position[1], w.position[2])))]
+        if len(match) != 1:
+            return None
+        v = match[0]
+        if (v.steerable, v.driven) != (w.steerable, w.driven) or abs(v.steer_min + w.steer_max) > tol \
+                or abs(v.steer_max + w.steer_min) > tol:
+            return None
+        out[w.name] = v.name
+    for lk in rover_file.links:
+        if not any(all(abs(a - b) <= tol for a, b in zip(m.pivot, (lk.pivot[0], -lk.pivot[1], lk.pivot[2])))
+                   for m in rover_file.links):
+            return None
+    return out
 
 
 def _mirror_depth(sc: Scenario) -> int:
@@ -840,28 +954,52 @@ def _mirror_depth(sc: Scenario) -> int:
 def mirror_scenario(sc: Scenario) -> Scenario:
     """The left-right mirror image: wheels swapped with every failure kind mirrored (steer
     angles negated), lateral force and yaw moment offsets and the cross slope negated (a
-    trench wheel moves to the other side; a hub contact, the same on every wheel, is kept)."""
-    fails = {_MIRROR[k]: f.mirror() for k, f in sc.failures.items()}
-    trench = sc.trench.mirror() if sc.trench else None
+    trench wheel moves to the other side; a hub contact, the same on every wheel, is kept).
+
+    Raises
+    ------
+    ValueError
+        The scenario's rover file is not left-right symmetric (:func:`mirror_wheels`).
+    """
+    mirror = mirror_wheels(sc.rover_file)
+    if mirror is None:
+        raise ValueError(f"scenario {sc.name}: rover {sc.rover.name!r} is not left-right symmetric; no mirror image")
+    wh = sc.wheels
+    fails = {mirror[k]: f.mirror() for k, f in sc.failures.items()}
+    trench = None
+    if sc.trench is not None:
+        trench = sc.trench.mirror() if sc.rover_file is None else replace(sc.trench, wheel=mirror[sc.trench.wheel])
     world: dict[str, Any] = {}
     if sc.external is not None:
         world["external"] = sc.external.mirror()
     if sc.wheel_radius is not None:
-        world["wheel_radius"] = tuple(sc.wheel_radius[WHEELS.index(_MIRROR[k])] for k in WHEELS)
+        world["wheel_radius"] = tuple(sc.wheel_radius[wh.index(mirror[k])] for k in wh)
     if sc.steer_offset is not None:
-        world["steer_offset"] = tuple(-sc.steer_offset[WHEELS.index(_MIRROR[k])] for k in WHEELS)
+        world["steer_offset"] = tuple(-sc.steer_offset[wh.index(mirror[k])] for k in wh)
     return replace(sc, failures=fails, trench=trench, fy_offset=-sc.fy_offset, mz_offset=-sc.mz_offset,
                    cross_slope=-sc.cross_slope, name=f"{sc.name} (mirror)", **world)
 
 
-def mirror_x(x: NDArray[np.float64], layout: NlpLayout | None = None) -> NDArray[np.float64]:
-    """Mirror a solution vector: swap left and right wheels, negate steer angles."""
+def mirror_x(x: NDArray[np.float64], layout: NlpLayout | None = None,
+             mirror: dict[str, str] | None = None) -> NDArray[np.float64]:
+    """Mirror a solution vector: swap left and right wheels, negate steer angles.
+
+    Parameters
+    ----------
+    x : ndarray
+        Decision variables in ``layout`` order.
+    layout : NlpLayout, optional
+        Default: the mini rover's.
+    mirror : dict, optional
+        Mirror-image wheel of each wheel (:func:`mirror_wheels`; default the mini rover's).
+    """
     L = layout or NlpLayout.build({v: 1.0 for v in WHEEL_VARIABLES}, {"force": 1, "moment": 1, "load": 1, "torque": 1})
+    mirror = mirror or _MIRROR
     out = np.asarray(x, dtype=float).copy()
-    for k in WHEELS:
+    for k in L.wheels:
         for v in WHEEL_VARIABLES:
             val = x[L.var(v, k)]
-            out[L.var(v, _MIRROR[k])] = -val if v == "beta" else val
+            out[L.var(v, mirror[k])] = -val if v == "beta" else val
     return out
 
 
@@ -872,9 +1010,11 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
     wheels slipping more; a trenching wheel starts turned 60-85 deg toward its allowed side,
     partner mirrored, both at 4-8x the travel speed."""
     out = []
-    n = len(WHEELS)
+    WH = pb.wheels
+    n = len(WH)
     L = pb.layout
-    load = pb.rover.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
+    mirror = pb.mirror or {}
+    load = pb.weight * math.cos(sc.slope) * math.cos(sc.cross_slope) / n
     lo, hi = b["lbx"] * pb.xscale, b["ubx"] * pb.xscale
     om0 = sc.speed / (pb.rs * 0.85)
     for k in sc.failures:
@@ -882,20 +1022,20 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
         wb = pb.wheel_bounds(sc, k)
         for kind in sc.physical_failure(k).kinds():
             hints.update(kind.start(wb))
-        if "beta" in hints:
+        if "beta" in hints and k in mirror:
             betas = [0.0] * n
-            betas[WHEELS.index(k)], betas[WHEELS.index(_MIRROR[k])] = hints["beta"], -hints["beta"]
+            betas[WH.index(k)], betas[WH.index(mirror[k])] = hints["beta"], -hints["beta"]
             out.append((f"mirrored partner of {k}", [om0] * n, betas))
         if "omega" in hints:
             for fast in (0.6, 0.4):
                 oms = [sc.speed / (pb.rs * (1 - fast))] * n
-                oms[WHEELS.index(k)] = hints["omega"]
+                oms[WH.index(k)] = hints["omega"]
                 out.append((f"{k} at {hints['omega']:.2f} rad/s, others at slip {fast:.1f}", oms, [0.0] * n))
                 if "beta" in hints:
-                    out[-1][2][WHEELS.index(k)] = hints["beta"]
-    if sc.trench is not None:
+                    out[-1][2][WH.index(k)] = hints["beta"]
+    if sc.trench is not None and sc.trench.wheel in mirror:
         k = sc.trench.wheel
-        i, j = WHEELS.index(k), WHEELS.index(_MIRROR[k])
+        i, j = WH.index(k), WH.index(mirror[k])
         sign = -1.0 if hi[L.var("beta", k)] <= 0 else 1.0
         for ang, fast in ((75.0, 8.0), (60.0, 4.0), (85.0, 8.0)):
             betas, oms = [0.0] * n, [om0] * n
@@ -903,7 +1043,7 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
             oms[i] = oms[j] = fast * sc.speed / pb.rs
             out.append((f"trench start: {k} at {sign * ang:.0f} deg, partner mirrored, rim speed x{fast:.0f}", oms, betas))
     res = []
-    col = lambda v: [L.var(v, k) for k in WHEELS]  # noqa: E731
+    col = lambda v: [L.var(v, k) for k in WH]  # noqa: E731
     for name, oms, betas in out:
         om_c = np.clip(oms, lo[col("omega")], hi[col("omega")]).tolist()
         be_c = np.clip(betas, lo[col("beta")], hi[col("beta")]).tolist()
@@ -915,7 +1055,7 @@ def _symmetric_guesses(pb: SteadyStateProblem, sc: Scenario, b: dict[str, Any]) 
 def _restarts(pb: SteadyStateProblem, sc: Scenario, count: int, seed: int, spread: float) -> list[tuple[str, NDArray[np.float64]]]:
     """Seeded perturbed starts around the symmetric guess, alternating slip and skid."""
     rng = np.random.default_rng(seed)
-    beta_i = [pb.layout.var("beta", k) for k in WHEELS]
+    beta_i = [pb.layout.var("beta", k) for k in pb.wheels]
     other = np.ones(pb.layout.nx, dtype=bool)
     other[beta_i] = False
     out = []
@@ -1024,7 +1164,7 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
                         break
                     if run_starts(_jumps(pb, sc, xs, seed=options.seed + n), f" (after {n}-step continuation)"):
                         break
-        if best is None and x0 is None and _mirror_depth(sc) == 0 and has_failures:
+        if best is None and x0 is None and _mirror_depth(sc) == 0 and has_failures and pb.mirror is not None:
             # the rover is left-right symmetric: the mirror-image scenario takes another numerical
             # path; if it solves, its mirrored solution is a start for this one
             left_a, left_i = options.max_attempts - srch.attempts, options.max_iterations - srch.iterations
@@ -1034,7 +1174,7 @@ def solve_primitive(sc: Scenario, options: SolverOptions | None = None,
                 srch.charge(mr.stats["n_attempts"], mr.stats["iterations"])
                 srch.log.append(f"mirror-image scenario: {mr.status}")
                 if mr.ok:
-                    consider(srch.solve(b1, mirror_x(mr.x, pb.layout), "from the mirrored solution"))
+                    consider(srch.solve(b1, mirror_x(mr.x, pb.layout, pb.mirror), "from the mirrored solution"))
         if best is None:
             run_starts(_restarts(pb, sc, options.restarts, options.seed, 0.3))
     except _BudgetSpent:
@@ -1165,7 +1305,7 @@ def _evidence(pb: SteadyStateProblem, sc: Scenario, b1: dict[str, Any], furthest
     ev.update(continuation_reached=t, continued=what, furthest_point_checked=ok, furthest_point_worst_residual=worst)
     num = _numeric_point(pb, x, bt["p"])
     parts = []
-    for k in WHEELS:
+    for k in pb.wheels:
         ph = num["phys"][k]
         view = SolutionView(ph["omega"], ph["beta"], ph["W"], ph["h"], num["wrench"][k][4], pb.rs, sc.speed)
         for kind in sc.physical_failure(k).kinds():
@@ -1207,7 +1347,7 @@ def steering_controllers(sc: Scenario, primitive: PrimitiveResult, mz_offset: fl
             out[name] = {}
             continue
         out[name] = {k: ((r.wheels[k].rim_speed - primitive.wheels[k].rim_speed) / mag,
-                         (r.wheels[k].steer - primitive.wheels[k].steer) / mag) for k in WHEELS}
+                         (r.wheels[k].steer - primitive.wheels[k].steer) / mag) for k in sc.wheels}
     return out
 
 

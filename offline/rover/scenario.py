@@ -13,7 +13,12 @@ File format
     name = "rr_speed_cap"
     params = "dissertation-ch7"      # preset (PARAM_PRESETS, PARAM_FILE_PRESETS: "calibrated-sand",
                                      # ...), or a parameter TOML path (relative to this file)
-    rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section
+    drive_direction = "forward"      # or "backward" (a rover file only: the rover turned half
+                                     # round, rtctl.physics.rover_file.driving_backward)
+    rover = "mini-rover-t72"         # preset, or a TOML path with a [rover] section; or a rover
+                                     # file (rtctl.physics.rover_file): a shipped one by name
+                                     # ("mer_class_rocker_bogie", "skid_steer_4w", "mini_rover_t72")
+                                     # or a path to a file with a [suspension] section
     exit_angle = "classic"           # default; "soil_flow" takes theta_r from the trench model
     speed_m_s = 0.03
     slope_deg = 0.0                  # pitch of the terrain along the travel direction (uphill +)
@@ -34,7 +39,8 @@ File format
     face_width_mm = 40.0             # width (default 0), with this lever about the axle against
     arm_mm = 20.0                    # the spin (default 0); the same on every wheel
 
-    [wheels.RR]                      # any of FR, FL, RR, RL; any combination of keys
+    [wheels.RR]                      # any of FR, FL, RR, RL (a rover file: its wheel names);
+                                     # any combination of keys
     rim_speed_max_m_s = 0.015        # (7.30)
     steer_stuck_deg = -50.0          # (7.31)
     locked = true                    # omega = 0
@@ -92,6 +98,21 @@ leave the scenario, its NLP and its table files exactly as before.
 A truth file (:mod:`offline.sim.truth`, e.g. the discrepancy tool's ``accepted_truth.toml``)
 applies to a scenario with :func:`scenario_with_world` (``offnominal tables build --world``).
 
+Any rover from a file (issue 23)
+-------------------------------
+With ``rover`` naming a rover file (:mod:`rtctl.physics.rover_file`), the scenario's wheels are
+the file's (``[wheels.<name>]`` takes its names, in file order), and :attr:`Scenario.rover_file`
+holds the file; the NLP then takes its variables and balance rows from the file's suspension
+(:mod:`offline.rover.primitives`). Without a ``params`` key the wheels' parameter set is the
+rover file's (one parameter set shared by every wheel in this version; a file whose wheels name
+different sets is refused); with one, the scenario's set is used on every wheel.
+:attr:`Scenario.rover` then holds a :class:`~offline.physics.params.Rover` with the file's
+weight and nominal speed and, for scales only, its wheelbase, track and pivot height
+(``source`` says so): the four-wheel geometry it describes is not the rover's. Raised wheels
+need the ``rocker`` suspension; a stuck steering angle needs a steerable wheel within the
+file's steering range. Without a ``rover`` key the scenario is the mini rover, exactly as
+before.
+
 Units are checked where a value is implausible for its unit: ``speed_m_s = 3.0`` is refused
 with a hint that it looks like cm/s; slopes beyond 60 deg are refused (degrees expected).
 """
@@ -102,10 +123,11 @@ import math
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from rtctl.physics.hub_drag import HUB_KEYS, HubFace
 from rtctl.physics.parameters import read_toml
+from rtctl.physics.rover_file import SHIPPED_ROVERS, RoverFileError, RoverSpec, driving_backward, load_rover_file
 from ..physics.params import (
     ROVER_MINI_T72,
     SOIL_DISSERTATION_T53_GROUSERED,
@@ -133,24 +155,25 @@ from .statics import WHEELS
 
 __all__ = ["ScenarioError", "ExternalForce", "WheelFailure", "TrenchGoal", "Scenario", "load_scenario", "PARAM_PRESETS",
            "PARAM_FILE_PRESETS", "param_preset_file",
-           "ROVER_PRESETS", "example_scenarios", "scenario_with_world", "section_table", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
+           "ROVER_PRESETS", "example_scenarios", "rover_scale_record", "scenario_with_world", "section_table", "MAX_SPEED", "MAX_SLOPE_DEG", "wheel_tables"]
 
 
 def wheel_tables(path: Path, data: Mapping[str, Any], known: Iterable[str],
-                 error: Callable[[str], Exception]) -> Iterator[tuple[str, dict[str, Any]]]:
+                 error: Callable[[str], Exception], wheels: Sequence[str] = WHEELS) -> Iterator[tuple[str, dict[str, Any]]]:
     """The ``[wheels.FR]`` ... tables of a parsed TOML file (scenario or truth), checked.
 
     Yields ``(wheel name, table)`` in file order. Raises ``error(message)`` naming ``path``
-    when ``[wheels]`` is not a table of tables, a wheel name is not one of FR, FL, RR, RL, or a
-    key is not in ``known``.
+    when ``[wheels]`` is not a table of tables, a wheel name is not one of ``wheels`` (default
+    FR, FL, RR, RL; a rover file's wheel names), or a key is not in ``known``.
     """
+    names = tuple(wheels)
     known = sorted(known)
-    wheels = data.get("wheels", {})
-    if not isinstance(wheels, dict):
-        raise error(f"{path}: [wheels] must hold tables [wheels.FR] ...")
-    for name, tab in wheels.items():
-        if name not in WHEELS:
-            raise error(f"{path}: [wheels.{name}] unknown wheel; use one of {list(WHEELS)}")
+    tables = data.get("wheels", {})
+    if not isinstance(tables, dict):
+        raise error(f"{path}: [wheels] must hold tables [wheels.{names[0]}] ...")
+    for name, tab in tables.items():
+        if name not in names:
+            raise error(f"{path}: [wheels.{name}] unknown wheel; use one of {list(names)}")
         if not isinstance(tab, dict):
             raise error(f"{path}: [wheels.{name}] must be a table")
         bad = sorted(set(tab) - set(known))
@@ -334,6 +357,13 @@ class Scenario:
     """True minus encoder steer angle per wheel, rad (None: zero); steering failures are in encoder terms."""
     hub_contact: HubFace | None = field(default=None, metadata=_OMIT)
     """Hub contact on every wheel (None: none; :mod:`rtctl.physics.hub_drag`)."""
+    rover_file: RoverSpec | None = field(default=None, metadata=_OMIT)
+    """The rover file the scenario names (None: the mini rover of :attr:`rover`, Table 7.2)."""
+
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """Wheel names in layout order: the rover file's, else FR, FL, RR, RL."""
+        return WHEELS if self.rover_file is None else self.rover_file.wheel_names
 
     def failure(self, wheel: str) -> WheelFailure:
         """The wheel's failures (nominal when none), steering angles in encoder terms."""
@@ -341,7 +371,7 @@ class Scenario:
 
     def offset(self, wheel: str) -> float:
         """The wheel's steering offset (true minus encoder angle), rad."""
-        return 0.0 if self.steer_offset is None else float(self.steer_offset[WHEELS.index(wheel)])
+        return 0.0 if self.steer_offset is None else float(self.steer_offset[self.wheels.index(wheel)])
 
     def physical_failure(self, wheel: str) -> WheelFailure:
         """The wheel's failures with steering angles in physical terms (encoder + offset).
@@ -358,7 +388,7 @@ class Scenario:
 
     def rim_radius(self, wheel: str) -> float | None:
         """The wheel's rim radius, m (None: the parameter set's)."""
-        return None if self.wheel_radius is None else float(self.wheel_radius[WHEELS.index(wheel)])
+        return None if self.wheel_radius is None else float(self.wheel_radius[self.wheels.index(wheel)])
 
     def with_(self, **kw: Any) -> "Scenario":
         """A copy with fields replaced (e.g. ``slope=...``)."""
@@ -367,7 +397,8 @@ class Scenario:
 
 _SCENARIO_KEYS = {"name": str, "description": str, "params": str, "rover": str, "exit_angle": str, "speed_m_s": float,
                   "slope_deg": float, "cross_slope_deg": float, "yaw_moment_offset_Nm": float, "lateral_force_offset_N": float,
-                  "grouser_volume_fraction": float, "grouser_area_ratio": float, "tether_force_N": float}
+                  "grouser_volume_fraction": float, "grouser_area_ratio": float, "tether_force_N": float,
+                  "drive_direction": str}
 _WORLD_WHEEL_KEYS = ("radius_mm", "steer_offset_deg")
 _WHEEL_KEYS: tuple[str, ...] = tuple(k for kind in KINDS for k in kind.TOML_KEYS) + _WORLD_WHEEL_KEYS
 _TETHER_KEYS = {"tension_N": float, "bearing_deg": float, "attach_x_m": float}
@@ -421,10 +452,36 @@ def _resolve_params(path: Path, ref: str, zeta: float | None, mu: float | None =
     return ps
 
 
-def _resolve_rover(path: Path, ref: str) -> Rover:
+def rover_scale_record(spec: RoverSpec) -> Rover:
+    """A :class:`~offline.physics.params.Rover` carrying a rover file's weight and nominal speed,
+    and (for scales and plausibility limits only) its wheelbase, track and the height of its
+    top pivots above the wheel centres: :attr:`Scenario.rover` of a rover-file scenario.
+
+    Parameters
+    ----------
+    spec : RoverSpec
+        The rover file.
+    """
+    xs = [w.position[0] for w in spec.wheels]
+    ys = [w.position[1] for w in spec.wheels]
+    zw = sum(w.position[2] for w in spec.wheels) / len(spec.wheels)
+    tops = [lk.pivot[2] for lk in spec.links if lk.parent == "body"] or [0.0]
+    return Rover(rocker_length=max(xs) - min(xs), pivot_height=max(tops[0] - zw, 1e-3), track_width=max(ys) - min(ys),
+                 weight=spec.weight, travel_speed=spec.travel_speed or 0.03, name=spec.name,
+                 source=f"rover file {spec.path or spec.name}: weight and speed; wheelbase, track, pivot height for scales only")
+
+
+def _resolve_rover(path: Path, ref: str) -> Rover | RoverSpec:
     if ref in ROVER_PRESETS:
         return ROVER_PRESETS[ref]
+    shipped = SHIPPED_ROVERS / f"{ref}.toml"
+    if "/" not in ref and "\\" not in ref and not ref.endswith(".toml") and shipped.is_file():
+        return _rover_file(path, ref, shipped)
     p = (path.parent / ref) if not Path(ref).is_absolute() else Path(ref)
+    if p.is_file():
+        head = read_toml(p, ScenarioError, "rover file")
+        if "suspension" in head:
+            return _rover_file(path, ref, p)
     try:
         loaded = load_toml(p)
     except ParameterError as exc:
@@ -432,6 +489,24 @@ def _resolve_rover(path: Path, ref: str) -> Rover:
     if "rover" not in loaded:
         raise ScenarioError(f"{path}: [scenario] rover = {ref!r} has no [rover] section")
     return loaded["rover"]
+
+
+def _rover_file(path: Path, ref: str, p: Path) -> RoverSpec:
+    try:
+        return load_rover_file(p.resolve())
+    except RoverFileError as exc:
+        raise ScenarioError(f"{path}: [scenario] rover = {ref!r}: {exc}") from None
+
+
+def _rover_file_params(path: Path, spec: RoverSpec) -> str:
+    """The one parameter set (preset name or absolute file path) of a rover file's wheels."""
+    refs = {w: spec.wheel_params(w) for w in spec.wheel_names}
+    if len(set(refs.values())) != 1:
+        raise ScenarioError(f"{path}: [scenario] rover = {spec.path or spec.name!r}: its wheels name different parameter "
+                            f"sets {sorted(set(refs.values()))}; one set shared by every wheel is supported: give "
+                            "[scenario] params to use one")
+    ref = next(iter(refs.values()))
+    return str(Path(ref).resolve()) if ref.endswith(".toml") else ref
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -471,14 +546,28 @@ def load_scenario(path: str | Path) -> Scenario:
         if not -MAX_SLOPE_DEG <= val <= MAX_SLOPE_DEG:
             raise ScenarioError(f"{p}: [scenario] {key} = {val} outside [-{MAX_SLOPE_DEG:g}, {MAX_SLOPE_DEG:g}] deg "
                                 "(degrees expected; no rover drives steeper soft-soil slopes)")
-    params = _resolve_params(p, vals.get("params", "dissertation-ch7"), vals.get("grouser_volume_fraction"),
-                             vals.get("grouser_area_ratio"))
-    rover = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
+    resolved = _resolve_rover(p, vals.get("rover", "mini-rover-t72"))
+    direction = vals.get("drive_direction", "forward")
+    if direction not in ("forward", "backward"):
+        raise ScenarioError(f"{p}: [scenario] drive_direction = {direction!r}; use 'forward' or 'backward'")
+    if direction == "backward":
+        if not isinstance(resolved, RoverSpec):
+            raise ScenarioError(f"{p}: [scenario] drive_direction = 'backward' needs a rover file (rover = "
+                                "\"mini_rover_t72\" for the mini rover)")
+        resolved = driving_backward(resolved)
+    spec = resolved if isinstance(resolved, RoverSpec) else None
+    rover = rover_scale_record(resolved) if isinstance(resolved, RoverSpec) else resolved
+    wheel_names = WHEELS if spec is None else spec.wheel_names
+    if spec is not None and "params" not in vals:
+        params_ref = _rover_file_params(p, spec)
+    else:
+        params_ref = vals.get("params", "dissertation-ch7")
+    params = _resolve_params(p, params_ref, vals.get("grouser_volume_fraction"), vals.get("grouser_area_ratio"))
     failures: dict[str, WheelFailure] = {}
-    radius: list[float | None] = [None] * len(WHEELS)
-    offset = [0.0] * len(WHEELS)
-    for wname, tab in wheel_tables(p, data, _WHEEL_KEYS, ScenarioError):
-        i = WHEELS.index(wname)
+    radius: list[float | None] = [None] * len(wheel_names)
+    offset = [0.0] * len(wheel_names)
+    for wname, tab in wheel_tables(p, data, _WHEEL_KEYS, ScenarioError, wheel_names):
+        i = wheel_names.index(wname)
         if "radius_mm" in tab:
             r = 1e-3 * _get(str(p), tab, "radius_mm", float, f"wheels.{wname}")
             if not 0.5 * params.wheel.radius <= r <= 2.0 * params.wheel.radius:
@@ -511,6 +600,8 @@ def load_scenario(path: str | Path) -> Scenario:
         if f.raised and (f.locked or f.unpowered or f.steer_stuck is not None or math.isfinite(f.torque_limit)):
             raise ScenarioError(f"{p}: [wheels.{wname}] a raised wheel has no ground contact: its other failure "
                                 "keys have no effect; remove them")
+        if spec is not None:
+            _check_against_rover_file(p, wname, f, spec)
         failures[wname] = f
     if sum(f.raised for f in failures.values()) > 1:
         raise ScenarioError(f"{p}: more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
@@ -518,8 +609,8 @@ def load_scenario(path: str | Path) -> Scenario:
     if "trench" in data:
         tv = _section(p, data["trench"], "trench", _TRENCH_KEYS, "wheel",
                       "the trench goal is a table, e.g. [trench] wheel = \"RR\", clean_side = true, min_depth_m = 0.02")
-        if tv["wheel"] not in WHEELS:
-            raise ScenarioError(f"{p}: [trench] wheel = {tv['wheel']!r}; use one of {list(WHEELS)}")
+        if tv["wheel"] not in wheel_names:
+            raise ScenarioError(f"{p}: [trench] wheel = {tv['wheel']!r}; use one of {list(wheel_names)}")
         if failures.get(tv["wheel"], WheelFailure()).raised:
             raise ScenarioError(f"{p}: [trench] wheel {tv['wheel']} is raised and cannot dig")
         min_depth = tv.get("min_depth_m", 0.0)
@@ -543,7 +634,24 @@ def load_scenario(path: str | Path) -> Scenario:
                       if any(r is not None and r != params.wheel.radius for r in radius) else None),
         steer_offset=tuple(offset) if any(offset) else None,
         hub_contact=_hub_contact(p, data["hub_contact"]) if "hub_contact" in data else None,
+        rover_file=spec,
     )
+
+
+def _check_against_rover_file(p: Path, wname: str, f: WheelFailure, spec: RoverSpec) -> None:
+    """A wheel's failures that the rover file's wheel or suspension cannot have."""
+    w = spec.wheel(wname)
+    where = f"{p}: [wheels.{wname}]"
+    if f.raised and spec.suspension != "rocker":
+        raise ScenarioError(f"{where} raised: a raised wheel is modelled for the 'rocker' suspension only, not the rover "
+                            f"file's {spec.suspension!r}")
+    if f.steer_stuck is not None:
+        if not w.steerable:
+            raise ScenarioError(f"{where} steer_stuck_deg: wheel {wname} of rover {spec.name!r} is not steerable (its "
+                                "heading is fixed straight ahead)")
+        if not w.steer_min - 1e-12 <= f.steer_stuck <= w.steer_max + 1e-12:
+            raise ScenarioError(f"{where} steer_stuck_deg = {math.degrees(f.steer_stuck):g} outside the rover file's "
+                                f"steering range [{math.degrees(w.steer_min):g}, {math.degrees(w.steer_max):g}] deg")
 
 
 def section_table(path: Path, t: Any, name: str, known: Iterable[str], required: str, what: str,

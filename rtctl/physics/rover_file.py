@@ -68,7 +68,7 @@ from typing import Any, Mapping
 from .parameters import ParameterError, read_toml
 
 __all__ = ["RoverFileError", "WheelSpec", "LinkSpec", "ActuatorLimits", "RoverSpec", "load_rover_file",
-           "parse_rover", "SHIPPED_ROVERS", "shipped_rover", "SUSPENSION_KINDS"]
+           "parse_rover", "SHIPPED_ROVERS", "shipped_rover", "SUSPENSION_KINDS", "driving_backward"]
 
 SUSPENSION_KINDS: tuple[str, ...] = ("rocker", "rocker_bogie", "rigid")
 """The suspension kinds a rover file may name (module docstring)."""
@@ -532,6 +532,38 @@ def load_rover_file(path: str | Path) -> RoverSpec:
     """
     p = Path(path)
     return parse_rover(read_toml(p, RoverFileError, "rover file"), str(p))
+
+
+def driving_backward(spec: RoverSpec) -> RoverSpec:
+    """The rover turned half round about the vertical: the file's rover driving backward.
+
+    The optimizer's frames are tied to the travel direction (x forward along it, Fig. 7.2), so
+    driving backward is driving forward with the body turned by 180 deg about z: every wheel
+    centre, link pivot and the centre of mass ``(x, y, z) -> (-x, -y, z)``. Wheel names stay,
+    so a rear wheel of the file leads and the file's right side is on the left of the travel
+    direction (Spirit's dragged right-front wheel trails). Steering angles are rotations about
+    z, which the half turn leaves unchanged: a wheel's steering range and a stuck angle keep
+    their values (measured from the body's own +x, now pointing backward, the wheel's heading is
+    the same physical direction). Link names stay (a link's side follows its pivot's ``y``).
+
+    Parameters
+    ----------
+    spec : RoverSpec
+        The rover as its file describes it.
+
+    Returns
+    -------
+    RoverSpec
+        The turned rover; ``name`` gains ``" (backward)"``.
+    """
+    from dataclasses import replace
+
+    def turn(v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return -v[0] + 0.0, -v[1] + 0.0, v[2]
+
+    return replace(spec, name=f"{spec.name} (backward)", centre_of_mass=turn(spec.centre_of_mass),
+                   links=tuple(replace(lk, pivot=turn(lk.pivot)) for lk in spec.links),
+                   wheels=tuple(replace(w, position=turn(w.position)) for w in spec.wheels))
 
 
 def shipped_rover(name: str) -> RoverSpec:

@@ -112,6 +112,17 @@ class FourWheelRocker:
     pitch_includes_wheel_torque: bool = True
     wheels: tuple[str, ...] = WHEELS
 
+    @property
+    def balance_names(self) -> tuple[str, ...]:
+        """Names of the rows :meth:`balance` returns (:data:`BALANCE_NAMES`), as
+        :attr:`rtctl.physics.suspension.SuspensionStatics.balance_names`."""
+        return BALANCE_NAMES
+
+    @property
+    def contact_rows(self) -> bool:
+        """Raised wheels (``contact``) and the locked pivot (:meth:`pivot_rows`) are modelled."""
+        return True
+
     def wheel_velocity(self, ops: Backend, speed: Any, beta: Any) -> tuple[Any, Any]:
         """Eqs. (7.6)-(7.7) with v_x,rover = speed, v_y,rover = 0."""
         return speed * ops.cos(beta), -speed * ops.sin(beta)

@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 from .backend import NUMPY, Backend
 from .hub_drag import HubFace, hub_wrench
 from .parameters import ParameterError, Record, SoilLike, record
-from .statics import BALANCE_NAMES, FourWheelRocker
+from .statics import FourWheelRocker
+from .suspension import SuspensionStatics
 from .terramechanics import ModelOptions, PhysParams, _SoilView, _WheelView, wrench_core
 
 __all__ = ["SteadyStateModel", "steady_state_rows", "with_hub", "SteadyStateResidual", "WHEEL_VARIABLES"]
@@ -59,8 +60,11 @@ class SteadyStateModel:
         Per wheel r_s = r + h_g, m (the zero-slip wheel speed is ``speed / r_s``).
     options : ModelOptions
         Exit-angle model and smoothings of the wheel model.
-    statics : FourWheelRocker
-        Balance (7.12)-(7.18).
+    statics : FourWheelRocker or SuspensionStatics
+        Balance (7.12)-(7.18): the mini rover's :class:`~rtctl.physics.statics.FourWheelRocker`,
+        or the balance a rover file's suspension implies
+        (:class:`~rtctl.physics.suspension.SuspensionStatics`); its ``balance_names`` are the
+        layout's balance rows.
     soil : SoilLike
         The soil (for the hub drag).
     hub : HubFace or None
@@ -77,7 +81,7 @@ class SteadyStateModel:
     phys: tuple[PhysParams, ...]
     shearing_radius: tuple[float, ...]
     options: ModelOptions
-    statics: FourWheelRocker
+    statics: FourWheelRocker | SuspensionStatics
     soil: SoilLike
     hub: HubFace | None = None
     external: tuple[float, float, float] | None = None
@@ -194,7 +198,10 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
         Physical decision variables.
     P : mapping parameter name -> value
         ``speed``, ``slope``, ``cross_slope``, ``fy_offset``, ``mz_offset``, ``contact <wheel>``,
-        ``pivot_locked`` (:data:`rtctl.layout.PARAMETERS`).
+        ``pivot_locked`` (:data:`rtctl.layout.PARAMETERS`). With a statics whose
+        ``contact_rows`` is False (a rover file's ``rocker_bogie`` or ``rigid`` suspension)
+        ``contact`` multiplies each wheel's wrench but does not enter the balance geometry,
+        and ``pivot_locked`` is not used.
     wrenches : sequence, optional
         The soil wrenches (hub drag not included) of the blocks ``[wheel 0, its zero-slip
         state, wheel 1, ...]`` if already evaluated (the structured differences of
@@ -241,10 +248,11 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
             rows[f"trench clean-side pile {k}"] = tq["A_R2_margin"]
             rows[f"trench depth {k}"] = tq["d"]
             rows[f"trench flat width {k}"] = tq["p"]
-    bal = st.balance(ops, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"], P["cross_slope"], contact,
-                     model.external)
-    bal["My_right"], bal["My_left"] = st.pivot_rows(bal, P["pivot_locked"])
-    for n in BALANCE_NAMES:
+    bal = st.balance(ops, wr, beta, h, load, P["slope"], P["fy_offset"], P["mz_offset"], P["cross_slope"],
+                     contact if st.contact_rows else None, model.external)
+    if st.contact_rows:
+        bal["My_right"], bal["My_left"] = st.pivot_rows(bal, P["pivot_locked"])
+    for n in st.balance_names:
         rows[f"balance {n}"] = bal[n]
     return rows, f / model.torque_scale ** 2, wr
 

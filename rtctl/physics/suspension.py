@@ -220,6 +220,12 @@ class SuspensionStatics:
         compat = [f"height_compatibility_{k}" for k in range(self._compat.shape[0])]
         return ("Fx", "Fy", "Fz", "Mx", *pitch, "Mz", *compat)
 
+    @property
+    def contact_rows(self) -> bool:
+        """Raised wheels (``contact``) and the locked pivot (:meth:`pivot_rows`) are modelled:
+        the ``rocker`` kind only (module docstring)."""
+        return self.rover.suspension == "rocker"
+
     # ------------------------------------------------------------------ kinematics
     def wheel_velocity(self, ops: Backend, speed: Any, beta: Any) -> tuple[Any, Any]:
         """Eqs. (7.6)-(7.7) with v_x,rover = speed, v_y,rover = 0 (no yaw rate: every wheel alike).

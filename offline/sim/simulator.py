@@ -272,8 +272,25 @@ class RoverSimulator:
     def _solve(self, inv_dt: float) -> None:
         base_mode, base_torque = self.act.drive_modes()
         self.mode, self.torque = base_mode.copy(), base_torque.copy()
+        z_last: NDArray[np.float64] | None = None
         for _ in range(6):  # active set of the torque limits
-            z, sol = self.plant.solve(self.z, self._inputs(inv_dt), self.q, self._d)
+            try:
+                z, sol = self.plant.solve(self.z, self._inputs(inv_dt), self.q, self._d)
+            except SimulationError:
+                if z_last is None:
+                    raise
+                # the drive modes changed: start from the last active set's root instead, and
+                # failing that with the wheels now held at their torque limit nearly stalled (a
+                # motor at its limit against a wheel at slip 1 on a rover at rest turns it at the
+                # speed where the resting soil's moment drops to the limit, see plant._stiction)
+                try:
+                    z, sol = self.plant.solve(z_last, self._inputs(inv_dt), self.q, self._d)
+                except SimulationError:
+                    zs = z_last.copy()
+                    held = (self.mode == 0) & (base_mode == 1)
+                    zs[3:7] = np.where(held, 1e-3 * zs[3:7], zs[3:7])
+                    z, sol = self.plant.solve(zs, self._inputs(inv_dt), self.q, self._d)
+            z_last = z
             self.newton_iterations += sol.iterations
             motor = self._motor(sol, inv_dt)
             changed = False

@@ -93,7 +93,10 @@ _SOIL_FIELDS = ("k", "n0", "n1", "n2", "phi", "rho", "c", "K", "repose")
 
 
 class SimulationError(RuntimeError):
-    """The plant could not be advanced (no equilibrium found); the message gives time and state."""
+    """The plant could not be advanced (no equilibrium found); the message gives time and state,
+    ``z`` (when set) the unknowns where Newton's method stopped."""
+
+    z: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -349,7 +352,10 @@ class PlantModel:
             try:
                 dz = np.linalg.solve(J, -res)
             except np.linalg.LinAlgError:
-                dz = np.linalg.lstsq(J, -res, rcond=None)[0]
+                try:
+                    dz = np.linalg.lstsq(J, -res, rcond=None)[0]
+                except np.linalg.LinAlgError:  # a non-finite Jacobian: no Newton step from here
+                    break
             # keep log-sinkage steps modest (the wrench is smooth but strongly nonlinear in h)
             big = np.max(np.abs(dz[7:]))
             lam = 1.0 if big < 1.0 else 1.0 / big
@@ -365,10 +371,12 @@ class PlantModel:
                 break
             z, res, J, w, sl, be, norm = zt, rt, Jt, wt, slt, bet, nt
         if not (norm <= 1e-7 and np.all(np.isfinite(z))):
-            raise SimulationError(
+            err = SimulationError(
                 f"no equilibrium of the rover found (max scaled residual {norm:.3g} after {it} Newton iterations; "
                 f"body velocity u={z[0]:.4g} v={z[1]:.4g} r={z[2]:.4g}, sinkages {np.exp(z[7:11])}): the terrain or "
                 "commands are outside what the wheels can carry; reduce the slope or the step size")
+            err.z = z
+            raise err
         contact = np.asarray(a[25:29]) if len(a) > 25 else np.ones(4)
         sol = PlantSolution(float(z[0]), float(z[1]), float(z[2]), z[3:7].copy(), np.exp(z[7:11]) * contact,
                             np.exp(z[11:15]) * contact, w.reshape(4, 6), sl.ravel(), be.ravel(), it, norm)

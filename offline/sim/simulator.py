@@ -349,7 +349,10 @@ class RoverSimulator:
             self.act.omega_servo, self.act.steer = om_0 + trial * (om_t - om_0), trial * st_t
             z_keep = self.z.copy()
             try:
-                self._solve(0.0)
+                try:
+                    self._solve(0.0)
+                except SimulationError:
+                    self._solve_exact_or_from_rest(0.0, z_keep)  # the fallbacks of a failed step (see step)
                 solved, lam = True, trial
                 step *= 2.0
             except SimulationError:
@@ -447,8 +450,11 @@ class RoverSimulator:
 
     def _raise_if_dug_in(self, z: NDArray[np.float64], err: SimulationError) -> None:
         """Raise :class:`RoverStuck` when a step failed with a wheel on the ground sunk deeper than
-        its shearing radius (the wheel model's domain ends at an entry angle of 90 deg)."""
+        its shearing radius (the wheel model's domain ends at an entry angle of 90 deg), at the
+        step's start ``z`` or where the first failed Newton solve stopped (``err.z``)."""
         h = np.exp(z[7:11]) * self.contact
+        if err.z is not None and np.all(np.isfinite(err.z[7:11])):
+            h = np.maximum(h, np.exp(err.z[7:11]) * self.contact)
         deep = [i for i in range(4) if h[i] > self.rs_true[i]]
         if not deep:
             return
@@ -457,6 +463,25 @@ class RoverSimulator:
         raise RoverStuck(f"t={self.t + self.dt:.6g} s: the rover is stuck, dug in: {what}, deeper than the wheel's "
                          f"{1e3 * float(self.rs_true[deep[0]]):.0f} mm shearing radius, where the wheel model ends "
                          f"(x = {self.x:.3f} m; {err})")
+
+    def _solve_exact_or_from_rest(self, inv_dt: float, z0: NDArray[np.float64]) -> None:
+        """Solve from ``z0`` with the exact Jacobian, then from the rover at rest with the same
+        sinkages (a creep of ``STICTION_SPEED / 10``); raise the last failure."""
+        self.plant.rocker_jacobian = True
+        try:
+            for from_rest in (False, True):
+                self.z = z0.copy()
+                if from_rest:
+                    self.z[0:3] = (0.1 * STICTION_SPEED, 0.0, 0.0)
+                try:
+                    self._solve(inv_dt)
+                    return
+                except SimulationError:
+                    if from_rest:
+                        self.z = z0.copy()
+                        raise
+        finally:
+            self.plant.rocker_jacobian = False
 
     SUBSTEPS = (2, 4, 8, 16)
     """Sub-step counts tried, in order, for a step whose Newton solve fails (see :meth:`step`)."""

@@ -124,15 +124,18 @@ def test_rocker_jacobian_matches_finite_differences(raised: bool) -> None:
     assert np.max(np.abs(approx - ref)) > 1e-4
 
 
-@pytest.mark.parametrize("tables", ["shipped", "test"])
-def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: str) -> None:
+@pytest.mark.parametrize("tables,params,wheel", [("shipped", "dissertation-ch7", "FR"), ("test", "dissertation-ch7", "FR"),
+                                                 ("shipped", "calibrated-sand", "FL")])
+def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: str, params: str, wheel: str) -> None:
     """FR locked, no FR table (imposed on the nominal table, flagged), dissertation world: the
     optimizer has no primitive and the rover stalls against the locked wheel (before, the
     simulator raised "no equilibrium of the rover found" on the first stalled step). With the
     shipped tables (another soil) rtctl steers the locked wheel and a wheel sinks below its
     shearing radius: the drive ends there with the reason in the result (``stuck``,
     ``stuck_at_s``). With the world's own test tables the rover creeps to the time limit. Every
-    command is valid and the locked wheel is never driven."""
+    command is valid and the locked wheel is never driven. On the calibrated sand (the shipped
+    tables' own soil) FL locked first failed at the start (a non-finite Jacobian raised
+    LinAlgError); now the start's continuation falls back like a step and the drive digs in."""
     from pathlib import Path
 
     from drive_helpers import FlagRecorder
@@ -141,8 +144,8 @@ def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: st
     from rtctl.config import ControllerConfig
 
     sc = tmp_path / "fr_locked.toml"
-    sc.write_text('[scenario]\nname = "fr_locked"\nparams = "dissertation-ch7"\nspeed_m_s = 0.03\n\n'
-                  '[wheels.FR]\nlocked = true\n')
+    sc.write_text(f'[scenario]\nname = "{wheel.lower()}_locked"\nparams = "{params}"\nspeed_m_s = 0.03\n\n'
+                  f'[wheels.{wheel}]\nlocked = true\n')
     scenario = load_scenario(sc)
     index = None if tables == "shipped" else str(Path(__file__).parent / "data" / "tables" / "index.json")
     rec = FlagRecorder()
@@ -156,5 +159,6 @@ def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: st
     act = ControllerConfig().actuators
     assert all(c.is_valid(act.max_rim_speed, act.max_steer) for c in res.commands)
     flags = {f for tick in rec.flags for f in tick}
-    assert any(f.startswith("no table for the declared failures FR locked") for f in flags), flags
-    assert all(c.rim_speed[0] == 0.0 for c in res.commands[1:])  # the locked wheel is never driven
+    assert any(f.startswith(f"no table for the declared failures {wheel} locked") for f in flags), flags
+    i = ("FR", "FL", "RR", "RL").index(wheel)
+    assert all(c.rim_speed[i] == 0.0 for c in res.commands[1:])  # the locked wheel is never driven

@@ -352,9 +352,11 @@ class PlantModel:
             try:
                 dz = np.linalg.solve(J, -res)
             except np.linalg.LinAlgError:
+                if not np.all(np.isfinite(J)):  # a non-finite Jacobian: no Newton step from here
+                    break
                 try:
                     dz = np.linalg.lstsq(J, -res, rcond=None)[0]
-                except np.linalg.LinAlgError:  # a non-finite Jacobian: no Newton step from here
+                except np.linalg.LinAlgError:
                     break
             # keep log-sinkage steps modest (the wrench is smooth but strongly nonlinear in h)
             big = np.max(np.abs(dz[7:]))

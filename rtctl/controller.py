@@ -447,17 +447,25 @@ class Controller:
         flags: list[str] = []
         if matches:
             return (self.config.default_table if self.config.default_table in matches else matches[0]), flags
-        if self._task is not None:
+        # No exact match: the table built for the most of the declared failures (and the task, if
+        # its table is among them), the rest imposed on it from their descriptions; none: the
+        # default table with every failure imposed.
+        subsets = sorted((-len(sig), name) for name, sig in self.signatures.items() if sig and sig < declared)
+        name = subsets[0][1] if subsets else self.default_table
+        if self._task is not None and (self._task.wheel, self._task.kind) not in self.signatures[name]:
             flags.append(f"no table for the declared task {self._task.kind} {self._task.wheel} with failures "
-                         f"{sorted(self._failures) or 'none'}: driving on table {self.default_table}")
+                         f"{sorted(self._failures) or 'none'}: driving on table {name}")
         if self._failures:
             self._count("unmatched_failure_preparations")
             unknown = sorted({k for _, k in self._failures if k not in self.kinds})
             if unknown:
                 self._count("unknown_failure_kind_preparations")
+            own = self.signatures[name]
+            rest = {wk: v for wk, v in self._failures.items() if wk not in own}
+            built = f" (built for {_describe_failures({wk: v for wk, v in self._failures.items() if wk in own})})" if own else ""
             flags.append(f"no table for the declared failures {_describe_failures(self._failures)}: driving on table "
-                         f"{self.default_table} with {_imposed(self._failures, self.kinds)}")
-        return self.default_table, flags
+                         f"{name}{built} with {_imposed(rest, self.kinds) if rest else 'nothing more imposed'}")
+        return name, flags
 
     def prepare(self) -> None:
         """Preparation phase: choose and interpolate the table, load the QP's matrices."""

@@ -57,6 +57,10 @@ def test_two_unmatched_failures_are_both_named(tables):
     flag = [f for f in d.flags if f.startswith("no table for the declared failures")][0]
     assert "FL rim_speed_cap" in flag and "RR steer_stuck" in flag and "rim_speed <= v" in flag
     assert cmd.rim_speed[1] <= 0.018 + 1e-12 and cmd.steer_angle[2] == pytest.approx(-50 * DEG, abs=1e-9)
+    # the table built for one of the two (read at the declared stuck angle), the other imposed on it
+    assert d.table == "rr_steer_stuck" and dict(d.operating_point)["steer_stuck"] == pytest.approx(-50 * DEG)
+    assert "driving on table rr_steer_stuck (built for RR steer_stuck" in flag
+    assert flag.split(" with ", 1)[1].startswith("FL rim_speed_cap") and "RR steer_stuck:" not in flag
 
 
 def test_matched_failure_is_not_flagged(tables):

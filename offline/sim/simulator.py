@@ -457,6 +457,14 @@ class RoverSimulator:
             h = np.maximum(h, np.exp(err.z[7:11]) * self.contact)
         deep = [i for i in range(4) if h[i] > self.rs_true[i]]
         if not deep:
+            hg = self.truth.params.wheel.grouser_height
+            zz = err.z if err.z is not None and np.all(np.isfinite(err.z[7:11])) else z
+            light = [i for i in range(4) if self.contact[i] and np.exp(zz[7 + i]) < 1.1 * hg]
+            if light:
+                what = ", ".join(f"{WHEELS[i]} {1e3 * np.exp(zz[7 + i]):.1f} mm" for i in light)
+                raise SimulationError(f"t={self.t + self.dt:.6g} s: a wheel is unloading ({what}: sinkage at the "
+                                      f"{1e3 * hg:.0f} mm grouser height, almost no load); the plant does not model a "
+                                      f"wheel lifting off the ground ({err})") from None
             return
         slip = self.sol.slip if self.sol is not None else np.full(4, math.nan)
         what = ", ".join(f"{WHEELS[i]} {1e3 * h[i]:.1f} mm at slip {slip[i]:.2f}" for i in deep)

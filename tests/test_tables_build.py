@@ -241,6 +241,30 @@ def test_refinement_inserts_the_midpoint_of_a_poor_cell_within_the_point_budget(
     assert p2.read_bytes() == path.read_bytes()
 
 
+def test_refinement_reindexes_the_grid_points_a_record_names(tmp_path):
+    """A refined table's speed twins (and retry / neighbour-pass sources) name grid points of the
+    refined grid: before issue 22's fix they kept the base grid's flat indices, so after a slope
+    was inserted the 10 deg, 4 cm/s point named the new 5 deg, 2 cm/s point as its twin."""
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=2,4", build=FAST,
+                      refine=RefineOptions(tol=0.05, max_points=6))
+    path, _ = build_table(spec, tmp_path, progress=False)
+    t = load_table(path)
+    assert len(t.axes["slope"]) == 3
+    twins = t.header["speed_twins"]
+    assert twins
+    shape = t.shape
+    ia = t.axis_order.index("speed")
+    for f, g in twins.items():
+        i, j = np.unravel_index(int(f), shape), np.unravel_index(int(g), shape)
+        assert j[ia] == 0 and i[ia] > 0 and all(i[k] == j[k] for k in range(len(shape)) if k != ia), (f, g)
+    for name in ("retried_from", "polished_from"):
+        src = t.arrays[name]
+        for idx in zip(*np.nonzero(src >= 0)):
+            assert int(src[idx]) < int(np.prod(shape)) and t.status_at(tuple(int(v) for v in np.unravel_index(int(src[idx]), shape))) == "optimal"
+
+
 def test_refinement_options_are_checked():
     from offline.rover.table_refine import RefineOptions
 

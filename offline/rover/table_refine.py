@@ -89,6 +89,16 @@ def _sample(n: int, k: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, n - 1, k)})
 
 
+LINK_FIELDS = ("speed_twin_of", "retried_from", "polished_from")
+"""Record fields that name another grid point by its flat index (re-indexed by :func:`refine_grid`;
+the free text of ``evidence`` and ``continued_from`` keeps the base grid's indices)."""
+
+
+def _links_of(rec: Mapping[str, Any], grid: GridSpec, names: tuple[str, ...]) -> dict[str, Key]:
+    """The :data:`LINK_FIELDS` of ``rec`` (flat indices of ``grid``) as operating points."""
+    return {k: _key(grid.point(int(rec[k])), names) for k in LINK_FIELDS if k in rec and int(rec[k]) >= 0}
+
+
 def _mid_task(spec: TableSpec, op: dict[str, float], x0: Any) -> dict[str, Any]:
     return _solve_point(spec, 0, x0, op=op, data=False)
 
@@ -183,6 +193,11 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
     names = spec.grid.names
     axes = {k: list(v) for k, v in spec.grid.axes}
     store: dict[Key, dict[str, Any]] = {_key(spec.grid.point(f), names): r for f, r in recs.items()}
+    # grid points a record names by flat index (speed twin, retry and neighbour-pass sources) are
+    # kept by operating point and re-indexed in the refined grid at the end
+    links: dict[Key, dict[str, Key]] = {}
+    for f, r in recs.items():
+        links[_key(spec.grid.point(f), names)] = _links_of(r, spec.grid, names)
     cells = {a: list(zip(v[:-1], v[1:])) for a, v in axes.items()}
     checks: list[Any] = []
     inserted: dict[str, list[float]] = {a: [] for a in names}
@@ -245,6 +260,7 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
         if rjobs:
             for op_t, rec in _cached_run(ck, ex, "rpt", rjobs, progress, f"{spec.name} refine {rnd + 1}: retries").items():
                 rec = dict(rec)
+                links[op_t] = _links_of(rec, grid, names)
                 if rec["status"] != "optimal":
                     rec["evidence"] = {"first attempt": store[op_t].get("evidence"), **(rec.get("evidence") or {})}
                 store[op_t] = rec
@@ -252,8 +268,11 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
                  for a in names}
     out = {}
     for f in range(spec.grid.size):
-        rec = dict(store[_key(spec.grid.point(f), names)])
+        key = _key(spec.grid.point(f), names)
+        rec = {k: v for k, v in store[key].items() if k not in LINK_FIELDS}
         rec["flat"] = f
+        for k, target in links.get(key, {}).items():
+            rec[k] = int(np.ravel_multi_index(tuple(axes[a].index(v) for a, v in zip(names, target)), spec.grid.shape))
         out[f] = rec
     info = {"tolerance_per_scale": opt.tol, "max_points": opt.max_points, "rounds": opt.rounds, "samples": opt.samples,
             "base_axes": {a: [v for v in axes[a] if v not in inserted[a]] for a in names},

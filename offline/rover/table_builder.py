@@ -1207,7 +1207,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
 
         _run(todo, ex, chain_done)
         pending = {f for f in recs if recs[f].get("pending")}
-        relax_known = {f: recs[f].get("relaxation_status") for f in recs if recs[f].get("relaxation_status")}
+        relax_known = {tuple(spec.grid.point(f).values()): recs[f]["relaxation_status"] for f in recs
+                       if recs[f].get("relaxation_status")}  # by operating point: refinement re-indexes
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
         if continuation:  # one member of a speed-twin group is retried; the search carries its result
@@ -1245,20 +1246,22 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
             relaxed = _relaxation_pass(spec, recs, ck, ex)
-        if continuation:
-            from .table_continuation import hole_reason
-
-            for f in sorted(recs):
-                if recs[f]["status"] == "not_found":
-                    ev = dict(recs[f].get("evidence") or {})
-                    ev["undecided"] = hole_reason(spec, f, relax_known.get(f))
-                    recs[f] = {**recs[f], "evidence": ev}
         refinement = None
         if spec.refine is not None:
             from .table_refine import refine_grid
 
             bar.close()
             spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
+            if spec.build.relaxation_evidence:  # the points refinement added get the same evidence
+                relaxed += _relaxation_pass(spec, recs, ck, ex)
+        if continuation:
+            from .table_continuation import hole_reason
+
+            for f in sorted(recs):
+                if recs[f]["status"] == "not_found":
+                    ev = dict(recs[f].get("evidence") or {})
+                    ev["undecided"] = hole_reason(spec, f, relax_known.get(tuple(spec.grid.point(f).values())))
+                    recs[f] = {**recs[f], "evidence": ev}
     finally:
         bar.close()
         if executor is None:

@@ -265,6 +265,33 @@ def test_refinement_reindexes_the_grid_points_a_record_names(tmp_path):
             assert int(src[idx]) < int(np.prod(shape)) and t.status_at(tuple(int(v) for v in np.unravel_index(int(src[idx]), shape))) == "optimal"
 
 
+def test_refinement_midpoint_solve_starts_warm_from_the_corners(nominal):
+    """A cell midpoint's direct solve (issue 22) runs one warm IPOPT run from each corner's
+    predicted primal-dual start before any search: at 2.5 deg between the fixture's 0 and 5 deg
+    points it lands, within a few iterations, on the optimizer's own primitive there."""
+    from offline.rover.primitives import solve_primitive
+    from offline.rover.table_builder import predicted_start
+    from offline.rover.table_refine import _mid_task
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+    lo, hi = (next(f for f in range(spec.grid.size) if spec.grid.point(f)["speed"] == 0.02
+                   and math.isclose(spec.grid.point(f)["slope"], s)) for s in (0.0, math.radians(5.0)))
+    op = {**spec.grid.point(lo), "slope": math.radians(2.5)}
+    corners = []
+    for f in (lo, hi):
+        idx = np.unravel_index(f, t.shape)
+        rec = {"data": {k: t.arrays[k][idx] for k in ("x", "dx_dp")}}
+        corners.append((predicted_start(spec, rec, spec.grid.point(f), op), t.arrays["lam_x"][idx] * xsc,
+                        t.arrays["lam_g"][idx] * csc))
+    r = _mid_task(spec, op, corners[0][0], tuple(corners))
+    assert r["status"] == "optimal" and r["iterations"] <= 30, r["iterations"]
+    ref = solve_primitive(scenario_at(spec.scenario, spec.family, op), spec.solver)
+    assert ref.status == "optimal"
+    np.testing.assert_allclose(r["x_scaled"], ref.x, atol=1e-6)
+
+
 def test_refinement_options_are_checked():
     from offline.rover.table_refine import RefineOptions
 

@@ -241,6 +241,57 @@ def test_refinement_inserts_the_midpoint_of_a_poor_cell_within_the_point_budget(
     assert p2.read_bytes() == path.read_bytes()
 
 
+def test_refinement_reindexes_the_grid_points_a_record_names(tmp_path):
+    """A refined table's speed twins (and retry / neighbour-pass sources) name grid points of the
+    refined grid: before issue 22's fix they kept the base grid's flat indices, so after a slope
+    was inserted the 10 deg, 4 cm/s point named the new 5 deg, 2 cm/s point as its twin."""
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(NOMINAL, grid="slope=0,10;cross_slope=0;speed=2,4", build=FAST,
+                      refine=RefineOptions(tol=0.05, max_points=6))
+    path, _ = build_table(spec, tmp_path, progress=False)
+    t = load_table(path)
+    assert len(t.axes["slope"]) == 3
+    twins = t.header["speed_twins"]
+    assert twins
+    shape = t.shape
+    ia = t.axis_order.index("speed")
+    for f, g in twins.items():
+        i, j = np.unravel_index(int(f), shape), np.unravel_index(int(g), shape)
+        assert j[ia] == 0 and i[ia] > 0 and all(i[k] == j[k] for k in range(len(shape)) if k != ia), (f, g)
+    for name in ("retried_from", "polished_from"):
+        src = t.arrays[name]
+        for idx in zip(*np.nonzero(src >= 0)):
+            assert int(src[idx]) < int(np.prod(shape)) and t.status_at(tuple(int(v) for v in np.unravel_index(int(src[idx]), shape))) == "optimal"
+
+
+def test_refinement_midpoint_solve_starts_warm_from_the_corners(nominal):
+    """A cell midpoint's direct solve (issue 22) runs one warm IPOPT run from each corner's
+    predicted primal-dual start before any search: at 2.5 deg between the fixture's 0 and 5 deg
+    points it lands, within a few iterations, on the optimizer's own primitive there."""
+    from offline.rover.primitives import solve_primitive
+    from offline.rover.table_builder import predicted_start
+    from offline.rover.table_refine import _mid_task
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+    lo, hi = (next(f for f in range(spec.grid.size) if spec.grid.point(f)["speed"] == 0.02
+                   and math.isclose(spec.grid.point(f)["slope"], s)) for s in (0.0, math.radians(5.0)))
+    op = {**spec.grid.point(lo), "slope": math.radians(2.5)}
+    corners = []
+    for f in (lo, hi):
+        idx = np.unravel_index(f, t.shape)
+        rec = {"data": {k: t.arrays[k][idx] for k in ("x", "dx_dp")}}
+        corners.append((predicted_start(spec, rec, spec.grid.point(f), op), t.arrays["lam_x"][idx] * xsc,
+                        t.arrays["lam_g"][idx] * csc))
+    r = _mid_task(spec, op, corners[0][0], tuple(corners))
+    assert r["status"] == "optimal" and r["iterations"] <= 30, r["iterations"]
+    ref = solve_primitive(scenario_at(spec.scenario, spec.family, op), spec.solver)
+    assert ref.status == "optimal"
+    np.testing.assert_allclose(r["x_scaled"], ref.x, atol=1e-6)
+
+
 def test_refinement_options_are_checked():
     from offline.rover.table_refine import RefineOptions
 
@@ -283,6 +334,34 @@ def test_predicted_start_is_exact_in_speed_and_the_neighbour_pass_takes_only_bet
     rec = polish_point(spec, 1, f1, [(0, x0)], x_now=higher)
     assert rec is not None and np.allclose(rec["x_scaled"], x_true, atol=1e-6)
     assert polish_point(spec, 1, f1, [(0, x0)], x_now=lower) is None
+
+
+def test_warm_neighbour_pass_run_reaches_the_same_optimum_in_fewer_iterations(nominal):
+    """The neighbour pass's warm start (issue 22, ``build.polish_warm``): from the 0 deg
+    neighbour's predicted start with that neighbour's multipliers, the 5 deg point's primitive is
+    found again (told its objective were 1 higher, so the run's result is returned) in fewer
+    IPOPT iterations than the cold run from the same primal start, within ``polish_max_iter``."""
+    from offline.rover.table_builder import polish_point, predicted_start
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    xsc, csc = t.layout.variable_scale, t.layout.constraint_scale
+    src = next(f for f in range(spec.grid.size) if spec.grid.point(f)["slope"] == 0.0
+               and spec.grid.point(f)["speed"] == 0.02)
+    dst = next(f for f in range(spec.grid.size) if spec.grid.point(f)["slope"] > 0.0
+               and spec.grid.point(f)["speed"] == 0.02)
+    i0, i1 = np.unravel_index(src, t.shape), np.unravel_index(dst, t.shape)
+    rec0 = {"data": {k: t.arrays[k][i0] for k in ("x", "dx_dp")}}
+    x0 = predicted_start(spec, rec0, spec.grid.point(src), spec.grid.point(dst))
+    lam = (t.arrays["lam_x"][i0] * xsc, t.arrays["lam_g"][i0] * csc)  # IPOPT's scaled multipliers
+    f1 = float(t.arrays["objective"][i1])
+    cold = polish_point(spec, dst, f1 + 1.0, [(src, x0)])
+    warm = polish_point(spec, dst, f1 + 1.0, [(src, x0, *lam)])
+    assert cold is not None and warm is not None
+    np.testing.assert_allclose(warm["x_scaled"], t.arrays["x"][i1] / xsc, atol=1e-6)
+    np.testing.assert_allclose(cold["x_scaled"], warm["x_scaled"], atol=1e-6)
+    assert warm["iterations"] < cold["iterations"], (warm["iterations"], cold["iterations"])
+    assert warm["iterations"] <= spec.build.polish_max_iter
 
 
 def test_upgrade_of_a_schema_1_file_computes_the_same_cross_derivative(nominal, tmp_path):

@@ -9,6 +9,7 @@ verdict decides a whole operating point without a search; what stays ``not_found
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -198,3 +199,37 @@ def test_relaxation_pass_keeps_a_feasible_relaxations_verdict(scenario_file, tmp
     assert ck.load("relax", next(iter(p.stem.split("_", 1)[1] for p in (tmp_path / ".relax").glob("relax_*.npz"))))[0][
         "verdict"] == "optimal"
     assert TB._relaxation_pass(spec, recs, ck, None) == 0  # from the checkpoint
+
+
+def test_points_added_by_refinement_get_the_relaxation_evidence(tmp_path, monkeypatch):
+    """A grid point inserted by refinement and left ``not_found`` goes through the relaxation pass
+    like the base grid's (issue 22: the refined rr_unpowered had 6 ``not_found`` points at 25 deg,
+    cross slopes refinement added, where the base grid's were ``infeasible`` by their relaxation).
+    The refinement and the relaxation's verdict are faked (no solve): what is tested is the
+    builder's bookkeeping after refinement."""
+    from offline.rover import table_refine as TR
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(ROOT / "tables" / "scenarios" / "rr_locked.toml", grid="slope=25;cross_slope=0;speed=3",
+                      build=FAST, refine=RefineOptions(tol=0.5, max_points=2))
+    asked: list[float] = []
+
+    def verdict(spec_, op):
+        asked.append(round(math.degrees(op["slope"]), 6))
+        return {"status": "infeasible", "evidence": {"verdict": "no primitive: test"}}
+
+    def refine(spec_, recs, ck, ex, progress=True):  # inserts 20 deg, left not_found (as a failed retry leaves it)
+        grid = TB.parse_grid("slope=20,25;cross_slope=0;speed=3", spec_.grid)
+        new = {0: {"flat": 0, "status": "not_found", "iterations": 3, "evidence": {"retries": ["test"]}},
+               1: {**recs[0], "flat": 1}}
+        return replace(spec_, grid=grid), new, {"tolerance_per_scale": 0.5, "inserted": {"slope": [0.349]},
+                                                "checks": [], "stopped": "test"}
+
+    monkeypatch.setattr(TB, "relaxation_verdict", verdict)
+    monkeypatch.setattr(TR, "refine_grid", refine)
+    path, summary = build_table(spec, tmp_path, progress=False)
+    t = load_table(path)
+    assert summary["statuses"] == {"infeasible": 2}
+    assert asked == [25.0, 20.0]  # the base grid's verdict, then the inserted point's
+    ev = t.header["evidence"]["0"]
+    assert ev["relaxation"] == TC.RELAXED_EVIDENCE and ev["table search"] == {"retries": ["test"]}

@@ -330,6 +330,15 @@ class BuildOptions:
     polish_sweeps : int
         Sweeps of the neighbour pass (:func:`polish_point`): a solved point takes a neighbour's
         lower-objective optimum, so adjacent points lie on the same branch (0: off).
+    polish_warm : bool
+        Start each neighbour-pass run from the neighbour's primal-dual point (its primitive
+        moved by its sensitivity, with its multipliers; IPOPT's warm start) instead of the
+        primal point alone with IPOPT's own dual initialisation (issue 22: the cold runs took
+        46 IPOPT iterations each on README's worked example and were the largest phase of its
+        build, ``tests/bench/results_worked_example_i22.md``).
+    polish_max_iter : int
+        IPOPT iterations of one warm neighbour-pass run (``polish_warm``); a run that does not
+        converge within them offers nothing. Cold runs keep the solver's ``max_iter``.
     speed_twins : bool
         Twin pass (:func:`_twin_pass`): points that differ only in speed (one NLP up to the exact
         speed scaling of (7.25)) take the best optimum found at any of their speeds.
@@ -359,6 +368,8 @@ class BuildOptions:
     trust_steps: tuple[float, ...] = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
     active_tol: float = 1e-7
     polish_sweeps: int = 2
+    polish_warm: bool = True
+    polish_max_iter: int = 60
     speed_twins: bool = True
     relaxation_evidence: bool = True
     schedule: str = "continuation"
@@ -833,11 +844,15 @@ def predicted_start(spec: TableSpec, rec: Mapping[str, Any], op_from: Mapping[st
     return (np.asarray(d["x"]) + np.asarray(d["dx_dp"]) @ dp) / lay.variable_scale
 
 
-def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tuple[int, NDArray[np.float64]]],
+def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tuple[Any, ...]],
                  x_now: NDArray[np.float64] | None = None) -> dict[str, Any] | None:
     """Re-solve a solved grid point from each neighbour's predicted start (``(flat, x0)``, fixed
     order; :func:`predicted_start`) and return the record of the best optimum found if it beats
     the current one (``f_now``, scaled ``x_now``), else None.
+
+    A start ``(flat, x0, lam_x, lam_g)`` also carries the neighbour's (scaled) multipliers: that
+    run is IPOPT's warm start from the primal-dual point with ``build.polish_max_iter``
+    iterations (``build.polish_warm``); a 2-tuple start is a cold run with the solver's budget.
 
     Better = lower objective by more than 1e-6 relative; at an equal objective (within that),
     a different point whose steering angles (scaled, in layout order FR, FL, RR, RL) are
@@ -869,8 +884,12 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
         return bool(k.size) and d[k[0]] < 0
 
     best, its = None, 0
-    for nb, x0 in starts:
-        r = pb.solve(b, x0)
+    for start in starts:
+        nb, x0 = start[0], start[1]
+        if len(start) == 4:  # warm: the neighbour's multipliers, a smaller budget
+            r = pb.solve(b, x0, start[2], start[3], max_iter=spec.build.polish_max_iter)
+        else:
+            r = pb.solve(b, x0)
         its += int(r["iterations"])
         if not r["success"] or not better(r["f"], r["x"], f_now, x_now):
             continue
@@ -1188,7 +1207,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
 
         _run(todo, ex, chain_done)
         pending = {f for f in recs if recs[f].get("pending")}
-        relax_known = {f: recs[f].get("relaxation_status") for f in recs if recs[f].get("relaxation_status")}
+        relax_known = {tuple(spec.grid.point(f).values()): recs[f]["relaxation_status"] for f in recs
+                       if recs[f].get("relaxation_status")}  # by operating point: refinement re-indexes
         # retry unsolved points from solved neighbours (phase-1 results only: deterministic)
         unsolved = [f for f in sorted(recs) if recs[f]["status"] in ("not_found", "solver_failure")]
         if continuation:  # one member of a speed-twin group is retried; the search carries its result
@@ -1226,20 +1246,22 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
             relaxed = _relaxation_pass(spec, recs, ck, ex)
-        if continuation:
-            from .table_continuation import hole_reason
-
-            for f in sorted(recs):
-                if recs[f]["status"] == "not_found":
-                    ev = dict(recs[f].get("evidence") or {})
-                    ev["undecided"] = hole_reason(spec, f, relax_known.get(f))
-                    recs[f] = {**recs[f], "evidence": ev}
         refinement = None
         if spec.refine is not None:
             from .table_refine import refine_grid
 
             bar.close()
             spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
+            if spec.build.relaxation_evidence:  # the points refinement added get the same evidence
+                relaxed += _relaxation_pass(spec, recs, ck, ex)
+        if continuation:
+            from .table_continuation import hole_reason
+
+            for f in sorted(recs):
+                if recs[f]["status"] == "not_found":
+                    ev = dict(recs[f].get("evidence") or {})
+                    ev["undecided"] = hole_reason(spec, f, relax_known.get(tuple(spec.grid.point(f).values())))
+                    recs[f] = {**recs[f], "evidence": ev}
     finally:
         bar.close()
         if executor is None:
@@ -1513,7 +1535,9 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
                 got[f] = c[0] if c[0]["status"] != "none" else None
                 continue
             op = spec.grid.point(f)
-            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op)) for nb in _neighbours(shape, f)
+            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op))
+                      + ((recs[nb]["lam_x"], recs[nb]["lam_g"]) if spec.build.polish_warm else ())
+                      for nb in _neighbours(shape, f)
                       if recs[nb]["status"] == "optimal" and not _polish_redundant(spec, recs, f, nb, polished_ever)]
             if starts:
                 tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))

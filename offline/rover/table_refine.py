@@ -89,7 +89,38 @@ def _sample(n: int, k: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, n - 1, k)})
 
 
-def _mid_task(spec: TableSpec, op: dict[str, float], x0: Any) -> dict[str, Any]:
+LINK_FIELDS = ("speed_twin_of", "retried_from", "polished_from")
+"""Record fields that name another grid point by its flat index (re-indexed by :func:`refine_grid`;
+the free text of ``evidence`` and ``continued_from`` keeps the base grid's indices)."""
+
+
+def _links_of(rec: Mapping[str, Any], grid: GridSpec, names: tuple[str, ...]) -> dict[str, Key]:
+    """The :data:`LINK_FIELDS` of ``rec`` (flat indices of ``grid``) as operating points."""
+    return {k: _key(grid.point(int(rec[k])), names) for k in LINK_FIELDS if k in rec and int(rec[k]) >= 0}
+
+
+def _mid_task(spec: TableSpec, op: dict[str, float], x0: Any,
+              corners: tuple[tuple[Any, Any, Any], ...] = ()) -> dict[str, Any]:
+    """A cell midpoint's direct solve: one warm IPOPT run from each corner's predicted start with
+    that corner's multipliers (``corners``: ``(x0, lam_x, lam_g)``, scaled), the first that
+    converges and passes the optimizer's independent check; else the optimizer's search from
+    ``x0`` (the table budgets). Before issue 22 only the search ran: where it missed the primitive
+    the cell counted as a hole (infinite error) and took the point budget first (rr_unpowered)."""
+    from .primitives import check_solution
+    from .table_builder import scenario_at
+
+    if corners:
+        sc = scenario_at(spec.scenario, spec.family, op)
+        pb = _problem(sc, spec.solver)
+        b = pb.bounds(sc)
+        its = 0
+        for xs, lx, lg in corners:
+            r = pb.solve(b, xs, lx, lg)
+            its += int(r["iterations"])
+            if r["success"] and check_solution(pb, sc, r["x"])[1]:
+                return {"flat": 0, "status": "optimal", "iterations": its, "evidence": None,
+                        "x_scaled": np.asarray(r["x"], dtype=float), "lam_x": np.asarray(r["lam_x"], dtype=float),
+                        "lam_g": np.asarray(r["lam_g"], dtype=float), "data": {}}
     return _solve_point(spec, 0, x0, op=op, data=False)
 
 
@@ -183,6 +214,11 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
     names = spec.grid.names
     axes = {k: list(v) for k, v in spec.grid.axes}
     store: dict[Key, dict[str, Any]] = {_key(spec.grid.point(f), names): r for f, r in recs.items()}
+    # grid points a record names by flat index (speed twin, retry and neighbour-pass sources) are
+    # kept by operating point and re-indexed in the refined grid at the end
+    links: dict[Key, dict[str, Key]] = {}
+    for f, r in recs.items():
+        links[_key(spec.grid.point(f), names)] = _links_of(r, spec.grid, names)
     cells = {a: list(zip(v[:-1], v[1:])) for a, v in axes.items()}
     checks: list[Any] = []
     inserted: dict[str, list[float]] = {a: [] for a in names}
@@ -192,11 +228,14 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
         seen: set[Key] = set()
         for a in names:
             for lo, hi in cells[a]:
-                for k_lo, _, k_mid in _cell_combos(spec, axes, store, a, lo, hi):
+                for k_lo, k_hi, k_mid in _cell_combos(spec, axes, store, a, lo, hi):
                     if k_mid not in seen:
                         seen.add(k_mid)
-                        x0 = predicted_start(spec, store[k_lo], dict(zip(names, k_lo)), dict(zip(names, k_mid)))
-                        jobs.append((k_mid, _mid_task, (spec, dict(zip(names, k_mid)), x0)))
+                        op_mid = dict(zip(names, k_mid))
+                        x0 = predicted_start(spec, store[k_lo], dict(zip(names, k_lo)), op_mid)
+                        corners = tuple((predicted_start(spec, store[k], dict(zip(names, k)), op_mid),
+                                         store[k]["lam_x"], store[k]["lam_g"]) for k in (k_lo, k_hi))
+                        jobs.append((k_mid, _mid_task, (spec, op_mid, x0, corners)))
         mids = _cached_run(ck, ex, "mid", jobs, progress, f"{spec.name} refine {rnd + 1}: midpoints")
         errs = cell_errors(spec, axes, store, cells, mids)
         for e in errs:
@@ -245,6 +284,7 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
         if rjobs:
             for op_t, rec in _cached_run(ck, ex, "rpt", rjobs, progress, f"{spec.name} refine {rnd + 1}: retries").items():
                 rec = dict(rec)
+                links[op_t] = _links_of(rec, grid, names)
                 if rec["status"] != "optimal":
                     rec["evidence"] = {"first attempt": store[op_t].get("evidence"), **(rec.get("evidence") or {})}
                 store[op_t] = rec
@@ -252,8 +292,11 @@ def refine_grid(spec: TableSpec, recs: Mapping[int, dict[str, Any]], ck: Any, ex
                  for a in names}
     out = {}
     for f in range(spec.grid.size):
-        rec = dict(store[_key(spec.grid.point(f), names)])
+        key = _key(spec.grid.point(f), names)
+        rec = {k: v for k, v in store[key].items() if k not in LINK_FIELDS}
         rec["flat"] = f
+        for k, target in links.get(key, {}).items():
+            rec[k] = int(np.ravel_multi_index(tuple(axes[a].index(v) for a, v in zip(names, target)), spec.grid.shape))
         out[f] = rec
     info = {"tolerance_per_scale": opt.tol, "max_points": opt.max_points, "rounds": opt.rounds, "samples": opt.samples,
             "base_axes": {a: [v for v in axes[a] if v not in inserted[a]] for a in names},

@@ -79,9 +79,23 @@ def main() -> int:
     ap.add_argument("--grid", help="override the grids.toml grid (display units)")
     ap.add_argument("--schedule", choices=("continuation", "chains"), default="continuation")
     ap.add_argument("--results", help="append the breakdown to this markdown file")
+    ap.add_argument("--keep", help="copy the built table to this file (default: discarded)")
+    ap.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                    help="a BuildOptions field (bool or int), e.g. --set polish_warm=false (repeatable)")
     args = ap.parse_args()
     src = ROOT / "tables" / "scenarios"
-    build = TB.BuildOptions(schedule=args.schedule)
+    overrides: dict[str, Any] = {}
+    for item in args.set:
+        key, _, val = item.partition("=")
+        if key not in TB.BuildOptions.__dataclass_fields__:
+            ap.error(f"--set {item}: no BuildOptions field {key!r}")
+        overrides[key] = {"true": True, "false": False}.get(val.lower(), val)
+        if isinstance(overrides[key], str):
+            try:
+                overrides[key] = int(val)
+            except ValueError:
+                ap.error(f"--set {item}: expected true, false or an integer")
+    build = TB.BuildOptions(schedule=args.schedule, **overrides)
     if args.table.endswith(".toml"):
         grid = args.grid
         spec = TB.table_spec(args.table, grid, build=build)
@@ -143,6 +157,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         path, summary = TB.build_table(spec, tmp, progress=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        if args.keep:
+            import shutil
+
+            shutil.copyfile(path, args.keep)
         t = load_table(path)
         feas = t.status == 0
         radii = []
@@ -151,8 +169,9 @@ def main() -> int:
             v = t.arrays["trust_radius"][feas][:, j]
             u = int(np.sum(t.arrays["trust_unverified"][feas][:, j] > 0))
             radii.append(f"{name} {np.median(v):.3g} / {np.min(v):.3g} ({u} unverified)" if v.size else f"{name} -")
-    lines = [f"### {Path(args.table).stem}, schedule {args.schedule} (grid {grid!r}: {summary['grid_points']} points, "
-             f"{summary['statuses']})", "",
+    lines = [f"### {Path(args.table).stem}, schedule {args.schedule}"
+             + (f", {' '.join('--set ' + s for s in args.set)}" if args.set else "")
+             + f" (grid {grid!r}: {summary['grid_points']} points, {summary['statuses']})", "",
              f"process CPU {cpu:.1f} s, wall {wall:.1f} s (one process); trust radius median / min: "
              + "; ".join(radii), "",
              "| phase | calls | CPU [s] | share | IPOPT runs | IPOPT iterations |", "|---|---|---|---|---|---|"]

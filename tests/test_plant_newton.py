@@ -134,9 +134,12 @@ def test_converged_solves_unchanged_and_line_search_residual_only(driving: Rover
             with pytest.raises(SimulationError):
                 sim.plant.solve(z, a, sim.q, d)
             continue
-        zz, sol = sim.plant.solve(z, a, sim.q, d)
+        trace: list[dict[str, Any]] = []
+        zz, sol = sim.plant.solve(z, a, sim.q, d, trace=trace)
         assert np.array_equal(zz, exp[0]) and sol.iterations == exp[1].iterations
         assert np.array_equal(sol.wrench, exp[1].wrench) and np.array_equal(sol.slip, exp[1].slip)
+        assert len(trace) == 1 + sol.iterations and np.array_equal(trace[-1]["z"], zz)
+        assert trace[-1]["norm"] == sol.residual
         assert count.full <= 1 + sol.iterations + count.residual_only
         shortened += count.residual_only > 0
     assert sum(e is not None for e in expected) >= 25

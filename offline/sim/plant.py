@@ -336,8 +336,19 @@ class PlantModel:
     TOL = 1e-8
 
     def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
-              d: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], PlantSolution]:
+              d: NDArray[np.float64] | None = None, trace: list[dict[str, Any]] | None = None
+              ) -> tuple[NDArray[np.float64], PlantSolution]:
         """Newton's method with backtracking on ``||res||`` from ``z0`` (``d``: see :meth:`evaluate`).
+
+        The line search halves the step from the full Newton step (or the one that moves a
+        log-sinkage by 1) at most 30 times, accepting the first trial point that lowers the max
+        norm (Armijo, 1e-4); shortened trial points are evaluated residual only, and the Jacobian
+        once at the accepted point when another iteration follows, so the iterates are bit for bit
+        those of evaluating every trial with its Jacobian. ``trace`` (a list, optional) receives
+        the start (``trials`` 0) and one entry per iteration: ``norm`` (max scaled residual after
+        it), ``step`` (the accepted step length; 0 where the line search failed, the iterate then
+        unchanged), ``trials`` (trial points evaluated), ``z`` and ``slip`` at the iterate; the
+        solve is the same with or without it.
 
         Raises
         ------
@@ -348,6 +359,8 @@ class PlantModel:
         res, J, w, sl, be = self.evaluate(z, a, q, d)
         res = res.ravel()
         norm = float(np.max(np.abs(res)))
+        if trace is not None:
+            trace.append({"norm": norm, "step": 0.0, "trials": 0, "z": z.copy(), "slip": np.ravel(sl).copy()})
         it = 0
         while norm > self.TOL and it < self.MAX_NEWTON:
             it += 1
@@ -369,7 +382,11 @@ class PlantModel:
                     break
                 lam *= 0.5
             else:
+                if trace is not None:
+                    trace.append({"norm": norm, "step": 0.0, "trials": 30, "z": z.copy(), "slip": np.ravel(sl).copy()})
                 break
+            if trace is not None:
+                trace.append({"norm": nt, "step": lam, "trials": trial + 1, "z": zt.copy(), "slip": np.ravel(slt).copy()})
             if trial and nt > self.TOL and it < self.MAX_NEWTON:
                 # a shortened step accepted and another iteration to come: its Jacobian (the
                 # residual, wrench, slip and slip angle are the same, bit for bit)

@@ -144,7 +144,7 @@ class PlantModel:
         self.residual_function = self._wheel_model._compile(fr, "sim_wheels_residual") if compiled else fr
         so_r = self._wheel_model._so_paths.get(fr.name()) if compiled else None
         self._call_residual = _DenseCall(so_r, fr) if so_r else None
-        self._no_jacobian = np.zeros((6, 40))
+        self._no_jacobian: NDArray[np.float64] = np.zeros((6, 40))
         self.rs_nominal = params.wheel.shearing_radius
 
     def _build(self, jacobian: bool = True) -> Any:

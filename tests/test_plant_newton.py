@@ -17,7 +17,7 @@ import offline.sim.plant as plant_module
 from offline.rover.primitives import solve_primitive
 from offline.rover.scenario import example_scenarios, load_scenario
 from offline.sim.plant import PlantModel, SimulationError
-from offline.sim.simulator import RoverSimulator
+from offline.sim.simulator import RoverSimulator, plant_for
 from rtctl.messages import Commands
 
 WHEELS = ("FR", "FL", "RR", "RL")
@@ -86,9 +86,10 @@ def driving() -> RoverSimulator:
 
 def test_residual_only_evaluation_is_bit_identical(driving: RoverSimulator) -> None:
     """``evaluate(jacobian=False)`` gives the same residual, wrench, slip and slip angle to the bit
-    (steered, disturbed, quasi-static and dynamic, a wheel in torque mode, a raised wheel), and a
-    NaN Jacobian."""
+    (steered, disturbed, quasi-static and dynamic, a wheel in torque mode, a raised wheel; the
+    compiled and the interpreted plant), and a NaN Jacobian."""
     sim = driving
+    interpreted = plant_for(sim.scenario.params, sim.scenario.rover, sim.scenario.exit_angle, compiled=False)
     rng = np.random.default_rng(1)
     for k in range(12):
         z = sim.z + rng.normal(0, 1, 15) * np.r_[1e-2, 1e-2, 3e-2, 0.1 * np.ones(4), 0.3 * np.ones(8)]
@@ -99,11 +100,12 @@ def test_residual_only_evaluation_is_bit_identical(driving: RoverSimulator) -> N
         if k % 4 == 3:
             a[25 + k % 4] = 0.0  # a raised wheel
         d = rng.normal(0, 1.0, 15) if k % 2 else None
-        full = sim.plant.evaluate(z, a, sim.q, d)
-        cheap = sim.plant.evaluate(z, a, sim.q, d, jacobian=False)
-        for i in (0, 2, 3, 4):
-            assert np.array_equal(full[i], cheap[i], equal_nan=True), (k, i)
-        assert np.all(np.isfinite(full[1])) and np.all(np.isnan(cheap[1]))
+        for plant in (sim.plant, interpreted):
+            full = plant.evaluate(z, a, sim.q, d)
+            cheap = plant.evaluate(z, a, sim.q, d, jacobian=False)
+            for i in (0, 2, 3, 4):
+                assert np.array_equal(full[i], cheap[i], equal_nan=True), (k, i, plant is interpreted)
+            assert np.all(np.isfinite(full[1])) and np.all(np.isnan(cheap[1]))
 
 
 def test_converged_solves_unchanged_and_line_search_residual_only(driving: RoverSimulator,

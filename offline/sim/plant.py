@@ -141,12 +141,20 @@ class PlantModel:
         self.function = self._wheel_model._compile(f, "sim_wheels") if compiled else f
         so = self._wheel_model._so_paths.get(f.name()) if compiled else None
         self._call = _DenseCall(so, f) if so else None
+        # the same wheel batch without its Jacobian: the trial points of the line search need only
+        # the residual (same graph, same operations: the wrench is bit-for-bit that of ``function``)
+        fr = self._build(jacobian=False)
+        self.residual_function = self._wheel_model._compile(fr, "sim_wheels_residual") if compiled else fr
+        so_r = self._wheel_model._so_paths.get(fr.name()) if compiled else None
+        self._call_residual = _DenseCall(so_r, fr) if so_r else None
+        self._no_jacobian: NDArray[np.float64] = np.zeros((6, 40))
         self.rs_nominal = params.wheel.shearing_radius
 
-    def _build(self) -> Any:
+    def _build(self, jacobian: bool = True) -> Any:
         """casadi function of 8 wheel states (the four wheels and their zero-slip twins):
         ``(x[5, 8], p[10, 8]) -> (wrench[6, 8], d wrench / d x [6, 40], slip[1, 8], beta[1, 8])``,
-        ``p = (r, k, n0, n1, n2, phi, rho, c, K, repose)`` per state."""
+        ``p = (r, k, n0, n1, n2, phi, rho, c, K, repose)`` per state; ``jacobian=False`` leaves
+        the Jacobian out: ``(x, p) -> (wrench, slip, beta)`` (for the line search's trial points)."""
         import casadi as ca
 
         x = ca.SX.sym("x", 5)
@@ -155,13 +163,19 @@ class PlantModel:
         p = base._replace(r=pw[0], **dict(zip(_SOIL_FIELDS, [pw[1 + i] for i in range(9)])))
         w6, diag = wrench_core(CASADI, x[0], x[1], x[2], x[3], x[4], p, self.options)
         w = ca.vertcat(*w6)
+        if not jacobian:
+            return ca.Function("wheel_state_residual", [x, pw], [w, diag["slip"], diag["beta"]]).map(8)
         one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
         return one.map(8)
 
     def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
-                 d: NDArray[np.float64] | None = None
+                 d: NDArray[np.float64] | None = None, jacobian: bool = True
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Residual (15,), Jacobian (15, 15), wrench (4, 6), slip (4,), slip angle (4,) at unknowns ``z``.
+
+        ``jacobian=False`` evaluates the wheels without their Jacobian (:attr:`residual_function`,
+        about a third of the cost); the residual, wrench, slip and slip angle are bit-for-bit those
+        of ``jacobian=True``, and the returned Jacobian is all NaN (it must not be used).
 
         ``d`` (optional, :data:`DISTURBANCE_NAMES`, SI) holds external forces constant over the
         step: a body force at the centre of mass (enters the planar balances like the tether),
@@ -202,7 +216,13 @@ class PlantModel:
         P = np.empty((10, 8))
         P[0, :4] = P[0, 4:] = q[0:4]
         P[1:, :] = q[4:13, None]
-        if self._call is not None:
+        if not jacobian:
+            if self._call_residual is not None:
+                W, SL, BE = self._call_residual(X, P)
+            else:
+                W, SL, BE = (np.asarray(o, dtype=float) for o in self.residual_function(X, P))
+            JW = self._no_jacobian
+        elif self._call is not None:
             W, JW, SL, BE = self._call(X, P)
         else:
             W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
@@ -229,15 +249,18 @@ class PlantModel:
         ds0[_I4, 3, 11 + _I4] = h0
         ds0[_I4, 4, 11 + _I4] = h0
         wheel = W[:, :4].T  # (4, 6) wheel frame
-        dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
-        dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
+        if jacobian:
+            dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
+            dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
+        else:  # residual only: the derivative terms below are left at zero (the Jacobian returned is NaN)
+            dwheel = dzero = np.zeros((4, 6, N_UNKNOWNS))
         # rotate into the rover frame (wrench and its derivative; steer is an input)
         R = np.zeros((4, 6, 6))
         R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, -s, s, c
         R[:, 2, 2] = R[:, 5, 5] = 1.0
         R[:, 3, 3], R[:, 3, 4], R[:, 4, 3], R[:, 4, 4] = c, -s, s, c
         F = np.einsum("ijk,ik->ij", R, wheel)
-        dF = np.einsum("ijk,ikz->ijz", R, dwheel)
+        dF = np.einsum("ijk,ikz->ijz", R, dwheel) if jacobian else dwheel
         if d is not None:
             F[:, 0] += d[3:7]
             F[:, 1] += d[7:11]
@@ -322,6 +345,8 @@ class PlantModel:
             if mode[i] == 0.0 and jw * inv_dt == 0.0:  # free spinning without inertia: keep its speed
                 res[7 + i], J[7 + i] = (omega[i] - omega0[i]) / om_scale[i], 0.0
                 J[7 + i, 3 + i] = 1.0 / om_scale[i]
+        if not jacobian:
+            J[:] = math.nan
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
 
     rocker_jacobian = False
@@ -334,8 +359,19 @@ class PlantModel:
     TOL = 1e-8
 
     def solve(self, z0: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
-              d: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], PlantSolution]:
+              d: NDArray[np.float64] | None = None, trace: list[dict[str, Any]] | None = None
+              ) -> tuple[NDArray[np.float64], PlantSolution]:
         """Newton's method with backtracking on ``||res||`` from ``z0`` (``d``: see :meth:`evaluate`).
+
+        The line search halves the step from the full Newton step (or the one that moves a
+        log-sinkage by 1) at most 30 times, accepting the first trial point that lowers the max
+        norm (Armijo, 1e-4); shortened trial points are evaluated residual only, and the Jacobian
+        once at the accepted point when another iteration follows, so the iterates are bit for bit
+        those of evaluating every trial with its Jacobian. ``trace`` (a list, optional) receives
+        the start (``trials`` 0) and one entry per iteration: ``norm`` (max scaled residual after
+        it), ``step`` (the accepted step length; 0 where the line search failed, the iterate then
+        unchanged), ``trials`` (trial points evaluated), ``z`` and ``slip`` at the iterate; the
+        solve is the same with or without it.
 
         Raises
         ------
@@ -346,6 +382,8 @@ class PlantModel:
         res, J, w, sl, be = self.evaluate(z, a, q, d)
         res = res.ravel()
         norm = float(np.max(np.abs(res)))
+        if trace is not None:
+            trace.append({"norm": norm, "step": 0.0, "trials": 0, "z": z.copy(), "slip": np.ravel(sl).copy()})
         it = 0
         while norm > self.TOL and it < self.MAX_NEWTON:
             it += 1
@@ -361,16 +399,27 @@ class PlantModel:
             # keep log-sinkage steps modest (the wrench is smooth but strongly nonlinear in h)
             big = np.max(np.abs(dz[7:]))
             lam = 1.0 if big < 1.0 else 1.0 / big
-            for _ in range(30):
+            for trial in range(30):
                 zt = z + lam * dz
-                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d)
+                # the full step with its Jacobian (usually taken, and needed unless this is the last
+                # iteration); a shortened step residual only
+                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d, jacobian=trial == 0 and it < self.MAX_NEWTON)
                 rt = rt.ravel()
                 nt = float(np.max(np.abs(rt)))
                 if np.isfinite(nt) and (nt < (1 - 1e-4 * lam) * norm or nt <= self.TOL):
                     break
                 lam *= 0.5
             else:
+                if trace is not None:
+                    trace.append({"norm": norm, "step": 0.0, "trials": 30, "z": z.copy(), "slip": np.ravel(sl).copy()})
                 break
+            if trace is not None:
+                trace.append({"norm": nt, "step": lam, "trials": trial + 1, "z": zt.copy(), "slip": np.ravel(slt).copy()})
+            if trial and nt > self.TOL and it < self.MAX_NEWTON:
+                # a shortened step accepted and another iteration to come: its Jacobian (the
+                # residual, wrench, slip and slip angle are the same, bit for bit)
+                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d)
+                rt = rt.ravel()
             z, res, J, w, sl, be, norm = zt, rt, Jt, wt, slt, bet, nt
         if not (norm <= 1e-7 and np.all(np.isfinite(z))):
             err = SimulationError(

@@ -12,8 +12,8 @@ load falls on both); seconds alone depend on the load (load averages in the resu
 whole (``verdict.json`` without its seconds): a speed-up that changes nothing must give the same
 verdict to the last digit.
 
-Run (writes tests/bench/results_drive_time.md and .json; rows of the cases run replace earlier
-rows of the same cases)::
+Run (writes tests/bench/results_drive_time.md and .json; a row replaces an earlier row of the same
+case, baseline and commit, rows of other commits are kept)::
 
     git worktree add --detach /tmp/base <commit>
     nice python tests/bench/bench_drive_time.py --baseline /tmp/base current_limited noise31 terrain_plane
@@ -131,11 +131,12 @@ def _md(data: dict[str, Any]) -> str:
                   + f"; verdict `{r['new']['status']}` "
                   f"({' + '.join(r['new']['named']) or '-'}); verdict.json without seconds: {same}; "
                   f"{r['when']}, load average {r['load_before']} before, {r['load_after']} after")
-    md += ["", "| case | baseline s | new s | ratio | CPU ratio | baseline sims | new sims | verdict | same verdict.json |",
-           "|---|---|---|---|---|---|---|---|---|"]
+    md += ["", "| case | baseline -> this tree | baseline s | new s | ratio | CPU ratio | baseline sims | new sims | verdict | "
+           "same verdict.json |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in data["rows"]:
         cr = f"{r['cpu_ratio']:.2f}" if "cpu_ratio" in r else "-"
-        md.append(f"| {r['case']} | {r['base']['seconds']:.0f} | {r['new']['seconds']:.0f} | {r['ratio']:.2f} | {cr} | "
+        md.append(f"| {r['case']} | `{r['baseline']}` -> `{r['commit']}` | {r['base']['seconds']:.0f} | {r['new']['seconds']:.0f} | "
+                  f"{r['ratio']:.2f} | {cr} | "
                   f"{r['base']['simulations']} | {r['new']['simulations']} | {r['new']['status']} | "
                   f"{'yes' if not r['differences'] else 'NO'} |")
     return "\n".join(md) + "\n"
@@ -181,7 +182,9 @@ def main(argv: list[str]) -> int:
                    "ratio": runs["new"]["seconds"] / runs["base"]["seconds"],
                    "cpu_ratio": runs["new"]["cpu_seconds"] / runs["base"]["cpu_seconds"], "parallel": a.parallel,
                    "differences": _diff(runs["base"]["verdict"], runs["new"]["verdict"])}
-            data["rows"] = [r for r in data["rows"] if r["case"] != name] + [row]
+            # a run replaces the row of the same case, baseline and commit; rows of other commits are kept
+            data["rows"] = [r for r in data["rows"]
+                            if (r["case"], r["baseline"], r["commit"]) != (name, row["baseline"], row["commit"])] + [row]
             write_text(jpath, json.dumps(data, indent=1, default=float))
             write_text(RESULTS.with_suffix(".md"), _md(data))
     return 0

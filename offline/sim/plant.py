@@ -227,7 +227,7 @@ class PlantModel:
         else:
             W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
         JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
-        _stiction(W, JW, X, rs)
+        _stiction(W, JW if jacobian else None, X, rs)
         if raised:  # no ground contact: no soil wrench, slip undefined
             idx = raised + [4 + i for i in raised]
             W[:, idx] = 0.0
@@ -523,7 +523,7 @@ _LONGITUDINAL = np.array([0, 4])  # F_x, M_y: shear along the rim (needs the rim
 _LATERAL = np.array([1, 3, 5])  # F_y, M_x, M_z: lateral shear and sidewall bulldozing (need the wheel to move)
 
 
-def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64], X: NDArray[np.float64],
+def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64] | None, X: NDArray[np.float64],
               rs: NDArray[np.float64]) -> None:
     """Regularised static friction of a wheel at rest on the soil (in place).
 
@@ -558,8 +558,9 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64], X: NDArray[np.flo
     ----------
     W : ndarray (6, 8)
         Wrenches of the 8 wheel states (wheel frame), scaled in place.
-    JW : ndarray (8, 6, 5)
-        Their derivatives with respect to the states ``(v_x, v_y, omega, h, h0)``, in place.
+    JW : ndarray (8, 6, 5) or None
+        Their derivatives with respect to the states ``(v_x, v_y, omega, h, h0)``, in place
+        (None: a residual-only evaluation).
     X : ndarray (5, 8)
         The states.
     rs : ndarray (4,)
@@ -578,7 +579,8 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64], X: NDArray[np.flo
             f = math.tanh(speed / STICTION_SPEED)
             dfdx = (1.0 - f * f) / STICTION_SPEED * dspeed
             w = W[rows, i].copy()
-            JW[i, rows] = f * JW[i, rows] + np.outer(w, dfdx)
+            if JW is not None:
+                JW[i, rows] = f * JW[i, rows] + np.outer(w, dfdx)
             W[rows, i] = f * w
 
 

@@ -164,3 +164,24 @@ def test_rtctl_against_a_locked_wheel_stalls_and_may_dig_in(tmp_path, tables: st
     assert any(f.startswith(f"no table for the declared failures {wheel} locked") for f in flags), flags
     i = ("FR", "FL", "RR", "RL").index(wheel)
     assert all(c.rim_speed[i] == 0.0 for c in res.commands[1:])  # the locked wheel is never driven
+
+
+def test_zero_slip_twin_of_a_reversing_wheel_is_at_zero_slip() -> None:
+    """The plant's zero-slip twin rolls the way its wheel travels: at ``v_x < 0`` the wheel model
+    (which mirrors travel toward -x) gives slip 0 for the twin's spin, as at ``v_x > 0`` (the
+    twin spun forward on a reversing wheel was at slip -2)."""
+    from offline.sim.plant import _twin_direction
+    from rtctl.physics.backend import NUMPY
+    from rtctl.physics.terramechanics import ModelOptions, PhysParams, wrench_core
+
+    sim = _sim("rr_steer_stuck_50")
+    ps = sim.truth.params
+    p = PhysParams.from_sets(ps.soil, ps.wheel, ps.tuning)
+    rs = ps.wheel.radius + ps.wheel.grouser_height
+    for vx in (0.03, -0.03):
+        vy = 0.004
+        speed = math.hypot(vx, vy)
+        om = float(_twin_direction(np.array([vx]))[0]) * speed / rs
+        _, diag = wrench_core(NUMPY, np.array([vx]), np.array([vy]), np.array([om]), np.array([0.01]),
+                              np.array([0.01]), p, ModelOptions())
+        assert abs(float(np.ravel(diag["slip"])[0])) < 1e-12, (vx, diag["slip"])

@@ -212,7 +212,8 @@ class PlantModel:
         speed = np.sqrt(vx * vx + vy * vy + 1e-18)
         X = np.empty((5, 8))
         X[:, :4] = np.vstack([vx, vy, omega, h, h0])
-        X[:, 4:] = np.vstack([vx, vy, speed / rs, h0, h0])
+        roll = _twin_direction(vx)  # the twin rolls the way the wheel travels (zero slip backward too)
+        X[:, 4:] = np.vstack([vx, vy, roll * speed / rs, h0, h0])
         P = np.empty((10, 8))
         P[0, :4] = P[0, 4:] = q[0:4]
         P[1:, :] = q[4:13, None]
@@ -245,7 +246,7 @@ class PlantModel:
         ds[_I4, 2, 3 + _I4] = 1.0
         ds[_I4, 3, 7 + _I4] = h
         ds[_I4, 4, 11 + _I4] = h0
-        ds0[:, 2, 0:3] = (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
+        ds0[:, 2, 0:3] = roll[:, None] * (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
         ds0[_I4, 3, 11 + _I4] = h0
         ds0[_I4, 4, 11 + _I4] = h0
         wheel = W[:, :4].T  # (4, 6) wheel frame
@@ -513,6 +514,13 @@ class _DenseCall:
 
 
 _I4 = np.arange(4)
+
+def _twin_direction(vx: NDArray[np.float64]) -> NDArray[np.float64]:
+    """+1 or -1 per wheel: the sign of the zero-slip twin's spin, that of the wheel's travel
+    ``v_x`` (the wheel model mirrors travel toward -x, so a twin at ``+speed / r_s`` on a
+    reversing wheel was at slip -2, not 0, and its zero-slip sinkage meaningless)."""
+    return np.where(vx < 0, -1.0, 1.0)
+
 
 STICTION_SPEED = 1e-4
 """m/s: the stiction tolerance of a wheel at rest on the soil (see :func:`_stiction`)."""

@@ -44,6 +44,7 @@ group's rows of an earlier run; report folders under out/bench_drive_discrepancy
     nice python tests/bench/bench_drive_discrepancy.py fresh_negatives
     nice python tests/bench/bench_drive_discrepancy.py sparse
     nice python tests/bench/bench_drive_discrepancy.py sparse_negatives
+    nice python tests/bench/bench_drive_discrepancy.py sparse "pose every 10 s" --merge   # these cases' rows replaced, the group's others kept
     nice python tests/bench/bench_drive_discrepancy.py effects tether     # cases whose name contains 'tether' (no file written)
     python tests/bench/bench_drive_discrepancy.py table                   # rewrite the .md from the .json
     nice python tests/bench/bench_drive_discrepancy.py lack_of_fit        # residuals vs noise before any explanation
@@ -396,7 +397,7 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
           "(`ambiguous` / `unexplained`, or `partly_explained` naming nothing wrong); negatives: `agree`. "
           "'missing' is the report's identification advice (the manoeuvres the recording lacks).", "",
           "| case | sensors / drive | channels | verdict | named | right? (how) | fitted (truth, error) | missing (report) | "
-          "held-out drive chi2 | s | sims | load after |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "held-out drive chi2 | s | sims | load after (commit) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         pe = "; ".join(f"{k} = {e['fitted']:.3g} ({e['truth']:.3g}, {100 * e['rel_error']:.0f} %)" for k, e in r["param_errors"].items())
         if r["indistinguishable"]:
@@ -406,7 +407,7 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
         md.append(f"| {r['case']} | {r['sensors']}; heading from {r['heading_source']} | {ch} | {r['verdict']} | "
                   f"{' + '.join(r['named']) or '-'} | {'yes' if r['ok'] else 'NO'} ({r['how']}) | {pe or '-'} | {miss} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
-                  f"{r['seconds']:.0f} | {r['simulations']} | {r.get('load_after', '-')} |")
+                  f"{r['seconds']:.0f} | {r['simulations']} | {r.get('load_after', '-')} ({r.get('commit', 'group commit')}) |")
     eff = [r for r in rows if r["group"] == "sparse"]
     neg = [r for r in rows if r["group"] == "sparse_negatives"]
     md += ["", f"Sparse / operational worn-wheel cases right: {sum(r['ok'] for r in eff)}/{len(eff)} "
@@ -600,6 +601,8 @@ def steer_seeds(sc: Any, seeds: tuple[int, ...] = STEER_SEEDS) -> int:
 
 
 def main(argv: list[str]) -> int:
+    merge = "--merge" in argv
+    argv = [a for a in argv if a != "--merge"]
     group = argv[0] if argv else "effects"
     sel = argv[1] if len(argv) > 1 else ""
     sc = load_scenario(ROOT / "offline/scenarios/nominal.toml")
@@ -632,11 +635,13 @@ def main(argv: list[str]) -> int:
             with tempfile.TemporaryDirectory() as tmp:
                 row = run_sparse_case(case, Path(tmp), outdir)
             row["group"] = group
+            row["commit"] = commit
+            row["load_before"] = load0
             row["load_after"] = " ".join(f"{x:.1f}" for x in os.getloadavg())
             rows.append(row)
             print(json.dumps(row, default=float), flush=True)
-            if not sel:
-                _save(jpath, group, rows, commit, load0, order)
+            if not sel or merge:
+                _save(jpath, group, rows, commit, load0, order, merge=merge)
         return 0
     for name, make, inl, seed in groups[group]:
         if sel not in name:
@@ -653,8 +658,10 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load0: str, order: list[str]) -> None:
-    """Replace ``group``'s rows of the results file with ``rows`` and rewrite the table."""
+def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load0: str, order: list[str],
+          merge: bool = False) -> None:
+    """Replace ``group``'s rows of the results file with ``rows`` and rewrite the table
+    (``merge``: replace only the rows of the same case names, keep the group's others)."""
     lock_path = ROOT / "out/bench_drive_discrepancy.lock"
     lock_path.parent.mkdir(parents=True, exist_ok=True)
     with open(lock_path, "w") as lock:  # two groups may run side by side
@@ -664,7 +671,10 @@ def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load
             old = json.loads(jpath.read_text())
             if "groups" in old:
                 data = old
-        data["rows"] = [r for r in data["rows"] if r.get("group") != group] + rows
+        names = {r["case"] for r in rows}
+        data["rows"] = [r for r in data["rows"] if r.get("group") != group or (merge and r["case"] not in names)] + rows
+        if merge:
+            rows = [r for r in data["rows"] if r.get("group") == group]
         data["rows"].sort(key=lambda r: order.index(r["group"]) if r["group"] in order else len(order))
         data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                                  "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),

@@ -578,7 +578,7 @@ class DriveRecording:
             else:
                 st, rim = d.steer_cmd[0:n * w:w], d.rim_cmd[0:n * w:w]
                 yaw = d.readings["yaw_rate"][1:n * w + 1].reshape(n, w)
-                ok = np.isfinite(yaw).any(axis=1)
+                ok: NDArray[np.bool_] = np.asarray(np.isfinite(yaw).any(axis=1))
                 rate = np.abs(np.nanmean(np.where(ok[:, None], yaw, 0.0), axis=1))
                 turn = ok & (rate > math.radians(3.0))
                 rev = np.all(rim < 0.0, axis=1) & ~turn

@@ -395,7 +395,9 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
           "`nice python tests/bench/bench_drive_discrepancy.py sparse` / `sparse_negatives`. A worn wheel through the "
           "plant's per-wheel radius (parameter recovery). Right? = named right (wheel, radius within 20 %) or honest "
           "(`ambiguous` / `unexplained`, or `partly_explained` naming nothing wrong); negatives: `agree`. "
-          "'missing' is the report's identification advice (the manoeuvres the recording lacks).", "",
+          "'missing' is the report's identification advice (the manoeuvres the recording lacks). Rows run at 21d1dd0 "
+          "predate a223df0 (manoeuvres of a drive without pose channels from the gyro, not the steering commands): "
+          "the change touches only the advice text, never a verdict. Seconds at the load shown (2 shared cores).", "",
           "| case | sensors / drive | channels | verdict | named | right? (how) | fitted (truth, error) | missing (report) | "
           "held-out drive chi2 | s | sims | load after (commit) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

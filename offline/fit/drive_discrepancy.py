@@ -548,11 +548,18 @@ class DriveRecording:
     repeated with a manoeuvre that separates them (:meth:`identification_advice`)."""
 
     def manoeuvres(self) -> dict[str, float]:
-        """Seconds of each manoeuvre the rover made, from the recorded motion (pose fixes; the
-        commands where there are none, since a declared stuck wheel's command is no manoeuvre):
+        """Seconds of each manoeuvre the rover made, from the recorded motion:
         ``turn`` (yaw rate beyond 3 deg/s), ``crab`` (travel direction more than 10 deg off the
         heading, forward), ``reverse`` (travelling backward), ``straight`` (none of these), each
-        judged over 2 s windows (a 3 mm fix noise on a 6 mm step would make every tick a crab)."""
+        judged over 2 s windows (a 3 mm fix noise on a 6 mm step would make every tick a crab).
+
+        With pose fixes at every segment, all four come from the fixes. Without them (no pose
+        source, or fixes too sparse: :class:`DriveData` then integrates the gyro), the turn comes
+        from the gyro's yaw rate -- the rover's measured motion -- and only crab and reverse from
+        the commands: the crab when the median commanded steer is beyond 10 deg (all wheels at one
+        angle), the reverse when every rim speed is negative. The commands' spread is no turn: a
+        declared stuck wheel's command and a controller's compensating steer are none (README's
+        rr_steer_stuck_50 under rtctl spreads them by over 50 deg on a straight drive)."""
         out = {"straight": 0.0, "turn": 0.0, "crab": 0.0, "reverse": 0.0}
         for d in self.drives:
             w = max(1, int(round(2.0 / d.period)))  # 2 s windows: pose-fix noise averages out
@@ -570,10 +577,12 @@ class DriveRecording:
                 crab = moving & ~turn & ~rev & (np.abs(np.arctan2(v, u)) > math.radians(10.0))
             else:
                 st, rim = d.steer_cmd[0:n * w:w], d.rim_cmd[0:n * w:w]
-                spread = st.max(axis=1) - st.min(axis=1)
-                turn = spread > math.radians(2.0)
+                yaw = d.readings["yaw_rate"][1:n * w + 1].reshape(n, w)
+                ok: NDArray[np.bool_] = np.asarray(np.isfinite(yaw).any(axis=1))
+                rate = np.abs(np.nanmean(np.where(ok[:, None], yaw, 0.0), axis=1))
+                turn = ok & (rate > math.radians(3.0))
                 rev = np.all(rim < 0.0, axis=1) & ~turn
-                crab = ~turn & ~rev & (np.abs(st.mean(axis=1)) > math.radians(10.0))
+                crab = ~turn & ~rev & (np.abs(np.median(st, axis=1)) > math.radians(10.0))
             span = w * d.period
             out["turn"] += span * float(turn.sum())
             out["crab"] += span * float(crab.sum())

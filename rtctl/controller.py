@@ -96,6 +96,7 @@ _SLIP_SIGMA_USE = 0.02  # use the slip / crab correction only when the EKF is th
 # start-up transient of the trench drive, when the slip is still 2 sigma off)
 _CRAB_SIGMA_USE = math.radians(3.0)
 _UNREACHABLE_SLACK = 0.05  # scaled model-row slack: 5 % of the weight in a force row
+_UNREACHABLE_STEADY_TICKS = 3  # 0.6 s: a balance out of reach with no transient bound holding the QP
 _UNREACHABLE_TICKS = 15  # 3 s at 5 Hz: longer than the rate-limited transient to a primitive (10 ticks flagged one tick of a
 # reachable front-right cap imposed on the nominal table)
 _REF_HEADING_ERROR = math.radians(5.0)
@@ -111,6 +112,25 @@ class ControllerError(ValueError):
 UNDESCRIBED = ("*", "undescribed failures")
 """Signature entry of a failure table whose header has no failure description (it matches no
 declaration and is never taken for the nominal table)."""
+
+
+def _held_by_transient(x: Any, box: tuple[NDArray[np.float64], NDArray[np.float64]],
+                       steady: tuple[NDArray[np.float64], NDArray[np.float64]] | None) -> bool:
+    """Whether the QP's answer ``x`` lies on a bound of the tick's ``box`` that is tighter than
+    the ``steady`` box (a rate limit or the step limit around the iterate: a transient bound the
+    next ticks move). Unknown (no answer or no steady box): True, the cautious answer."""
+    if x is None or steady is None:
+        return True
+    x = np.asarray(x, dtype=float)
+    lo, hi = box
+    slo, shi = steady
+    if x.shape != lo.shape or lo.shape != slo.shape:
+        return True
+    width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    tol = 1e-3 * np.maximum(width, 1e-12)
+    at_lo = (x <= lo + tol) & (lo > slo + 1e-9 * (1.0 + np.abs(lo)))
+    at_hi = (x >= hi - tol) & (hi < shi - 1e-9 * (1.0 + np.abs(hi)))
+    return bool(np.any(at_lo | at_hi))
 
 
 def table_signature(table: Any) -> frozenset[tuple[str, str]]:
@@ -342,6 +362,9 @@ class Controller:
                                 "another table" for k, v in self.unavailable.items())
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
+        self._no_primitive = frozenset(k for k, t in self.tables.items()
+                                       if getattr(t, "feasible", None) is not None and not np.any(t.feasible))
+        """Tables with no primitive at any grid point (:meth:`_choose_table`)."""
 
         nominal = [k for k, s in self.signatures.items() if not s]
         self.default_table = "nominal" if "nominal" in nominal else (nominal[0] if nominal else next(iter(self.tables)))
@@ -424,6 +447,8 @@ class Controller:
         self._last_qp: tuple[QpAllocator, tuple[Any, ...]] | None = None
         self._last_p: NDArray[np.float64] | None = None
         self._short_ticks = 0  # consecutive ticks whose linearised balance stayed out of reach
+        self._steady_short = 0  # ... of them with the QP's answer held by no transient bound
+        self._steady_box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._cmd_rules: list[tuple[float, float, bool, bool]] = [(-math.inf, math.inf, False, False)] * len(WHEELS)
         self._param_fix: list[tuple[int, float]] = []
         self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
@@ -443,14 +468,28 @@ class Controller:
 
     def _choose_table(self) -> tuple[str, list[str]]:
         declared = self._declared()
-        matches = [name for name, sig in self.signatures.items() if sig and sig == declared]
         flags: list[str] = []
+        # a table without a single primitive (the optimizer's verdict at every grid point: e.g. a
+        # locked wheel on this soil) is the offline evidence that the declared case is unreachable:
+        # said, and the best reachable point is driven on another table with the failures imposed
+        empty = sorted(name for name, sig in self.signatures.items()
+                       if sig and sig <= declared and name in self._no_primitive)
+        if empty:
+            self._count("unreachable_preparations")
+            t = self.tables[empty[0]]
+            n = int(np.size(getattr(t, "feasible", ())))
+            built = {wk: v for wk, v in self._failures.items() if wk in self.signatures[empty[0]]}
+            part = "" if self.signatures[empty[0]] == declared else f" (of the declared {_describe_failures(self._failures)})"
+            flags.append(f"unreachable: table {empty[0]}, built for {_describe_failures(built)}{part}, has no primitive "
+                         f"at any of its {n} grid points (the optimizer found none); driving the best reachable point")
+        usable = {name: sig for name, sig in self.signatures.items() if name not in self._no_primitive}
+        matches = [name for name, sig in usable.items() if sig and sig == declared]
         if matches:
             return (self.config.default_table if self.config.default_table in matches else matches[0]), flags
         # No exact match: the table built for the most of the declared failures (and the task, if
         # its table is among them), the rest imposed on it from their descriptions; none: the
         # default table with every failure imposed.
-        subsets = sorted((-len(sig), name) for name, sig in self.signatures.items() if sig and sig < declared)
+        subsets = sorted((-len(sig), name) for name, sig in usable.items() if sig and sig < declared)
         name = subsets[0][1] if subsets else self.default_table
         if self._task is not None and (self._task.wheel, self._task.kind) not in self.signatures[name]:
             flags.append(f"no table for the declared task {self._task.kind} {self._task.wheel} with failures "
@@ -778,7 +817,7 @@ class Controller:
         res = rti.step(p, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
         self._last_qp = (prep.allocator, prep.allocator.snapshot())
         self._last_p = p
-        self._unreachable(res)
+        self._unreachable(res, box)
         if not res.ok:  # the iterate restarts from the table's primitive at the next preparation
             self._count("qp_fallbacks")
             return self._fallback(t, seq, f"QP refused: {res.status}", e_psi, e_y, float(p[ix.mz]),
@@ -965,7 +1004,9 @@ class Controller:
         rlo[fixed], rhi[fixed] = -np.inf, np.inf
         tb = prep.step_box
         zlo, zhi = np.where(fixed, -np.inf, x0 - tb), np.where(fixed, np.inf, x0 + tb)
+        steady = (lo, hi)  # the box of the steady state: what no number of ticks can widen
         lo, hi = merge_bounds(lo, hi, (rlo, rhi), (zlo, zhi))
+        self._steady_box = steady
         return (lo, hi), lbg, ubg
 
     def _x_of_commands(self, prep: _Prepared, base: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
@@ -1015,17 +1056,26 @@ class Controller:
         act = self.config.actuators
         return c.is_valid(act.max_rim_speed, act.max_steer) and all(v >= act.min_rim_speed for v in c.rim_speed)
 
-    def _unreachable(self, res: Any) -> None:
+    def _unreachable(self, res: Any, box: tuple[NDArray[np.float64], NDArray[np.float64]]) -> None:
         """Say when the steady state is out of reach: the exact residual's linearised balance has
         not been met (model-row slack above ``_UNREACHABLE_SLACK``) for ``_UNREACHABLE_TICKS``
-        consecutive ticks, so no primitive of the failed rover is being approached; the QP's answer
-        (the smallest weighted violation within the limits) is the best reachable point driven."""
+        consecutive ticks, or for ``_UNREACHABLE_STEADY_TICKS`` consecutive ticks on which the QP's
+        answer is held by none of the tick's transient bounds (rate limits, the step limit around the
+        iterate), only by the steady box (actuator range, table bounds, the declared failures'
+        rules), which later ticks cannot widen. Either way no primitive of the failed rover is being
+        approached; the QP's answer (the smallest weighted violation within the limits) is the best
+        reachable point driven."""
         slack = float(getattr(res, "slack", math.inf))
-        self._short_ticks = self._short_ticks + 1 if not slack <= _UNREACHABLE_SLACK else 0
-        if self._short_ticks >= _UNREACHABLE_TICKS:
+        short = not slack <= _UNREACHABLE_SLACK
+        self._short_ticks = self._short_ticks + 1 if short else 0
+        held = _held_by_transient(getattr(res, "x", None), box, self._steady_box)
+        self._steady_short = self._steady_short + 1 if short and not held else 0
+        if self._short_ticks >= _UNREACHABLE_TICKS or self._steady_short >= _UNREACHABLE_STEADY_TICKS:
             self._count("unreachable_ticks")
+            why = ("" if held or self._short_ticks >= _UNREACHABLE_TICKS else
+                   ", with no rate limit or step limit holding the step: only the actuator range and the failures")
             self._tick_flags.append(f"unreachable: the steady-state balance of the declared failures has been out of "
-                                    f"reach for {self._short_ticks} ticks (model-row slack {slack:.3g} scaled); "
+                                    f"reach for {self._short_ticks} ticks (model-row slack {slack:.3g} scaled{why}); "
                                     "driving the best reachable point")
 
     def _fallback(self, t: float, seq: int, why: str, e_psi: float, e_y: float, mz: float, fy: float, verdict: str,

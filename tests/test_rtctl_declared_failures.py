@@ -63,6 +63,22 @@ def test_two_unmatched_failures_are_both_named(tables):
     assert flag.split(" with ", 1)[1].startswith("FL rim_speed_cap") and "RR steer_stuck:" not in flag
 
 
+@pytest.mark.parametrize("wheel", ["RR", "RL"])  # RL: by the mirror of rr_locked
+def test_a_table_without_any_primitive_is_said_unreachable_and_the_failure_imposed(tables, wheel):
+    """The shipped ``rr_locked`` has no primitive at any grid point (the optimizer's verdict: a
+    locked wheel cannot be dragged on this soil). It used to be chosen as the exact match, fail to
+    interpolate, and leave the last good preparation (nominal) driving with no flag at all."""
+    ctl = Controller(tables, ControllerConfig())
+    cmd, d = _ticks(ctl, (FailureDeclaration(wheel, "locked"),))
+    said = [f for f in d.flags if f.startswith("unreachable: table")]
+    assert said and f"{wheel.lower()}_locked, built for {wheel} locked" in said[0] and "no primitive" in said[0], d.flags
+    imposed = [f for f in d.flags if f.startswith(f"no table for the declared failures {wheel} locked")]
+    assert imposed and "omega fixed at 0" in imposed[0] and d.table == "nominal" and d.mode == "qp"
+    counters = dict(d.counters)
+    assert counters["unreachable_preparations"] >= 3 and counters.get("table_errors", 0) == 0
+    assert cmd.rim_speed[("FR", "FL", "RR", "RL").index(wheel)] == 0.0
+
+
 def test_matched_failure_is_not_flagged(tables):
     ctl = Controller(tables, ControllerConfig())
     _, d = _ticks(ctl, (FailureDeclaration("RR", "steer_stuck", -50 * DEG),), steer=(0.0, 0.0, -50 * DEG, 0.0))
@@ -115,3 +131,38 @@ def test_failures_without_a_primitive_are_said_unreachable(tmp_path):
                 flags=flags)
     said = [f for tick in flags for f in tick if f.startswith("unreachable")]
     assert said and "out of reach for" in said[0]
+
+
+def test_unreachable_is_said_after_three_ticks_when_no_transient_bound_holds_the_qp(tables):
+    """The QP's answer held by a rate limit or the step limit (tighter than the steady box) is a
+    transient: only the 15-tick rule counts it. Held by nothing but the actuator range and the
+    failures, three ticks of slack above the tolerance are enough to say "unreachable"."""
+    import numpy as np
+    from types import SimpleNamespace
+
+    from rtctl.controller import _held_by_transient
+
+    steady = (np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 5.0]))
+    tick = (np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 5.0]))  # a rate limit on entry 1
+    assert _held_by_transient(np.array([0.0, 0.5, 1.0]), tick, steady)  # on the rate limit
+    assert _held_by_transient(np.array([0.0, -0.4996, 1.0]), tick, steady)  # within 1e-3 of its width
+    assert not _held_by_transient(np.array([1.0, 0.0, 5.0]), tick, steady)  # on the steady box only
+    assert not _held_by_transient(np.array([0.3, 0.2, 1.0]), tick, steady)  # inside
+    assert _held_by_transient(None, tick, steady) and _held_by_transient(np.zeros(3), tick, None)
+    assert _held_by_transient(np.zeros(2), tick, steady)  # malformed: the cautious answer
+
+    def run(x: "np.ndarray", n: int) -> list[str]:
+        ctl = Controller(tables, ControllerConfig())
+        ctl._steady_box = steady
+        out: list[str] = []
+        for _ in range(n):
+            ctl._tick_flags = []
+            ctl._unreachable(SimpleNamespace(slack=0.3, x=x), tick)
+            out = [f for f in ctl._tick_flags if f.startswith("unreachable")]
+        return out
+
+    assert not run(np.array([1.0, 0.0, 5.0]), 2)
+    said = run(np.array([1.0, 0.0, 5.0]), 3)
+    assert said and "no rate limit or step limit holding the step" in said[0]
+    assert not run(np.array([0.0, 0.5, 1.0]), 14)  # a transient: not yet
+    assert run(np.array([0.0, 0.5, 1.0]), 15)

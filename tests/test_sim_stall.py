@@ -209,3 +209,39 @@ def test_a_failed_step_below_the_shearing_radius_is_stuck_and_a_shallow_one_is_n
     err.z = shallow
     assert float(np.max(np.exp(shallow[7:11]))) < float(np.min(sim.rs_true))
     sim._raise_if_dug_in(shallow, err)  # returns: the caller raises the SimulationError itself
+
+
+def test_a_failed_step_with_an_unloaded_wheel_is_a_lift_off_and_ends_the_drive(monkeypatch) -> None:
+    """A failed step with a wheel in contact at its grouser height raises ``WheelLiftOff`` (the
+    plant does not model a wheel leaving the ground; RR locked on the calibrated sand reached it at
+    1.1 s), and :func:`run_drive` ends the drive there with the reason in ``ended`` and the
+    metrics so far (before, the exception ended the whole run and the controller's flags with it)."""
+    from offline.sim.experiments import run_drive
+    from offline.sim.plant import SimulationError
+    from offline.sim.simulator import RoverStuck, WheelLiftOff
+
+    sim = _sim("nominal")
+    sim.start(_straight(sim))
+    err = SimulationError("no equilibrium")
+    light = sim.z.copy()
+    light[7 + 1] = math.log(0.9 * sim.truth.params.wheel.grouser_height)
+    err.z = light
+    with pytest.raises(WheelLiftOff, match=r"FL \d\.\d mm: sinkage at the 5 mm grouser height") as e:
+        sim._raise_if_dug_in(sim.z, err)
+    assert not isinstance(e.value, RoverStuck)
+
+    sim = _sim("nominal")
+    calls = {"n": 0}
+    advance = sim.advance
+
+    def lifts_at_the_third(period: float) -> None:
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise WheelLiftOff("t=0.6 s: a wheel is unloading (FL 4.9 mm ...)")
+        advance(period)
+
+    monkeypatch.setattr(sim, "advance", lifts_at_the_third)
+    from offline.sim.experiments import build_controller
+    res = run_drive(sim, build_controller("none", sim.scenario), distance=0.3)
+    assert res.ended.startswith("t=0.6 s: a wheel is unloading") and not res.stuck
+    assert res.metrics["ended_at_s"] == pytest.approx(0.4) and len(res.commands) == 3

@@ -39,7 +39,7 @@ def _metrics_table(rows: list[dict[str, Any]]) -> str:
         lines.append(f"| {r['scenario']} | {r['truth']} | {r['controller']} | {m['final_heading_deg']:.2f} | {m['max_abs_heading_deg']:.2f} | "
                      f"{m['final_cross_track_cm']:.2f} | {m['max_abs_cross_track_cm']:.2f} | {m['mean_speed_cm_s']:.2f} | "
                      f"{m['speed_error_pct']:+.1f} | {m['distance_m']:.2f} | {m['time_s']:.1f}"
-                     + (" (STUCK)" if "stuck" in r else "") + " |")
+                     + (" (STUCK)" if "stuck" in r else " (ENDED EARLY)" if "ended" in r else "") + " |")
     return "\n".join(lines)
 
 
@@ -192,9 +192,12 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                     return fail(f"{name} / {label} / {kind}: {exc}")
                 runs.append(r)
                 rows.append({"scenario": sc.name, "truth": label, "controller": kind, "metrics": r.metrics,
-                             "wall_seconds": r.wall_seconds, **({"stuck": r.stuck} if r.stuck else {})})
+                             "wall_seconds": r.wall_seconds, **({"stuck": r.stuck} if r.stuck else {}),
+                             **({"ended": r.ended} if r.ended else {})})
                 if r.stuck:
                     bar.write(f"{name} / {label} / {kind}: STUCK, the drive ended early: {r.stuck}")
+                elif r.ended:
+                    bar.write(f"{name} / {label} / {kind}: ENDED EARLY, outside what the simulator models: {r.ended}")
                 bar.update(1)
             plot_runs(runs, out / f"{sc.name}{tag}.png",
                       f"{sc.name} ({label}): yaw and y error (cf. Figs. 7.6, 7.9, 7.11)")

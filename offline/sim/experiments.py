@@ -40,7 +40,7 @@ from rtctl.messages import Commands, Measurements, Task
 
 from ..rover.primitives import PrimitiveResult, solve_primitive, steering_controllers
 from ..rover.scenario import Scenario, load_scenario
-from .simulator import RoverStuck, RoverSimulator, TruthState
+from .simulator import RoverStuck, RoverSimulator, TruthState, WheelLiftOff
 
 __all__ = [
     "ControllerLike", "PidGains", "PrimitiveController", "PidSteeringController", "DriveResult", "run_drive",
@@ -322,6 +322,10 @@ class DriveResult:
     stuck: str = ""
     """Why the drive ended early because the rover got stuck (:class:`offline.sim.simulator.RoverStuck`;
     "" when it did not): the metrics then cover the drive up to that step and hold ``stuck_at_s``."""
+    ended: str = ""
+    """Why the drive ended before its distance or time: the rover got stuck (as ``stuck``) or a wheel
+    began to lift off, which the plant does not model (:class:`offline.sim.simulator.WheelLiftOff`);
+    "" when it did not. The metrics then cover the drive up to that step and hold ``ended_at_s``."""
 
     def series(self, name: str) -> NDArray[np.float64]:
         """A truth field over time as an array."""
@@ -384,13 +388,18 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
         try:
             sim.advance(period)
         except RoverStuck as exc:  # the physical end of this drive (a wheel dug in), said in the result
-            res.stuck = str(exc)
+            res.stuck = res.ended = str(exc)
+            break
+        except WheelLiftOff as exc:  # the end of what the plant models, said in the result
+            res.ended = str(exc)
             break
     res.wall_seconds = time.perf_counter() - t0
     res.metrics = drive_metrics(res.truth, sc.speed)
     res.metrics.update(trench_metrics(res.truth, sc, sim.truth.params))
     if res.stuck:
         res.metrics["stuck_at_s"] = float(sim.t)
+    if res.ended:
+        res.metrics["ended_at_s"] = float(sim.t)
     return res
 
 

@@ -41,13 +41,20 @@ from .plant import DISTURBANCE_NAMES, GRAVITY, STICTION_SPEED, PlantModel, Plant
 from .sensors import GyroBias, PoseSource, SensorConfig
 from .truth import Truth
 
-__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "RoverStuck", "Disturbance",
+__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "RoverStuck", "WheelLiftOff",
+           "Disturbance",
            "DisturbanceForces", "DisturbanceError", "DISTURBANCE_NAMES"]
 
 
 class RoverStuck(SimulationError):
     """The rover stalled and a wheel dug in below its axle: the simulation cannot go on (the wheel
     model holds to an entry angle of 90 deg). A drive ends here (:func:`offline.sim.experiments.run_drive`)."""
+
+
+class WheelLiftOff(SimulationError):
+    """A step failed with a wheel unloaded to its grouser height: the rover is about to lift the
+    wheel off the ground, which the plant does not model (every wheel is in contact or declared
+    raised). A drive ends here (:func:`offline.sim.experiments.run_drive`), said in its result."""
 
 
 @functools.lru_cache(maxsize=8)
@@ -451,7 +458,8 @@ class RoverSimulator:
     def _raise_if_dug_in(self, z: NDArray[np.float64], err: SimulationError) -> None:
         """Raise :class:`RoverStuck` when a step failed with a wheel on the ground sunk deeper than
         its shearing radius (the wheel model's domain ends at an entry angle of 90 deg), at the
-        step's start ``z`` or where the first failed Newton solve stopped (``err.z``)."""
+        step's start ``z`` or where the first failed Newton solve stopped (``err.z``), and
+        :class:`WheelLiftOff` when instead a wheel in contact is unloaded to its grouser height."""
         h = np.exp(z[7:11]) * self.contact
         if err.z is not None and np.all(np.isfinite(err.z[7:11])):
             h = np.maximum(h, np.exp(err.z[7:11]) * self.contact)
@@ -462,7 +470,7 @@ class RoverSimulator:
             light = [i for i in range(4) if self.contact[i] and np.exp(zz[7 + i]) < 1.1 * hg]
             if light:
                 what = ", ".join(f"{WHEELS[i]} {1e3 * np.exp(zz[7 + i]):.1f} mm" for i in light)
-                raise SimulationError(f"t={self.t + self.dt:.6g} s: a wheel is unloading ({what}: sinkage at the "
+                raise WheelLiftOff(f"t={self.t + self.dt:.6g} s: a wheel is unloading ({what}: sinkage at the "
                                       f"{1e3 * hg:.0f} mm grouser height, almost no load); the plant does not model a "
                                       f"wheel lifting off the ground ({err})") from None
             return

@@ -102,8 +102,10 @@ def main() -> None:
                    else "mirror" if any("left-right mirror" in f for f in flags) else "exact table")
             ok = (m["max_abs_heading_deg"] <= 3 and m["max_abs_cross_track_cm"] <= 3 and abs(m["speed_error_pct"]) <= 10)
             row["stuck"] = (f"stuck at t = {m['stuck_at_s']:.1f} s, x = {100 * m['distance_m']:.1f} cm: "
-                            + res.stuck.split("the rover is stuck, ")[-1].split(" (x =")[0]) if res.stuck else ""
-            ok = ok and not res.stuck
+                            + res.stuck.split("the rover is stuck, ")[-1].split(" (x =")[0]) if res.stuck else (
+                f"drive ended at t = {m['ended_at_s']:.1f} s, x = {100 * m['distance_m']:.1f} cm: "
+                + res.ended.split(" s: ", 1)[-1].split(" (no equilibrium")[0]) if res.ended else ""
+            ok = ok and not res.ended
             row.update(table=",".join(tables_used), how=how, flagged=how != "exact table" and bool(flags), valid=valid,
                        heading=m["max_abs_heading_deg"], y=m["max_abs_cross_track_cm"], speed=m["speed_error_pct"],
                        unreachable=any(f.startswith(("target unreachable", "unreachable")) for f in flags), ok=ok)

@@ -42,16 +42,20 @@ def test_each_failure_uses_its_table(tables, failures, table):
         assert cmd.rim_speed[2] <= 0.015 + 1e-12
 
 
-def test_table_without_primitive_keeps_the_last_preparation(tables):
-    """rr_locked has no feasible point: the controller stays on the nominal table with the lock
-    imposed in the QP, counts the table error, and commands stay valid with the wheel stopped.
+def test_table_without_primitive_is_said_unreachable_and_not_prepared(tables):
+    """rr_locked has no feasible point: the controller drives the nominal table with the lock
+    imposed in the QP and says why on every tick (it used to try the empty table, count a table
+    error and keep the last preparation without a flag), and commands stay valid with the wheel
+    stopped.
     Should rr_locked gain primitives, this test fails (it does not skip itself): it then needs a
     table without any."""
     assert not tables["rr_locked"].feasible.any(), "rr_locked gained primitives: give this test a table without any"
     c = Controller(tables, ControllerConfig())
     for k in range(5):
         cmd, d = c.step(Measurements(0.2 * k, k, (0.6,) * 4, (0.0,) * 4, 0.0, failures=(FailureDeclaration("RR", "locked"),)))
-    assert d.table == "nominal" and d.counter("table_errors") >= 1 and cmd.rim_speed[2] == 0.0
+    assert d.table == "nominal" and d.counter("table_errors") == 0 and cmd.rim_speed[2] == 0.0
+    assert d.counter("unreachable_preparations") >= 5
+    assert any(f.startswith("unreachable: table rr_locked") for f in d.flags), d.flags
 
 
 def test_default_table_from_config(tables):

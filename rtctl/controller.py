@@ -478,9 +478,9 @@ class Controller:
             self._count("unreachable_preparations")
             t = self.tables[empty[0]]
             n = int(np.size(getattr(t, "feasible", ())))
-            built = {wk: v for wk, v in self._failures.items() if wk in self.signatures[empty[0]]}
+            served = {wk: v for wk, v in self._failures.items() if wk in self.signatures[empty[0]]}
             part = "" if self.signatures[empty[0]] == declared else f" (of the declared {_describe_failures(self._failures)})"
-            flags.append(f"unreachable: table {empty[0]}, built for {_describe_failures(built)}{part}, has no primitive "
+            flags.append(f"unreachable: table {empty[0]}, built for {_describe_failures(served)}{part}, has no primitive "
                          f"at any of its {n} grid points (the optimizer found none); driving the best reachable point")
         usable = {name: sig for name, sig in self.signatures.items() if name not in self._no_primitive}
         matches = [name for name, sig in usable.items() if sig and sig == declared]

@@ -117,7 +117,8 @@ def main() -> None:
              f"world {args.params}")
     if args.tables is None:
         where = ("rtctl on the shipped tables (calibrated sand" + ("" if same else ": the model differs from the world")
-                 + "; rear-right failures only: rear-left by their mirror, front wheels imposed on the nominal table)")
+                 + "; rear-right failures and fr_locked: the left wheels by their mirrors, the other front failures "
+                   "imposed on the nominal table)")
     else:
         where = (f"rtctl on the tables of `{Path(args.tables).as_posix()}` (front wheels imposed on the nominal table, "
                  "rear-left by mirrors)")

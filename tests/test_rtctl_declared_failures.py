@@ -164,5 +164,18 @@ def test_unreachable_is_said_after_three_ticks_when_no_transient_bound_holds_the
     assert not run(np.array([1.0, 0.0, 5.0]), 2)
     said = run(np.array([1.0, 0.0, 5.0]), 3)
     assert said and "no rate limit or step limit holding the step" in said[0]
+
+    def small(n: int, slack: float) -> list[str]:  # a small violation that never goes away
+        ctl = Controller(tables, ControllerConfig())
+        ctl._steady_box = steady
+        out: list[str] = []
+        for _ in range(n):
+            ctl._tick_flags = []
+            ctl._unreachable(SimpleNamespace(slack=slack, x=np.array([0.0, 0.5, 1.0])), tick)
+            out = [f for f in ctl._tick_flags if f.startswith("unreachable")]
+        return out
+
+    assert not small(49, 0.007) and not small(200, 0.001)
+    assert "by a small margin" in small(50, 0.007)[0]
     assert not run(np.array([0.0, 0.5, 1.0]), 14)  # a transient: not yet
     assert run(np.array([0.0, 0.5, 1.0]), 15)

@@ -133,7 +133,8 @@ def main() -> None:
         if "drive" in r:
             lines.append(f"| {r['case']} | {r['failures']} | {r['primitive']} | | | | | {r['drive']} | | | |")
             continue
-        verdict = ("pass" if r["ok"] else "FAIL") if r["primitive"] == "optimal" else ("no primitive" + (
+        verdict = (("pass" if r["ok"] else "FAIL") + ("; said unreachable" if r["unreachable"] else "")
+                   if r["primitive"] == "optimal" else ("no primitive" + (
             ", said unreachable" if r["unreachable"] else ", NOT said unreachable"))
         if r["stuck"]:
             verdict += f"; {r['stuck']}"

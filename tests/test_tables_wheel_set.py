@@ -184,3 +184,16 @@ def test_wheel_set_rule_on_four_wheel_rover_files_and_older_headers():
     # the mini rover's names but other balance rows (a layout this rtctl's residual does not have)
     assert unsupported_reason({}, _layout(rows=("Fx", "Fy", "Fz", "Mx", "My", "Mz"))) is not None
     assert json.dumps(ws.text())
+
+
+def test_tables_info_prints_the_wheel_set(capsys):
+    from offline.cli import main
+
+    assert main(["tables", "info", str(SIX)]) == 0
+    out = capsys.readouterr().out
+    assert ("wheel set: 6 wheels RF, LF, RM, LM, RR, LR of rover mer_class (rover file mer_class_rocker_bogie.toml, "
+            "suspension rocker_bogie, driving backward); RM not steerable, LM not steerable") in out
+    assert "rtctl (this version) does not drive it" in out
+    assert main(["tables", "info", str(MINI)]) == 0
+    assert "wheel set: 4 wheels FR, FL, RR, RL of rover mini_rover (no rover file, suspension rocker); rtctl drives it" in \
+        capsys.readouterr().out

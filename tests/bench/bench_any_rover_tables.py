@@ -7,7 +7,9 @@ Run on demand from the repository root::
 Builds, with ``offnominal tables build`` (one process, the default continuation schedule), small
 tables of the MER-class six-wheel rover (nominal; right-front wheel locked, driving backward,
 the direction the optimizer finds feasible) and of the four-wheel skid-steer rover (front-right
-wheel unpowered), then runs ``offnominal tables verify`` (its three checks, the informational
+wheel unpowered; on flat ground and up to 5 deg at 2 and 4 cm/s, and on one branch of its
+primitive: above the jump between 0 and 2.5 deg slope and below the rear-left wheel's motor speed
+limit), then runs ``offnominal tables verify`` (its three checks, the informational
 ladder included) on each. Replaces the section "Tables for rover files" at the end of
 ``tests/bench/results_any_rover.md`` (``bench_any_rover.py`` keeps it) with one row per table:
 grid, statuses, build wall and CPU seconds, verify verdicts and time, size, the commands.
@@ -34,12 +36,13 @@ ROOT = HERE.parents[1]
 OUT = HERE / "results_any_rover.md"
 SECTION = "## Tables for rover files"
 
-CASES: tuple[tuple[str, str], ...] = (
-    ("mer_nominal", "slope=0,5,10;cross_slope=0;speed=2,4"),
-    ("mer_rf_locked_backward", "slope=0,2.5,5;cross_slope=0;speed=1,2"),
-    ("skid_fr_unpowered", "slope=0,2.5,5;cross_slope=0;speed=2,4"),
+CASES: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("mer_nominal", "slope=0,5,10;cross_slope=0;speed=2,4", ()),
+    ("mer_rf_locked_backward", "slope=0,2.5,5;cross_slope=0;speed=1,2", ()),
+    ("skid_fr_unpowered", "slope=0,2.5,5;cross_slope=0;speed=2,4", ()),
+    ("skid_fr_unpowered", "slope=2.5,3.75,5;cross_slope=0;speed=1.5,2", ()),
 )
-"""(scenario file stem in ``offline/scenarios/rovers``, ``--grid``)."""
+"""(scenario file stem in ``offline/scenarios/rovers``, ``--grid``, further build options)."""
 
 
 def _cli() -> list[str]:
@@ -70,22 +73,25 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else Path(tmp.name)  # type: ignore[union-attr]
     load0 = os.getloadavg()
     rows = []
-    for stem, grid in CASES:
+    for k, (stem, grid, extra) in enumerate(CASES):
         scen = f"offline/scenarios/rovers/{stem}.toml"
-        build = ["tables", "build", scen, "--grid", grid, "--out", str(out), "--no-index", "--quiet"]
+        dest = out / str(k)
+        build = ["tables", "build", scen, "--grid", grid, *extra, "--out", str(dest), "--no-index", "--quiet"]
         p, wall_b, cpu_b = _run(build)
         print(p.stdout + p.stderr, end="")
         m = re.search(r"(\d+) points \(([^)]*)\), (.*?); feasible", p.stdout)
         statuses = m.group(3) if m else f"build failed (exit {p.returncode})"
-        npz = out / f"{stem}.npz"
-        verdicts, wall_v = "-", 0.0
+        npz = dest / f"{stem}.npz"
+        verdicts, wall_v, cpu_v = "-", 0.0, 0.0
         if p.returncode == 0 and npz.is_file():
-            v, wall_v, _ = _run(["tables", "verify", str(npz)])
+            v, wall_v, cpu_v = _run(["tables", "verify", str(npz)])
             mv = re.search(r"verdicts: (.*)", v.stdout)
             verdicts = (mv.group(1) if mv else "?") + ("; PASSED" if v.returncode == 0 else "; FAILED")
             print(v.stdout.splitlines()[-2:] if v.stdout else v.stderr)
         size = f"{npz.stat().st_size / 1e6:.2f}" if npz.is_file() else "-"
-        rows.append(f"| {stem} | `{grid}` | {statuses} | {wall_b:.0f} / {cpu_b:.0f} | {verdicts} | {wall_v:.0f} | {size} |")
+        opts = " ".join(extra) or "-"
+        rows.append(f"| {stem} | `{grid}` | {opts} | {statuses} | {wall_b:.0f} / {cpu_b:.0f} | {verdicts} | "
+                    f"{wall_v:.0f} / {cpu_v:.0f} | {size} |")
     load1 = os.getloadavg()
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     section = "\n".join([
@@ -101,8 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         "included). Grid values in display units (deg, deg, cm/s). The header of each table carries the wheel set "
         "(`wheel_set`: names, count, steerable, driven, the rover file's name and sha256) and the NLP layout.",
         "",
-        "| scenario | grid | statuses | build wall / CPU [s] | verify | verify wall [s] | size [MB] |",
-        "|---|---|---|---|---|---|---|",
+        "| scenario | grid | build options | statuses | build wall / CPU [s] | verify | verify wall / CPU [s] | size [MB] |",
+        "|---|---|---|---|---|---|---|---|",
         *rows,
         "",
     ])

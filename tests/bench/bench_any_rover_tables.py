@@ -12,7 +12,8 @@ primitive: above the jump between 0 and 2.5 deg slope and below the rear-left wh
 limit), then runs ``offnominal tables verify`` (its three checks, the informational
 ladder included) on each. Replaces the section "Tables for rover files" at the end of
 ``tests/bench/results_any_rover.md`` (``bench_any_rover.py`` keeps it) with one row per table:
-grid, statuses, build wall and CPU seconds, verify verdicts and time, size, the commands.
+grid, statuses, build wall and CPU seconds, verify verdicts and time, size, the commands (a
+"### Notes" subsection below the table, written by hand, is kept).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 OUT = HERE / "results_any_rover.md"
 SECTION = "## Tables for rover files"
+NOTES = "### Notes"
 
 CASES: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("mer_nominal", "slope=0,5,10;cross_slope=0;speed=2,4", ()),
@@ -113,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
     ])
     text = OUT.read_text() if OUT.is_file() else "# Primitives of rovers from files (issue 23)\n\n"
-    head = text.split(SECTION, 1)[0].rstrip("\n")
-    write_text(OUT, head + "\n\n" + section)
+    head, _, old = text.partition(SECTION)
+    notes = old.partition(NOTES)[1] + old.partition(NOTES)[2]  # hand-written notes below the table: kept
+    write_text(OUT, head.rstrip("\n") + "\n\n" + section + ("\n" + notes if notes else ""))
     print(f"wrote {OUT}")
     if tmp is not None:
         tmp.cleanup()

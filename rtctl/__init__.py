@@ -7,6 +7,7 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.messages`: measurements in, commands out;
 * :mod:`rtctl.inputs`: the input boundary (every field converted once; time stamps and sequence numbers judged);
 * :mod:`rtctl.table`: lookup tables (load, hash/schema check, interpolation at an operating point);
+* :mod:`rtctl.wheel_set`: the wheel set a table is for (its header) and whether this rtctl drives it;
 * :mod:`rtctl.config`: the controller's TOML configuration (actuator limits, noise, gains, QP settings);
 * :mod:`rtctl.estimator`: EKF on heading, position, slip, crab angle and gyro bias (filterpy);
 * :mod:`rtctl.allocator`: the QP of one SQP step of (7.25) (OSQP, set up once per table);
@@ -18,5 +19,5 @@ or :mod:`offline` (``tests/test_imports.py`` enforces it). Modules:
 * :mod:`rtctl.codegen`: optional tool (not on the 5 Hz path): the QP as C code (OSQP's code generation) for a flight build.
 """
 
-__all__ = ["layout", "messages", "inputs", "table", "config", "estimator", "allocator", "rti", "mirror", "physics",
+__all__ = ["layout", "messages", "inputs", "table", "wheel_set", "config", "estimator", "allocator", "rti", "mirror", "physics",
            "controller", "runner", "codegen"]

@@ -79,6 +79,7 @@ from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds, read_table_failures, read_task_kinds, rule_text
 from .inputs import Inputs, TickClock, read_measurements
 from .layout import WHEELS
+from .wheel_set import unsupported_reason
 from .messages import Commands, Diagnostics, Measurements, Task
 from .mirror import MIRROR_WHEEL, MirrorError, mirror_table
 from .rti import RealTimeIteration
@@ -299,6 +300,11 @@ class Controller:
         kind_from: dict[str, str] = {}
         for name in sorted(tables):
             t = tables[name]
+            why = unsupported_reason(t.header, t.layout)
+            if why is not None:  # another rover's wheel set (:mod:`rtctl.wheel_set`): refused, never driven
+                unavailable[name] = why
+                del tables[name]
+                continue
             try:
                 kinds = read_kinds(t.header, name)
                 task_kinds = read_task_kinds(t.header, name)

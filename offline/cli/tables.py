@@ -190,6 +190,18 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"rover {r.get('name')} (weight {r.get('weight')} N, rocker {r.get('rocker_length')} m); sources: "
           + ", ".join(f"{k} {v['name']} sha256 {v['sha256'][:12]}" if isinstance(v, dict) else f"{k} {v}"
                       for k, v in h["sources"].items() if k != "scenario_text"))
+    from rtctl.wheel_set import unsupported_reason, wheel_set_of
+
+    ws = wheel_set_of(h, t.layout)
+    odd = [f"{w} {'not steerable' if ws.steerable and not ws.steerable[i] else ''}"
+           f"{' not driven' if ws.driven and not ws.driven[i] else ''}".strip() for i, w in enumerate(ws.wheels)]
+    odd = [o for o, w in zip(odd, ws.wheels) if o != w]
+    line = f"wheel set: {ws.text()}"
+    if odd:
+        line += "; " + ", ".join(odd)
+    if ws.rover_file_sha256:
+        line += f"; rover file sha256 {ws.rover_file_sha256[:12]}"
+    print(line + ("; rtctl drives it" if unsupported_reason(h, t.layout) is None else "; rtctl (this version) does not drive it"))
     fam = h.get("family")
     print(f"family: {fam['kind']} of {fam['wheel']} (axis {fam['axis']})" if fam else "family: none (single scenario)")
     world = h.get("world")

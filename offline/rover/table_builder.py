@@ -70,7 +70,7 @@ __all__ = [
     "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
-    "CODE_SOURCES", "code_hash", "world_header", "relaxation_of", "relaxation_verdict",
+    "CODE_SOURCES", "code_hash", "world_header", "wheel_set_header", "relaxation_of", "relaxation_verdict",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -262,11 +262,12 @@ def family_of(sc: Any, choice: str = "auto") -> dict[str, Any] | None:
     found: list[dict[str, Any]] = []
     if getattr(sc, "trench", None) is not None:
         found.append({"axis": "trench_depth", "wheel": sc.trench.wheel, "kind": "trench depth target"})
-    for k in ("FR", "FL", "RR", "RL"):
+    wheels = tuple(getattr(sc, "wheels", ("FR", "FL", "RR", "RL")))  # a rover file's wheels, in file order
+    for k in wheels:
         f = sc.failure(k)
         if getattr(f, "steer_stuck", None) is not None:
             found.append({"axis": "steer_stuck", "wheel": k, "kind": "stuck steering angle"})
-    for k in ("FR", "FL", "RR", "RL"):
+    for k in wheels:
         f = sc.failure(k)
         if math.isfinite(getattr(f, "rim_speed_max", math.inf)) and not getattr(f, "locked", False):
             found.append({"axis": "rim_speed_cap_fraction", "wheel": k, "kind": "rim-speed cap / travel speed"})
@@ -454,11 +455,64 @@ def table_spec(path: str | Path, grid: str | None = None, family: str = "auto", 
         wp = Path(world.source) if getattr(world, "source", "") else None
         sources["world_file"] = _file_record(wp) if wp is not None and wp.is_file() else {"name": "(in memory)"}
     sc = replace(sc, source=p.name)
+    if getattr(sc, "rover_file", None) is not None:
+        sc = _rover_file_sources(sc, sources)
     if solver is None:
         from .primitives import SolverOptions
 
         solver = SolverOptions(**TABLE_SOLVER_BUDGETS)
     return TableSpec(sc.name, sc, g, fam, sc.description, sources, build or BuildOptions(), solver, refine)
+
+
+def _rover_file_sources(sc: Any, sources: dict[str, Any]) -> Any:
+    """Record a rover-file scenario's rover file (and its wheels' parameter file) by name and
+    sha256 in ``sources``, and return the scenario with the file's machine path replaced by its
+    name (in the rover spec and the rover's ``source`` text): a table header names files, never
+    where they were on the machine that built it."""
+    rf = sc.rover_file
+    where = Path(rf.path) if rf.path else None
+    if where is not None and where.is_file():
+        sources["rover_file"] = _file_record(where)
+    else:  # a rover given as a mapping: its canonical JSON stands for the file
+        blob = json.dumps(encode(replace(rf, path="")), sort_keys=True).encode()
+        sources["rover_file"] = {"name": f"{rf.name} (no file)", "sha256": hashlib.sha256(blob).hexdigest()}
+    refs = {rf.wheel_params(w) for w in rf.wheel_names}
+    if "params_file" not in sources and "params_preset" not in sources and len(refs) == 1:
+        ref = next(iter(refs))
+        if ref.endswith(".toml") and Path(ref).is_file():
+            sources["params_file"] = _file_record(Path(ref))
+        elif not ref.endswith(".toml"):
+            sources["params_preset"] = ref
+    if where is None:
+        return sc
+    rover = sc.rover
+    if isinstance(getattr(rover, "source", None), str) and rf.path in rover.source:
+        rover = replace(rover, source=rover.source.replace(rf.path, where.name))
+    return replace(sc, rover=rover, rover_file=replace(rf, path=where.name))
+
+
+def wheel_set_header(sc: Any, sources: Mapping[str, Any]) -> dict[str, Any]:
+    """The header's ``wheel_set``: the wheels a table is for, so the rover reads their names and
+    count from the table (:mod:`rtctl.wheel_set`).
+
+    ``wheels`` (names in layout order), ``count``, ``steerable`` and ``driven`` (per wheel),
+    ``steer_range_rad`` (per wheel ``[min, max]``; None without a rover file), ``suspension``
+    (``rocker`` for the mini rover of Table 7.2, else the rover file's kind), ``drive_direction``,
+    ``rover`` (name) and ``rover_file`` (``{"name", "sha256"}`` of the rover file, None for a
+    scenario without one: the four-wheel rocker of its ``[rover]`` section)."""
+    rf = getattr(sc, "rover_file", None)
+    if rf is None:
+        wheels = tuple(sc.wheels)
+        return {"wheels": list(wheels), "count": len(wheels), "steerable": [True] * len(wheels),
+                "driven": [True] * len(wheels), "steer_range_rad": None, "suspension": "rocker",
+                "drive_direction": "forward", "rover": sc.rover.name, "rover_file": None}
+    backward = rf.name.endswith(" (backward)")
+    return {"wheels": list(rf.wheel_names), "count": len(rf.wheels),
+            "steerable": [bool(w.steerable) for w in rf.wheels], "driven": [bool(w.driven) for w in rf.wheels],
+            "steer_range_rad": [[float(w.steer_min), float(w.steer_max)] for w in rf.wheels],
+            "suspension": rf.suspension, "drive_direction": "backward" if backward else "forward",
+            "rover": rf.name[: -len(" (backward)")] if backward else rf.name,
+            "rover_file": dict(sources["rover_file"]) if "rover_file" in sources else None}
 
 
 def chains(grid: GridSpec) -> list[list[int]]:
@@ -1636,7 +1690,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "layout": json.loads(lay.to_json()), "status_names": list(STATUS_NAMES),
         "controller_names": list(CONTROLLER_NAMES),
         "controller_offsets": {"mz_offset_Nm": spec.build.mz_offset, "fy_offset_N": spec.build.fy_offset},
-        "objective": "f = sum_i M_y,i^2 / (W/4 r_s)^2 (eq. 7.24, dimensionless as the NLP defines it)",
+        "objective": f"f = sum_i M_y,i^2 / (W/{len(lay.wheels)} r_s)^2 (eq. 7.24, dimensionless as the NLP defines it)",
         "units": {"x": "per layout variable unit", "p": "per layout parameter unit", "g": "per layout constraint unit",
                   "wrench": "N, N m (Fx, Fy, Fz, Mx, My, Mz), wheel frame Fig. 5.1",
                   "wrench_jac": "per (m/s, m/s, rad/s, m, m)", "slip": "1", "slip_angle": "rad", "torque": "N m",
@@ -1662,6 +1716,7 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "feasible_points": int(np.sum(arrays["status"] == 0)),
     }
     header.update(failure_header(sc, spec.family))
+    header["wheel_set"] = wheel_set_header(sc, spec.sources)
     if refinement is not None:
         header["refinement"] = refinement
     world = world_header(sc, pb)

@@ -1,0 +1,143 @@
+"""The wheel set a table is for, read from its header, and whether this rtctl drives it.
+
+A table built by ``offnominal tables build`` carries ``wheel_set`` in its header
+(:func:`offline.rover.table_builder.wheel_set_header`): the wheel names in layout order, their
+count, which are steerable and driven, the suspension kind, the drive direction, the rover's
+name and, for a scenario that names a rover file (:mod:`rtctl.physics.rover_file`), that file's
+name and sha256 (never a machine path). A table written before the entry existed has none: its
+wheels are its layout's, and it was built from a rover file when its scenario record names one.
+
+This version of rtctl drives one wheel set: the four-wheel rocker of Table 7.2, wheels
+:data:`rtctl.layout.WHEELS` with the balance rows :data:`rtctl.layout.BALANCE_ROWS`, built from a
+scenario without a rover file (the exact residual of each tick,
+:meth:`rtctl.physics.steady_state.SteadyStateModel.from_table_header`, is that rocker's statics).
+Any other table is refused at start-up by the controller with :func:`unsupported_reason`'s text
+(counted among the unavailable tables and flagged), never driven.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from .layout import BALANCE_ROWS, WHEELS, NlpLayout
+
+__all__ = ["WheelSet", "wheel_set_of", "unsupported_reason"]
+
+
+@dataclass(frozen=True)
+class WheelSet:
+    """The wheels of one table.
+
+    Attributes
+    ----------
+    wheels : tuple of str
+        Names in layout order.
+    steerable, driven : tuple of bool or None
+        Per wheel (None: not recorded, a table written before the header entry).
+    suspension : str
+        ``rocker`` (the four-wheel rocker of Table 7.2), ``rocker_bogie`` or ``rigid``; ``""``
+        when not recorded.
+    rover : str
+        The rover's name.
+    rover_file : str or None
+        The rover file's name (None: a scenario without a rover file).
+    rover_file_sha256 : str or None
+        The rover file's sha256, when recorded.
+    drive_direction : str
+        ``forward`` or ``backward`` (the rover turned half round).
+    """
+
+    wheels: tuple[str, ...]
+    steerable: tuple[bool, ...] | None
+    driven: tuple[bool, ...] | None
+    suspension: str
+    rover: str
+    rover_file: str | None
+    rover_file_sha256: str | None
+    drive_direction: str = "forward"
+
+    @property
+    def count(self) -> int:
+        """Number of wheels."""
+        return len(self.wheels)
+
+    def text(self) -> str:
+        """One line naming the wheels and the rover, e.g. ``6 wheels RF, LF, ... of rover mer_class
+        (rover file mer_class_rocker_bogie.toml, suspension rocker_bogie, driving backward)``."""
+        where = [f"rover file {self.rover_file}" if self.rover_file else "no rover file"]
+        if self.suspension:
+            where.append(f"suspension {self.suspension}")
+        if self.drive_direction != "forward":
+            where.append(f"driving {self.drive_direction}")
+        return f"{self.count} wheels {', '.join(self.wheels)} of rover {self.rover or '?'} ({', '.join(where)})"
+
+
+def _flags(value: Any, n: int) -> tuple[bool, ...] | None:
+    if isinstance(value, list) and len(value) == n and all(isinstance(v, bool) for v in value):
+        return tuple(value)
+    return None
+
+
+def wheel_set_of(header: Mapping[str, Any], layout: NlpLayout) -> WheelSet:
+    """The wheel set of a table from its header's ``wheel_set`` (or, in a table written before
+    it, from its layout and scenario record).
+
+    Parameters
+    ----------
+    header : mapping
+        The table header (:attr:`rtctl.table.Table.header`).
+    layout : NlpLayout
+        The table's layout (its wheel names are authoritative for the arrays).
+
+    Returns
+    -------
+    WheelSet
+    """
+    ws = header.get("wheel_set")
+    rover_rec = header.get("rover")
+    rover_name = str(rover_rec.get("name", "")) if isinstance(rover_rec, Mapping) else ""
+    wheels = tuple(layout.wheels)
+    if isinstance(ws, Mapping):
+        rf = ws.get("rover_file")
+        return WheelSet(wheels, _flags(ws.get("steerable"), len(wheels)), _flags(ws.get("driven"), len(wheels)),
+                        str(ws.get("suspension", "")), str(ws.get("rover", rover_name)),
+                        str(rf.get("name")) if isinstance(rf, Mapping) else None,
+                        str(rf.get("sha256")) if isinstance(rf, Mapping) and rf.get("sha256") else None,
+                        str(ws.get("drive_direction", "forward")))
+    sc = header.get("scenario")
+    spec = sc.get("rover_file") if isinstance(sc, Mapping) else None
+    if isinstance(spec, Mapping):  # built from a rover file before the header carried the wheel set
+        path = str(spec.get("path", "")) or str(spec.get("name", "?"))
+        name = path.replace("\\", "/").rsplit("/", 1)[-1]
+        return WheelSet(wheels, None, None, str(spec.get("suspension", "")), str(spec.get("name", rover_name)),
+                        name, None)
+    return WheelSet(wheels, None, None, "rocker", rover_name, None, None)
+
+
+def unsupported_reason(header: Mapping[str, Any], layout: NlpLayout) -> str | None:
+    """Why this rtctl cannot drive a table's wheel set, with what to do; None when it can.
+
+    Supported: the four-wheel rocker of Table 7.2 (wheels :data:`rtctl.layout.WHEELS`, balance
+    rows :data:`rtctl.layout.BALANCE_ROWS`) built from a scenario without a rover file.
+
+    Parameters
+    ----------
+    header : mapping
+        The table header.
+    layout : NlpLayout
+        The table's layout.
+
+    Returns
+    -------
+    str or None
+    """
+    ws = wheel_set_of(header, layout)
+    balance = tuple(b.name[len("balance "):] for b in layout.constraints if b.name.startswith("balance "))
+    if ws.rover_file is None and ws.wheels == WHEELS and balance == BALANCE_ROWS:
+        return None
+    return (f"this table is for the {ws.text()}; rtctl drives the four-wheel layout only in this version "
+            f"(wheels {', '.join(WHEELS)} of the Table 7.2 rocker, from a scenario without a rover file): "
+            "take this table out of the index the controller reads (or give the controller a config whose "
+            "index lists only four-wheel tables); a rover file's tables serve the offline tools "
+            "(offnominal tables verify/info) until rtctl takes the wheel set from the table header")

@@ -135,7 +135,7 @@ def main() -> None:
             continue
         verdict = (("pass" if r["ok"] else "FAIL") + ("; said unreachable" if r["unreachable"] else "")
                    if r["primitive"] == "optimal" else ("no primitive" + (
-            ", said unreachable" if r["unreachable"] else ", NOT said unreachable"))
+            ", said unreachable" if r["unreachable"] else ", NOT said unreachable")))
         if r["stuck"]:
             verdict += f"; {r['stuck']}"
         lines.append(f"| {r['case']} | {r['failures']} | {r['primitive']} | {r['table']} | {r['how']} | "

@@ -4,8 +4,8 @@ One IPOPT iteration on the mini rover's NLP is dominated by the exact Hessian of
 a casadi SX function of about 714k instructions (README's worked example), 2.5 ms per call in
 casadi's virtual machine (``tests/bench/results_worked_example_i22.md``). :func:`compiled_functions`
 generates C for every function IPOPT evaluates (``nlp_f``, ``nlp_g``, ``nlp_grad_f``,
-``nlp_jac_g``, ``nlp_hess_l`` and ``nlp_grad``, the last for the parameters' multipliers) with
-casadi's code generator, compiles it with the system C compiler and loads it with
+``nlp_jac_g`` and ``nlp_hess_l``; the problem's solvers do not ask casadi for the parameters'
+multipliers, ``calc_lam_p = False``, so ``nlp_grad`` is never evaluated) with casadi's code generator, compiles it with the system C compiler and loads it with
 ``casadi.external``; :class:`~offline.rover.primitives.SteadyStateProblem` hands the loaded
 functions to ``casadi.nlpsol`` through its ``cache`` option, so IPOPT evaluates compiled code and
 the problem (variables, rows, bounds, start points) is unchanged.
@@ -47,15 +47,17 @@ __all__ = ["COMPILE_MODES", "NLP_COMPILE_FLAGS", "NLP_FUNCTIONS", "CompileError"
 COMPILE_MODES = ("auto", "on", "off")
 """Values of ``build.compile`` / :attr:`~offline.rover.primitives.SolverOptions.compile` (module doc)."""
 
-NLP_FUNCTIONS = ("nlp_f", "nlp_g", "nlp_grad", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
-"""casadi's names of the functions its IPOPT interface evaluates (those the solver has are compiled)."""
+NLP_FUNCTIONS = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
+"""casadi's names of the functions its IPOPT interface evaluates in a solve (those the solver has
+are compiled; ``nlp_grad``, for the parameters' multipliers, only with ``calc_lam_p``, stays
+interpreted)."""
 
 NLP_COMPILE_FLAGS: tuple[str, ...] = ("-O1",)
 """C compiler flags of the NLP library (``OFFNOMINAL_NLP_CFLAGS``, space separated, overrides them;
 the flags are part of the cache key). Measured on README's worked example (26 MB of generated C):
 ``tests/bench/results_worked_example_compiled.md``."""
 
-_SOURCE_NAME = "offnominal_nlp"
+_SOURCE_NAME = "nlp_fns"  # the generated file, symbol prefix and library name
 _said_no_compiler = False
 
 

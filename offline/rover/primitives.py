@@ -373,7 +373,7 @@ class SteadyStateProblem:
 
     def _ipopt_options(self, warm: bool, max_iter: int | None = None) -> dict[str, Any]:
         o = self.options
-        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol,
+        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol, "calc_lam_p": False,
               "ipopt.max_iter": o.max_iter if max_iter is None else int(max_iter),
               "ipopt.mu_strategy": "adaptive", "ipopt.hessian_approximation": o.hessian, "ipopt.constr_viol_tol": 1e-9}
         if self._compiled is not None:

@@ -33,6 +33,7 @@ def test_compiled_functions_give_the_virtual_machines_solution_and_are_cached(tm
 
     monkeypatch.setenv("OFFNOMINAL_CACHE", str(tmp_path))
     monkeypatch.setenv("OFFNOMINAL_NLP_CFLAGS", "-O0")  # a test checks values, not speed
+    monkeypatch.setattr(C, "SPLIT_STATEMENTS", 5)  # cut the small functions into parts as the real ones are
     nlp = _small_nlp()
     vm = ca.nlpsol("vm", "ipopt", nlp, IPOPT)
     fns = C.compiled_functions(vm, "on", "test NLP")

@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -42,7 +43,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 __all__ = ["COMPILE_MODES", "NLP_COMPILE_FLAGS", "NLP_FUNCTIONS", "CompileError", "cache_dir", "find_compiler",
-           "compiled_functions"]
+           "compiled_functions", "split_sources"]
 
 COMPILE_MODES = ("auto", "on", "off")
 """Values of ``build.compile`` / :attr:`~offline.rover.primitives.SolverOptions.compile` (module doc)."""
@@ -56,6 +57,9 @@ NLP_COMPILE_FLAGS: tuple[str, ...] = ("-O1",)
 """C compiler flags of the NLP library (``OFFNOMINAL_NLP_CFLAGS``, space separated, overrides them;
 the flags are part of the cache key). Measured on README's worked example (26 MB of generated C):
 ``tests/bench/results_worked_example_compiled.md``."""
+
+SPLIT_STATEMENTS = 4000
+"""Statements per C function in :func:`split_sources` (see there)."""
 
 _SOURCE_NAME = "nlp_fns"  # the generated file, symbol prefix and library name
 _said_no_compiler = False
@@ -174,7 +178,8 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
             os.chdir(cwd)
         src = Path(tmp) / f"{_SOURCE_NAME}.c"
         text = src.read_bytes()
-        digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names)).encode()).hexdigest()[:20]
+        digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names, f"split {SPLIT_STATEMENTS}")).encode()
+                                ).hexdigest()[:20]
         so = root / f"{_SOURCE_NAME}_{digest}.so"
         if not so.exists():
             with _locked(root / f".{so.name}.lock"):
@@ -183,14 +188,98 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
     return {n: ca.external(n, str(so)) for n in names}
 
 
+_FUNCTION = re.compile(r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, casadi_real\*\* res, "
+                       r"casadi_int\* iw, casadi_real\* w, int mem\) \{$")
+_VARIABLE = re.compile(r"\ba(\d+)\b")
+_HELPER = re.compile(r"^casadi_real (casadi_\w+)\(")
+
+
+def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> list[str]:
+    """casadi's generated C cut for the C compiler: ``[main, part_1, ..., part_units]``.
+
+    casadi writes an SX function as one C function of straight-line statements on local
+    variables (``a00123=(a00042*a00007);``). The Lagrangian Hessian of the mini rover's NLP is one
+    such function of 714k statements: ``gcc -O1`` on it grew past 21 GB of memory and was killed
+    (2026-11-25, this machine), and ``-O0`` code is no faster than casadi's virtual machine. Here
+    every function longer than ``chunk`` statements becomes a driver that calls parts of ``chunk``
+    statements sharing the work variables through one array (``a00123`` becomes ``a[123]``): the
+    same operations in the same order, each part small enough for the optimiser. The parts go
+    to ``units`` further files (compiled in parallel), which repeat the generated file's
+    preamble with its helper functions made ``static``.
+    """
+    lines = text.split("\n")
+    try:
+        end_pre = lines.index("/* Configuration this file was compiled with */")
+    except ValueError:
+        return [text]
+    preamble = [_HELPER.sub(r"static casadi_real \1(", ln) for ln in lines[:end_pre]]
+    main: list[str] = []
+    parts: list[list[str]] = []
+    i = 0
+    while i < len(lines):
+        m = _FUNCTION.match(lines[i])
+        if not m:
+            main.append(lines[i])
+            i += 1
+            continue
+        j = i + 1
+        while lines[j] != "}":
+            j += 1
+        body = lines[i + 1:j]
+        stmts = [ln for ln in body if not ln.startswith("  casadi_real a") and ln != "  return 0;"]
+        if len(stmts) <= chunk or body[-1] != "  return 0;":
+            main.extend(lines[i:j + 1])
+            i = j + 1
+            continue
+        name = m.group(1)
+        nv = 1 + max((int(v) for ln in stmts for v in _VARIABLE.findall(ln)), default=0)
+        names = []
+        for k in range(0, len(stmts), chunk):
+            names.append(f"{name}_part{k // chunk}")
+            head = f"void {names[-1]}(const casadi_real** arg, casadi_real** res, casadi_real* __restrict a)"
+            main.append(f"{head};")
+            parts.append([f"__attribute__((visibility(\"hidden\"))) {head} {{",
+                          *(_VARIABLE.sub(lambda v: f"a[{int(v.group(1))}]", ln) for ln in stmts[k:k + chunk]), "}", ""])
+        main += [lines[i], f"  casadi_real a[{nv}];", *(f"  {n}(arg, res, a);" for n in names), "  return 0;", "}"]
+        i = j + 1
+    if not parts:
+        return [text]
+    units = max(1, min(units, len(parts)))
+    files = ["\n".join(main)]
+    for u in range(units):  # contiguous runs of parts, about equal in length
+        mine = parts[u * len(parts) // units:(u + 1) * len(parts) // units]
+        files.append("\n".join([*preamble, "", *(ln for part in mine for ln in part)]))
+    return files
+
+
 def _build(src: Path, so: Path, cc: str, flags: tuple[str, ...], label: str, size: int) -> None:
     t0, c0 = time.perf_counter(), _children_cpu()
     _say(f"compiling the {label} functions ({size / 1e6:.0f} MB of generated C, {Path(cc).name} {' '.join(flags)}) "
          f"into {so.parent}: once per NLP structure, cached for later runs ...")
+    jobs = max(1, os.cpu_count() or 1)
+    objects, procs = [], []
+    for k, code in enumerate(split_sources(src.read_text(), SPLIT_STATEMENTS, jobs)):
+        c = src.with_name(f"{src.stem}_{k}.c")
+        c.write_text(code)
+        objects.append(c.with_suffix(".o"))
+        procs.append([cc, *flags, "-fPIC", "-c", str(c), "-o", str(objects[-1])])
+    running: list[subprocess.Popen[bytes]] = []
+    for cmd in procs:  # at most `jobs` compilers at a time
+        while len(running) >= jobs:
+            _wait(running.pop(0))
+        running.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE))
+    for pr in running:
+        _wait(pr)
     tmp_so = src.with_suffix(".so")
-    subprocess.run([cc, *flags, "-fPIC", "-shared", str(src), "-o", str(tmp_so), "-lm"], check=True, capture_output=True)
+    subprocess.run([cc, "-shared", *map(str, objects), "-o", str(tmp_so), "-lm"], check=True, capture_output=True)
     os.replace(tmp_so, so)  # atomic: a reader sees no library or the whole library
     _say(f"compiled {so.name} in {time.perf_counter() - t0:.0f} s wall, {_children_cpu() - c0:.0f} s CPU")
+
+
+def _wait(pr: "subprocess.Popen[bytes]") -> None:
+    out, err = pr.communicate()
+    if pr.returncode:
+        raise subprocess.CalledProcessError(pr.returncode, pr.args, out, err)
 
 
 def _children_cpu() -> float:

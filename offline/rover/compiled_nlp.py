@@ -178,7 +178,7 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
             os.chdir(cwd)
         src = Path(tmp) / f"{_SOURCE_NAME}.c"
         text = src.read_bytes()
-        digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names, f"split {SPLIT_STATEMENTS} locals")).encode()
+        digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names, f"split {SPLIT_STATEMENTS}")).encode()
                                 ).hexdigest()[:20]
         so = root / f"{_SOURCE_NAME}_{digest}.so"
         if not so.exists():
@@ -192,7 +192,6 @@ _FUNCTION = re.compile(r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, c
                        r"casadi_int\* iw, casadi_real\* w, int mem\) \{$")
 _VARIABLE = re.compile(r"\ba(\d+)\b")
 _HELPER = re.compile(r"^casadi_real (casadi_\w+)\(")
-_ASSIGN = re.compile(r"^  a(\d+)=(.*);$")
 
 
 def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> list[str]:
@@ -203,9 +202,8 @@ def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> l
     such function of 714k statements: ``gcc -O1`` on it grew past 21 GB of memory and was killed
     (2026-11-25, this machine), and ``-O0`` code is no faster than casadi's virtual machine. Here
     every function longer than ``chunk`` statements becomes a driver that calls parts of ``chunk``
-    statements on local variables, passing the values that cross a part boundary through one
-    array (:func:`_parts_with_locals`): the same operations in the same order, each part small
-    enough for the optimiser. The parts go
+    statements sharing the work variables through one array (``a00123`` becomes ``a[123]``): the
+    same operations in the same order, each part small enough for the optimiser. The parts go
     to ``units`` further files (compiled in parallel), which repeat the generated file's
     preamble with its helper functions made ``static``.
     """
@@ -235,13 +233,14 @@ def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> l
             continue
         name = m.group(1)
         nv = 1 + max((int(v) for ln in stmts for v in _VARIABLE.findall(ln)), default=0)
-        chunks = [stmts[k:k + chunk] for k in range(0, len(stmts), chunk)]
-        names = [f"{name}_part{k}" for k in range(len(chunks))]
-        for k, (n, code) in enumerate(zip(names, _parts_with_locals(chunks))):
-            head = f"void {n}(const casadi_real** arg, casadi_real** res, casadi_real* __restrict wk)"
+        names = []
+        for k in range(0, len(stmts), chunk):
+            names.append(f"{name}_part{k // chunk}")
+            head = f"void {names[-1]}(const casadi_real** arg, casadi_real** res, casadi_real* __restrict a)"
             main.append(f"{head};")
-            parts.append([f"__attribute__((visibility(\"hidden\"))) {head} {{", *code, "}", ""])
-        main += [lines[i], f"  casadi_real wk[{nv}];", *(f"  {n}(arg, res, wk);" for n in names), "  return 0;", "}"]
+            parts.append([f"__attribute__((visibility(\"hidden\"))) {head} {{",
+                          *(_VARIABLE.sub(lambda v: f"a[{int(v.group(1))}]", ln) for ln in stmts[k:k + chunk]), "}", ""])
+        main += [lines[i], f"  casadi_real a[{nv}];", *(f"  {n}(arg, res, a);" for n in names), "  return 0;", "}"]
         i = j + 1
     if not parts:
         return [text]
@@ -251,39 +250,6 @@ def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> l
         mine = parts[u * len(parts) // units:(u + 1) * len(parts) // units]
         files.append("\n".join([*preamble, "", *(ln for part in mine for ln in part)]))
     return files
-
-
-def _parts_with_locals(chunks: list[list[str]]) -> list[list[str]]:
-    """The statements of each part on local variables (``a00123`` becomes ``a123``), with the
-    values a part needs from earlier parts loaded from the shared array ``wk`` at its start and
-    those later parts need stored into it at its end (liveness at part granularity: casadi
-    reuses its work variables, so a name may hold several values in turn)."""
-    reads: list[set[int]] = []
-    writes: list[set[int]] = []
-    live_in: list[set[int]] = []
-    for stmts in chunks:
-        r, w, li = set(), set(), set()
-        for ln in stmts:
-            m = _ASSIGN.match(ln)
-            used = {int(v) for v in _VARIABLE.findall(m.group(2) if m else ln)}
-            li |= used - w  # read before this part writes it: a value from an earlier part
-            r |= used
-            if m:
-                w.add(int(m.group(1)))
-        reads.append(r)
-        writes.append(w)
-        live_in.append(li)
-    out: list[list[str]] = [[] for _ in chunks]
-    after: set[int] = set()  # values some later part reads before writing
-    for k in range(len(chunks) - 1, -1, -1):
-        names = sorted(reads[k] | writes[k])
-        decl = [f"  casadi_real {', '.join(f'a{v}' for v in names[q:q + 16])};" for q in range(0, len(names), 16)]
-        load = [f"  a{v}=wk[{v}];" for v in sorted(live_in[k])]
-        body = [_VARIABLE.sub(lambda x: f"a{int(x.group(1))}", ln) for ln in chunks[k]]
-        store = [f"  wk[{v}]=a{v};" for v in sorted(writes[k] & after)]
-        out[k] = [*decl, *load, *body, *store]
-        after = live_in[k] | (after - writes[k])
-    return out
 
 
 def _build(src: Path, so: Path, cc: str, flags: tuple[str, ...], label: str, size: int) -> None:

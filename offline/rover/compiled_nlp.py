@@ -5,8 +5,9 @@ a casadi SX function of about 714k instructions (README's worked example), 2.5 m
 casadi's virtual machine (``tests/bench/results_worked_example_i22.md``). :func:`compiled_functions`
 generates C for every function IPOPT evaluates (``nlp_f``, ``nlp_g``, ``nlp_grad_f``,
 ``nlp_jac_g`` and ``nlp_hess_l``; the problem's solvers do not ask casadi for the parameters'
-multipliers, ``calc_lam_p = False``, so ``nlp_grad`` is never evaluated) with casadi's code generator, compiles it with the system C compiler and loads it with
-``casadi.external``; :class:`~offline.rover.primitives.SteadyStateProblem` hands the loaded
+multipliers, ``calc_lam_p = False``, so ``nlp_grad`` is never evaluated) with casadi's code
+generator, cuts it into functions the C compiler can optimise (:func:`split_sources`), compiles
+it with the system C compiler and loads it with ``casadi.external``; :class:`~offline.rover.primitives.SteadyStateProblem` hands the loaded
 functions to ``casadi.nlpsol`` through its ``cache`` option, so IPOPT evaluates compiled code and
 the problem (variables, rows, bounds, start points) is unchanged.
 
@@ -23,9 +24,11 @@ the problem (variables, rows, bounds, start points) is unchanged.
   (compiled; no compiler or a failed compilation is an error), ``"auto"`` (compiled when a C
   compiler is found, else the virtual machine with one line on stderr saying so).
 
-The results are the same physics: the C evaluates the same expression graph as the virtual
-machine, in a different order of floating-point operations only where the C compiler reorders
-them (it does not at the flags used: no ``-ffast-math``).
+The results are the same physics: the C does the same floating-point operations in the same
+order as the virtual machine (no ``-ffast-math``). Measured on README's worked example
+(``tests/bench/results_worked_example_compiled.md``): a byte-identical table; the Hessian 1.6x
+faster (1.54 against 2.50 ms: 714k straight-line operations stay memory-bound compiled), the
+build 0.945 of the virtual machine's CPU; the compilation 354 s of compiler CPU, once.
 """
 
 from __future__ import annotations

@@ -94,9 +94,9 @@ def test_compile_is_a_build_setting_that_changes_no_table_byte(monkeypatch):
     from offline.rover.table_builder import BuildError, BuildOptions, encode
 
     monkeypatch.delenv("OFFNOMINAL_COMPILE", raising=False)
-    assert BuildOptions().compile == "auto"
-    monkeypatch.setenv("OFFNOMINAL_COMPILE", "off")
     assert BuildOptions().compile == "off"
+    monkeypatch.setenv("OFFNOMINAL_COMPILE", "auto")
+    assert BuildOptions().compile == "auto"
     with pytest.raises(BuildError, match="compile = 'fast'"):
         BuildOptions(compile="fast")
     assert encode(BuildOptions(compile="on")) == encode(BuildOptions(compile="off"))

@@ -367,7 +367,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--compile", choices=("auto", "on", "off"), default=None,
                    help="IPOPT evaluates the NLP as C compiled once per NLP structure and cached in "
                         "$XDG_CACHE_HOME/offnominal (on), in casadi's virtual machine (off), or compiled when a C "
-                        "compiler is found (auto; default, or $OFFNOMINAL_COMPILE). The same table either way")
+                        "compiler is found (auto); default off, or $OFFNOMINAL_COMPILE. The same table either way")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     b.add_argument("--base-index", default="shipped", metavar="shipped|none|INDEX",

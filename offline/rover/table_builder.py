@@ -361,12 +361,14 @@ class BuildOptions:
         for the same NLP, :func:`~offline.rover.table_continuation.seed_tables`): ``"shipped"``
         (the shipped ``tables/index.json``), ``"none"``, or an ``index.json`` path.
     compile : str
-        ``"auto"`` (default: IPOPT evaluates the NLP's functions as C compiled once per NLP
-        structure and cached on disk when a C compiler is found, else casadi's virtual machine
-        with one line saying so), ``"on"`` (compiled or an error) or ``"off"``
-        (:mod:`offline.rover.compiled_nlp`). The environment variable ``OFFNOMINAL_COMPILE``
-        sets the default (the test suite sets ``off``). Not data: the same table either way, so
-        neither written to the file nor hashed.
+        ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
+        functions as C compiled once per NLP structure and cached on disk when a C compiler is
+        found, else the virtual machine with one line saying so) or ``"on"`` (compiled or an
+        error), :mod:`offline.rover.compiled_nlp`. Default off because measured on README's
+        worked example the compiled build took 0.945 of the CPU for a one-off compilation of
+        354 CPU s (``tests/bench/results_worked_example_compiled.md``). The environment variable
+        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data: the same
+        table either way, so neither written to the file nor hashed.
     """
 
     mz_offset: float = 0.2
@@ -383,7 +385,7 @@ class BuildOptions:
     relaxation_evidence: bool = True
     schedule: str = "continuation"
     seed_index: str = "shipped"
-    compile: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_COMPILE") or "auto",
+    compile: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_COMPILE") or "off",
                          metadata={"not_data": True})
 
     def __post_init__(self) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,11 @@ from offline.physics.params import (
     WHEEL_GROUSERED_PUBLISHED_CODE,
 )
 from offline.physics.terramechanics import WheelModel
+
+# Table builds in the suite run casadi's virtual machine: compiling an NLP's functions costs minutes
+# of CPU once per NLP structure (offline.rover.compiled_nlp); tests/test_compiled_nlp.py tests that
+# path. Set here, before any test module, so xdist workers and CLI subprocesses inherit it.
+os.environ.setdefault("OFFNOMINAL_COMPILE", "off")
 
 # --- tolerances (relative unless named _abs) -------------------------------------------
 RTOL_BACKENDS = 1e-10  # numpy vs casadi evaluation of the same graph

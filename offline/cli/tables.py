@@ -135,7 +135,8 @@ def cmd_build(args: argparse.Namespace) -> int:
             g = args.grid if (len(files) == 1 or args.grid_all) and args.grid else grids.get(f.stem)
             specs.append(table_spec(f, g, args.family, refine=cli_refine or refines.get(f.stem),
                                     world=_world(args.world, f) if args.world else None,
-                                    build=BuildOptions(schedule=args.schedule, seed_index=args.seed_index)))
+                                    build=BuildOptions(schedule=args.schedule, seed_index=args.seed_index,
+                                                       **({"compile": args.compile} if args.compile else {}))))
     except BuildError as exc:
         return fail(str(exc))
     if args.world:
@@ -375,6 +376,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seed-index", default="shipped", metavar="shipped|none|INDEX",
                    help="index whose failure-free tables of the same rover, parameters and world seed the "
                         "continuation (default: the shipped index)")
+    b.add_argument("--compile", choices=("auto", "on", "off"), default=None,
+                   help="IPOPT evaluates the NLP as C compiled once per NLP structure and cached in "
+                        "$XDG_CACHE_HOME/offnominal (on), in casadi's virtual machine (off), or compiled when a C "
+                        "compiler is found (auto); default off, or $OFFNOMINAL_COMPILE. The same table either way")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")
     b.add_argument("--no-index", action="store_true", help="do not update <out>/index.json")
     b.add_argument("--base-index", default="shipped", metavar="shipped|none|INDEX",

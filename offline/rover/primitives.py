@@ -72,6 +72,7 @@ from rtctl.physics.suspension import SuspensionStatics
 from ..physics.backend import CASADI, NUMPY, Backend
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
+from .compiled_nlp import compiled_functions
 from .failures import SolutionView, WheelBounds
 from .scenario import Scenario, WheelFailure
 from .statics import WHEELS, FourWheelRocker, FreeBodyBalance, free_body_residuals
@@ -149,6 +150,11 @@ class SolverOptions:
         Largest scaled constraint violation of a point called feasible.
     hessian : str
         IPOPT ``hessian_approximation`` (``"exact"`` or ``"limited-memory"``).
+    compile : str
+        How IPOPT evaluates the NLP's functions: ``"off"`` (casadi's virtual machine),
+        ``"on"`` or ``"auto"`` (C compiled once per NLP structure and cached on disk,
+        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result, so it is not written
+        to table files and not hashed. A table build sets it from ``build.compile``.
     """
 
     tol: float = 1e-9
@@ -169,6 +175,7 @@ class SolverOptions:
     check_rtol: float = 1e-6
     feasibility_tol: float = 1e-7
     hessian: str = "exact"
+    compile: str = field(default="off", metadata={"not_data": True})
 
 
 @functools.lru_cache(maxsize=16)
@@ -324,7 +331,12 @@ class SteadyStateProblem:
         self.symbols = {"x": xs, "p": p, "f": f, "g": g}
         self.g_names = L.constraint_names
         self._nlp = {"x": xs, "p": p, "f": f, "g": g}
+        self._compiled: dict[str, Any] | None = None
         self.solver = ca.nlpsol("primitive", "ipopt", self._nlp, self._ipopt_options(warm=False))
+        self._compiled = compiled_functions(self.solver, self.options.compile, "steady-state NLP")
+        """IPOPT's functions as compiled C (None: casadi's virtual machine), :mod:`.compiled_nlp`."""
+        if self._compiled is not None:
+            self.solver = ca.nlpsol("primitive", "ipopt", self._nlp, self._ipopt_options(warm=False))
         self._solvers: dict[tuple[bool, int | None], Any] = {}  # (warm start, max_iter) -> IPOPT instance
         self.eval_g = ca.Function("eval_g", [xs, p], [g, f])
         self.build_seconds = time.perf_counter() - t0
@@ -361,9 +373,11 @@ class SteadyStateProblem:
 
     def _ipopt_options(self, warm: bool, max_iter: int | None = None) -> dict[str, Any]:
         o = self.options
-        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol,
+        io = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": o.tol, "calc_lam_p": False,
               "ipopt.max_iter": o.max_iter if max_iter is None else int(max_iter),
               "ipopt.mu_strategy": "adaptive", "ipopt.hessian_approximation": o.hessian, "ipopt.constr_viol_tol": 1e-9}
+        if self._compiled is not None:
+            io["cache"] = self._compiled
         if warm:
             io.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
                        "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-6})

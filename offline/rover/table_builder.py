@@ -121,10 +121,12 @@ def encode(obj: Any) -> Any:
     """JSON-able form of scenario data: frozen dataclasses tagged with their class (only
     classes of :mod:`offline` are accepted back), tuples tagged, non-finite floats as strings.
     A field marked ``omit_default`` in its metadata is left out at its default (the scenario's
-    world terms: files without them stay byte-identical)."""
+    world terms: files without them stay byte-identical), one marked ``not_data`` always (a
+    setting that changes no result, such as ``compile``)."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         d = {f.name: encode(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-             if f.init and not (f.metadata.get("omit_default") and getattr(obj, f.name) == f.default)}
+             if f.init and not f.metadata.get("not_data")
+             and not (f.metadata.get("omit_default") and getattr(obj, f.name) == f.default)}
         return {"__class__": f"{type(obj).__module__}.{type(obj).__qualname__}", **d}
     if isinstance(obj, (bool, str, type(None))):
         return obj
@@ -359,6 +361,15 @@ class BuildOptions:
         Where the continuation schedule looks for seed tables (tables without failures built
         for the same NLP, :func:`~offline.rover.table_continuation.seed_tables`): ``"shipped"``
         (the shipped ``tables/index.json``), ``"none"``, or an ``index.json`` path.
+    compile : str
+        ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
+        functions as C compiled once per NLP structure and cached on disk when a C compiler is
+        found, else the virtual machine with one line saying so) or ``"on"`` (compiled or an
+        error), :mod:`offline.rover.compiled_nlp`. Default off because measured on README's
+        worked example the compiled build took 0.945 of the CPU for a one-off compilation of
+        354 CPU s (``tests/bench/results_worked_example_compiled.md``). The environment variable
+        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data: the same
+        table either way, so neither written to the file nor hashed.
     """
 
     mz_offset: float = 0.2
@@ -375,10 +386,15 @@ class BuildOptions:
     relaxation_evidence: bool = True
     schedule: str = "continuation"
     seed_index: str = "shipped"
+    compile: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_COMPILE") or "off",
+                         metadata={"not_data": True})
 
     def __post_init__(self) -> None:
         if self.schedule not in ("continuation", "chains"):
             raise BuildError(f"BuildOptions.schedule = {self.schedule!r}: expected 'continuation' or 'chains'")
+        if self.compile not in ("auto", "on", "off"):
+            raise BuildError(f"BuildOptions.compile = {self.compile!r}: expected 'auto', 'on' or 'off' "
+                             "(from --compile or the environment variable OFFNOMINAL_COMPILE)")
 
 
 @dataclass(frozen=True)
@@ -1216,6 +1232,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     """
     from tqdm import tqdm
 
+    if dataclasses.is_dataclass(spec.solver) and hasattr(spec.solver, "compile"):  # build.compile -> the NLP (not data)
+        spec = replace(spec, solver=replace(spec.solver, compile=spec.build.compile))
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}

@@ -47,6 +47,7 @@ group's rows of an earlier run; report folders under out/bench_drive_discrepancy
     nice python tests/bench/bench_drive_discrepancy.py sparse_negatives
     nice python tests/bench/bench_drive_discrepancy.py sparse "pose every 10 s" --merge   # these cases' rows replaced, the group's others kept
     nice python tests/bench/bench_drive_discrepancy.py effects tether     # cases whose name contains 'tether' (no file written)
+    nice python tests/bench/bench_drive_discrepancy.py effects tether --merge   # the same, these rows replaced in the files
     python tests/bench/bench_drive_discrepancy.py table                   # rewrite the .md from the .json
     nice python tests/bench/bench_drive_discrepancy.py lack_of_fit        # residuals vs noise before any explanation
     python tests/bench/bench_drive_discrepancy.py fl_fr                   # FL vs FR steering separation, this and the former drive
@@ -289,7 +290,16 @@ def run_sparse_case(case: SparseCase, tmp: Path, outdir: Path) -> dict[str, Any]
             "indistinguishable": [s.label for s in v.indistinguishable], "explained_fraction": v.explained_fraction,
             "heldout_segments_chi2": [v.chi2_cv_base, v.chosen.chi2_cv if v.chosen else v.chi2_cv_base],
             "heldout_drive_chi2": [ho["chi2_before"], ho["chi2_after"]], "heldout_drive_terms": ho["rows"],
-            "seconds": secs, "simulations": v.model.simulations}
+            "seconds": secs, "simulations": v.model.simulations, **_withheld(v)}
+
+
+def _withheld(v: Any) -> dict[str, Any]:
+    """The explanation that passed its test but was not named for want of a misfit beyond noise."""
+    w = v.withheld
+    if w is None:
+        return {"withheld": "", "withheld_p": None, "noise_chi2_before": v.noise_chi2[0], "noise_values": v.noise_chi2[2]}
+    return {"withheld": f"{w.label} ({w.parameters_text()})", "withheld_p": w.p_adjusted,
+            "noise_chi2_before": v.noise_chi2[0], "noise_values": v.noise_chi2[2]}
 
 
 def judge(v: Any, expect: dict[str, dict[str, float]], in_library: bool) -> dict[str, Any]:
@@ -340,7 +350,16 @@ def run_case(sc: Any, tr: Truth, name: str, make: Callable[[], Effect], in_libra
             "indistinguishable": [s.label for s in v.indistinguishable], "explained_fraction": v.explained_fraction,
             "heldout_segments_chi2": [v.chi2_cv_base, v.chosen.chi2_cv if v.chosen else v.chi2_cv_base],
             "heldout_drive_chi2": [ho["chi2_before"], ho["chi2_after"]], "heldout_drive_terms": ho["rows"],
-            "seconds": secs, "simulations": v.model.simulations}
+            "seconds": secs, "simulations": v.model.simulations, **_withheld(v)}
+
+
+def _named(r: dict[str, Any]) -> str:
+    """Named terms, or the one not named for want of a misfit beyond noise (rows from this commit on)."""
+    if r.get("withheld"):
+        p = r.get("withheld_p")
+        return (f"- (not named, no misfit beyond noise: {r['noise_chi2_before']:.0f} for {r['noise_values']} values; "
+                f"{r['withheld']}" + (f", p_adj {p:.2g})" if p is not None else ")"))
+    return " + ".join(r["named"]) or "-"
 
 
 def _md(data: dict[str, Any]) -> str:
@@ -371,7 +390,7 @@ def _md(data: dict[str, Any]) -> str:
         if r["indistinguishable"]:
             pe += f" [indistinguishable: {', '.join(r['indistinguishable'])}]"
         indep = "-" if r["group"] in NEGATIVE_GROUPS else "yes" if r["independent"] else "no"
-        md.append(f"| {r['case']} | {indep} | {r['verdict']} | {' + '.join(r['named']) or '-'} | "
+        md.append(f"| {r['case']} | {indep} | {r['verdict']} | {_named(r)} | "
                   f"{'yes' if r['ok'] else 'NO'} | {pe or '-'} | {r['heldout_segments_chi2'][0]:.0f} -> {r['heldout_segments_chi2'][1]:.0f} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
                   f"{r['seconds']:.0f} | {r['simulations']} |")
@@ -408,7 +427,7 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
         ch = ", ".join(r["channels"])
         miss = r["advice"] if r["verdict"] in ("ambiguous", "unexplained", "partly_explained") else "-"
         md.append(f"| {r['case']} | {r['sensors']}; heading from {r['heading_source']} | {ch} | {r['verdict']} | "
-                  f"{' + '.join(r['named']) or '-'} | {'yes' if r['ok'] else 'NO'} ({r['how']}) | {pe or '-'} | {miss} | "
+                  f"{_named(r)} | {'yes' if r['ok'] else 'NO'} ({r['how']}) | {pe or '-'} | {miss} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
                   f"{r['seconds']:.0f} | {r['simulations']} | {r.get('load_after', '-')} ({r.get('commit', 'group commit')}) |")
     eff = [r for r in rows if r["group"] == "sparse"]
@@ -652,10 +671,13 @@ def main(argv: list[str]) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             row = run_case(sc, tr, name, make, inl, seed, Path(tmp), outdir)
         row["group"] = group
+        row["commit"] = commit
+        row["load_before"] = load0
+        row["load_after"] = " ".join(f"{x:.1f}" for x in os.getloadavg())
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
-        if not sel:  # after every case, so a long run loses nothing
-            _save(jpath, group, rows, commit, load0, [*groups, *sparse_cases()])
+        if not sel or merge:  # after every case, so a long run loses nothing
+            _save(jpath, group, rows, commit, load0, [*groups, *sparse_cases()], merge=merge)
     if not sel:
         print((ROOT / "tests/bench/results_drive_discrepancy.md").read_text())
     return 0

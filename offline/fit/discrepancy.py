@@ -330,6 +330,9 @@ class Verdict:
             lines.append("model and data agree within noise: no region is significant and nothing is named")
         elif self.status == "agree":
             lines.append("model and data agree within noise: no candidate and no region is significant")
+        elif c is None and self.withheld is not None:
+            lines.append("UNEXPLAINED: the model as given leaves significant regions, failed rows or a misfit (listed "
+                         "here), and the candidate that passed its test is not named")
         elif c is None:
             lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
         if self.withheld is not None:

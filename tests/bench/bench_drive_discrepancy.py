@@ -380,8 +380,8 @@ def _md(data: dict[str, Any]) -> str:
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
                   f"{info['load_after']} after (shared 2-core machine)")
-    md += ["", "| case | indep.? | verdict | named | right? | fitted (truth, error) | held-out segments chi2 | held-out drive chi2 (terms) | s | sims |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
+    md += ["", "| case | indep.? | verdict | named | right? | fitted (truth, error) | held-out segments chi2 | held-out drive chi2 (terms) | s | sims | commit (load after) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         pe = "; ".join(f"{k} = {e['fitted']:.3g} ({e['truth']:.3g}, {100 * e['rel_error']:.0f} %"
                        + (f"; believed soil {100 * e['believed_rel_error']:.0f} %" if "believed_rel_error" in e else "")
@@ -393,7 +393,8 @@ def _md(data: dict[str, Any]) -> str:
         md.append(f"| {r['case']} | {indep} | {r['verdict']} | {_named(r)} | "
                   f"{'yes' if r['ok'] else 'NO'} | {pe or '-'} | {r['heldout_segments_chi2'][0]:.0f} -> {r['heldout_segments_chi2'][1]:.0f} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
-                  f"{r['seconds']:.0f} | {r['simulations']} |")
+                  f"{r['seconds']:.0f} | {r['simulations']} | "
+                  f"{r.get('commit', data['groups'][r['group']]['commit'])} ({r.get('load_after', data['groups'][r['group']]['load_after'])}) |")
     inl = [r for r in rows if r["group"] not in NEGATIVE_GROUPS and r["in_library"]]
     out = [r for r in rows if not r["in_library"]]
     neg = [r for r in rows if r["group"] in NEGATIVE_GROUPS]

@@ -379,7 +379,7 @@ def _md(data: dict[str, Any]) -> str:
           "cores); sims (re-simulations of the drive) do not.", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
-                  f"{info['load_after']} after (shared 2-core machine)")
+                  f"{info['load_after']} after (shared 2-core machine)" + (f"; {info['rerun']}" if info.get("rerun") else ""))
     md += ["", "| case | indep.? | verdict | named | right? | fitted (truth, error) | held-out segments chi2 | held-out drive chi2 (terms) | s | sims | commit (load after) |",
            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -702,9 +702,12 @@ def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load
         if merge:
             rows = [r for r in data["rows"] if r.get("group") == group]
         data["rows"].sort(key=lambda r: order.index(r["group"]) if r["group"] in order else len(order))
-        data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                                 "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
-                                 "cases": len(rows)}
+        when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        if merge and group in data["groups"]:  # the group's run stays described; the re-run rows carry their own commit
+            data["groups"][group]["rerun"] = f"rows re-run with --merge up to {when} (each row's commit and load in the table)"
+        else:
+            data["groups"][group] = {"commit": commit, "when": when, "load_before": load0,
+                                     "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()), "cases": len(rows)}
         write_text(jpath, json.dumps(data, indent=2, default=float))
         write_text(ROOT / "tests/bench/results_drive_discrepancy.md", _md(data))
 

@@ -373,7 +373,8 @@ def _md(data: dict[str, Any]) -> str:
           "else; OUT = not named confidently (unexplained / partly explained); negative = agree. The calibration drive "
           "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (4.5 cm/s, crabs both ways at 57 deg, no point "
           "turn). Levels: `DRIVE_ALPHA` 0.001 for the alarm tests, `DRIVE_ALPHA_AFTER` 0.01 for the checks after an "
-          "explanation. Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
+          "explanation; from cc4c4c4 on, a significant explanation is named only when the believed model's residual chi2 in "
+          "noise units exceeds the number of values (rows re-run since show their commit). Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
           "(sinkage, wheel torque; the believed soil's error in brackets), the Bekker pressure at one sinkage shown only. "
           "Seconds depend on the machine's load (load averages per group below; two groups ran side by side on the 2 "
           "cores); sims (re-simulations of the drive) do not.", ""]
@@ -418,7 +419,11 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
           "(`ambiguous` / `unexplained`, or `partly_explained` naming nothing wrong); negatives: `agree`. "
           "'missing' is the report's identification advice (the manoeuvres the recording lacks). Rows run at 21d1dd0 "
           "predate a223df0 (manoeuvres of a drive without pose channels from the gyro, not the steering commands): "
-          "the change touches only the advice text, never a verdict. Seconds at the load shown (2 shared cores).", "",
+          "the change touches only the advice text, never a verdict. Rows from cc4c4c4 on run the rule that names a "
+          "significant explanation only over a misfit beyond noise (the believed model's residual chi2 in noise units above "
+          "the number of values, `DriveRecording.name_needs_excess`); a term that passed its test without that is shown "
+          "'not named' with the chi2 and its adjusted p. The rule only withholds names, so a row it did not re-run can "
+          "only keep its verdict or lose a name it gave without an excess. Seconds at the load shown (2 shared cores).", "",
           "| case | sensors / drive | channels | verdict | named | right? (how) | fitted (truth, error) | missing (report) | "
           "held-out drive chi2 | s | sims | load after (commit) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -335,8 +335,6 @@ class Verdict:
                          "here), and the candidate that passed its test is not named")
         elif c is None:
             lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
-        if self.withheld is not None:
-            lines.append(f"not named: {self.withheld_reason}")
         elif self.status == "ambiguous":
             n = len(self.explanations)
             lines.append("NOT IDENTIFIABLE from these data, nothing named: " + (
@@ -360,6 +358,8 @@ class Verdict:
                 lines.append("indistinguishable on these data (held-out Vuong V < 2, similar improvement): "
                              + ", ".join(s.label for s in self.indistinguishable))
                 lines += [f"  to separate: {s.describe()}" for s in self.separations]
+        if self.withheld is not None:
+            lines.append(f"not named: {self.withheld_reason}")
         if self.regions_after:
             lines.append("regions still significant after the explanation:")
             lines += [f"  - {r.describe()}" for r in self.regions_after]

@@ -139,3 +139,9 @@ def test_the_rule_on_the_bench_statistics():
     assert withhold_without_excess(_score(1957.0, 1e-3), 2548.0, 700) == ""
     assert withhold_without_excess(None, 600.0, 700) == ""
     assert withhold_without_excess(_score(11.2, 3.3e-4), 700.0, 700) != ""  # exactly the noise: nothing to explain
+
+
+def test_noise_alone_agrees_with_nothing_withheld_and_the_summary_renders():
+    v = _diagnose(_toy(0.0))
+    assert v.status == "agree" and v.chosen is None and v.withheld is None
+    assert "no candidate and no region is significant" in v.summary() and "not named" not in v.summary()

@@ -709,7 +709,9 @@ def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load
         data["rows"].sort(key=lambda r: order.index(r["group"]) if r["group"] in order else len(order))
         when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
         if merge and group in data["groups"]:  # the group's run stays described; the re-run rows carry their own commit
-            data["groups"][group]["rerun"] = f"rows re-run with --merge up to {when} (each row's commit and load in the table)"
+            data["groups"][group]["rerun"] = (f"rows re-run with `nice python tests/bench/bench_drive_discrepancy.py "
+                                              f"{group} '<case name>' --merge` up to {when} (each row's commit and load "
+                                              "in the table)")
         else:
             data["groups"][group] = {"commit": commit, "when": when, "load_before": load0,
                                      "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()), "cases": len(rows)}

@@ -33,6 +33,10 @@ Pipeline (:func:`diagnose`)
    units, per channel at ``alpha``), it is **partly explained** too; if the best
    explanation removes less than half of the held-out excess chi-square, the verdict
    is **unexplained** (the best candidate is shown as absorbing part, not as the answer).
+   Adapters that set ``name_needs_excess`` (drive recordings) name a significant explanation
+   only when the model as given misfits beyond the noise (residual chi-square in noise units
+   above the number of values, :func:`withhold_without_excess`); otherwise it is reported as
+   *not named* with the reason, and the verdict is that of no explanation.
    With no candidate and no region the verdict is **agree** -- unless the adapter sets
    ``lack_of_fit_floor`` (drive recordings) and a channel of the believed model fails the
    same chi-square test with chi2 / rows above that floor: then **unexplained** (a misfit
@@ -101,6 +105,7 @@ __all__ = [
     "diagnose",
     "undetermined_terms",
     "reduced_parameters",
+    "withhold_without_excess",
     "predict_recording",
     "VERDICTS",
 ]
@@ -269,6 +274,12 @@ class Verdict:
     ambiguity: str = ""
     noise_chi2: tuple[float, float, int, int] = (math.nan, math.nan, 0, 0)
     equal_fraction: float = 0.25
+    withheld: CandidateScore | None = None
+    """An explanation that passed the held-out tests but is not named because the model as given
+    shows no misfit beyond the noise (adapters that set ``name_needs_excess``, e.g. drives:
+    :func:`withhold_without_excess`); ``chosen`` is then None."""
+    withheld_reason: str = ""
+    """Why ``withheld`` is not named (a summary line)."""
     empirical: Any = None
     """What the library lacks, modelled by an empirical term (drives,
     :class:`offline.fit.drive_empirical.EmpiricalResult`), or None: the status above stays the
@@ -315,8 +326,13 @@ class Verdict:
         lines.append("significant regions:" if self.regions else "no significant region")
         lines += [f"  - {r.describe()}" for r in self.regions]
         c = self.chosen
-        if self.status == "agree":
+        if self.status == "agree" and self.withheld is not None:
+            lines.append("model and data agree within noise: no region is significant and nothing is named")
+        elif self.status == "agree":
             lines.append("model and data agree within noise: no candidate and no region is significant")
+        elif c is None and self.withheld is not None:
+            lines.append("UNEXPLAINED: the model as given leaves significant regions, failed rows or a misfit (listed "
+                         "here), and the candidate that passed its test is not named")
         elif c is None:
             lines.append("no candidate in the library explains the mismatch: UNEXPLAINED")
         elif self.status == "ambiguous":
@@ -342,6 +358,8 @@ class Verdict:
                 lines.append("indistinguishable on these data (held-out Vuong V < 2, similar improvement): "
                              + ", ".join(s.label for s in self.indistinguishable))
                 lines += [f"  to separate: {s.describe()}" for s in self.separations]
+        if self.withheld is not None:
+            lines.append(f"not named: {self.withheld_reason}")
         if self.regions_after:
             lines.append("regions still significant after the explanation:")
             lines += [f"  - {r.describe()}" for r in self.regions_after]
@@ -418,6 +436,7 @@ class Verdict:
             "ambiguity": ({"reason": self.ambiguity, "explanations": [s.label for s in self.explanations]}
                           if self.status == "ambiguous" else None),
             "chosen": sc(self.chosen) if self.chosen else None,
+            "withheld": ({**sc(self.withheld), "reason": self.withheld_reason} if self.withheld is not None else None),
             "indistinguishable": [sc(s) for s in self.indistinguishable],
             "separating_experiments": [s.describe() for s in self.separations],
             "held_out_chi2_before": self.chi2_cv_base,
@@ -539,7 +558,10 @@ CRITERION = (
     "on top of it by a linearised held-out score test, the best {tries} are fitted jointly with it, and a second term is "
     "added when its extra improvement exceeds the 1 - {alpha} quantile of the maximum of the screened terms' nulls. Remaining regions, or residuals still above the measurement noise "
     "(chi2 in noise units per channel; both at {alpha_after}/channels), make the verdict 'partly explained'; less than half of "
-    "the held-out excess chi2 explained makes it 'unexplained'. For recordings whose adapter withholds look-alikes (drives), "
+    "the held-out excess chi2 explained makes it 'unexplained'. For recordings whose adapter sets name_needs_excess (drives), "
+    "a significant explanation is named only when the residual chi2 of the model as given, in noise units over every "
+    "channel, exceeds its noise expectation (the number of values); otherwise it is reported as not named and the verdict "
+    "is that of no explanation ('agree' without regions or misfit). For recordings whose adapter withholds look-alikes (drives), "
     "look-alikes with other terms, or a term whose fitted parameters the joint fit cannot tell from the term's absence "
     "(Wald test at 95 %) or whose 95 % interval is wider than half its physical range, make it 'ambiguous': nothing is named and the explanations that fit equally are listed. A run whose model fails on more than half of the rows "
     "is an error."
@@ -986,6 +1008,15 @@ def diagnose(
             chosen = _with(chosen, values=tuple(float(v) for v in x_pol), std_errors=tuple(float(e) for e in fp.std_errors),
                            chi2_in=float((resid_fn(cands)(x_pol) ** 2).sum()), covariance=fp.covariance,
                            nfev=chosen.nfev + fp.nfev)
+    withheld: CandidateScore | None = None
+    withheld_reason = ""
+    if chosen is not None and getattr(obs, "name_needs_excess", False):
+        z0n = np.concatenate([res0[ch] / obs.noise[ch] for ch in chans])
+        z0n = z0n[np.isfinite(z0n)]
+        withheld_reason = withhold_without_excess(chosen, float(z0n @ z0n), int(z0n.size))
+        if withheld_reason:
+            say("no misfit beyond noise: the significant explanation is not named")
+            withheld, chosen, equivalent = chosen, None, []
     if chosen is not None:
         cands = [by_key[k][0] for k in chosen.keys]
         ext = _ext_of(cands, np.array(chosen.values), ps, empty)
@@ -1050,7 +1081,7 @@ def diagnose(
     noise_chi2 = (float(zb[fin] @ zb[fin]), float(za[fin] @ za[fin]), int(fin.sum()), chosen.k if chosen is not None else 0)
     return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
                    chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
-                   ambiguity, noise_chi2, equal_fraction)
+                   ambiguity, noise_chi2, equal_fraction, withheld=withheld, withheld_reason=withheld_reason)
 
 
 def reduced_parameters(c: Candidate, s: CandidateScore, jac: NDArray[np.float64],
@@ -1203,6 +1234,41 @@ def _ambiguity(chosen: CandidateScore, equivalent: Sequence[CandidateScore], by_
         return ""
     advice = obs.identification_advice() if hasattr(obs, "identification_advice") else "record an experiment that separates them"
     return ". ".join(reasons) + ". " + advice
+
+
+def withhold_without_excess(chosen: CandidateScore | None, chi2_noise_before: float, values: int) -> str:
+    """Why a significant explanation is not named (empty: it may be named).
+
+    A candidate that passes its held-out test is named only where the model as given shows a
+    misfit beyond the noise: the residual chi-square of the believed model in noise units
+    (s = 1, every channel) above its noise expectation, the number of finite values. With no
+    excess there is nothing for a term to explain, and a held-out improvement then comes from
+    noise the null does not describe (issue 24: on README's closed-loop drive the commands react
+    to the sensor noise, and with no concealed effect an FL radius of +0.53 % passed the min-P
+    test at p = 3.3e-4 while the report said "no excess over noise", and it made a second,
+    held-out drive worse, 632 -> 653).
+
+    Parameters
+    ----------
+    chosen : CandidateScore or None
+        The explanation the held-out tests accepted.
+    chi2_noise_before : float
+        Residual chi-square of the model as given, in noise units.
+    values : int
+        Finite values it sums.
+
+    Returns
+    -------
+    str
+        The reason printed in the summary, or ``""`` when ``chosen`` may be named.
+    """
+    if chosen is None or chi2_noise_before > values:
+        return ""
+    p_adj = f", adjusted p = {chosen.p_adjusted:.2g}" if math.isfinite(chosen.p_adjusted) else ""
+    return (f"{chosen.label} ({chosen.parameters_text()}) passed its held-out test (improvement {chosen.delta_cv:.1f}"
+            f"{p_adj}) but is not named: the model as given shows no misfit beyond the noise (residual chi2 "
+            f"{chi2_noise_before:.0f} for {values} values in noise units), so there is nothing for a term to explain "
+            "and the improvement is taken for noise the test's null does not describe")
 
 
 def _lack_of_fit(obs: Any, pred: dict[str, NDArray[np.float64]], k: int, alpha: float) -> list[tuple[str, float, int, float]]:

@@ -47,6 +47,7 @@ group's rows of an earlier run; report folders under out/bench_drive_discrepancy
     nice python tests/bench/bench_drive_discrepancy.py sparse_negatives
     nice python tests/bench/bench_drive_discrepancy.py sparse "pose every 10 s" --merge   # these cases' rows replaced, the group's others kept
     nice python tests/bench/bench_drive_discrepancy.py effects tether     # cases whose name contains 'tether' (no file written)
+    nice python tests/bench/bench_drive_discrepancy.py effects tether --merge   # the same, these rows replaced in the files
     python tests/bench/bench_drive_discrepancy.py table                   # rewrite the .md from the .json
     nice python tests/bench/bench_drive_discrepancy.py lack_of_fit        # residuals vs noise before any explanation
     python tests/bench/bench_drive_discrepancy.py fl_fr                   # FL vs FR steering separation, this and the former drive
@@ -289,7 +290,16 @@ def run_sparse_case(case: SparseCase, tmp: Path, outdir: Path) -> dict[str, Any]
             "indistinguishable": [s.label for s in v.indistinguishable], "explained_fraction": v.explained_fraction,
             "heldout_segments_chi2": [v.chi2_cv_base, v.chosen.chi2_cv if v.chosen else v.chi2_cv_base],
             "heldout_drive_chi2": [ho["chi2_before"], ho["chi2_after"]], "heldout_drive_terms": ho["rows"],
-            "seconds": secs, "simulations": v.model.simulations}
+            "seconds": secs, "simulations": v.model.simulations, **_withheld(v)}
+
+
+def _withheld(v: Any) -> dict[str, Any]:
+    """The explanation that passed its test but was not named for want of a misfit beyond noise."""
+    w = v.withheld
+    if w is None:
+        return {"withheld": "", "withheld_p": None, "noise_chi2_before": v.noise_chi2[0], "noise_values": v.noise_chi2[2]}
+    return {"withheld": f"{w.label} ({w.parameters_text()})", "withheld_p": w.p_adjusted,
+            "noise_chi2_before": v.noise_chi2[0], "noise_values": v.noise_chi2[2]}
 
 
 def judge(v: Any, expect: dict[str, dict[str, float]], in_library: bool) -> dict[str, Any]:
@@ -340,7 +350,16 @@ def run_case(sc: Any, tr: Truth, name: str, make: Callable[[], Effect], in_libra
             "indistinguishable": [s.label for s in v.indistinguishable], "explained_fraction": v.explained_fraction,
             "heldout_segments_chi2": [v.chi2_cv_base, v.chosen.chi2_cv if v.chosen else v.chi2_cv_base],
             "heldout_drive_chi2": [ho["chi2_before"], ho["chi2_after"]], "heldout_drive_terms": ho["rows"],
-            "seconds": secs, "simulations": v.model.simulations}
+            "seconds": secs, "simulations": v.model.simulations, **_withheld(v)}
+
+
+def _named(r: dict[str, Any]) -> str:
+    """Named terms, or the one not named for want of a misfit beyond noise (rows from this commit on)."""
+    if r.get("withheld"):
+        p = r.get("withheld_p")
+        return (f"- (not named, no misfit beyond noise: {r['noise_chi2_before']:.0f} for {r['noise_values']} values; "
+                f"{r['withheld']}" + (f", p_adj {p:.2g})" if p is not None else ")"))
+    return " + ".join(r["named"]) or "-"
 
 
 def _md(data: dict[str, Any]) -> str:
@@ -354,15 +373,16 @@ def _md(data: dict[str, Any]) -> str:
           "else; OUT = not named confidently (unexplained / partly explained); negative = agree. The calibration drive "
           "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (4.5 cm/s, crabs both ways at 57 deg, no point "
           "turn). Levels: `DRIVE_ALPHA` 0.001 for the alarm tests, `DRIVE_ALPHA_AFTER` 0.01 for the checks after an "
-          "explanation. Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
+          "explanation; from cc4c4c4 on, a significant explanation is named only when the believed model's residual chi2 in "
+          "noise units exceeds the number of values (rows re-run since show their commit). Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
           "(sinkage, wheel torque; the believed soil's error in brackets), the Bekker pressure at one sinkage shown only. "
           "Seconds depend on the machine's load (load averages per group below; two groups ran side by side on the 2 "
           "cores); sims (re-simulations of the drive) do not.", ""]
     for g, info in data["groups"].items():
         md.append(f"- group `{g}`: commit `{info['commit']}`, {info['when']}, load average {info['load_before']} before, "
-                  f"{info['load_after']} after (shared 2-core machine)")
-    md += ["", "| case | indep.? | verdict | named | right? | fitted (truth, error) | held-out segments chi2 | held-out drive chi2 (terms) | s | sims |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
+                  f"{info['load_after']} after (shared 2-core machine)" + (f"; {info['rerun']}" if info.get("rerun") else ""))
+    md += ["", "| case | indep.? | verdict | named | right? | fitted (truth, error) | held-out segments chi2 | held-out drive chi2 (terms) | s | sims | commit (load after) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         pe = "; ".join(f"{k} = {e['fitted']:.3g} ({e['truth']:.3g}, {100 * e['rel_error']:.0f} %"
                        + (f"; believed soil {100 * e['believed_rel_error']:.0f} %" if "believed_rel_error" in e else "")
@@ -371,10 +391,11 @@ def _md(data: dict[str, Any]) -> str:
         if r["indistinguishable"]:
             pe += f" [indistinguishable: {', '.join(r['indistinguishable'])}]"
         indep = "-" if r["group"] in NEGATIVE_GROUPS else "yes" if r["independent"] else "no"
-        md.append(f"| {r['case']} | {indep} | {r['verdict']} | {' + '.join(r['named']) or '-'} | "
+        md.append(f"| {r['case']} | {indep} | {r['verdict']} | {_named(r)} | "
                   f"{'yes' if r['ok'] else 'NO'} | {pe or '-'} | {r['heldout_segments_chi2'][0]:.0f} -> {r['heldout_segments_chi2'][1]:.0f} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
-                  f"{r['seconds']:.0f} | {r['simulations']} |")
+                  f"{r['seconds']:.0f} | {r['simulations']} | "
+                  f"{r.get('commit', data['groups'][r['group']]['commit'])} ({r.get('load_after', data['groups'][r['group']]['load_after'])}) |")
     inl = [r for r in rows if r["group"] not in NEGATIVE_GROUPS and r["in_library"]]
     out = [r for r in rows if not r["in_library"]]
     neg = [r for r in rows if r["group"] in NEGATIVE_GROUPS]
@@ -398,7 +419,11 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
           "(`ambiguous` / `unexplained`, or `partly_explained` naming nothing wrong); negatives: `agree`. "
           "'missing' is the report's identification advice (the manoeuvres the recording lacks). Rows run at 21d1dd0 "
           "predate a223df0 (manoeuvres of a drive without pose channels from the gyro, not the steering commands): "
-          "the change touches only the advice text, never a verdict. Seconds at the load shown (2 shared cores).", "",
+          "the change touches only the advice text, never a verdict. Rows from cc4c4c4 on run the rule that names a "
+          "significant explanation only over a misfit beyond noise (the believed model's residual chi2 in noise units above "
+          "the number of values, `DriveRecording.name_needs_excess`); a term that passed its test without that is shown "
+          "'not named' with the chi2 and its adjusted p. The rule only withholds names, so a row it did not re-run can "
+          "only keep its verdict or lose a name it gave without an excess. Seconds at the load shown (2 shared cores).", "",
           "| case | sensors / drive | channels | verdict | named | right? (how) | fitted (truth, error) | missing (report) | "
           "held-out drive chi2 | s | sims | load after (commit) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -408,7 +433,7 @@ def _md_sparse(rows: list[dict[str, Any]]) -> list[str]:
         ch = ", ".join(r["channels"])
         miss = r["advice"] if r["verdict"] in ("ambiguous", "unexplained", "partly_explained") else "-"
         md.append(f"| {r['case']} | {r['sensors']}; heading from {r['heading_source']} | {ch} | {r['verdict']} | "
-                  f"{' + '.join(r['named']) or '-'} | {'yes' if r['ok'] else 'NO'} ({r['how']}) | {pe or '-'} | {miss} | "
+                  f"{_named(r)} | {'yes' if r['ok'] else 'NO'} ({r['how']}) | {pe or '-'} | {miss} | "
                   f"{r['heldout_drive_chi2'][0]:.0f} -> {r['heldout_drive_chi2'][1]:.0f} ({r['heldout_drive_terms']:.0f}) | "
                   f"{r['seconds']:.0f} | {r['simulations']} | {r.get('load_after', '-')} ({r.get('commit', 'group commit')}) |")
     eff = [r for r in rows if r["group"] == "sparse"]
@@ -652,10 +677,13 @@ def main(argv: list[str]) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             row = run_case(sc, tr, name, make, inl, seed, Path(tmp), outdir)
         row["group"] = group
+        row["commit"] = commit
+        row["load_before"] = load0
+        row["load_after"] = " ".join(f"{x:.1f}" for x in os.getloadavg())
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
-        if not sel:  # after every case, so a long run loses nothing
-            _save(jpath, group, rows, commit, load0, [*groups, *sparse_cases()])
+        if not sel or merge:  # after every case, so a long run loses nothing
+            _save(jpath, group, rows, commit, load0, [*groups, *sparse_cases()], merge=merge)
     if not sel:
         print((ROOT / "tests/bench/results_drive_discrepancy.md").read_text())
     return 0
@@ -679,9 +707,14 @@ def _save(jpath: Path, group: str, rows: list[dict[str, Any]], commit: str, load
         if merge:
             rows = [r for r in data["rows"] if r.get("group") == group]
         data["rows"].sort(key=lambda r: order.index(r["group"]) if r["group"] in order else len(order))
-        data["groups"][group] = {"commit": commit, "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                                 "load_before": load0, "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()),
-                                 "cases": len(rows)}
+        when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        if merge and group in data["groups"]:  # the group's run stays described; the re-run rows carry their own commit
+            data["groups"][group]["rerun"] = (f"rows re-run with `nice python tests/bench/bench_drive_discrepancy.py "
+                                              f"{group} '<case name>' --merge` up to {when} (each row's commit and load "
+                                              "in the table)")
+        else:
+            data["groups"][group] = {"commit": commit, "when": when, "load_before": load0,
+                                     "load_after": " ".join(f"{x:.1f}" for x in os.getloadavg()), "cases": len(rows)}
         write_text(jpath, json.dumps(data, indent=2, default=float))
         write_text(ROOT / "tests/bench/results_drive_discrepancy.md", _md(data))
 

@@ -1232,8 +1232,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     """
     from tqdm import tqdm
 
-    if dataclasses.is_dataclass(spec.solver) and hasattr(spec.solver, "compile"):  # build.compile -> the NLP (not data)
-        spec = replace(spec, solver=replace(spec.solver, compile=spec.build.compile))
+    solver: Any = spec.solver
+    if dataclasses.is_dataclass(solver) and not isinstance(solver, type) and hasattr(solver, "compile"):
+        spec = replace(spec, solver=replace(solver, compile=spec.build.compile))  # build.compile -> the NLP (not data)
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}

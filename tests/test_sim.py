@@ -213,3 +213,19 @@ def test_plant_compiled_equals_interpreted(nominal):
     for x, y in zip(r1, r2):
         np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12)
     assert sim.weight == pytest.approx(sc.rover.weight) and sim.mass == pytest.approx(sc.rover.weight / GRAVITY)
+
+
+@pytest.mark.parametrize("name", ["mer_nominal", "skid_nominal"])
+def test_a_rover_file_scenario_is_refused_with_the_reason(name):
+    """The plant's statics are the Table 7.2 rocker's: a rover-file scenario (six-wheel
+    rocker-bogie, four-wheel skid-steer) is refused at construction with what to use instead.
+    Before, `offnominal drive` ran the six-wheel scenario on the four-wheel plant and failed with
+    "no equilibrium ... reduce the slope or the step size"."""
+    from pathlib import Path
+
+    from offline.sim.plant import SimulationError
+
+    sc = load_scenario(Path(__file__).resolve().parents[1] / "offline" / "scenarios" / "rovers" / f"{name}.toml")
+    with pytest.raises(SimulationError, match=r"rover file of .* suspension (rocker_bogie|rigid)\): the simulator "
+                                              r"models the four-wheel rocker of Table 7.2 only"):
+        RoverSimulator(sc)

@@ -239,6 +239,14 @@ class RoverSimulator:
                  disturbance: Disturbance | None = None) -> None:
         if not (math.isfinite(dt) and 1e-4 <= dt <= 1.0):
             raise ValueError(f"dt must be in [1e-4, 1] s, got {dt!r}")
+        rf = getattr(scenario, "rover_file", None)
+        if rf is not None:  # the plant's statics are the Table 7.2 rocker's (issue 23: not yet N wheels)
+            raise SimulationError(
+                f"scenario {scenario.name}: rover file of {rf.name} ({len(rf.wheel_names)} wheels "
+                f"{', '.join(rf.wheel_names)}, suspension {rf.suspension}): the simulator models the four-wheel "
+                "rocker of Table 7.2 only in this version (a scenario without 'rover', or rover = "
+                "\"mini-rover-t72\"); rover files work in the optimizer and the tables "
+                "('offnominal primitive', 'offnominal tables build')")
         self.scenario = scenario
         self.truth = truth or Truth.nominal(scenario.params, scenario.rover)
         self.plant = plant_for(self.truth.params, scenario.rover, scenario.exit_angle, compiled)

@@ -203,7 +203,9 @@ def test_sensor_offset_with_crosstalk_is_named_or_reported_with_its_look_alike(r
         assert any(sep.b == s.label or sep.a == s.label for sep in v.separations)
 
 
-@pytest.mark.parametrize("seed", [24, 44])
+# one noise seed here (seed 44 was the second; the benchmark runs seeds 2000-2002:
+# tests/bench/bench_discrepancy.py, results_discrepancy.md)
+@pytest.mark.parametrize("seed", [24])
 def test_no_cohesion_and_a_doubled_shear_modulus_is_parameters_off(recording, params, seed):
     """Told: recording and parameters. Not told: the truth is the same model with cohesion 0
     and the shear modulus K doubled (issue 24: "cohesion + a load offset" was answered). Must

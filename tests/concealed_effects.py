@@ -1,14 +1,14 @@
 """Concealed effects for the drive discrepancy tool, generated independently of its candidates.
 
-The drive tool (:mod:`offline.fit.drive_discrepancy`) names missing physics from the library
-:data:`offline.fit.drive_candidates.DRIVE_CANDIDATES`, whose terms are inputs of the plant
+The drive tool (:mod:`offline.discrepancy.drive.diagnosis`) names missing physics from the library
+:data:`offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`, whose terms are inputs of the plant
 (:class:`offline.sim.truth.Truth` fields: ``slope``, ``cross_slope``, ``tether_force``,
 ``wheel_radius``, ``steer_offset``, soil ``k``). A test that conceals an effect through those
 same inputs proves parameter recovery, not discovery. The effects here are produced by code
 that shares nothing with the candidates' formulas: forces through the simulator's disturbance
 hook (contract C5, :class:`offline.sim.simulator.DisturbanceForces`), the commands the actuators
-really receive (:data:`offline.fit.drive_synthetic.ActuatorPath`) and what the sensors really
-report (:data:`offline.fit.drive_synthetic.SensorPath`). Each has a different mechanism or
+really receive (:data:`offline.discrepancy.drive.synthetic.ActuatorPath`) and what the sensors really
+report (:data:`offline.discrepancy.drive.synthetic.SensorPath`). Each has a different mechanism or
 functional form from the candidate that should name it:
 
 =========================  ===========================================  ======================  ===========
@@ -60,7 +60,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from offline.fit.drive_synthetic import record_drive
+from offline.discrepancy.drive.synthetic import record_drive
 from offline.physics.params import Soil
 from offline.rover.scenario import Scenario
 from offline.sim.truth import WHEELS, Truth
@@ -488,7 +488,7 @@ class Combined(Effect):
 
 def record_concealed(path: str | Path, scenario: Scenario, effect: Effect, seed: int, duration: float,
                      base: Truth | None = None, **kw: Any) -> Path:
-    """Record a calibration drive (:func:`offline.fit.drive_synthetic.record_drive`) with ``effect``
+    """Record a calibration drive (:func:`offline.discrepancy.drive.synthetic.record_drive`) with ``effect``
     concealed: its plant truth, disturbance hook, actuator path and sensor path."""
     b = base or Truth.nominal(scenario.params, scenario.rover)
     plain = type(effect).actuator_path is Effect.actuator_path and not isinstance(effect, Combined)
@@ -511,7 +511,7 @@ def soil_pressure_check(v: Any, effect: Effect, base: Truth, path: str | Path) -
     soil the tool accepted (the believed soil with its fitted changes) against the true soil.
     Different soils give the same drive when their pressure-sinkage curves cross near the
     operating sinkage, so this, not k or n alone, is what a drive can identify."""
-    from offline.fit.drive_discrepancy import accepted_extension
+    from offline.discrepancy.drive.diagnosis import accepted_extension
 
     z = true_mean_sinkage(path)
     fitted = replace(base.params.soil, **accepted_extension(v).soil)
@@ -535,7 +535,7 @@ def soil_behaviour_check(v: Any, effect: Effect, base: Truth, path: str | Path, 
     - ``sinkage at the drive's true states``: mean sinkage (mm); error = mean |h_fit - h_true| / h_true;
     - ``wheel torque at the drive's true states``: RMS M_y (mN m); error = RMS(M_fit - M_true) / RMS(M_true).
     """
-    from offline.fit.drive_discrepancy import accepted_extension
+    from offline.discrepancy.drive.diagnosis import accepted_extension
     from offline.physics.terramechanics import WheelModel, state_from_slip
     from rtctl.recording import read_recording
 

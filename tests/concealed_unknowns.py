@@ -1,9 +1,9 @@
 """Out-of-library effects for the empirical terms of the drive tool (issue 24), generated
-independently of :mod:`offline.fit.drive_empirical`.
+independently of :mod:`offline.discrepancy.drive.empirical`.
 
 Each effect is produced by a mechanism of its own -- a rope to a dragged sled at a rear
 attachment point, a current-limited servo clipping the commands it receives -- written here
-with none of the empirical family's code (no :class:`~offline.fit.drive_empirical.EmpiricalTerm`,
+with none of the empirical family's code (no :class:`~offline.discrepancy.drive.empirical.EmpiricalTerm`,
 no weights, no hook of the tool). The generic term that should model each is a different
 mechanism: a constant force at the centre of mass against the travel (no yaw moment, no speed
 dependence) for the sled; a speed loss on the commands of the re-simulation for the servo.

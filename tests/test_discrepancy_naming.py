@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from offline.fit.candidates import Candidate
-from offline.fit.discrepancy import CandidateScore, diagnose, withhold_without_excess
+from offline.discrepancy.wheel.candidates import Candidate
+from offline.discrepancy.engine import CandidateScore, diagnose, withhold_without_excess
 
 N_ROWS = 200
 

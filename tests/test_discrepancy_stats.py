@@ -13,11 +13,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from offline.fit.candidates import Extension, SingleWheelModel, predict_recording
+from offline.discrepancy.wheel.candidates import Extension, SingleWheelModel, predict_recording
 from offline.fit.dataset import load_trials
-from offline.fit.discrepancy import DiscrepancyError, diagnose
-from offline.fit.observations import SingleWheelRecording
-from offline.fit.significance import adjusted_p, fit, held_out, tangent_null, vuong
+from offline.discrepancy.engine import DiscrepancyError, diagnose
+from offline.discrepancy.wheel.recording import SingleWheelRecording
+from offline.discrepancy.significance import adjusted_p, fit, held_out, tangent_null, vuong
 from offline.physics.params import load_toml
 from offline.physics.terramechanics import ModelOptions
 
@@ -204,7 +204,7 @@ def test_region_test_with_the_series_correlation_keeps_its_level_on_correlated_n
     region test with independent-row draws finds one far more often than its 1 % level;
     given the series' own correlated draws it stays near the level (the drive adapter's
     ``channel_null_draw``)."""
-    from offline.fit.significance import locate
+    from offline.discrepancy.significance import locate
 
     rho = 0.45
     theta = (1.0 - math.sqrt(1.0 - 4.0 * rho * rho)) / (2.0 * rho)

@@ -42,9 +42,10 @@ from concealed_effects import (
     gravity_and_tilt,
     record_concealed,
 )
-from offline.fit.drive_candidates import DRIVE_CANDIDATES
-from offline.fit.drive_discrepancy import diagnose_drives, held_out_drives, write_drive_report
-from offline.fit.drive_synthetic import record_drive
+from offline.discrepancy.drive.candidates import DRIVE_CANDIDATES
+from offline.discrepancy.drive.diagnosis import diagnose_drives, held_out_drives
+from offline.discrepancy.drive.report import write_drive_report
+from offline.discrepancy.drive.synthetic import record_drive
 from offline.rover.scenario import load_scenario
 from offline.sim.sensors import SensorConfig
 from offline.sim.truth import Truth, load_truth

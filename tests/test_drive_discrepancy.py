@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.fit.candidates import Extension
-from offline.fit.drive_candidates import (
+from offline.discrepancy.wheel.candidates import Extension
+from offline.discrepancy.drive.candidates import (
     DRIVE_CANDIDATES,
     DriveCandidateError,
     RoverExtension,
@@ -34,14 +34,14 @@ from offline.fit.drive_candidates import (
     truth_from_terms,
     write_truth_toml,
 )
-from offline.fit.drive_discrepancy import (
+from offline.discrepancy.drive.diagnosis import (
     DriveDataError,
     DriveModel,
     DriveRecording,
     diagnose_drives,
     load_drives,
 )
-from offline.fit.drive_synthetic import REALISTIC_SENSORS, record_drive
+from offline.discrepancy.drive.synthetic import REALISTIC_SENSORS, record_drive
 from offline.rover.scenario import load_scenario
 from offline.sim.sensors import SensorConfig
 from offline.sim.truth import Truth, load_truth
@@ -188,7 +188,7 @@ def test_face_pressure_force_on_a_submerged_disk():
     """Fully submerged face (h = 2 r): the Rankine force is rho K_p times the first moment of the
     disk about the surface (pi r^2 * r) plus 2 c sqrt(K_p) times its area; zero at zero sinkage;
     monotone in the sinkage."""
-    from offline.fit.face_pressure import face_force
+    from offline.discrepancy.wheel.face_pressure import face_force
 
     r, rho, phi, c = 0.058, 13030.0, math.radians(29.0), 1000.0
     kp = math.tan(math.pi / 4 + phi / 2) ** 2
@@ -208,7 +208,7 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     exponential per command period), a steering cap; other wheels and other keys untouched.
     Every term is a rover key, every candidate has a table-builder line, and none is in the
     default library (their cost and false alarms on the drive benchmark are not measured)."""
-    from offline.fit.drive_candidates import (
+    from offline.discrepancy.drive.candidates import (
         ACTUATOR_CANDIDATES,
         DRIVE_CANDIDATES_WITH_ACTUATORS,
         PER_WHEEL_ACTUATOR_KEYS,
@@ -246,7 +246,7 @@ def test_neutral_terms_share_the_believed_simulation(sc, nominal, tmp_path):
     at the believed value with the believed model's simulation; that is only right if such a
     simulation is bit for bit the believed one, checked here on fresh models (no cache). A
     changed term still re-simulates, and the least recently used entry is the one dropped."""
-    from offline.fit.drive_candidates import NEUTRAL_VALUES
+    from offline.discrepancy.drive.candidates import NEUTRAL_VALUES
 
     f = record_drive(tmp_path / "n.mcap", sc, nominal, seed=1, duration=8.0)
     d = load_drives([f])[0]
@@ -277,7 +277,7 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     carry) loses every later tick; the drive is not re-simulated (ok False) and the
     re-simulation stops at the lost tick that makes more than half of them lost instead of
     trying every remaining tick (each lost tick costs failing Newton solves and a restart)."""
-    import offline.fit.drive_discrepancy as dd
+    import offline.discrepancy.drive.diagnosis as dd
 
     f = record_drive(tmp_path / "n.mcap", sc, nominal, seed=1, duration=8.0)
     d = load_drives([f])[0]

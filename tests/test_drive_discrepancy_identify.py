@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from offline.fit.discrepancy import VERDICTS
-from offline.fit.drive_candidates import (
+from offline.discrepancy.engine import VERDICTS
+from offline.discrepancy.drive.candidates import (
     DRIVE_CANDIDATES,
     TABLE_BUILDER_TAKES,
     HubContact,
@@ -27,10 +27,10 @@ from offline.fit.drive_candidates import (
     truth_from_terms,
     write_truth_toml,
 )
-from offline.fit.drive_discrepancy import DriveModel, DriveRecording, _segment_correlation, diagnose_drives, load_drives
-from offline.fit.drive_synthetic import REALISTIC_SENSORS, record_drive
-from offline.fit.significance import held_out, linear_held_out
-from offline.fit.significance import FitResult
+from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, _segment_correlation, diagnose_drives, load_drives
+from offline.discrepancy.drive.synthetic import REALISTIC_SENSORS, record_drive
+from offline.discrepancy.significance import held_out, linear_held_out
+from offline.discrepancy.significance import FitResult
 from offline.sim.simulator import RoverSimulator, TruthState
 from offline.sim.truth import Truth
 from rtctl.messages import Commands
@@ -235,7 +235,7 @@ def test_undetermined_terms_uses_the_joint_covariance():
     and a candidate without a null get no Wald test, but any parameter whose 95 % interval is
     wider than half its physical range (a flat profile, e.g. a recalibration absorbing a
     steering offset) is 'not determined'; so is a parameter without a standard error."""
-    from offline.fit.discrepancy import CandidateScore, undetermined_terms
+    from offline.discrepancy.engine import CandidateScore, undetermined_terms
 
     lib = {c.key: (c, None, i) for i, c in enumerate(DRIVE_CANDIDATES)}
 
@@ -269,7 +269,7 @@ def test_anchored_tether_pulls_towards_the_anchor_with_the_reel_tension():
     the spring rate times the cable paid out (L - 2.8 m) and the yaw moment -0.2 F_y. An anchor
     at infinity (q = 0) is the limit of far anchors; the recorded pose, when given, wins over
     the simulator's state; two hooks add; a pushing cable is refused."""
-    from offline.fit.drive_candidates import AnchoredTether, DriveCandidateError, Hooks
+    from offline.discrepancy.drive.candidates import AnchoredTether, DriveCandidateError, Hooks
 
     t = AnchoredTether(2.0, math.pi, 1.0 / 3.0, -0.2, 0.5)
     f = t(0.0, _state(0.0, 0.0, 0.0, 0.0, 0.0))
@@ -294,7 +294,7 @@ def test_anchored_tether_candidate_is_named_with_its_anchor_distance_as_a_nuisan
     pull): a clear tension is 'determined' even though the anchor's distance is not (a nuisance
     parameter); a tension within noise of zero is not, however far the other parameters are
     from their starts."""
-    from offline.fit.discrepancy import CandidateScore, undetermined_terms
+    from offline.discrepancy.engine import CandidateScore, undetermined_terms
 
     lib = {c.key: (c, None, i) for i, c in enumerate(DRIVE_CANDIDATES)}
 
@@ -314,9 +314,9 @@ def test_reduced_parameters_holds_what_the_data_do_not_determine():
     full fit cannot tell them apart (intervals wider than half the range), the reduction holds
     one of the pair at its start value and refits the rest, which it determines, on the truth
     within 3 standard errors; held parameters are reported as such and carry no error."""
-    from offline.fit.candidates import Candidate
-    from offline.fit.discrepancy import CandidateScore, reduced_parameters, undetermined_terms
-    from offline.fit.significance import fit
+    from offline.discrepancy.wheel.candidates import Candidate
+    from offline.discrepancy.engine import CandidateScore, reduced_parameters, undetermined_terms
+    from offline.discrepancy.significance import fit
 
     rng = np.random.default_rng(4)
     n, nc = 60, 2

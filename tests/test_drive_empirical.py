@@ -1,4 +1,4 @@
-"""Empirical terms for what the drive library lacks (issue 24, :mod:`offline.fit.drive_empirical`).
+"""Empirical terms for what the drive library lacks (issue 24, :mod:`offline.discrepancy.drive.empirical`).
 
 The concealed effects are written here, by code that shares nothing with the empirical family
 and follows other laws than the terms that should model them:
@@ -28,8 +28,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from concealed_effects import WHEEL_XY, Effect, _forces, _Hooked, record_concealed  # noqa: E402
-from offline.fit.drive_empirical import EmpiricalTerm, EmpiricalTerms, search_drives  # noqa: E402
-from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, DriveSegment  # noqa: E402
+from offline.discrepancy.drive.empirical import EmpiricalTerm, EmpiricalTerms, search_drives  # noqa: E402
+from offline.discrepancy.drive.synthetic import CALIBRATION_SEGMENTS, DriveSegment  # noqa: E402
 from offline.rover.scenario import load_scenario  # noqa: E402
 from rtctl.messages import Measurements  # noqa: E402
 
@@ -148,13 +148,13 @@ def test_force_terms_written_to_the_truth_file_are_what_the_simulator_applies(sc
     time and pose) driving the recorded commands reproduces what the discrepancy tool's
     re-simulation with the fitted terms predicts. A speed loss and a reading offset are not
     written (the report says why)."""
-    from offline.fit.drive_candidates import disturbance_from_truth, write_truth_toml
-    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
-    from offline.fit.drive_empirical import simulator_applies, truth_entries
-    from offline.fit.drive_synthetic import record_drive
+    from offline.discrepancy.drive.candidates import disturbance_from_truth, write_truth_toml
+    from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, load_drives
+    from offline.discrepancy.drive.empirical import simulator_applies, truth_entries
+    from offline.discrepancy.drive.synthetic import record_drive
     from offline.sim.sensors import SensorConfig
     from offline.sim.truth import EMPIRICAL_FORCE_DIRECTIONS, Truth, TruthError, load_truth
-    from offline.fit.drive_empirical import DIRECTIONS
+    from offline.discrepancy.drive.empirical import DIRECTIONS
 
     assert set(EMPIRICAL_FORCE_DIRECTIONS) == {d for d in DIRECTIONS if d.split(".")[0] in ("drag", "torque")}
     sc = scenario
@@ -197,8 +197,9 @@ def test_drive_report_writes_the_empirical_force_term_to_the_truth_file(scenario
     mounting tilt, no recalibration): verdict unexplained, the empirical drag patch found, and the
     report folder's accepted_truth.toml carries it as [[empirical_force]] that load_truth reads
     back with the reported term's values (before issue 24's section, no truth file was written)."""
-    from offline.fit.drive_candidates import DRIVE_CANDIDATES
-    from offline.fit.drive_discrepancy import diagnose_drives, write_drive_report
+    from offline.discrepancy.drive.candidates import DRIVE_CANDIDATES
+    from offline.discrepancy.drive.diagnosis import diagnose_drives
+    from offline.discrepancy.drive.report import write_drive_report
     from offline.sim.truth import load_truth
 
     f = record_concealed(tmp_path / "drift.mcap", scenario, _SinkageDrift(), seed=5, duration=24.0, segments=SCRIPT)

@@ -1,7 +1,7 @@
 """Drives recorded with sparse sensors (issue 24): no motor torques and a pose fix only every 10 s.
 
 Without enough pose fixes the tool takes the heading from the gyro and has no pose channels;
-what it says a recording lacks (:meth:`offline.fit.drive_discrepancy.DriveRecording.identification_advice`)
+what it says a recording lacks (:meth:`offline.discrepancy.drive.diagnosis.DriveRecording.identification_advice`)
 must then come from the rover's measured motion, not from the steering commands: on README's
 main job (rr_steer_stuck_50, rtctl on the shipped tables) the declared stuck rear-right wheel sits
 at -50 deg and rtctl steers the others to hold the line, so the commands spread by more than
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
-from offline.fit.drive_synthetic import REALISTIC_SENSORS, record_drive
+from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, load_drives
+from offline.discrepancy.drive.synthetic import REALISTIC_SENSORS, record_drive
 from offline.rover.scenario import load_scenario
 from offline.sim.sensors import SensorConfig
 from offline.sim.truth import Truth

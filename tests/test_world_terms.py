@@ -188,7 +188,7 @@ def test_scenario_file_keys_and_their_errors(tmp_path):
 def _accepted_truth(tmp_path: Path) -> Path:
     """accepted_truth.toml as the discrepancy tool writes it: a 2 N tether, RR 7 % smaller, RR
     steering offset 3 deg, an anchored cable."""
-    from offline.fit.drive_candidates import write_truth_toml
+    from offline.discrepancy.drive.candidates import write_truth_toml
     from offline.sim.truth import Truth
 
     sc = load_scenario(NOMINAL)
@@ -214,7 +214,7 @@ def test_truth_file_carries_anchor_and_hub_sections(tmp_path):
     assert w.external.fx == pytest.approx(-2.0 - 0.5) and w.external.mz == pytest.approx(0.0, abs=1e-12)
     # offnominal drive --truth applies both hooks (the anchored cable pulls back at the start)
     from offline.cli.sim import _truth_hooks
-    from offline.fit.drive_candidates import AnchoredTether, HubContact, Hooks
+    from offline.discrepancy.drive.candidates import AnchoredTether, HubContact, Hooks
 
     hooks = _truth_hooks(t, sc.rover)
     assert isinstance(hooks, Hooks) and {type(h) for h in hooks.hooks} == {AnchoredTether, HubContact}
@@ -305,7 +305,7 @@ def test_hub_contact_below_the_sinkage_needs_more_torque_and_balances_its_drag(f
     the free-body balance closes with the drag in the wheel wrenches, and without it the wheels'
     net F_x is exactly the total Rankine drag (the wheels push the faces through the soil); the
     drag is the simulator hook's (HubContact) at the same sinkage."""
-    from offline.fit.drive_candidates import HubContact
+    from offline.discrepancy.drive.candidates import HubContact
 
     sc, r0 = flat
     sh, r1 = hub
@@ -392,7 +392,7 @@ def test_world_file_with_hub_contact_to_table_header(tmp_path, capsys, hub):
     world record and tables info show the face, the stored torques are the hub primitive's, and
     the stored wheel Jacobians (drag included) pass tables verify's central differences."""
     from offline.cli import main
-    from offline.fit.drive_candidates import write_truth_toml
+    from offline.discrepancy.drive.candidates import write_truth_toml
     from offline.rover.table_verify import check_jacobians, spec_from_table
     from offline.sim.truth import Truth
     from rtctl.table import load_table
@@ -423,7 +423,7 @@ def test_hub_primitive_is_the_simulators_steady_state_under_the_hub_hook(flat):
     speed with the primitive's slips, loads and sinkages; the residual differences are the smooth
     depth's eps^2 / (4 d) ~ 2 um (0.07 % of the drag). ``arm = 0``: the plant keeps the hook's
     spin torque out of its rocker-pitch balance, the NLP includes it with the soil's M_y."""
-    from offline.fit.drive_candidates import HubContact
+    from offline.discrepancy.drive.candidates import HubContact
     from offline.sim.simulator import RoverSimulator
     from rtctl.messages import Commands
 

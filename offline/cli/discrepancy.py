@@ -19,14 +19,15 @@ REPORT_FILES = ("report.md", "verdict.json", "residual_map.png", "measured_vs_pr
 
 
 def cmd_discrepancy(args: argparse.Namespace) -> int:
-    """Run :func:`offline.fit.discrepancy.diagnose` on a trials file (or, with ``--recording``, on
+    """Run :func:`offline.discrepancy.engine.diagnose` on a trials file (or, with ``--recording``, on
     drive recordings: :func:`offline.cli.drive_discrepancy.run_recording`) and write the report folder."""
     if args.recording:
         return drive_discrepancy.run_recording(args)
     from tqdm import tqdm
 
     from ..files import OutputError, check_output_dir
-    from ..fit.discrepancy import DiscrepancyError, diagnose
+    from ..discrepancy.engine import DiscrepancyError, diagnose
+    from ..discrepancy.report import write_report
     from ..physics.terramechanics import ModelOptions
 
     t0 = time.perf_counter()
@@ -61,7 +62,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
             verdict = diagnose(trials, ps, opts, seed=args.seed, alpha=args.alpha, n_boot=args.bootstrap, progress=progress)
         except DiscrepancyError as exc:
             return fail(str(exc))
-    out = verdict.write(args.out)
+    out = write_report(verdict, args.out)
     print(verdict.summary())
     extra = ", recalibrated.toml" if verdict.recalibrated is not None else ""
     print(f"wrote {out / 'report.md'}, {out / 'verdict.json'}{extra} and plots  ({time.perf_counter() - t0:.1f} s)")
@@ -86,7 +87,7 @@ def register(sub: Any) -> None:
     d.add_argument("--bulldozing", choices=["pavlov", "hegedus", "ishigami", "none"], default="pavlov",
                    help="sidewall model of the model under test ('none' to study a model without it)")
     d.add_argument("--max-beta-deg", type=float, default=None, help="only conditions up to this slip angle")
-    d.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level of a single-wheel diagnosis (default: %(default)s; drives use 0.001 before and 0.01 after an explanation, offline.fit.drive_discrepancy.DRIVE_ALPHA)")
+    d.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level of a single-wheel diagnosis (default: %(default)s; drives use 0.001 before and 0.01 after an explanation, offline.discrepancy.drive.diagnosis.DRIVE_ALPHA)")
     d.add_argument("--bootstrap", type=int, default=2000, help="null draws of the single-wheel bootstrap (default: %(default)s; drives: 3 / level)")
     d.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the region test")
     d.add_argument("--quiet", action="store_true", help="no progress bar")

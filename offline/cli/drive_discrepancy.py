@@ -1,7 +1,7 @@
 """Discrepancy on drive recordings: the recording path of ``offnominal discrepancy`` (issue 14).
 
 ``offnominal discrepancy --recording DRIVE.mcap [more.mcap | folder ...]`` runs the same engine
-as on single-wheel trials (:func:`offline.fit.drive_discrepancy.diagnose_drives`) and writes the
+as on single-wheel trials (:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`) and writes the
 same report folder (report.md, PNGs, verdict.json) plus the drive plots and the accepted terms
 as a simulator truth file. :mod:`offline.cli.discrepancy` adds these options to its parser and
 hands over to :func:`run_recording` when ``--recording`` is given.
@@ -42,8 +42,9 @@ def run_recording(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from ..files import OutputError, check_output_dir
-    from ..fit.drive_candidates import DriveCandidateError
-    from ..fit.drive_discrepancy import DriveDataError, diagnose_drives, write_drive_report
+    from ..discrepancy.drive.candidates import DriveCandidateError
+    from ..discrepancy.drive.diagnosis import DriveDataError, diagnose_drives
+    from ..discrepancy.drive.report import write_drive_report
     from ..physics.params import ParameterError, load_toml
     from ..sim.truth import Truth, TruthError, load_truth
 
@@ -75,7 +76,7 @@ def run_recording(args: argparse.Namespace) -> int:
         return fail(f"--segment {args.segment}: at least 2 ticks per segment")
     say = None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True))
     try:
-        from ..fit.drive_candidates import DRIVE_CANDIDATES, DRIVE_CANDIDATES_WITH_ACTUATORS
+        from ..discrepancy.drive.candidates import DRIVE_CANDIDATES, DRIVE_CANDIDATES_WITH_ACTUATORS
 
         lib = DRIVE_CANDIDATES_WITH_ACTUATORS if getattr(args, "per_wheel_actuators", False) else DRIVE_CANDIDATES
         v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say, candidates=lib)

@@ -113,7 +113,7 @@ def _truth_hooks(truth: Any, rover: Any) -> Any:
     ``[[empirical_force]]`` (None without them)."""
     if truth.anchor is None and truth.hub is None and not truth.empirical:
         return None
-    from ..fit.drive_candidates import disturbance_from_truth
+    from ..discrepancy.drive.candidates import disturbance_from_truth
 
     return disturbance_from_truth(truth, rover)
 

@@ -1,4 +1,4 @@
-"""Fitting layer: single-wheel data, Bekker plate fit, calibration, validation and the discrepancy tool
-(engine :mod:`.discrepancy` with :mod:`.observations`, :mod:`.candidates`, :mod:`.significance`)."""
+"""Fitting layer: single-wheel data, Bekker plate fit, calibration and validation of the
+wheel-soil model (the discrepancy tool that starts from it is :mod:`offline.discrepancy`)."""
 
-__all__ = ["dataset", "bekker", "calibration", "validation", "observations", "candidates", "significance", "discrepancy"]
+__all__ = ["dataset", "bekker", "calibration", "validation", "synthetic"]

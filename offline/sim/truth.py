@@ -23,19 +23,19 @@ File format (every key optional; units in the key names)
     radius_mm = 54.0                 # default: the parameter set's wheel radius
     steer_offset_deg = 2.0           # true steer = encoder steer + offset
 
-    [tether_anchor]                  # a cable to a fixed anchor (offline.fit.drive_candidates.AnchoredTether)
+    [tether_anchor]                  # a cable to a fixed anchor (offline.discrepancy.drive.candidates.AnchoredTether)
     tension_N = 2.0                  # required in this section
     bearing_deg = 180.0              # anchor direction from the start heading (default 180: behind)
     inverse_distance_per_m = 0.0     # 1 / anchor distance from the start (0: far away)
     attach_x_m = 0.0                 # attachment on the body's x axis
     spring_rate_N_per_m = 0.0        # tension gained per metre paid out
 
-    [hub_contact]                    # hub / body face bulldozing (offline.fit.drive_candidates.HubContact)
+    [hub_contact]                    # hub / body face bulldozing (offline.discrepancy.drive.candidates.HubContact)
     clearance_mm = 4.0               # required in this section
     face_width_mm = 40.0
     arm_mm = 20.0
 
-    [[empirical_force]]              # an empirical force or torque term (offline.fit.drive_empirical), repeatable
+    [[empirical_force]]              # an empirical force or torque term (offline.discrepancy.drive.empirical), repeatable
     direction = "drag.each"          # drag.<body|FR|FL|RR|RL|each> (N) or torque.<FR|FL|RR|RL|each> (N m)
     where = "x"                      # everywhere, time (s), x, y (m, world frame), sinkage (m), slip, slip_angle (rad)
     shape = "box"                    # constant, box [lo, hi), step (from lo on), hinge (magnitude per unit above lo)
@@ -45,10 +45,10 @@ File format (every key optional; units in the key names)
 
 The last three are disturbance hooks (contract C5): :attr:`Truth.anchor`, :attr:`Truth.hub` and
 :attr:`Truth.empirical` carry their parameters (SI); ``offnominal drive --truth`` applies them
-through :func:`offline.fit.drive_candidates.disturbance_from_truth` (an empirical term in ``time``
+through :func:`offline.discrepancy.drive.candidates.disturbance_from_truth` (an empirical term in ``time``
 counts from the simulation's start; one in ``x`` / ``y`` is in the simulator's world frame, which is
 the recording's pose frame when the drive starts where the recording's did; the discrepancy tool
-writes only the force and torque terms here, :mod:`offline.fit.drive_empirical`), and the table builder takes the
+writes only the force and torque terms here, :mod:`offline.discrepancy.drive.empirical`), and the table builder takes the
 anchored tether (``--world``; a constant bearing in steady straight driving) and the hub contact
 (``--world``; a drag per wheel in the NLP, :mod:`rtctl.physics.hub_drag`). The simulator
 itself takes them as its ``disturbance`` argument.
@@ -187,7 +187,7 @@ def _hook(path: Path, data: dict[str, Any], section: str) -> dict[str, float] | 
 EMPIRICAL_FORCE_DIRECTIONS = (*(f"drag.{w}" for w in ("body", *WHEELS, "each")),
                               *(f"torque.{w}" for w in (*WHEELS, "each")))
 """Directions of ``[[empirical_force]]`` (the force and torque directions of
-:data:`offline.fit.drive_empirical.DIRECTIONS`; a test keeps the two equal)."""
+:data:`offline.discrepancy.drive.empirical.DIRECTIONS`; a test keeps the two equal)."""
 EMPIRICAL_FORCE_WHERE = ("everywhere", "time", "x", "y", "sinkage", "slip", "slip_angle")
 EMPIRICAL_FORCE_SHAPES = ("constant", "box", "step", "hinge")
 _EMPIRICAL_KEYS = {"direction", "where", "shape", "lo_si", "hi_si", "magnitude_si"}

@@ -12,7 +12,7 @@ Rankine passive earth pressure ``p(z) = gamma K_p z + 2 c sqrt(K_p)``,
 acting against the wheel's travel, with a torque ``F arm`` resisting the wheel's spin (the
 lever ``arm`` about the axle; 0 when the face does not turn with the wheel). This is not in
 the dissertation; it is the discrepancy tool's ``hub_contact`` candidate
-(:class:`offline.fit.drive_candidates.HubContact`, the simulator's disturbance hook), and
+(:class:`offline.discrepancy.drive.candidates.HubContact`, the simulator's disturbance hook), and
 :func:`hub_wrench` is the same term for the steady-state NLP and the table builder.
 
 Smoothing (only in :func:`hub_wrench`, for IPOPT and exact Jacobians)

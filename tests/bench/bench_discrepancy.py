@@ -29,7 +29,7 @@ import test_discrepancy as T  # noqa: E402  (the generators live with the tests)
 
 from offline.files import write_text  # noqa: E402
 from offline.fit.dataset import load_trials  # noqa: E402
-from offline.fit.discrepancy import SingleWheelRecording, diagnose, predict_recording  # noqa: E402
+from offline.discrepancy.engine import SingleWheelRecording, diagnose, predict_recording  # noqa: E402
 from offline.physics.params import load_toml  # noqa: E402
 from offline.physics.terramechanics import ModelOptions  # noqa: E402
 

@@ -1,13 +1,13 @@
 """Benchmark: the drive discrepancy tool on concealed effects generated independently of its candidates (issue 14).
 
-Each case records a 40 s calibration drive (:func:`offline.fit.drive_synthetic.record_drive`,
-sensor noise :data:`~offline.fit.drive_synthetic.REALISTIC_SENSORS`) with an effect of
+Each case records a 40 s calibration drive (:func:`offline.discrepancy.drive.synthetic.record_drive`,
+sensor noise :data:`~offline.discrepancy.drive.synthetic.REALISTIC_SENSORS`) with an effect of
 ``tests/concealed_effects.py`` concealed: forces through the simulator's disturbance hook,
 a misaligned steering encoder in the actuator and sensor paths, IMU tilt from a terrain
 normal -- code that shares nothing with the candidates' formulas (two cases, the worn wheel
 and the looser soil, go through the plant's own radius / soil law and are marked
-"parameter recovery"). The tool (:func:`offline.fit.drive_discrepancy.diagnose_drives`, full
-library :data:`~offline.fit.drive_candidates.DRIVE_CANDIDATES` plus the recalibration,
+"parameter recovery"). The tool (:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`, full
+library :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES` plus the recalibration,
 default settings) gets the recording and the believed scenario only.
 
 Groups
@@ -88,7 +88,8 @@ from concealed_effects import (  # noqa: E402
     soil_pressure_check,
 )
 from offline.files import write_text  # noqa: E402
-from offline.fit.drive_discrepancy import diagnose_drives, held_out_drives, write_drive_report  # noqa: E402
+from offline.discrepancy.drive.diagnosis import diagnose_drives, held_out_drives  # noqa: E402
+from offline.discrepancy.drive.report import write_drive_report  # noqa: E402
 from offline.rover.scenario import load_scenario  # noqa: E402
 from offline.sim.truth import Truth  # noqa: E402
 
@@ -190,7 +191,7 @@ class SparseCase:
 
     def sensors(self) -> Any:
         """The sensor configuration of the recording."""
-        from offline.fit.drive_synthetic import REALISTIC_SENSORS
+        from offline.discrepancy.drive.synthetic import REALISTIC_SENSORS
         from offline.sim.sensors import SensorConfig
 
         base = REALISTIC_SENSORS if self.drive == "calibration" else SensorConfig()  # the CLI's default sensors
@@ -371,7 +372,7 @@ def _md(data: dict[str, Any]) -> str:
           "sensor paths). Held-out chi2: the engine's 5 contiguous time blocks (before -> after) and a second drive "
           "(seed + 100) scored with the parameters fitted on the first. 'right?': in library = named right and nothing "
           "else; OUT = not named confidently (unexplained / partly explained); negative = agree. The calibration drive "
-          "is `offline.fit.drive_synthetic.CALIBRATION_SEGMENTS` (4.5 cm/s, crabs both ways at 57 deg, no point "
+          "is `offline.discrepancy.drive.synthetic.CALIBRATION_SEGMENTS` (4.5 cm/s, crabs both ways at 57 deg, no point "
           "turn). Levels: `DRIVE_ALPHA` 0.001 for the alarm tests, `DRIVE_ALPHA_AFTER` 0.01 for the checks after an "
           "explanation; from cc4c4c4 on, a significant explanation is named only when the believed model's residual chi2 in "
           "noise units exceeds the number of values (rows re-run since show their commit). Looser soil: judged on what the accepted soil does to the wheels at the drive's true states "
@@ -450,8 +451,8 @@ def lack_of_fit(sc: Any) -> int:
     believed model's residuals against the measurement noise (chi-square in noise units, s = 1,
     the engine's ``_lack_of_fit`` at 0.01 Bonferroni over channels). One re-simulation per drive,
     no diagnosis: the 20 negative seeds and the undulation (40 s drives, segment 5 as the tool's default)."""
-    from offline.fit.discrepancy import _lack_of_fit
-    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
+    from offline.discrepancy.engine import _lack_of_fit
+    from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, load_drives
 
     lines = ["# Lack of fit of the believed model before any explanation (issue 14)", "",
              "`nice python tests/bench/bench_drive_discrepancy.py lack_of_fit`: per drive, the channels whose chi-square in "
@@ -477,7 +478,7 @@ def lack_of_fit(sc: Any) -> int:
 
 def _former_segments() -> tuple[Any, ...]:
     """The calibration drive before the crabs both ways at 57 deg (one 20 deg crab right), for fl_fr."""
-    from offline.fit.drive_synthetic import DriveSegment, _ackermann
+    from offline.discrepancy.drive.synthetic import DriveSegment, _ackermann
 
     left, right = _ackermann(0.35, 0.03), _ackermann(-0.5, 0.04)
     return (DriveSegment(0.0, 10.0, (0.03,) * 4, (0.0,) * 4), DriveSegment(10.0, 24.0, *left),
@@ -494,10 +495,10 @@ def fl_fr(sc: Any, tr: Truth) -> int:
     and the joint standard errors (deg) of the two offsets fitted together."""
     import numpy as np
 
-    from offline.fit.drive_candidates import RoverExtension
-    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
-    from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, record_drive
-    from offline.fit.significance import normalised
+    from offline.discrepancy.drive.candidates import RoverExtension
+    from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, load_drives
+    from offline.discrepancy.drive.synthetic import CALIBRATION_SEGMENTS, record_drive
+    from offline.discrepancy.significance import normalised
 
     for label, segs in (("former (one 20 deg crab right)", _former_segments()),
                         ("current (crabs both ways at 57 deg)", CALIBRATION_SEGMENTS)):
@@ -527,7 +528,7 @@ STEER_SEEDS = tuple(range(1, 21))
 
 def _scaled_segments(factor: float) -> tuple[Any, ...]:
     """The calibration drive with every rim speed times ``factor`` (the same legs, times and steering)."""
-    from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, DriveSegment
+    from offline.discrepancy.drive.synthetic import CALIBRATION_SEGMENTS, DriveSegment
 
     return tuple(DriveSegment(g.start, g.end, tuple(factor * v for v in g.rim_speed), g.steer, g.label)  # type: ignore[arg-type]
                  for g in CALIBRATION_SEGMENTS)
@@ -538,7 +539,7 @@ def steer_seeds(sc: Any, seeds: tuple[int, ...] = STEER_SEEDS) -> int:
 
     For each steering case of the effects group, the case's own terms (``steer_offset_<W>``; with
     the worn wheel also ``wheel_radius_RL``) are fitted exactly as the engine fits a candidate in
-    :func:`~offline.fit.drive_discrepancy.diagnose_drives` (:func:`offline.fit.significance.fit`
+    :func:`~offline.discrepancy.drive.diagnosis.diagnose_drives` (:func:`offline.discrepancy.significance.fit`
     on the normalised residuals, the drive's dispersion, ``max_nfev`` 8, ``fit_tol`` 1e-4: on
     seed 3 this gives the effects group's numbers to the digit) on 40 s drives of ``seeds``;
     no library search, so a seed costs a few seconds instead of a minute. Reported per case:
@@ -547,16 +548,16 @@ def steer_seeds(sc: Any, seeds: tuple[int, ...] = STEER_SEEDS) -> int:
     how many seeds miss 20 %; then the same drive without sensor noise (the generator's actuator
     path against the candidate's plant offset: model mismatch) and the fit of each term on the
     seed-3 drive with no effect at all (what seed 3's noise alone makes of the term). Both for the
-    calibration drive (4.5 cm/s, :data:`~offline.fit.drive_synthetic.CALIBRATION_SPEED`) and the
+    calibration drive (4.5 cm/s, :data:`~offline.discrepancy.drive.synthetic.CALIBRATION_SPEED`) and the
     same drive at Table 7.2's 3 cm/s (2/3 of every rim speed): a steering offset's yaw rate scales
     with speed, the gyro noise does not; this comparison is why the calibration drive is faster."""
     import numpy as np
 
-    from offline.fit.discrepancy import _ext_of
-    from offline.fit.drive_candidates import DRIVE_CANDIDATES, RoverExtension
-    from offline.fit.drive_discrepancy import DriveModel, DriveRecording, load_drives
-    from offline.fit.drive_synthetic import CALIBRATION_SEGMENTS, REALISTIC_SENSORS
-    from offline.fit.significance import fit, normalised
+    from offline.discrepancy.engine import _ext_of
+    from offline.discrepancy.drive.candidates import DRIVE_CANDIDATES, RoverExtension
+    from offline.discrepancy.drive.diagnosis import DriveModel, DriveRecording, load_drives
+    from offline.discrepancy.drive.synthetic import CALIBRATION_SEGMENTS, REALISTIC_SENSORS
+    from offline.discrepancy.significance import fit, normalised
 
     quiet = replace(REALISTIC_SENSORS, wheel_speed_noise=0.0, steer_noise=0.0, gyro_noise=0.0, tilt_noise=0.0,
                     torque_noise=0.0, pose_noise_xy=0.0, pose_noise_heading=0.0, gyro_bias_walk=0.0)

@@ -1,10 +1,10 @@
 """Benchmark: empirical terms for what the drive library lacks (issue 24, "model the unknown").
 
 Each case records a 40 s calibration drive (as ``bench_drive_discrepancy.py``: seed 3,
-:data:`~offline.fit.drive_synthetic.REALISTIC_SENSORS`) with an effect concealed by code
+:data:`~offline.discrepancy.drive.synthetic.REALISTIC_SENSORS`) with an effect concealed by code
 independent of the empirical family (``tests/concealed_effects.py``,
 ``tests/concealed_unknowns.py``), and runs the whole drive tool
-(:func:`offline.fit.drive_discrepancy.diagnose_drives`: the library, then, when the library
+(:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`: the library, then, when the library
 does not explain the drive, the empirical search). The tool is told the recording and the
 believed nominal scenario only.
 
@@ -23,7 +23,7 @@ Groups
                       parameters within 20 %, as that bench judges them), with the empirical stage on.
 ``negatives``         20 noise-only drives (seeds 31-50) through the whole tool: any verdict but
                       ``agree`` or any empirical term is a false alarm.
-``search_negatives``  the empirical search alone (:func:`offline.fit.drive_empirical.search_drives`)
+``search_negatives``  the empirical search alone (:func:`offline.discrepancy.drive.empirical.search_drives`)
                       forced on 20 noise-only drives (seeds 31-50): its own false-alarm rate at
                       the drive level 0.001 (the whole tool runs it only after a non-``agree`` verdict).
 
@@ -60,9 +60,10 @@ from bench_drive_discrepancy import HONEST_OUT, cases as library_cases, judge as
 from concealed_effects import Effect, GyroBiasStep, HubDrag, SoftPatch, Undulation, record_concealed  # noqa: E402
 from concealed_unknowns import CurrentLimitedServo, SnaggedSled  # noqa: E402
 from offline.files import write_text  # noqa: E402
-from offline.fit.drive_discrepancy import DriveRecording, diagnose_drives, load_drives, write_drive_report  # noqa: E402
-from offline.fit.drive_empirical import EmpiricalTerms, search_drives  # noqa: E402
-from offline.fit.significance import normalised  # noqa: E402
+from offline.discrepancy.drive.diagnosis import DriveRecording, diagnose_drives, load_drives  # noqa: E402
+from offline.discrepancy.drive.report import write_drive_report  # noqa: E402
+from offline.discrepancy.drive.empirical import EmpiricalTerms, search_drives  # noqa: E402
+from offline.discrepancy.significance import normalised  # noqa: E402
 from offline.rover.scenario import load_scenario  # noqa: E402
 from offline.sim.truth import WHEELS, Truth  # noqa: E402
 from rtctl.recording import read_recording  # noqa: E402

@@ -33,9 +33,9 @@ from pathlib import Path
 from typing import Any
 
 from offline.files import write_text
-from offline.fit.drive_candidates import HubContact
-from offline.fit.drive_discrepancy import diagnose_drives
-from offline.fit.drive_synthetic import REALISTIC_SENSORS, calibration_drive, record_drive
+from offline.discrepancy.drive.candidates import HubContact
+from offline.discrepancy.drive.diagnosis import diagnose_drives
+from offline.discrepancy.drive.synthetic import REALISTIC_SENSORS, calibration_drive, record_drive
 from offline.rover.scenario import load_scenario
 from offline.sim.simulator import RoverSimulator
 from offline.sim.truth import Truth

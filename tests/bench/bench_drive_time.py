@@ -2,7 +2,7 @@
 
 Each case records a 40 s calibration drive (as ``bench_drive_empirical.py``: the out-of-library
 effects with seed 3, the in-library cases with their seeds, noise-only drives) once, then
-diagnoses it with the whole drive tool (:func:`offline.fit.drive_discrepancy.diagnose_drives`,
+diagnoses it with the whole drive tool (:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`,
 library and empirical stage, defaults) twice, each in its own process: once with the baseline's
 code (``PYTHONPATH`` = a worktree of the baseline commit) and once with this tree's, the order
 alternating from case to case so that a change of the shared machine's load falls on both. The
@@ -52,7 +52,7 @@ def _strip(x: Any) -> Any:
 
 def run_one(path: str, seed: int) -> None:
     """Child process: diagnose one recording with whatever ``offline`` is on the path; print JSON."""
-    import offline.fit.drive_discrepancy as dd
+    import offline.discrepancy.drive.diagnosis as dd
     from offline.rover.scenario import load_scenario
 
     sc = load_scenario(Path(dd.__file__).resolve().parents[1] / "scenarios/nominal.toml")

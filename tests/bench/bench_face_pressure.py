@@ -5,7 +5,7 @@ One command, writes tests/bench/results_face_pressure.md::
     nice python tests/bench/bench_face_pressure.py
 
 Model under test: the shipped calibrated parameter set with the Pavlov sidewall term; data:
-the shipped grousered trials (:func:`offline.fit.face_pressure.held_out_angles`).
+the shipped grousered trials (:func:`offline.discrepancy.wheel.face_pressure.held_out_angles`).
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from pathlib import Path
 
 from offline.cli.common import DEFAULT_PARAMS, shipped
 from offline.files import write_text
-from offline.fit.candidates import SingleWheelModel
+from offline.discrepancy.wheel.candidates import SingleWheelModel
 from offline.fit.dataset import load_trials
-from offline.fit.face_pressure import held_out_angles
-from offline.fit.observations import SingleWheelRecording
+from offline.discrepancy.wheel.face_pressure import held_out_angles
+from offline.discrepancy.wheel.recording import SingleWheelRecording
 from offline.physics.params import load_toml
 from offline.physics.terramechanics import ModelOptions
 

@@ -2,7 +2,7 @@
 
 Records one case of ``bench_drive_time.py`` (an out-of-library case of
 ``bench_drive_empirical.py``, an in-library case or ``noiseN``), runs
-:func:`offline.fit.drive_discrepancy.diagnose_drives` on it with every re-simulation
+:func:`offline.discrepancy.drive.diagnosis.diagnose_drives` on it with every re-simulation
 (:meth:`DriveModel._run`) timed and attributed to the stage the diagnosis reported last
 (its ``progress`` messages), and counts per stage: re-simulations, their seconds, those slower
 than 0.4 s, re-simulations of a key already simulated before (what a cache could have served),
@@ -37,10 +37,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("case")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
-    import offline.fit.drive_discrepancy as dd
+    import offline.discrepancy.drive.diagnosis as dd
     import offline.sim.plant as pl
     from bench_drive_time import _record
-    from offline.fit.drive_candidates import RoverExtension, rover_terms
+    from offline.discrepancy.drive.candidates import RoverExtension, rover_terms
     from offline.rover.scenario import load_scenario
 
     sc = load_scenario(ROOT / "offline/scenarios/nominal.toml")

@@ -75,7 +75,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("case")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
-    import offline.fit.drive_discrepancy as dd
+    import offline.discrepancy.drive.diagnosis as dd
     import offline.sim.plant as pl
     from bench_drive_time import _record
     from offline.rover.scenario import load_scenario

@@ -1,82 +1,23 @@
-"""Observations for the discrepancy engine: what was recorded, how noisy, where in the operating space.
+"""The single-wheel testbed adapter of the discrepancy engine: one row per condition.
 
-The engine (:mod:`offline.fit.discrepancy`) never looks inside a recording; it uses the
-:class:`Observations` protocol: rows with channels, a per-row noise level, operating-point
-features for locating regions, fold labels for held-out scoring, row subsets, and
-*probe designs* (what-if variants of the experiment used to say which measurement would
-separate two explanations). :class:`SingleWheelRecording` is the single-wheel testbed
-adapter (one row per condition); rover drive recordings (issue 14) plug in with their own
-adapter exposing the same members (rows = time segments, features = time, wheel, speed...).
+:class:`SingleWheelRecording` exposes the :class:`~offline.discrepancy.observations.Observations`
+protocol over the testbed's trials (repeat means, pooled repeat noise, operating-point features).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Mapping, Protocol, Sequence
+from typing import Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .dataset import DatasetError, TrialSet
-from .validation import average_conditions, trial_states
+from ...fit.dataset import DatasetError, TrialSet
+from ...fit.validation import average_conditions, trial_states
+from ..observations import Probe
 
-__all__ = ["Observations", "SingleWheelRecording", "Probe", "FEATURE_LABELS"]
-
-FEATURE_LABELS = {"slip": "slip", "abs_beta_deg": "|beta| (deg)", "sinkage_mm": "sinkage (mm)", "load_N": "load (N)",
-                  "rim_speed_mm_s": "rim speed (mm/s)"}
-"""Report names of the single-wheel features (other adapters may add their own; unknown names print as is)."""
-
-
-@dataclass(frozen=True)
-class Probe:
-    """A what-if experiment: the same rows under changed conditions (for separating candidates).
-
-    Attributes
-    ----------
-    description : str
-        What to do on the testbed (report text).
-    observations : Observations
-        The changed rows (their ``measured`` values are not used).
-    """
-
-    description: str
-    observations: "Observations"
-
-
-class Observations(Protocol):
-    """What the discrepancy engine needs from a recording (see module docstring)."""
-
-    # read-only attributes (a frozen dataclass's fields satisfy them)
-    @property
-    def channels(self) -> tuple[str, ...]: ...
-    @property
-    def units(self) -> Mapping[str, str]: ...
-    @property
-    def scale_out(self) -> Mapping[str, float]: ...
-    @property
-    def measured(self) -> dict[str, NDArray[np.float64]]: ...
-    @property
-    def noise(self) -> dict[str, NDArray[np.float64]]: ...
-    @property
-    def features(self) -> dict[str, NDArray[np.float64]]: ...
-    @property
-    def noise_source(self) -> str: ...
-    @property
-    def source(self) -> str: ...
-
-    def __len__(self) -> int: ...
-
-    def subset(self, idx: NDArray[np.int_]) -> "Observations": ...
-
-    def with_measured(self, measured: Mapping[str, NDArray[np.float64]]) -> "Observations": ...
-
-    def folds(self, k: int) -> NDArray[np.int_]: ...
-
-    def probes(self) -> Sequence[Probe]: ...
-
-    # Optional: ``null_draw(rng, n, n_boot)`` -> (n, n_boot) correlated noise draws for the
-    # significance test (time series); without it rows are independent.
+__all__ = ["SingleWheelRecording"]
 
 
 @dataclass(frozen=True)

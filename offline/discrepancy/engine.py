@@ -5,11 +5,11 @@ Pipeline (:func:`diagnose`)
 ---------------------------
 1. **Residuals.** The model predicts every row of the observations; residuals
    ``measured - predicted`` are normalised by the measurement noise and by a per-channel
-   dispersion ``s >= 1`` (:func:`~offline.fit.significance.dispersion`). A run in which the
+   dispersion ``s >= 1`` (:func:`~offline.discrepancy.significance.dispersion`). A run in which the
    model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement.
 2. **Locate.** Significant regions of the operating space per channel
-   (:func:`~offline.fit.significance.locate`, max-box statistic with a Monte-Carlo null).
-3. **Explain.** Every candidate of the library (:data:`~offline.fit.candidates.CANDIDATES`:
+   (:func:`~offline.discrepancy.significance.locate`, max-box statistic with a Monte-Carlo null).
+3. **Explain.** Every candidate of the library (:data:`~offline.discrepancy.wheel.candidates.CANDIDATES`:
    new terms, measurement effects, groups of the model's own parameters) and the full
    recalibration of the model's parameters is fitted; each is scored by its *held-out
    improvement* ``D = chi2_cv(model) - chi2_cv(model + candidate)`` (K-fold over rows).
@@ -53,30 +53,27 @@ Pipeline (:func:`diagnose`)
 
 Verdicts: ``agree``, ``explained``, ``parameters_off``, ``partly_explained``, ``ambiguous``, ``unexplained``.
 
-The engine is generic over observations (:class:`~offline.fit.observations.Observations`)
+The engine is generic over observations (:class:`~offline.discrepancy.observations.Observations`)
 and models (anything with ``predict(observations, extension)``); the single-wheel testbed
-adapter is :class:`~offline.fit.observations.SingleWheelRecording` with
-:class:`~offline.fit.candidates.SingleWheelModel`.
+adapter is :class:`~offline.discrepancy.wheel.recording.SingleWheelRecording` with
+:class:`~offline.discrepancy.wheel.candidates.SingleWheelModel`.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..files import atomic_path, write_text
-from ..physics.params import ParameterSet, save_toml
+from ..physics.params import ParameterSet
 from ..physics.terramechanics import ModelOptions
-from .candidates import CANDIDATES, RECALIBRATION_KEY, Candidate, Extension, SingleWheelModel, predict_recording
-from .dataset import TrialSet
-from .observations import SingleWheelRecording
+from .wheel.candidates import CANDIDATES, RECALIBRATION_KEY, Candidate, Extension, SingleWheelModel, predict_recording
+from ..fit.dataset import TrialSet
+from .wheel.recording import SingleWheelRecording
 from .significance import (
     Region,
     adjusted_p,
@@ -282,7 +279,7 @@ class Verdict:
     """Why ``withheld`` is not named (a summary line)."""
     empirical: Any = None
     """What the library lacks, modelled by an empirical term (drives,
-    :class:`offline.fit.drive_empirical.EmpiricalResult`), or None: the status above stays the
+    :class:`offline.discrepancy.drive.empirical.EmpiricalResult`), or None: the status above stays the
     library's verdict (an empirical term names no library physics)."""
 
     @property
@@ -451,98 +448,6 @@ class Verdict:
             "empirical": self.empirical.to_json() if self.empirical is not None else None,
         }
 
-    def write(self, folder: str | Path) -> Path:
-        """Write ``report.md``, ``verdict.json``, PNG plots and, for "parameters off",
-        ``recalibrated.toml`` into ``folder`` (each file atomically)."""
-        out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
-        write_text(out / "verdict.json", json.dumps(self.to_json(), indent=2, default=float))
-        if self.recalibrated is not None:
-            with atomic_path(out / "recalibrated.toml") as tmp:
-                save_toml(tmp, {"written_by": "offline.fit.discrepancy (parameters off)",
-                                "recording": Path(str(self.observations.source)).name,
-                                "held_out_chi2_before": self.chi2_cv_base,
-                                "held_out_chi2_after": self.chosen.chi2_cv if self.chosen else self.chi2_cv_base},
-                          soil=self.recalibrated.soil, wheel=self.recalibrated.wheel, tuning=self.recalibrated.tuning)
-        pngs = _plots(self, out)
-        md = ["# Discrepancy report", "", f"Recording: `{Path(str(self.observations.source)).name}`", "",
-              f"Model: {self.model.describe() if hasattr(self.model, 'describe') else self.model}", "",
-              "## Summary", "", "```", self.summary(), "```", "",
-              "## Candidates (ranked by held-out improvement)", "",
-              "| candidate | kind | parameters | held-out chi2 | improvement | p (adjusted) | significant |",
-              "|---|---|---|---|---|---|---|",
-              f"| (model as given) | | | {self.chi2_cv_base:.1f} | | | |"]
-        for s in sorted(self.scores, key=lambda s: -s.delta_cv):
-            padj = f"{s.p_adjusted:.3g}" if math.isfinite(s.p_adjusted) else "(extra term test)"
-            md.append(f"| {s.label} | {'/'.join(s.kinds)} | {s.parameters_text()} | {s.chi2_cv:.1f} | {s.delta_cv:.1f} | "
-                      f"{padj} | {'yes' if s.significant else ''} |")
-        if self.status == "ambiguous":
-            md += ["", "## Not identifiable from this recording", "",
-                   "Nothing is named. These explanations fit the held-out rows equally, or the best-scoring one has a term "
-                   "the data do not determine:", ""]
-            md += [f"- `{s.label}`: {s.parameters_text()} (held-out chi2 {s.chi2_cv:.1f})" for s in self.explanations]
-            md += ["", self.ambiguity]
-        md += ["", "## Decision criterion", "", self.criterion, ""]
-        if self.regions_after:
-            md += ["## Regions still significant after the explanation", ""] + [f"- {r.describe()}" for r in self.regions_after] + [""]
-        md += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
-        write_text(out / "report.md", "\n".join(md) + "\n")
-        return out
-
-
-def _plots(v: Verdict, out: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    obs = v.observations
-    chans = obs.channels
-    fx, fy = list(obs.features)[:2]
-    paths = []
-    fig, axes = plt.subplots(2, len(chans), figsize=(4.3 * len(chans), 7), sharex=True, sharey="row", squeeze=False)
-    sc = None
-    for j, ch in enumerate(chans):
-        for i, (label, res) in enumerate((("before", v.residual_before), ("after", v.residual_after))):
-            ax = axes[i, j]
-            zz = res[ch] / obs.noise[ch]
-            sc = ax.scatter(obs.features[fx], obs.features[fy], c=np.clip(zz, -10, 10), cmap="RdBu_r",
-                            vmin=-10, vmax=10, s=40, edgecolors="k", linewidths=0.3)
-            bad = ~np.isfinite(zz)
-            ax.scatter(obs.features[fx][bad], obs.features[fy][bad], marker="x", c="k", s=30)
-            ax.set_title(f"{ch} residual / noise, {label}")
-            if i == 1:
-                ax.set_xlabel(fx)
-            if j == 0:
-                ax.set_ylabel(fy)
-    if sc is not None:
-        fig.colorbar(sc, ax=axes, label="(measured - predicted) / noise (clipped at ±10; x: model failed)")
-    p = out / "residual_map.png"
-    with atomic_path(p) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    paths.append(p)
-    fig, axes = plt.subplots(1, len(chans), figsize=(4.3 * len(chans), 4.2), squeeze=False)
-    for j, ch in enumerate(chans):
-        ax = axes[0, j]
-        k = obs.scale_out[ch]
-        m = obs.measured[ch] * k
-        ax.plot(m, v.pred_before[ch] * k, "o", mfc="none", color="tab:gray", label="model as given")
-        ax.plot(m, v.pred_after[ch] * k, ".", color="tab:red", label="with the explanation")
-        lim = [np.nanmin(m), np.nanmax(m)]
-        ax.plot(lim, lim, "k-", lw=0.8)
-        ax.set_xlabel(f"measured {ch} [{obs.units[ch]}]")
-        ax.set_ylabel(f"predicted {ch} [{obs.units[ch]}]")
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    p = out / "measured_vs_predicted.png"
-    with atomic_path(p) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    paths.append(p)
-    return paths
-
 
 CRITERION = (
     "Each candidate (and the full recalibration of the model's parameters) is fitted by bounded least squares and "
@@ -585,7 +490,7 @@ def _conditional_rows(resid_fn: Callable[[Sequence[Candidate]], Callable[[NDArra
                       folds: NDArray[np.int_], nc: int) -> NDArray[np.float64]:
     """Held-out chi-square per row of ``first`` (fitted at ``x1``, Jacobian ``jac1``) plus ``c`` at
     its believed value (``c.null``, else its start), linearised in all parameters
-    (:func:`~offline.fit.significance.linear_held_out`): ``1 + c.k`` model evaluations."""
+    (:func:`~offline.discrepancy.significance.linear_held_out`): ``1 + c.k`` model evaluations."""
     start = np.array([q[4] for q in c.params], dtype=float)
     xc = start if c.null is None else np.where(np.isfinite(np.array(c.null, dtype=float)), np.array(c.null, dtype=float), start)
     r = resid_fn([*first, c])
@@ -666,7 +571,7 @@ def diagnose(
     max_tries : int
         The forward step tries at most this many significant candidates on top of the first
         explanation, ranked by their score test on top of it (linearised held-out improvement
-        with every parameter free, :func:`~offline.fit.significance.linear_held_out`), not by
+        with every parameter free, :func:`~offline.discrepancy.significance.linear_held_out`), not by
         their own improvement alone.
     max_separations : int
         Separating experiments are searched for the best this many look-alikes.
@@ -684,7 +589,7 @@ def diagnose(
         by the first may leave no region; the extra term's own test keeps the level).
     fit_tol : float, optional
         Relative tolerance of every least-squares fit on the chi-square and the step
-        (:func:`~offline.fit.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
+        (:func:`~offline.discrepancy.significance.fit`; None: scipy's 1e-8, i.e. the fits run to
         ``max_nfev``).
     alpha_after : float, optional
         Level of the checks of what an accepted explanation leaves (regions and lack of fit
@@ -700,7 +605,7 @@ def diagnose(
         of the model's parameters was preferred to it, and searches the first term's threshold
         again from its own starts; a subset of the model's parameters plus a new term gives way
         to the full recalibration when that explains as much; and the null's training-fold fits
-        damped as the observed score's step is (:func:`~offline.fit.significance.tangent_null`).
+        damped as the observed score's step is (:func:`~offline.discrepancy.significance.tangent_null`).
     polish_nfev : int
         The accepted explanation is fitted again from its values with this many iterations
         before its parameters, its remaining misfit and ``recalibrated.toml`` are reported (0 or

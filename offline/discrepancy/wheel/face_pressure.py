@@ -33,8 +33,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .candidates import Extension, SingleWheelModel
-from .observations import SingleWheelRecording
-from .significance import dispersion, normalised
+from .recording import SingleWheelRecording
+from ..significance import dispersion, normalised
 
 __all__ = ["face_force", "FacePressureModel", "held_out_angles", "FaceStudy"]
 

@@ -2,17 +2,17 @@
 
 :func:`calibration_drive` is an open-loop command script that excites what a rover team
 would want to identify (straight, Ackermann turns both ways, crabs both ways at 57 deg, reverse:
-the manoeuvres :meth:`offline.fit.drive_discrepancy.DriveRecording.identification_advice` asks
+the manoeuvres :meth:`offline.discrepancy.drive.diagnosis.DriveRecording.identification_advice` asks
 for); it is the drive a team should run to calibrate (:data:`CALIBRATION_SEGMENTS` says why each
 leg is there). :func:`record_drive` runs it on :class:`offline.sim.simulator.RoverSimulator`
 with a truth the believed model does not know (slope, worn wheel, steering offset, tether,
 soil) and realistic sensor noise, and writes an MCAP recording with
 :class:`rtctl.recording.Recorder` -- the same files a rover writes. The tool under test is
 told nothing of the truth: the truth is only in the ``/sim/truth`` channel and the
-metadata, which :mod:`offline.fit.drive_discrepancy` never reads.
+metadata, which :mod:`offline.discrepancy.drive.diagnosis` never reads.
 
 A truth set through :class:`~offline.sim.truth.Truth` fields goes through the same plant
-inputs the tool's candidates set (:func:`offline.fit.drive_candidates.truth_from_terms`): a
+inputs the tool's candidates set (:func:`offline.discrepancy.drive.candidates.truth_from_terms`): a
 drive made that way tests parameter recovery, not discovery. :func:`record_drive` therefore
 also takes a disturbance hook (contract C5), an actuator path and a sensor path, through
 which ``tests/concealed_effects.py`` conceals effects with code independent of the
@@ -30,11 +30,11 @@ from typing import Any, Callable
 from rtctl.messages import Commands, Measurements
 from rtctl.recording import Recorder
 
-from ..rover.scenario import Scenario
-from ..sim.actuators import ActuatorConfig
-from ..sim.sensors import SensorConfig
-from ..sim.simulator import RoverSimulator, TruthState
-from ..sim.truth import Truth
+from ...rover.scenario import Scenario
+from ...sim.actuators import ActuatorConfig
+from ...sim.sensors import SensorConfig
+from ...sim.simulator import RoverSimulator, TruthState
+from ...sim.truth import Truth
 
 __all__ = ["DriveSegment", "CALIBRATION_SEGMENTS", "CALIBRATION_SPEED", "calibration_drive", "record_drive", "REALISTIC_SENSORS",
            "ActuatorPath", "SensorPath"]

@@ -30,11 +30,11 @@ from typing import Any, Callable, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..physics.backend import NUMPY
-from ..physics.params import ParameterError, ParameterSet
-from ..physics.terramechanics import ModelOptions, WheelModel, bulldozing_resistance
-from .calibration import DEFAULT_BOUNDS
-from .observations import SingleWheelRecording
+from ...physics.backend import NUMPY
+from ...physics.params import ParameterError, ParameterSet
+from ...physics.terramechanics import ModelOptions, WheelModel, bulldozing_resistance
+from ...fit.calibration import DEFAULT_BOUNDS
+from .recording import SingleWheelRecording
 
 __all__ = [
     "Extension",
@@ -253,7 +253,7 @@ class Candidate:
         to SI.
     build : callable
         ``(theta (SI), ParameterSet) -> extension`` of the model's type: :class:`Extension` for
-        the single-wheel model, :class:`offline.fit.drive_candidates.RoverExtension` for drives
+        the single-wheel model, :class:`offline.discrepancy.drive.candidates.RoverExtension` for drives
         (anything with ``merge``; the engine starts from ``model.empty_extension()``).
     channels : tuple of str
         Channels the term acts on (for the report).
@@ -533,9 +533,9 @@ class SingleWheelModel:
     def parameter_set(self, ext: Extension, note: str = "") -> ParameterSet:
         """The parameter set with the extension's soil, wheel and tuning changes applied."""
         p = self.params
-        return ParameterSet(replace(p.soil, **_kw(ext.soil), name=f"{p.soil.name}_recalibrated", source="offline.fit.discrepancy"),
+        return ParameterSet(replace(p.soil, **_kw(ext.soil), name=f"{p.soil.name}_recalibrated", source="offline.discrepancy.engine"),
                             replace(p.wheel, **_kw(ext.wheel)),
-                            replace(p.tuning, **_kw(ext.tuning), name=f"{p.tuning.name}_recalibrated", source="offline.fit.discrepancy"),
+                            replace(p.tuning, **_kw(ext.tuning), name=f"{p.tuning.name}_recalibrated", source="offline.discrepancy.engine"),
                             note or p.notes)
 
     def describe(self) -> str:

@@ -1,7 +1,7 @@
 """Statistics of the discrepancy engine: regions, fits, held-out scores and their null distribution.
 
 Everything here works on *normalised residuals* ``z = (measured - predicted) / (noise s)``
-(rows x channels) of any :class:`~offline.fit.observations.Observations`, so the same test
+(rows x channels) of any :class:`~offline.discrepancy.observations.Observations`, so the same test
 serves single-wheel conditions and, later, drive segments.
 
 * :func:`dispersion` -- the per-channel scale ``s >= 1``: the robust (MAD) spread of the

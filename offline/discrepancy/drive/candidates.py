@@ -1,13 +1,13 @@
 """Rover-level candidate physics for the discrepancy engine (issue 14), with physical parameters and bounds.
 
-The engine (:func:`offline.fit.discrepancy.diagnose`) fits :class:`~offline.fit.candidates.Candidate`
+The engine (:func:`offline.discrepancy.engine.diagnose`) fits :class:`~offline.discrepancy.wheel.candidates.Candidate`
 objects whose ``build(theta, params)`` returns an extension the model takes; the drive model's
 extension type is :class:`RoverExtension` (the engine starts from ``model.empty_extension()``):
 soil changes in ``RoverExtension.soil`` (the fields of :class:`~offline.physics.params.Soil`, SI)
 and the rover terms in ``RoverExtension.terms`` over :data:`ROVER_KEYS`, checked when the
 extension is made (unknown key or non-finite value: :class:`DriveCandidateError`). Two candidates
 merge with :meth:`RoverExtension.merge`; the single-wheel model's
-:class:`~offline.fit.candidates.Extension` is not taken by the drive model, nor the reverse.
+:class:`~offline.discrepancy.wheel.candidates.Extension` is not taken by the drive model, nor the reverse.
 
 Each term maps onto an input the simulator already takes, so an accepted term *is* a truth
 file (:func:`truth_from_terms`, :func:`write_truth_toml`) that
@@ -77,13 +77,13 @@ from typing import Any, Callable, Mapping, Sequence, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from ..files import write_text
-from ..physics.backend import NUMPY
+from ...files import write_text
+from ...physics.backend import NUMPY
 from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
-from ..physics.params import ParameterError, ParameterSet, Rover, Soil
-from ..sim.simulator import DisturbanceForces, TruthState
-from ..sim.truth import WHEELS, Truth
-from .candidates import Candidate
+from ...physics.params import ParameterError, ParameterSet, Rover, Soil
+from ...sim.simulator import DisturbanceForces, TruthState
+from ...sim.truth import WHEELS, Truth
+from ..wheel.candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
            "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
@@ -363,7 +363,7 @@ def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rov
 
 def disturbance_from_truth(truth: Truth, rover: Rover) -> Any:
     """The simulator's disturbance hook of a truth file's hook sections: ``[tether_anchor]``,
-    ``[hub_contact]`` and ``[[empirical_force]]`` (:class:`~offline.fit.drive_empirical.EmpiricalTerms`
+    ``[hub_contact]`` and ``[[empirical_force]]`` (:class:`~offline.discrepancy.drive.empirical.EmpiricalTerms`
     localised by the simulator's own time and pose); None without any.
 
     Raises
@@ -376,7 +376,7 @@ def disturbance_from_truth(truth: Truth, rover: Rover) -> Any:
     hook = disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover) if terms else None
     if not truth.empirical:
         return hook
-    from .drive_empirical import EmpiricalTerms, terms_from_truth
+    from .empirical import EmpiricalTerms, terms_from_truth
 
     more = EmpiricalTerms(terms_from_truth(truth.empirical), rover).hook()
     return more if hook is None else Hooks((hook, more))
@@ -652,10 +652,10 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     configuration, not to the world; ``disturbance`` (hub contact, anchored tether: their
     parameters, SI, keys ``anchor_tension_N`` ... ``hub_arm_m``) goes to the truth format's
     ``[tether_anchor]`` and ``[hub_contact]`` sections; ``empirical`` (the ``[[empirical_force]]``
-    tables of :func:`offline.fit.drive_empirical.truth_entries`) goes to that array of tables.
+    tables of :func:`offline.discrepancy.drive.empirical.truth_entries`) goes to that array of tables.
     ``header`` lines become comments (fitted values, standard errors, held-out improvement).
     """
-    lines = ["# written by offline.fit.drive_discrepancy: the accepted discrepancy terms as a truth file",
+    lines = ["# written by offline.discrepancy.drive.report: the accepted discrepancy terms as a truth file",
              "# (offline.sim.truth.load_truth reads it; the simulator and the table builder take it)"]
     lines += [f"# {k}: {v}" for k, v in header.items()]
     lines += ["", "[truth]", f'params = "{params_file}"']

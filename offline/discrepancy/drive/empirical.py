@@ -58,7 +58,7 @@ How a term is found (:func:`search_empirical`)
    (:meth:`DriveRecording.null_draw`, unit variance in the normalised units, which is
    conservative where the dispersion exceeds one), so the multiplicity of the whole family is
    paid for. Accepted at ``p < alpha`` (the drive's family-wise level,
-   :data:`~offline.fit.drive_discrepancy.DRIVE_ALPHA`), with ``ceil(2 / alpha)`` draws.
+   :data:`~offline.discrepancy.drive.diagnosis.DRIVE_ALPHA`), with ``ceil(2 / alpha)`` draws.
 4. **Confirmed by the simulator.** The accepted term is refined on the full data (edges at
    tick resolution around the grid's best, magnitude by least squares), its magnitude
    corrected by one re-simulation (the real column replaces the linear one), and the held-out
@@ -77,10 +77,10 @@ would confirm its physics.
 What the simulator can apply: the re-simulation applies force and torque terms as a disturbance
 hook (:meth:`EmpiricalTerms.hook`, contract C5), speed losses in the commands the servos follow
 (:meth:`EmpiricalTerms.commands`) and reading offsets in the readings, all through
-:class:`~offline.fit.drive_discrepancy.DriveModel`. The simulator itself takes a truth file:
+:class:`~offline.discrepancy.drive.diagnosis.DriveModel`. The simulator itself takes a truth file:
 force and torque terms are written to ``accepted_truth.toml`` as ``[[empirical_force]]`` tables
 (:func:`truth_entries`; :func:`offline.sim.truth.load_truth` reads them and
-:func:`offline.fit.drive_candidates.disturbance_from_truth` makes the simulator's hook of them,
+:func:`offline.discrepancy.drive.candidates.disturbance_from_truth` makes the simulator's hook of them,
 localised by the simulator's own time and pose). Speed losses (the servo commands) and reading
 offsets (the sensor chain) are not part of the world a truth file describes: the report says so
 for each (:func:`simulator_applies`), and every term is in ``empirical_terms.json``.
@@ -99,9 +99,9 @@ from numpy.typing import NDArray
 
 from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING
 
-from ..sim.simulator import DisturbanceForces
-from ..sim.truth import WHEELS
-from .significance import normalised
+from ...sim.simulator import DisturbanceForces
+from ...sim.truth import WHEELS
+from ..significance import normalised
 
 __all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
            "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth"]
@@ -282,7 +282,7 @@ class EmpiricalTerm:
 @dataclass(frozen=True)
 class EmpiricalTerms:
     """Terms the believed simulator applies on top of an extension
-    (:meth:`offline.fit.drive_discrepancy.DriveModel.simulate`'s ``extra``).
+    (:meth:`offline.discrepancy.drive.diagnosis.DriveModel.simulate`'s ``extra``).
 
     Parameters
     ----------
@@ -309,10 +309,10 @@ class EmpiricalTerms:
         """The disturbance hook of the drag and torque terms (None without them and without a logger).
 
         ``time_of()`` and ``pose_of(t) -> (x, y, heading)`` give the time and pose the terms are
-        localised by: the re-simulation's recorded ones (:class:`~offline.fit.drive_discrepancy.DriveModel`
+        localised by: the re-simulation's recorded ones (:class:`~offline.discrepancy.drive.diagnosis.DriveModel`
         solves the plant at the recorded heading, skipping ticks); None: the simulator's own (the
         hook's time argument and the truth state's pose, as a truth file's ``[[empirical_force]]``
-        is applied, :func:`offline.fit.drive_candidates.disturbance_from_truth`).
+        is applied, :func:`offline.discrepancy.drive.candidates.disturbance_from_truth`).
         """
         forces = [t for t in self.terms if t.kind in ("drag", "torque")]
         if not forces and self.logger is None:
@@ -814,7 +814,7 @@ def interleaved_folds(obs: Any, k: int) -> NDArray[np.int_]:
     interleaved segments every localised effect longer than ``k`` segments is seen in training
     and predicted on held-out segments between. Adjacent segments share correlated noise; the
     null draws carry the drive's segment-to-segment correlation
-    (:meth:`~offline.fit.drive_discrepancy.DriveRecording.null_draw`) through the same folds, so
+    (:meth:`~offline.discrepancy.drive.diagnosis.DriveRecording.null_draw`) through the same folds, so
     the test keeps its level."""
     return (np.asarray(obs.segment) % k).astype(int)
 
@@ -827,7 +827,7 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     Parameters
     ----------
     v : Verdict
-        The engine's drive verdict (:func:`~offline.fit.drive_discrepancy.diagnose_drives`):
+        The engine's drive verdict (:func:`~offline.discrepancy.drive.diagnosis.diagnose_drives`):
         its observations, model and dispersion are used; nothing of the truth.
     alpha : float, optional
         Level of each term's held-out test (default the observations' ``family_alpha``).
@@ -849,7 +849,7 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     -------
     EmpiricalResult
     """
-    from .discrepancy import _lack_of_fit
+    from ..engine import _lack_of_fit
 
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
@@ -939,7 +939,7 @@ def search_drives(paths: Sequence[Any], scenario: Any, segment: int = 5, alpha: 
                   **kw: Any) -> EmpiricalResult:
     """The empirical search alone on recorded drives, without the library's diagnosis: the drives
     are segmented, their noise and dispersion estimated as
-    :func:`~offline.fit.drive_discrepancy.diagnose_drives` does, and :func:`search_empirical`
+    :func:`~offline.discrepancy.drive.diagnosis.diagnose_drives` does, and :func:`search_empirical`
     runs on the believed model's residuals (``kw`` passed on).
 
     Parameters
@@ -951,13 +951,13 @@ def search_drives(paths: Sequence[Any], scenario: Any, segment: int = 5, alpha: 
     segment : int
         Ticks per row.
     alpha : float, optional
-        Level (default :data:`~offline.fit.drive_discrepancy.DRIVE_ALPHA`).
+        Level (default :data:`~offline.discrepancy.drive.diagnosis.DRIVE_ALPHA`).
     **kw
         Passed to :func:`search_empirical` (``seed``, ``n_boot``, ``max_terms``, ...).
     """
     from dataclasses import replace as _replace
 
-    from .drive_discrepancy import DRIVE_ALPHA, DriveModel, DriveRecording, load_drives
+    from .diagnosis import DRIVE_ALPHA, DriveModel, DriveRecording, load_drives
 
     model = DriveModel(scenario)
     a = DRIVE_ALPHA if alpha is None else float(alpha)

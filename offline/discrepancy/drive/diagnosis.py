@@ -2,10 +2,10 @@
 
 A recorded drive (MCAP, :mod:`rtctl.recording`) is re-simulated with the recorded commands
 and the simulator of the believed parameter files, every recorded channel is compared, and
-:func:`offline.fit.discrepancy.diagnose` -- the one engine: candidate library, held-out
+:func:`offline.discrepancy.engine.diagnose` -- the one engine: candidate library, held-out
 significance with a tangent-bootstrap min-P null, "parameters off", indistinguishable sets,
 "partly explained", report format -- locates, names and fits the missing physics from the
-rover-level library :data:`offline.fit.drive_candidates.DRIVE_CANDIDATES`.
+rover-level library :data:`offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`.
 
 Re-simulation (:class:`DriveModel`)
 -----------------------------------
@@ -64,7 +64,6 @@ with no finite reading of a channel is an error.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -77,32 +76,28 @@ from numpy.typing import NDArray
 from rtctl.messages import Commands
 from rtctl.recording import RecordingError, read_recording
 
-from ..files import atomic_path, write_text
-from ..physics.params import ParameterSet
-from ..rover.scenario import Scenario
-from ..sim.actuators import ActuatorConfig
-from ..sim.plant import SimulationError
-from ..sim.sensors import SensorConfig
-from ..sim.simulator import RoverSimulator
-from ..sim.truth import WHEELS, Truth
-from .discrepancy import Verdict, diagnose
-from .drive_candidates import (
+from ...physics.params import ParameterSet
+from ...rover.scenario import Scenario
+from ...sim.actuators import ActuatorConfig
+from ...sim.plant import SimulationError
+from ...sim.sensors import SensorConfig
+from ...sim.simulator import RoverSimulator
+from ...sim.truth import WHEELS, Truth
+from ..engine import Verdict, diagnose
+from ..observations import FEATURE_LABELS, Probe
+from ..significance import normalised
+from .candidates import (
     DRIVE_CANDIDATES,
-    TABLE_BUILDER_TAKES,
     RoverExtension,
+    actuator_commands,
     disturbance_from_terms,
     recalibration_candidate,
     rover_terms,
-    PER_WHEEL_ACTUATOR_KEYS,
-    actuator_commands,
     truth_from_terms,
-    write_truth_toml,
 )
-from .observations import FEATURE_LABELS, Probe
-from .significance import normalised
 
 __all__ = ["DriveDataError", "DriveData", "DriveRecording", "DriveModel", "load_drives", "diagnose_drives",
-           "write_drive_report", "accepted_extension", "held_out_drives", "TICK_CHANNELS", "POSE_CHANNELS", "DRIVE_ALPHA",
+           "accepted_extension", "held_out_drives", "TICK_CHANNELS", "POSE_CHANNELS", "DRIVE_ALPHA",
            "DRIVE_ALPHA_AFTER"]
 
 DRIVE_ALPHA = 0.001
@@ -257,7 +252,7 @@ def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
 
 def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -> Callable[[float, Any], Any]:
     """Two disturbance hooks at once (forces, moments and torques add)."""
-    from ..sim.simulator import DisturbanceForces
+    from ...sim.simulator import DisturbanceForces
 
     def hook(t: float, s: Any) -> Any:
         f, g = a(t, s), b(t, s)
@@ -271,7 +266,7 @@ def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -
 
 def _recorded_pose(d: DriveData) -> Callable[[float], tuple[float, float, float]] | None:
     """The recorded pose at time t in the frame of the drive's start pose (for hooks that depend on
-    where the rover is, :class:`offline.fit.drive_candidates.AnchoredTether`); None without pose
+    where the rover is, :class:`offline.discrepancy.drive.candidates.AnchoredTether`); None without pose
     fixes (the hook then takes the simulator's dead-reckoned state)."""
     if not np.all(np.isfinite(d.pose[:, :2])):
         return None
@@ -404,7 +399,7 @@ def _segment_correlation(series: Sequence[NDArray[np.float64]]) -> float:
 
 @dataclass(frozen=True)
 class DriveRecording:
-    """Drive recordings as engine observations (:class:`offline.fit.observations.Observations`).
+    """Drive recordings as engine observations (:class:`offline.discrepancy.observations.Observations`).
 
     Rows are time segments of every drive (module notes); ``drive``/``segment`` say which.
     Build with :meth:`build` (the noise comes from the model's tick residuals).
@@ -496,7 +491,7 @@ class DriveRecording:
                    segment_corr=corr)
 
     def null_draw(self, rng: np.random.Generator, n: int, n_boot: int) -> NDArray[np.float64]:
-        """Noise draws for the engine's significance test (:func:`offline.fit.significance.tangent_null`):
+        """Noise draws for the engine's significance test (:func:`offline.discrepancy.significance.tangent_null`):
         rows x channels flattened row-major, one column per draw, each channel of each drive a
         unit-variance MA(1) series over its segments with the lag-1 correlation
         :attr:`segment_corr` (``e_j = (w_j + theta w_{j-1}) / sqrt(1 + theta^2)``,
@@ -516,7 +511,7 @@ class DriveRecording:
 
     def channel_null_draw(self, rng: np.random.Generator, channel: str, n_draws: int) -> NDArray[np.float64]:
         """``(n_draws, rows)`` noise draws of one channel for the engine's region test
-        (:func:`offline.fit.significance.locate`): per drive the same unit-variance MA(1) series
+        (:func:`offline.discrepancy.significance.locate`): per drive the same unit-variance MA(1) series
         over the segments as :meth:`null_draw`, so a box of adjacent segments is judged against
         correlated noise, not independent rows."""
         if channel not in self.channels:
@@ -546,7 +541,7 @@ class DriveRecording:
     name_needs_excess: bool = True
     """A significant explanation is named only when the believed model's residuals exceed the noise
     (chi-square in noise units over every channel above the number of values,
-    :func:`offline.fit.discrepancy.withhold_without_excess`); otherwise nothing is named. The
+    :func:`offline.discrepancy.engine.withhold_without_excess`); otherwise nothing is named. The
     candidate test's null draws noise around fixed commands, but in a closed-loop drive the
     commands react to the noise: on README's ``offnominal drive`` with no effect (seed 33) an FL
     radius of +0.53 % passed at p = 3.3e-4 with no excess over noise, and made a held-out drive
@@ -614,7 +609,7 @@ class DriveRecording:
         rec = ", ".join(f"{k} {v:.0f} s" for k, v in have.items())
         if need:
             return (f"Drive a calibration manoeuvre to separate or determine them: this recording has {rec}; add "
-                    f"{', '.join(need)} (offline.fit.drive_synthetic.calibration_drive is such a script)")
+                    f"{', '.join(need)} (offline.discrepancy.drive.synthetic.calibration_drive is such a script)")
         return (f"This recording already has every calibration manoeuvre ({rec}) but too few segments to separate or "
                 "determine them: repeat the calibration drive (held-out drives) or drive it longer")
 
@@ -706,7 +701,7 @@ class DriveModel:
     cache_size : int
         Re-simulated drives kept (keyed by the drive, heading offset and the extension's
         physics; a soil field at the believed value and a rover term at its neutral value,
-        :data:`~offline.fit.drive_candidates.NEUTRAL_VALUES`, are left out of the key), least
+        :data:`~offline.discrepancy.drive.candidates.NEUTRAL_VALUES`, are left out of the key), least
         recently used dropped first. A diagnosis re-simulates a 40 s drive 400-800 times at about
         25 kB each, so the default keeps them all: the held-out refits start where the full-data
         fits started, the null's linearisation points and the forward step's score test sit on
@@ -740,7 +735,7 @@ class DriveModel:
 
         Cached per drive, heading offset and the extension's physics (measurement-chain terms are
         applied afterwards, so they cost no re-simulation). ``extra``: an empirical term
-        (:class:`offline.fit.drive_empirical.EmpiricalTerms`) applied on top of the extension: its
+        (:class:`offline.discrepancy.drive.empirical.EmpiricalTerms`) applied on top of the extension: its
         ``hook(time_of, pose_of)`` (a disturbance hook or None), ``commands(rim, steer, t)`` (the
         commands the servos really follow) and ``readings(ticks, t)`` (reading offsets), keyed by
         its ``key()``.
@@ -894,13 +889,13 @@ class DriveModel:
         return RoverExtension()
 
     def recalibration(self) -> Any:
-        """The soil recalibration candidate (:func:`offline.fit.drive_candidates.recalibration_candidate`)."""
+        """The soil recalibration candidate (:func:`offline.discrepancy.drive.candidates.recalibration_candidate`)."""
         return recalibration_candidate(self.params)
 
     def parameter_set(self, ext: RoverExtension, note: str = "") -> ParameterSet:
         """The believed parameter set with the extension's soil changes (for "parameters off")."""
         p = self.params
-        soil = replace(p.soil, **ext.soil, name=f"{p.soil.name}_recalibrated", source="offline.fit.drive_discrepancy")
+        soil = replace(p.soil, **ext.soil, name=f"{p.soil.name}_recalibrated", source="offline.discrepancy.drive.diagnosis")
         return replace(p, soil=soil, notes=note or p.notes)
 
     def describe(self) -> str:
@@ -936,7 +931,7 @@ def diagnose_drives(
         Candidates tried on top of the first explanation (a tether under a slope ranks third on its
         own, behind the IMU tilt that mimics the slope's roll and pitch).
     candidates, recalibrate
-        The library (default :data:`~offline.fit.drive_candidates.DRIVE_CANDIDATES`) and whether
+        The library (default :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`) and whether
         the soil recalibration joins it.
     stride : int
         Plant solved every ``stride`` ticks (:class:`DriveModel`).
@@ -951,7 +946,7 @@ def diagnose_drives(
         attainable p-value, ``1 / (n_boot + 1)``, must lie below ``alpha``; fewer than
         ``1 / alpha`` is refused, since no candidate could then be significant).
     k_folds, n_points, max_nfev, seed, fit_tol
-        Passed to :func:`offline.fit.discrepancy.diagnose` (``max_nfev`` least-squares
+        Passed to :func:`offline.discrepancy.engine.diagnose` (``max_nfev`` least-squares
         iterations per start: budget in iterations; ``fit_tol`` 1e-4: a fit stops once the
         chi-square changes by less than 1e-4 of itself, about 0.05 on a 40 s drive, which no
         held-out comparison resolves); the forward step for a second term always runs
@@ -961,7 +956,7 @@ def diagnose_drives(
     empirical : bool
         When the library does not explain the drive (verdict ``unexplained``, ``ambiguous`` or
         ``partly_explained``), model what it lacks with the generic empirical family
-        (:func:`offline.fit.drive_empirical.search_empirical`, same seed and level); the result
+        (:func:`offline.discrepancy.drive.empirical.search_empirical`, same seed and level); the result
         is ``verdict.empirical`` and the library's verdict is kept.
 
     Returns
@@ -985,7 +980,7 @@ def diagnose_drives(
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
                  polish_nfev=0)
     if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
-        from .drive_empirical import search_empirical
+        from .empirical import search_empirical
 
         t0 = time.perf_counter()
         v.empirical = search_empirical(v, alpha=alpha, seed=seed, k_folds=k_folds, progress=progress,
@@ -1025,142 +1020,3 @@ def held_out_drives(v: Verdict, paths: Sequence[str | Path]) -> dict[str, float]
         pred, _ = model.predict(obs, e)
         out[f"chi2_{label}"] = float((normalised(obs, pred, v.scale) ** 2).sum())
     return out
-
-
-def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") -> Path:
-    """The engine's report folder (report.md, verdict.json, PNGs) plus, for drives: the trajectory
-    plot, per-channel residuals over time before and after the explanation, and the accepted
-    terms as a truth file (``accepted_truth.toml``) the simulator and the table builder take."""
-    out = v.write(folder)
-    obs: DriveRecording = v.observations
-    model: DriveModel = v.model
-    ext = accepted_extension(v)
-    pngs = _drive_plots(v, out, ext)
-    extra = ["", "## Drive plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs]
-    truth_file = None
-    em = v.empirical
-    entries: list[dict[str, Any]] = []
-    if em is not None and em.terms:
-        from .drive_empirical import truth_entries
-
-        entries = truth_entries(em.terms)
-    if v.chosen is not None and v.status not in ("agree", "unexplained", "ambiguous"):
-        assert model.truth is not None
-        truth, act, meas = truth_from_terms(model.params, model.truth, ext)
-        header = {"verdict": v.status, "terms": v.chosen.label, "fitted": v.chosen.parameters_text(),
-                  "held_out_chi2": f"{v.chi2_cv_base:.1f} -> {v.chosen.chi2_cv:.1f}",
-                  "recordings": obs.source}
-        terms = rover_terms(ext)
-        dist = {k: terms[t] for k, t in (("hub_clearance_m", "hub_clearance"), ("hub_face_width_m", "hub_face_width"),
-                                          ("hub_arm_m", "hub_arm"), ("anchor_tension_N", "anchor_tension"),
-                                          ("anchor_bearing_rad", "anchor_bearing"),
-                                          ("anchor_inverse_distance_per_m", "anchor_inverse_distance"),
-                                          ("anchor_attach_x_m", "anchor_attach_x"),
-                                          ("anchor_spring_rate_N_per_m", "anchor_spring_rate")) if t in terms} or None
-        # per-wheel actuator terms: not in the truth format (ActuatorConfig has no per-wheel entries);
-        # written with the sensor and actuator comments
-        act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
-        if entries:
-            header["empirical_terms"] = "; ".join(t.law() for t in em.terms)
-        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
-                                      meas, act, header, dist, entries)
-        extra += ["", "## Accepted terms as a simulator truth file", "",
-                  f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
-                  f"and `offnominal tables build SCENARIO --world {truth_file.name} --out DIR` rebuilds the tables with "
-                  "its terms: soil, slope, tether, anchored cable, per-wheel radius and steering offset).", "",
-                  "Does the table builder take each accepted term?", ""]
-        extra += [f"- `{k}`: {TABLE_BUILDER_TAKES.get(k, 'not known')}" for k in v.chosen.keys]
-    elif entries:
-        # the library explains nothing it would write; the empirical force and torque terms alone
-        assert model.truth is not None and em is not None
-        header = {"verdict": v.status, "empirical_terms": "; ".join(t.law() for t in em.terms),
-                  "held_out_chi2": f"{em.chi2_cv_base:.1f} -> {em.chi2_cv_after:.1f}", "recordings": obs.source}
-        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", model.truth,
-                                      model.truth, {}, None, header, None, entries)
-    if em is not None:
-        extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]
-        if em.terms:
-            write_text(out / "empirical_terms.json", json.dumps(em.to_json(), indent=2, default=float))
-            extra += ["", "`empirical_terms.json` holds every term (SI). The force and torque terms are also in "
-                      "`accepted_truth.toml` as `[[empirical_force]]` tables (`offline.sim.truth.load_truth` reads them; "
-                      "`offnominal drive --truth` applies them as a disturbance hook, localised by the simulator's own "
-                      "time and pose); speed losses and reading offsets are not part of the world a truth file describes "
-                      "(the lines above say which terms were written)."]
-    md = (out / "report.md").read_text()
-    write_text(out / "report.md", md + "\n".join(extra) + "\n")
-    vj = json.loads((out / "verdict.json").read_text())
-    vj["drive"] = {"recordings": [d.source for d in obs.drives], "segment_ticks": int(obs.segments[0].bounds[0, 1] - obs.segments[0].bounds[0, 0]),
-                   "period_s": obs.drives[0].period, "heading_source": [d.heading_source for d in obs.drives],
-                   "rover_terms": dict(rover_terms(ext)), "soil_changes": dict(ext.soil),
-                   "truth_file": truth_file.name if truth_file else None, "simulations": model.simulations,
-                   "table_builder_takes": ({k: TABLE_BUILDER_TAKES.get(k, "not known") for k in v.chosen.keys}
-                                           if truth_file and v.chosen is not None else {})}
-    write_text(out / "verdict.json", json.dumps(vj, indent=2, default=float))
-    return out
-
-
-def _drive_plots(v: Verdict, out: Path, ext: RoverExtension) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    obs: DriveRecording = v.observations
-    model: DriveModel = v.model
-    paths = []
-    # trajectory: recorded pose and the open-loop re-simulation before / after (heading forced: the
-    # positions come from integrating the predicted body velocities along the recorded heading)
-    fig, ax = plt.subplots(figsize=(6.5, 6))
-    for k, d in enumerate(obs.drives):
-        ax.plot(d.pose[:, 0], d.pose[:, 1], "k-", lw=1.5, label="recorded pose" if k == 0 else None)
-        for label, e, col in (("model as given", None, "tab:gray"), ("with the explanation", ext, "tab:red")):
-            _, body, ok = model.simulate(d, e, 0.0)
-            if not ok:
-                continue
-            h = d.pose[:, 2]
-            vx = body[:, 0] * np.cos(h) - body[:, 1] * np.sin(h)
-            vy = body[:, 0] * np.sin(h) + body[:, 1] * np.cos(h)
-            x = d.pose[0, 0] + np.concatenate([[0], np.cumsum(vx[1:] * d.period)])
-            y = d.pose[0, 1] + np.concatenate([[0], np.cumsum(vy[1:] * d.period)])
-            ax.plot(x, y, "--", color=col, lw=1, label=f"{label} (dead reckoning)" if k == 0 else None)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("trajectory: recorded vs re-simulated")
-    paths.append(_save_png(fig, out / "trajectory.png", 100))
-    chans = obs.channels
-    ncol = 4
-    nrow = int(math.ceil(len(chans) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 2.6 * nrow), squeeze=False, sharex=True)
-    tt = obs.features["time_s"]
-    for j, ch in enumerate(chans):
-        ax = axes[j // ncol, j % ncol]
-        ax.axhspan(-2, 2, color="0.9")
-        for label, res, mk in (("before", v.residual_before, "o"), ("after", v.residual_after, ".")):
-            zz = res[ch] / obs.noise[ch]
-            for k in np.unique(obs.drive):
-                r = obs.drive == k
-                ax.plot(tt[r], np.clip(zz[r], -30, 30), mk + "-", ms=3, lw=0.6,
-                        color="tab:gray" if label == "before" else "tab:red", label=label if k == 0 else None)
-        ax.set_title(f"{ch} residual / noise", fontsize=9)
-        ax.grid(alpha=0.3)
-    for j in range(len(chans), nrow * ncol):
-        axes[j // ncol, j % ncol].axis("off")
-    axes[0, 0].legend(fontsize=7)
-    for ax in axes[-1]:
-        ax.set_xlabel("time [s]")
-    fig.suptitle("per-channel residuals over time (segment means, in noise units, clipped at ±30; band ±2)")
-    fig.tight_layout()
-    paths.append(_save_png(fig, out / "residuals_over_time.png", 90))
-    return paths
-
-
-def _save_png(fig: Any, path: Path, dpi: int) -> Path:
-    import matplotlib.pyplot as plt
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
-    plt.close(fig)
-    return path

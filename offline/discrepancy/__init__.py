@@ -1,0 +1,17 @@
+"""The discrepancy tool: when simulation and recordings differ, locate the mismatch, say what
+physics was left out (or that the model's own parameters are off), model it, and show the fit
+improve on held-out data.
+
+A layer above :mod:`offline.fit` (the calibrated wheel-soil model it starts from) and
+:mod:`offline.sim` (the simulator a drive is re-simulated with); nothing below imports it.
+
+* :mod:`.engine`: the generic engine (:func:`~.engine.diagnose`, :class:`~.engine.Verdict`),
+  over any :class:`~.observations.Observations` and model; :mod:`.significance` its statistics;
+* :mod:`.report`: renders a verdict to a report folder (the diagnosis itself writes nothing);
+* :mod:`.wheel`: the single-wheel product (testbed trials, its candidate library);
+* :mod:`.drive`: the drive product (MCAP recordings, its library, empirical terms, drive report).
+
+Import the module you need: ``from offline.discrepancy.drive.diagnosis import diagnose_drives``.
+"""
+
+__all__ = ["engine", "observations", "significance", "report", "wheel", "drive"]

@@ -534,6 +534,7 @@ def diagnose(
     alpha_after: float | None = None,
     forward_extra: bool = True,
     polish_nfev: int = 100,
+    empirical: bool = True,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -612,6 +613,12 @@ def diagnose(
         at most ``max_nfev``: not polished; drives pass 0 for budget).
     progress : callable, optional
         Called with a short message at each stage (screening, fits, regions).
+    empirical : bool
+        Single-wheel recordings: when the library does not explain the trials (``unexplained``,
+        ``ambiguous``, ``partly_explained``), model what it lacks with the generic empirical family
+        (:func:`offline.discrepancy.wheel.empirical.search_wheel_empirical`, same seed, level and
+        folds); the result is ``verdict.empirical`` and the library's verdict is kept. Drives
+        run their own family (:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`).
 
     Raises
     ------
@@ -984,9 +991,16 @@ def diagnose(
     za = np.concatenate([res1[ch] / obs.noise[ch] for ch in chans])
     fin = np.isfinite(zb) & np.isfinite(za)
     noise_chi2 = (float(zb[fin] @ zb[fin]), float(za[fin] @ za[fin]), int(fin.sum()), chosen.k if chosen is not None else 0)
-    return Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
-                   chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
-                   ambiguity, noise_chi2, equal_fraction, withheld=withheld, withheld_reason=withheld_reason)
+    v = Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
+                chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
+                ambiguity, noise_chi2, equal_fraction, withheld=withheld, withheld_reason=withheld_reason)
+    if empirical and isinstance(obs, SingleWheelRecording) and status in ("unexplained", "ambiguous", "partly_explained"):
+        from .wheel.empirical import search_wheel_empirical
+
+        say("empirical terms")
+        v.empirical = search_wheel_empirical(v, alpha=alpha, seed=seed, k_folds=k_folds)
+        v.seconds = time.perf_counter() - t0
+    return v
 
 
 def reduced_parameters(c: Candidate, s: CandidateScore, jac: NDArray[np.float64],

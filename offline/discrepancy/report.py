@@ -23,14 +23,16 @@ __all__ = ["write_report", "residual_plots"]
 
 
 def write_report(v: Verdict, folder: str | Path, extra_md: Sequence[str] = (),
-                 extra_json: Mapping[str, Any] | None = None) -> Path:
+                 extra_json: Mapping[str, Any] | None = None, empirical_file: bool = True) -> Path:
     """Render a verdict: ``report.md``, ``verdict.json``, PNG plots and, for "parameters off",
     ``recalibrated.toml`` into ``folder`` (each file atomically; the folder is created).
 
     The diagnosis returns the :class:`~offline.discrepancy.engine.Verdict` and writes
     nothing; this is the one place that renders it (a drive adds its own plots and truth file
     in :func:`offline.discrepancy.drive.report.write_drive_report` through ``extra_md``, lines
-    appended to report.md, and ``extra_json``, keys added to verdict.json)."""
+    appended to report.md, and ``extra_json``, keys added to verdict.json). Accepted empirical terms
+    (``v.empirical``) go to ``empirical_terms.json`` unless ``empirical_file`` is False (the drive
+    writer writes its own, with the truth file)."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / "verdict.json", json.dumps({**v.to_json(), **dict(extra_json or {})}, indent=2, default=float))
@@ -62,6 +64,13 @@ def write_report(v: Verdict, folder: str | Path, extra_md: Sequence[str] = (),
     md += ["", "## Decision criterion", "", v.criterion, ""]
     if v.regions_after:
         md += ["## Regions still significant after the explanation", ""] + [f"- {r.describe()}" for r in v.regions_after] + [""]
+    em = v.empirical
+    if empirical_file and em is not None:
+        md += ["## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()] + [""]
+        if em.terms:
+            write_text(out / "empirical_terms.json", json.dumps(em.to_json(), indent=2, default=float))
+            md += ["`empirical_terms.json` holds every accepted term (SI), its law, localisation and the experiment "
+                   "that would confirm its physics.", ""]
     md += ["## Plots", ""] + [f"![{p.stem}]({p.name})" for p in pngs] + list(extra_md)
     write_text(out / "report.md", "\n".join(md) + "\n")
     return out

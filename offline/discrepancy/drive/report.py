@@ -91,7 +91,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
                    "truth_file": truth_file.name if truth_file else None, "simulations": model.simulations,
                    "table_builder_takes": ({k: TABLE_BUILDER_TAKES.get(k, "not known") for k in v.chosen.keys}
                                            if truth_file and v.chosen is not None else {})}
-    return write_report(v, out, extra_md=extra, extra_json={"drive": drive})
+    return write_report(v, out, extra_md=extra, extra_json={"drive": drive}, empirical_file=False)
 
 
 def _drive_plots(v: Verdict, out: Path, ext: RoverExtension) -> list[Path]:

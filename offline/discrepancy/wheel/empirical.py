@@ -27,7 +27,9 @@ direction      what acts                                                        
 =============  ====================================================================  =====
 
 localised in an operating-point feature of the recording (``slip``, ``abs_beta_deg``,
-``sinkage_mm`` measured, ``load_N``, ``rim_speed_mm_s``) with the shape
+``sinkage_mm`` measured, ``load_N``, ``rim_speed_mm_s``) or a force of the model as given
+(``model_abs_Fx_N``, ``model_abs_Fy_N``: a threshold or saturation in a state variable) with the
+shape
 
 - ``constant``: everywhere (1 parameter);
 - ``above`` / ``below``: a step, where the feature is above / below ``lo`` (2);
@@ -75,13 +77,14 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["WheelTerm", "WheelEmpiricalResult", "search_wheel_empirical", "term_columns", "DIRECTIONS", "FEATURES", "SHAPES"]
+__all__ = ["WheelTerm", "WheelEmpiricalResult", "search_wheel_empirical", "term_columns", "with_model_features", "DIRECTIONS",
+           "FEATURES", "SHAPES"]
 
 DIRECTIONS: dict[str, tuple[str, str]] = {
     "drag": ("force against the wheel's travel", "N"),
     "Fx": ("force along the wheel's x axis", "N"),
     "Fy": ("force along the wheel's y axis", "N"),
-    "sinkage": ("extra sinkage", "mm"),
+    "sinkage": ("sinkage", "mm"),
 }
 """``direction -> (what acts, report unit)``."""
 
@@ -91,8 +94,13 @@ FEATURES: dict[str, tuple[str, str]] = {
     "sinkage_mm": ("measured sinkage", "mm"),
     "load_N": ("load", "N"),
     "rim_speed_mm_s": ("rim speed", "mm/s"),
+    "model_abs_Fx_N": ("|F_x| of the model as given", "N"),
+    "model_abs_Fy_N": ("|F_y| of the model as given", "N"),
 }
-"""Localisation features (keys of the recording's ``features``): ``key -> (name, unit)``."""
+"""Localisation features: ``key -> (name, unit)``. The first five are the recording's own
+``features``; the last two are state variables of the model as given at each row
+(:func:`with_model_features`), where a saturation of a force (a load cell's range, a rig's
+compliance) is localised."""
 
 SHAPES: dict[str, int] = {"constant": 1, "above": 2, "below": 2, "hinge_above": 2, "hinge_below": 2, "box": 3}
 """Shape -> number of fitted parameters (magnitude and edges), the AIC penalty's ``k``."""
@@ -146,7 +154,11 @@ class WheelTerm:
         return _shape(self.shape, v, self.lo, self.hi)
 
     def apply(self, obs: Any, pred: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
-        """``pred`` with this term added (physical units, every channel of ``obs``)."""
+        """``pred`` with this term added (physical units, every channel of ``obs``; a term
+        localised in a model force needs ``obs`` from :func:`with_model_features`)."""
+        if self.feature not in obs.features:
+            raise KeyError(f"feature {self.feature!r} is not in these observations: pass with_model_features(obs, pred) "
+                           "for a term localised in a force of the model")
         out = {ch: np.asarray(p, dtype=float).copy() for ch, p in pred.items()}
         w = self.magnitude * self.weight(np.asarray(obs.features[self.feature], dtype=float))
         for ch, d in _direction_vectors(obs, self.direction).items():
@@ -202,7 +214,11 @@ class WheelEmpiricalResult:
     tried : list of (WheelTerm, float, float)
         Every search's best term with its ``D`` and p, accepted or not (the report's audit trail).
     excess_fraction : float
-        Share of the held-out excess chi-square the accepted terms remove.
+        Share of the held-out excess chi-square the accepted terms remove (the units of the test:
+        noise x dispersion; what the status decision uses).
+    noise_chi2 : tuple (before, after, values, k)
+        Residual chi-square in noise units (s = 1) without and with the terms
+        (:attr:`excess_removed` is reported in these units, beside the misfit lines).
     misfit_after : list
         Channels misfitting beyond noise with the terms (the engine's lack-of-fit test).
     library_held_out : float
@@ -227,6 +243,7 @@ class WheelEmpiricalResult:
     n_null: int = 0
     library_held_out: float = math.nan
     lookalikes: list[list[WheelTerm]] = field(default_factory=list)
+    noise_chi2: tuple[float, float, int, int] = (math.nan, math.nan, 0, 0)
     simulator: str = ("not written to accepted_truth.toml: a testbed term acts in the testbed's measurement space "
                       "and the rover simulator has no hook for it (empirical_terms.json holds it)")
 
@@ -248,16 +265,40 @@ class WheelEmpiricalResult:
         lib = ""
         if math.isfinite(self.library_held_out):
             lib = f"; the library's best explanation: {self.library_held_out:.1f}"
-        out.append(f"  held-out chi2 {self.chi2_base:.1f} -> {self.chi2_base - sum(self.held_out):.1f} for {self.values} "
-                   f"values: {100 * self.excess_fraction:.0f} % of the held-out excess removed{lib}")
+        out.append(f"  held-out chi2 in noise x dispersion units (the units of the test): {self.chi2_base:.1f} -> "
+                   f"{self.chi2_base - sum(self.held_out):.1f} for {self.values} values{lib}")
+        out.append(f"  {self.noise_units_line()}")
         for ch, c2, n, p in self.misfit_after:
             out.append(f"  misfit left in {ch} after the empirical terms: chi2 {c2:.0f} for {n} rows in noise units (p = {p:.2g})")
         out.append(f"  {self.simulator}")
         return out
 
+    @property
+    def excess_removed(self) -> float:
+        """Share (0..1) of the excess residual chi-square over the noise that the terms remove, in
+        noise units (s = 1, the units of the misfit lines); NaN without terms or excess."""
+        before, after, n, k = self.noise_chi2
+        if not self.terms or not before > n:
+            return math.nan
+        return float(min(1.0, max(0.0, 1.0 - (after - (n - k)) / (before - n))))
+
+    def noise_units_line(self) -> str:
+        """The residual chi-square in noise units before and after, and the share of the excess
+        removed (never rounded up to 100 % beside a remaining misfit)."""
+        before, after, n, k = self.noise_chi2
+        frac = self.excess_removed
+        if not math.isfinite(frac):
+            share = "no excess over noise to remove"
+        elif self.misfit_after:
+            share = f"{math.floor(1000 * min(frac, 0.999)) / 10:.1f} % of the excess over noise removed, a misfit above noise remains"
+        else:
+            share = f"{100 * frac:.0f} % of the excess over noise removed"
+        return (f"residual chi2 in noise units (the units of the misfit lines): {before:.0f} -> {after:.0f} for {n} values, "
+                f"{n - k} expected from noise alone: {share}")
+
     def to_json(self) -> dict[str, Any]:
         """JSON-able result."""
-        return {"status": self.status, "terms": [t.to_json() for t in self.terms], "held_out_improvement": self.held_out,
+        return {"status": self.status, "noise_chi2": list(self.noise_chi2), "excess_removed_noise_units": self.excess_removed, "terms": [t.to_json() for t in self.terms], "held_out_improvement": self.held_out,
                 "p": self.p, "lookalikes": [[a.to_json() for a in al] for al in self.lookalikes], "excess_fraction": self.excess_fraction, "chi2_cv_base": self.chi2_base, "values": self.values,
                 "null_draws": self.n_null, "library_held_out_improvement": self.library_held_out,
                 "misfit_after": [list(m) for m in self.misfit_after], "simulator": self.simulator,
@@ -317,6 +358,15 @@ def _levels(v: NDArray[np.float64], max_thresholds: int) -> tuple[NDArray[np.flo
         return a[idx]
 
     return thin(lev), thin(mids)
+
+
+def with_model_features(obs: Any, pred: dict[str, NDArray[np.float64]]) -> Any:
+    """``obs`` with the model-state features of :data:`FEATURES` (``|F_x|``, ``|F_y|`` of the
+    model as given, ``pred``) added to its ``features``."""
+    from dataclasses import replace
+
+    return replace(obs, features={**obs.features, "model_abs_Fx_N": np.abs(np.asarray(pred["Fx"], dtype=float)),
+                                  "model_abs_Fy_N": np.abs(np.asarray(pred["Fy"], dtype=float))})
 
 
 def term_columns(obs: Any, scale: dict[str, float], min_rows: int = 3, max_thresholds: int = 14
@@ -473,7 +523,7 @@ def search_wheel_empirical(v: Any, alpha: float = 0.01, seed: int = 0, k_folds: 
 
     if not 0.0 < alpha < 0.5:
         raise ValueError(f"alpha = {alpha}: expected 0 < alpha < 0.5")
-    obs = v.observations
+    obs = with_model_features(v.observations, v.pred_before)
     rng = np.random.default_rng(seed)
     n_null = int(math.ceil(2.0 / alpha))
     Z = normalised(obs, v.pred_before, v.scale)
@@ -512,4 +562,9 @@ def search_wheel_empirical(v: Any, alpha: float = 0.01, seed: int = 0, k_folds: 
     else:
         status = "partly_explained"
     lib = float(v.chi2_cv_base - v.chosen.chi2_cv) if getattr(v, "chosen", None) is not None else math.nan
-    return WheelEmpiricalResult(status, terms, held, ps, tried, frac, chi2_base, nvals, misfit, n_null, lib, lookalikes)
+    zb = np.concatenate([(obs.measured[ch] - v.pred_before[ch]) / obs.noise[ch] for ch in obs.channels])
+    za = np.concatenate([(obs.measured[ch] - pred[ch]) / obs.noise[ch] for ch in obs.channels])
+    fin = np.isfinite(zb) & np.isfinite(za)
+    noise_chi2 = (float(zb[fin] @ zb[fin]), float(za[fin] @ za[fin]), int(fin.sum()), k)
+    return WheelEmpiricalResult(status, terms, held, ps, tried, frac, chi2_base, nvals, misfit, n_null, lib, lookalikes,
+                                noise_chi2)

@@ -77,17 +77,20 @@ def fy_saturation(rec, pred):
 
 
 def judge_threshold(feature_ok, truth_lo, tol):
-    def judge(rec, pred, terms):
-        for t in terms:
+    """Right when the first term, or one of its equally good localisations (the tool names them
+    all and says the data cannot tell them apart), is in the truth's feature within ``tol``."""
+    def judge(rec, pred, em):
+        for i, t in enumerate([em.terms[0]] + em.lookalikes[0]):
             if t.feature in feature_ok and t.shape in feature_ok[t.feature] and abs(t.lo - truth_lo[t.feature]) <= tol[t.feature]:
-                return True, f"{t.feature} {t.shape} at {t.lo:.3g} (truth {truth_lo[t.feature]:.3g} ± {tol[t.feature]:.3g})"
-        return False, "; ".join(f"{t.feature} {t.shape} at {t.lo:.3g}" for t in terms)
+                how = "" if i == 0 else " (a look-alike of the first-named term)"
+                return True, f"{t.feature} {t.shape} at {t.lo:.3g} (truth {truth_lo[t.feature]:.3g} ± {tol[t.feature]:.3g}){how}"
+        return False, "; ".join(f"{t.feature} {t.shape} at {t.lo:.3g}" for t in em.terms)
     return judge
 
 
 def judge_rows(truth_rows, feature, truth_lo, tol):
-    def judge(rec, pred, terms):
-        t = terms[0]
+    def judge(rec, pred, em):
+        t = em.terms[0]
         if t.feature == feature:
             ok = t.shape in ("above", "hinge_above") and abs(t.lo - truth_lo) <= tol
             return ok, f"{t.feature} {t.shape} at {t.lo:.3g} (truth {truth_lo:.3g} ± {tol:.3g})"
@@ -138,7 +141,7 @@ def main() -> None:
             if em is None or not em.terms:
                 good, where, law, frac = False, "no empirical term", "-", 0.0
             else:
-                loc_ok, where = judge(data, pred, em.terms)
+                loc_ok, where = judge(data, pred, em)
                 frac = em.excess_removed if math.isfinite(em.excess_removed) else 0.0
                 good = loc_ok and em.terms[0].direction in directions and frac >= 0.5
                 law = "; ".join(t.law() for t in em.terms)

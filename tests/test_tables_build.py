@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from offline.cli import main
-from offline.rover.table_builder import (BuildError, BuildOptions, build_table, parse_grid, retry_point, scenario_at,
-                                         table_spec)
+from offline.rover.table_builder import (BuildError, BuildOptions, build_table, build_tables, parse_grid, retry_point,
+                                         scenario_at, table_spec)
 from offline.rover.table_verify import check_interpolation, check_jacobians, spec_from_table
 from rtctl.table import TableError, load_table
 
@@ -87,11 +87,20 @@ def test_same_bytes_with_dask_cluster_and_after_resume(nominal, tmp_path):
 
     spec, path, _ = nominal
     ref = path.read_bytes()
+    # a second table built at the same time on the same workers (tables_at_once: their waves
+    # interleave), against the same table built alone in this process
+    other = table_spec(STUCK, grid="slope=0;cross_slope=0;speed=2;steer_stuck=-50", build=FAST)
+    p_alone, _ = build_table(other, tmp_path / "alone", jobs=1, progress=False)
     # worker processes (not threads of this one), reached only by the tcp:// address: the spec,
     # the tasks and their results cross process boundaries as on a remote cluster
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         assert cluster.scheduler_address.startswith("tcp://")
-        p2, _ = build_table(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+        order = []
+        both = build_tables([spec, other], tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False,
+                            on_done=lambda p, s: order.append(p.name))
+        assert order == ["nominal.npz", f"{other.name}.npz"]  # in the order given, whichever finished first
+        p2 = both[0][0]
+        assert both[1][0].read_bytes() == p_alone.read_bytes()
         # the command line's --scheduler on the same cluster (one point, default build options)
         out = tmp_path / "cli"
         rc = main(["tables", "build", str(NOMINAL), "--grid", "slope=0;cross_slope=0;speed=2", "--out", str(out),

@@ -161,7 +161,7 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     try:
         build_tables(specs, args.out, jobs=args.jobs, scheduler=args.scheduler, progress=not args.quiet,
-                     keep_partial=args.keep_partial, inputs=files, on_done=done)
+                     keep_partial=args.keep_partial, inputs=files, on_done=done, tables_at_once=args.tables_at_once)
     except (BuildError, OutputError) as exc:
         return fail(str(exc))
     if not args.no_index:
@@ -357,6 +357,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the failure parameter to tabulate as an axis (default: from the scenario)")
     b.add_argument("--jobs", type=int, default=1, help="local worker processes (default 1)")
     b.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786): run there instead")
+    b.add_argument("--tables-at-once", type=int, metavar="N",
+                   help="with --jobs > 1 or --scheduler: build at most N of a folder's tables at the same time on the "
+                        "shared workers (default: all; one table's dependent waves alone leave most of a cluster idle)")
     b.add_argument("--out", required=True, help="output folder (tables and index.json)")
     b.add_argument("--world", metavar="TRUTH.toml",
                    help="a truth file (e.g. the discrepancy tool's accepted_truth.toml) whose terms every table takes: "

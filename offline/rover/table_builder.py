@@ -1196,23 +1196,57 @@ def _run(tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]], ex: cf.Ex
 
 def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                  progress: bool = True, keep_partial: bool = False, inputs: Sequence[str | Path] = (),
-                 on_done: Callable[[Path, dict[str, Any]], None] | None = None) -> list[tuple[Path, dict[str, Any]]]:
+                 on_done: Callable[[Path, dict[str, Any]], None] | None = None,
+                 tables_at_once: int | None = None) -> list[tuple[Path, dict[str, Any]]]:
     """Build several tables with one pool of workers (each worker builds an NLP once and keeps it
-    for every table that shares it); see :func:`build_table`."""
+    for every table that shares it); see :func:`build_table`.
+
+    With a pool (``jobs > 1``) or a Dask cluster (``scheduler``) up to ``tables_at_once`` tables
+    (default: all of them) are built at the same time, each from its own driver thread submitting
+    to the shared workers: one table's schedule is a chain of dependent waves (its critical path
+    bounds what any number of workers can do for it), so a sweep of many tables keeps a large
+    cluster busy only when their waves interleave. Each table's file is the same, byte for byte,
+    as when it is built alone (its tasks and their inputs do not depend on the others);
+    ``on_done`` is called in the order of ``specs``. Without workers the tables are built one
+    after another.
+    """
     for spec in specs:  # every output and partial build checked before any work
         out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
         kf = out / f".{spec.name}.partial" / "spec.sha256"
         if kf.is_file() and kf.read_text().strip() != spec.key():
             raise BuildError(f"{kf.parent}: a partial build of a different spec (grid, scenario or options changed); "
                              "delete this folder to start afresh, or rerun with the original options")
+    if tables_at_once is not None and tables_at_once < 1:
+        raise BuildError(f"tables_at_once = {tables_at_once}: must be >= 1")
     ex, client = _executor(jobs, scheduler)
+    at_once = 1 if ex is None else min(len(specs), tables_at_once or len(specs))
     built: list[tuple[Path, dict[str, Any]]] = []
     try:
-        for spec in specs:
-            res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex)
-            built.append(res)
-            if on_done is not None:
-                on_done(*res)
+        if at_once <= 1:
+            for spec in specs:
+                res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex)
+                built.append(res)
+                if on_done is not None:
+                    on_done(*res)
+        else:
+            tp = cf.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="table")
+            futs: list[cf.Future[tuple[Path, dict[str, Any]]]] = []
+            try:
+                futs = [tp.submit(build_table, spec, out_dir, progress=progress, keep_partial=keep_partial,
+                                  inputs=inputs, executor=ex) for spec in specs]
+                for fut in futs:
+                    res = fut.result()
+                    built.append(res)
+                    if on_done is not None:
+                        on_done(*res)
+            except BaseException:
+                for fut in futs:
+                    fut.cancel()
+                if client is None and ex is not None:  # the running tables' tasks end with the pool
+                    ex.shutdown(wait=False, cancel_futures=True)
+                raise
+            finally:
+                tp.shutdown(wait=True)
     finally:
         if client is not None:
             client.close()

@@ -51,3 +51,24 @@ def model_t54_45() -> WheelModel:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261122)
+
+
+@pytest.fixture(scope="session")
+def calibrated_params():
+    """The shipped calibrated grousered-wheel parameter set (``offline/data/calibrated_grousered.toml``)."""
+    from importlib import resources
+
+    from offline.physics.params import load_toml
+
+    return load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]
+
+
+@pytest.fixture(scope="session")
+def steady_recording():
+    """The real single-wheel trials at the steady-state angles 0-60 deg (data README), one row per
+    condition (:class:`~offline.discrepancy.wheel.recording.SingleWheelRecording`)."""
+    from offline.discrepancy.wheel.recording import SingleWheelRecording
+    from offline.fit.dataset import load_trials
+
+    tr = load_trials()
+    return SingleWheelRecording.from_trials(tr.subset(np.degrees(tr.beta_cmd) < 61))

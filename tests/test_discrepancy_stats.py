@@ -14,25 +14,19 @@ import numpy as np
 import pytest
 
 from offline.discrepancy.wheel.candidates import Extension, SingleWheelModel, predict_recording
-from offline.fit.dataset import load_trials
 from offline.discrepancy.engine import DiscrepancyError, diagnose
-from offline.discrepancy.wheel.recording import SingleWheelRecording
 from offline.discrepancy.significance import adjusted_p, fit, held_out, tangent_null, vuong
-from offline.physics.params import load_toml
 from offline.physics.terramechanics import ModelOptions
 
 
 @pytest.fixture(scope="module")
-def params():
-    from importlib import resources
-
-    return load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]
+def params(calibrated_params):
+    return calibrated_params
 
 
 @pytest.fixture(scope="module")
-def recording():
-    tr = load_trials()
-    return SingleWheelRecording.from_trials(tr.subset(np.degrees(tr.beta_cmd) < 61))
+def recording(steady_recording):
+    return steady_recording
 
 
 def _linear_cv(D, e, folds, nc):

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-from importlib import resources
 from types import SimpleNamespace
 
 import numpy as np
@@ -24,21 +23,17 @@ from offline.discrepancy.report import write_report
 from offline.discrepancy.significance import dispersion
 from offline.discrepancy.wheel.candidates import CANDIDATES, predict_recording
 from offline.discrepancy.wheel.empirical import SHAPES, WheelTerm, search_wheel_empirical, term_columns
-from offline.discrepancy.wheel.recording import SingleWheelRecording
-from offline.fit.dataset import load_trials
-from offline.physics.params import load_toml
 from offline.physics.terramechanics import ModelOptions
 
 
 @pytest.fixture(scope="module")
-def params():
-    return load_toml(resources.files("offline").joinpath("data", "calibrated_grousered.toml"))["parameter_set"]
+def params(calibrated_params):
+    return calibrated_params
 
 
 @pytest.fixture(scope="module")
-def recording():
-    tr = load_trials()
-    return SingleWheelRecording.from_trials(tr.subset(np.degrees(tr.beta_cmd) < 61))
+def recording(steady_recording):
+    return steady_recording
 
 
 @pytest.fixture(scope="module")

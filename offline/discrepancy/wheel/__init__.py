@@ -4,9 +4,12 @@
   condition, repeat means and pooled noise, operating-point features);
 * :mod:`.candidates`: the model (:class:`~.candidates.SingleWheelModel`) and the library of
   candidate terms (:data:`~.candidates.CANDIDATES`);
-* :mod:`.face_pressure`: the bulldozing face-pressure study at large slip angles.
+* :mod:`.face_pressure`: the bulldozing face-pressure study at large slip angles;
+* :mod:`.empirical`: generic empirical terms for what the library lacks.
 
 A diagnosis is :func:`offline.discrepancy.engine.diagnose` on a
 :class:`~offline.fit.dataset.TrialSet`; its verdict is rendered by
 :func:`offline.discrepancy.report.write_report`.
 """
+
+__all__ = ["recording", "candidates", "face_pressure", "empirical"]

@@ -15,3 +15,12 @@ Import the module you need: ``from offline.discrepancy.drive.diagnosis import di
 """
 
 __all__ = ["engine", "observations", "significance", "report", "wheel", "drive"]
+
+
+def __getattr__(name: str) -> object:
+    """Submodules on first use (``import offline.discrepancy`` stays light)."""
+    if name in __all__:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

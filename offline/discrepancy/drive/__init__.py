@@ -10,3 +10,12 @@
 """
 
 __all__ = ["diagnosis", "candidates", "empirical", "synthetic", "report"]
+
+
+def __getattr__(name: str) -> object:
+    """Submodules on first use (``import offline.discrepancy`` stays light)."""
+    if name in __all__:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,3 +13,12 @@ A diagnosis is :func:`offline.discrepancy.engine.diagnose` on a
 """
 
 __all__ = ["recording", "candidates", "face_pressure", "empirical"]
+
+
+def __getattr__(name: str) -> object:
+    """Submodules on first use (``import offline.discrepancy`` stays light)."""
+    if name in __all__:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

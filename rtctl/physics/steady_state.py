@@ -307,23 +307,42 @@ class SteadyStateResidual:
         self._iv = {v: np.array([self._var[(v, w)] for w in wheels]) for v in WHEEL_VARIABLES}
         self._inv_rs = 1.0 / np.asarray(model.shearing_radius, dtype=float)
         nk = 1 + len(kinds)
-        self._params = _stack_params(model.phys, [2 * nk] * len(wheels))
+        # a wheel's zero-slip state (speed / r_s, h0, h0) depends on its beta and h0 only: of the
+        # nk columns, the omega and h ones repeat the base, so they are not evaluated again
+        self._zero_cols = np.array([0] + [1 + j for j, v in enumerate(kinds) if v in ("beta", "h0")], dtype=np.intp)
+        zero_of = np.zeros(nk, dtype=np.intp)
+        for i, c in enumerate(self._zero_cols):
+            zero_of[c] = i
+        nz = len(self._zero_cols)
+        self._params = _stack_params(model.phys + model.phys, [nk] * len(wheels) + [nz] * len(wheels))
+        # flat positions in the batch (mains wheel-major, then zero-slip states wheel-major) of each
+        # wheel's main and zero-slip state of every column (see evaluate)
+        nw = len(wheels)
 
-    def _batched_wrenches(self, Xk: NDArray[np.float64], speed: float) -> list[tuple[tuple[NDArray[np.float64], ...], ...]]:
-        """Soil wrenches of every wheel and its zero-slip state at the ``nk`` rows of ``Xk``, in one
-        :func:`wrench_core` call: per wheel ``(main, zero-slip)``, each six arrays of length nk."""
-        nw, nk = len(self.model.wheels), Xk.shape[0]
+        def batch_index(sel: NDArray[np.intp]) -> NDArray[np.intp]:
+            main = np.arange(nw)[:, None] * nk + sel
+            zero = nw * nk + np.arange(nw)[:, None] * nz + zero_of[sel]
+            return np.stack([main, zero], axis=1)  # (nw, 2, columns)
+
+        self._jac_batch = batch_index(self._jac_sel)
+        self._grad_batch = batch_index(self._grad_sel)
+
+    def _batched_wrenches(self, Xk: NDArray[np.float64], speed: float) -> NDArray[np.float64]:
+        """Soil wrenches of every wheel at the ``nk`` rows of ``Xk`` and of its zero-slip state at
+        the rows ``_zero_cols`` (the others repeat the base), in one :func:`wrench_core` call:
+        an array ``(6, nw * (nk + nz))``, the main states wheel-major, then the zero-slip ones."""
         OM, B, H, H0 = (Xk[:, self._iv[v]].T for v in ("omega", "beta", "h", "h0"))  # (nw, nk)
         VX, VY = self.model.statics.wheel_velocity(NUMPY, speed, B)
-        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], OM.shape)
+        zc = self._zero_cols
+        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], (OM.shape[0], zc.size))
+        H0z = H0[:, zc]
 
-        def pair(a: Any, b: Any) -> NDArray[np.float64]:
-            return np.stack([a, b], axis=1).reshape(-1, 1)  # wheel-major, then (main, zero-slip), then rows
+        def col(a: Any, b: Any) -> NDArray[np.float64]:
+            return np.concatenate([np.ravel(a), np.ravel(b)]).reshape(-1, 1)
 
-        w, _ = wrench_core(NUMPY, pair(VX, VX), pair(VY, VY), pair(OM, OM0), pair(H, H0), pair(H0, H0), self._params,
-                           self.model.options)
-        qs = [np.asarray(q, dtype=float).reshape(nw, 2, nk) for q in w]
-        return [(tuple(q[kw, 0] for q in qs), tuple(q[kw, 1] for q in qs)) for kw in range(nw)]
+        w, _ = wrench_core(NUMPY, col(VX, VX[:, zc]), col(VY, VY[:, zc]), col(OM, OM0), col(H, H0z), col(H0, H0z),
+                           self._params, self.model.options)
+        return np.concatenate([np.asarray(q, dtype=float).reshape(1, -1) for q in w])
 
     def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """``(g, f)`` at physical ``x`` (nx,) and parameters ``p`` (np,): every row's physical
@@ -362,15 +381,14 @@ class SteadyStateResidual:
         Xk[self._kind_rows, self._kind_cols] += self._kind_steps
         ws = self._batched_wrenches(Xk, P["speed"])
         # columns: base, then every variable alone (the gradient needs only the wrench kinds)
-        cols, sel, steps = (self._jac_cols, self._jac_sel, self._jac_steps) if jacobian else \
-            (self._grad_cols, self._grad_sel, self._grad_steps)
+        cols, bidx, steps = (self._jac_cols, self._jac_batch, self._jac_steps) if jacobian else \
+            (self._grad_cols, self._grad_batch, self._grad_steps)
         nc = 1 + len(cols)
         X = np.repeat(x[None, :], nc, axis=0)
         X[np.arange(1, nc), cols] += steps
-        wsel = []
-        for kw in range(len(wheels)):
-            for blk in ws[kw]:
-                wsel.append(tuple(q[sel[kw]].reshape(-1, 1) for q in blk))
+        # per wheel and state (main, zero-slip), the six components at every column: one gather
+        Wsel = ws[:, bidx].reshape(6, -1, nc, 1)  # (6, nw * 2, nc, 1)
+        wsel = [tuple(Wsel[:, b]) for b in range(Wsel.shape[1])]
         xs = {w: tuple(X[:, i].reshape(-1, 1) for i in self._wheel_cols[w]) for w in wheels}
         rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
         G = np.empty((len(self._names), nc))

@@ -233,11 +233,16 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
         om, b, Wi, hi, h0 = x[k]
         vx, vy = vel[k]
         c = P[f"contact {k}"]
-        w6 = tuple(c * q for q in with_hub(ops, model, ws[2 * i], vx, vy, om, hi))
+        # a wheel on the ground (c the number 1.0, not a symbol): x * 1.0 is x, bit for bit, so the
+        # rover's numpy residual skips those multiplications (the cost there is the operation count)
+        one = isinstance(c, float) and c == 1.0
+        w6 = tuple(with_hub(ops, model, ws[2 * i], vx, vy, om, hi))
+        if not one:
+            w6 = tuple(c * q for q in w6)
         w0 = ws[2 * i + 1]
         wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
         rows[f"load {k}"] = w6[2] - Wi
-        rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
+        rows[f"zero-slip load {k}"] = (w0[2] - Wi) if one else c * (w0[2] - Wi)
         rows[f"wheel torque {k}"] = w6[4]
         f = f + w6[4] * w6[4]
         if k == model.trench_wheel:
@@ -384,12 +389,13 @@ class SteadyStateResidual:
         cols, bidx, steps = (self._jac_cols, self._jac_batch, self._jac_steps) if jacobian else \
             (self._grad_cols, self._grad_batch, self._grad_steps)
         nc = 1 + len(cols)
-        X = np.repeat(x[None, :], nc, axis=0)
-        X[np.arange(1, nc), cols] += steps
+        X = np.repeat(x[:, None], nc, axis=1)  # (nx, nc): each variable's columns contiguous
+        X[cols, np.arange(1, nc)] += steps
+        X3 = X[:, :, None]
         # per wheel and state (main, zero-slip), the six components at every column: one gather
         Wsel = ws[:, bidx].reshape(6, -1, nc, 1)  # (6, nw * 2, nc, 1)
         wsel = [tuple(Wsel[:, b]) for b in range(Wsel.shape[1])]
-        xs = {w: tuple(X[:, i].reshape(-1, 1) for i in self._wheel_cols[w]) for w in wheels}
+        xs = {w: tuple(X3[i] for i in self._wheel_cols[w]) for w in wheels}
         rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
         G = np.empty((len(self._names), nc))
         for r, n in enumerate(self._names):

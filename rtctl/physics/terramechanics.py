@@ -361,22 +361,9 @@ def wrench_core(
     theta_1 = ops.where(skid, ops.arccos(ops.clip(S, -one, one)), theta_f)
     ratio = rw / ops.fmax(vxp, SPEED_FLOOR)
     theta_star = ops.arccos(ops.clip(ratio, -one, one))
-    breaks = [theta_m, theta_0, theta_1, theta_star, -theta_star]
-    breaks = [ops.fmin(ops.fmax(b_, theta_r), theta_f) for b_ in breaks]
-    for i in range(len(breaks)):  # sorting network (bubble) of fmin/fmax: continuous, differentiable a.e.
-        for j in range(len(breaks) - 1 - i):
-            lo_, hi_ = ops.fmin(breaks[j], breaks[j + 1]), ops.fmax(breaks[j], breaks[j + 1])
-            breaks[j], breaks[j + 1] = lo_, hi_
+    # sorted and clamped into [theta_r, theta_f] by a network of fmin/fmax (Backend.segment_nodes)
     x_gl, w_gl = _gauss_legendre_cached(options.nodes_per_segment)
-    xn, wn = ops.nodes(x_gl), ops.nodes(w_gl)
-    thetas, weights = [], []
-    edges = [theta_r, *breaks, theta_f]
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        half = 0.5 * (hi - lo)
-        thetas.append(0.5 * (hi + lo) + half * xn)
-        weights.append(half * wn)
-    th = ops.cat(thetas)
-    wq = ops.cat(weights)
+    th, wq = ops.segment_nodes(theta_r, theta_f, [theta_m, theta_0, theta_1, theta_star, -theta_star], x_gl, w_gl)
     ct = ops.cos(th)
     st = ops.sin(th)
 
@@ -425,10 +412,12 @@ def wrench_core(
     area = rs * p.b
     Fx = area * ops.qsum(wq * (-sigma * st + tauT * ct))  # (5.26)
     Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28)
-    Fy = area * ops.qsum(wq * tauL) + rs * ops.qsum(wq * dfy_bull)  # (5.27) / (5.29)
+    wtl = wq * tauL  # shared weighted integrands (the same products as written out in each row)
+    wdb = wq * dfy_bull
+    Fy = area * ops.qsum(wtl) + rs * ops.qsum(wdb)  # (5.27) / (5.29)
     My = -rs * area * ops.qsum(wq * tauT)  # (5.31)
-    Mx = rs * area * ops.qsum(wq * tauL * ct) + rs * ops.qsum(wq * dfy_bull * arm_x)  # r x F, cf. (5.30)
-    Mz = rs * area * ops.qsum(wq * tauL * st) + rs * ops.qsum(wq * dfy_bull * rs * st)  # r x F, cf. (5.32)
+    Mx = rs * area * ops.qsum(wtl * ct) + rs * ops.qsum(wdb * arm_x)  # r x F, cf. (5.30)
+    Mz = rs * area * ops.qsum(wtl * st) + rs * ops.qsum(wdb * rs * st)  # r x F, cf. (5.32)
 
     wrench = (sgn * Fx, Fy, Fz, Mx, sgn * My, sgn * Mz)
     diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,

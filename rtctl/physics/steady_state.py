@@ -394,13 +394,19 @@ class SteadyStateResidual:
         X3 = X[:, :, None]
         # per wheel and state (main, zero-slip), the six components at every column: one gather
         Wsel = ws[:, bidx].reshape(6, -1, nc, 1)  # (6, nw * 2, nc, 1)
-        wsel = [tuple(Wsel[:, b]) for b in range(Wsel.shape[1])]
+        wsel = list(zip(*Wsel))  # per block, its six (nc, 1) views
         xs = {w: tuple(X3[i] for i in self._wheel_cols[w]) for w in wheels}
         rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
-        G = np.empty((len(self._names), nc))
-        for r, n in enumerate(self._names):
-            G[r] = np.asarray(rows[n], dtype=float).reshape(-1)
-        fv = np.broadcast_to(np.asarray(f, dtype=float).reshape(-1), (nc,))
+        vals = [rows[n] for n in self._names]
+        if all(isinstance(v, np.ndarray) and v.shape == (nc, 1) for v in vals):  # every row depends on the columns
+            G = np.concatenate(vals, axis=1).T
+        else:
+            G = np.empty((len(self._names), nc))
+            for r, v in enumerate(vals):
+                G[r] = np.asarray(v, dtype=float).reshape(-1)
+        fv = np.asarray(f, dtype=float).reshape(-1)
+        if fv.size != nc:
+            fv = np.broadcast_to(fv, (nc,))
         g = G[:, 0].copy()
         grad = np.zeros(self.nx)
         grad[cols] = (fv[1:] - fv[0]) / steps

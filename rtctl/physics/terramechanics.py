@@ -180,6 +180,32 @@ class PhysParams(NamedTuple):
         )
 
 
+def _parameter_terms(ops: Backend, phi: Any) -> tuple[Any, Any]:
+    """``(cot X_c, tan phi)`` with ``X_c = pi/4 - phi/2`` (eqs. (5.24)-(5.25)): terms of the
+    parameters alone. With numpy and a number ``phi`` they are computed once per value (the
+    same numpy functions on the same number, so the same values), not at every evaluation."""
+    if ops.name == "numpy" and isinstance(phi, float):
+        return _parameter_terms_of(phi)
+    return 1.0 / ops.tan(math.pi / 4 - phi / 2), ops.tan(phi)
+
+
+@functools.lru_cache(maxsize=64)
+def _parameter_terms_of(phi: float) -> tuple[Any, Any]:
+    return 1.0 / np.tan(math.pi / 4 - phi / 2), np.tan(phi)
+
+
+def _log_of(ops: Backend, v: Any) -> Any:
+    """``log(v)`` of a parameter (a wheel radius): once per value with numpy and a number."""
+    if ops.name == "numpy" and isinstance(v, float):
+        return _log_of_number(v)
+    return ops.log(v)
+
+
+@functools.lru_cache(maxsize=64)
+def _log_of_number(v: float) -> Any:
+    return np.log(v)
+
+
 def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
     """Bulldozing resistance of a unit-width blade of depth ``h_b`` (section 5.2.4), N/m.
 
@@ -189,8 +215,7 @@ def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, fo
     (eq. (5.24) without its |sin beta| factor), ``hegedus`` [66] has ``(1 + cot X_c tan phi)``
     and ``ishigami`` [58] twice the first term of [66]. ``X_c = pi/4 - phi/2``.
     """
-    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
-    tphi = ops.tan(phi)
+    cot_x, tphi = _parameter_terms(ops, phi)
     coh = 2.0 * h_b * c * cot_x
     if form == "pavlov":
         return 0.5 * rho * h_b**2 * cot_x**2 * (1.0 + 0.5 * cot_x * tphi) + coh
@@ -208,8 +233,7 @@ def _centre_of_pressure_depth(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any
     ``(A h^2 / 3 + C h / 2) / (A h / 2 + C)``; ``A``, ``C`` match the chosen R_b form so
     that the moment is consistent with the force. (5.33) as printed uses ``C / 2``.
     """
-    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
-    tphi = ops.tan(phi)
+    cot_x, tphi = _parameter_terms(ops, phi)
     if form == "pavlov":
         a = rho * cot_x**2 * (1.0 + 0.5 * cot_x * tphi)
     elif form == "hegedus":
@@ -373,7 +397,7 @@ def wrench_core(
     # (zero-length segments): 1e-300 made log''/sqrt'' overflow to inf, and 0 * inf = NaN in
     # IPOPT's Hessian. sigma ~ base^n, so the 1e-12 floor changes stresses by < 1e-15 Pa.
     base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-12)
-    radial = p.mu * ops.exp(n * ops.log(rs)) + (1.0 - p.mu) * ops.exp(n * ops.log(p.r))
+    radial = p.mu * ops.exp(n * _log_of(ops, rs)) + (1.0 - p.mu) * ops.exp(n * _log_of(ops, p.r))
     sigma = p.k * radial * ops.exp(n * ops.log(base))
 
     # Shear velocities (5.13)-(5.19) and deformations (5.20)-(5.21), both multiplied by w.
@@ -383,7 +407,7 @@ def wrench_core(
     shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
     eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
     vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
-    tau_max = (p.c + sigma * ops.tan(p.phi)) * shear_fraction / vj
+    tau_max = (p.c + sigma * _parameter_terms(ops, p.phi)[1]) * shear_fraction / vj
     tauT = vjT * tau_max
     tauL = vjL * tau_max
 

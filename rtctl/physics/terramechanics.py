@@ -206,6 +206,11 @@ def _log_of_number(v: float) -> Any:
     return np.log(v)
 
 
+def _scaled(scale: float, v: Any) -> Any:
+    """``scale * v``; ``v`` itself when ``scale`` is 1.0 (the same value, one array operation less)."""
+    return v if scale == 1.0 else scale * v
+
+
 def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
     """Bulldozing resistance of a unit-width blade of depth ``h_b`` (section 5.2.4), N/m.
 
@@ -422,10 +427,10 @@ def wrench_core(
         # eq. (5.29) with Ishigami 2007's blade depth: the local sinkage below the entry
         # height, h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
         h_b = ops.fmax(rs * (ct - cos_f), 0.0)
-        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
         dfy_bull = (1.0 - h_b * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
     else:
-        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
         # eq. (5.27) with R_b of (5.24) including its |sin beta| ("printed"), or the face
         # normal's single sin(beta) ("single")
         proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b

@@ -84,7 +84,7 @@ class Backend:
             nb = len(breaks)
             parts = [lo, *breaks, hi]
             if len({np.shape(q) for q in parts}) > 1:  # states of mixed shapes: broadcast them first
-                parts = np.broadcast_arrays(*parts)
+                parts = list(np.broadcast_arrays(*parts))
             ends = np.concatenate(parts, axis=-1)
             mid_ = ends[..., 1:nb + 1]
             np.maximum(mid_, lo, out=mid_)

@@ -87,3 +87,29 @@ def test_jacobian_against_central_differences_of_the_one_point_residual(name):
     scale = np.maximum(np.max(np.abs(fd), axis=1, keepdims=True), 1e-9)  # per row
     err = float(np.max(np.abs(jac - fd) / scale))
     assert err <= 100 * RTOL_AD_FD, f"{name}: forward-difference Jacobian vs central differences: {err:.3g} of the row scale"
+
+
+def test_segment_nodes_sort_equals_the_fmin_fmax_network_bit_for_bit():
+    """The numpy quadrature (one clamp and sort of the stacked breaks) gives exactly the nodes and
+    weights of the fmin/fmax network the casadi graph uses (the same backend ops, network branch)."""
+    from dataclasses import replace
+
+    from rtctl.physics.backend import gauss_legendre
+
+    network = replace(NUMPY, name="numpy, network")  # any other name takes the generic branch
+    rng = np.random.default_rng(3)
+    B = 64
+    lo = rng.uniform(-0.6, 0.0, (B, 1))
+    hi = rng.uniform(0.05, 0.8, (B, 1))
+    breaks = [rng.uniform(-0.9, 1.0, (B, 1)) for _ in range(5)]
+    breaks[1][:8] = breaks[0][:8]  # ties
+    breaks[2][8:16] = hi[8:16] + 0.1  # beyond the ends: clamped
+    x, w = gauss_legendre(8)
+    th, wq = NUMPY.segment_nodes(lo, hi, breaks, x, w)
+    th2, wq2 = network.segment_nodes(lo, hi, breaks, x, w)
+    assert th.shape == wq.shape == (B, 48)
+    assert np.array_equal(th, th2) and np.array_equal(wq, wq2)
+    # states of mixed shapes broadcast as in the network
+    th3, wq3 = NUMPY.segment_nodes(lo, hi, [breaks[0], np.full((1, 1), 0.01), *breaks[2:]], x, w)
+    th4, wq4 = network.segment_nodes(lo, hi, [breaks[0], np.full((1, 1), 0.01), *breaks[2:]], x, w)
+    assert np.array_equal(th3, th4) and np.array_equal(wq3, wq4)

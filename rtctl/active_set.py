@@ -135,6 +135,9 @@ def solve_active_set(H: NDArray[np.float64], q: NDArray[np.float64], J: NDArray[
     ineq = ~eq
     tl, tu = tol * (1.0 + np.abs(lg)), tol * (1.0 + np.abs(ug))
     bl, bu = tol * (1.0 + np.abs(zlo)), tol * (1.0 + np.abs(zhi))
+    # loop-invariant parts of the update's conditions (evaluated once, not per KKT system)
+    lo_rows, hi_rows, free_var = ineq & has_lo_g, ineq & has_hi_g, ~fixed_var
+    lg_t, ug_t, zlo_t, zhi_t = lg - tl, ug + tu, zlo - bl, zhi + bu
     for it in range(1, max_iter + 1):
         # one KKT system over (z, y_E, nu_B): H z + J_E' y_E + S_B' nu_B = -q, J_E z = b_E, z_B = bound
         E = act.rows != 0
@@ -167,14 +170,15 @@ def solve_active_set(H: NDArray[np.float64], q: NDArray[np.float64], J: NDArray[
         # ---- the new guess: add what is violated, drop what pulls the wrong way
         Jz = J @ z
         new = act.copy()
-        new.rows[ineq & (act.rows == 0) & has_lo_g & (Jz < lg - tl)] = -1
-        new.rows[ineq & (act.rows == 0) & has_hi_g & (Jz > ug + tu)] = 1
+        r0 = act.rows == 0
+        new.rows[lo_rows & r0 & (Jz < lg_t)] = -1
+        new.rows[hi_rows & r0 & (Jz > ug_t)] = 1
         new.rows[ineq & (act.rows < 0) & (y > tol)] = 0
         new.rows[ineq & (act.rows > 0) & (y < -tol)] = 0
-        new.box[F & (z < zlo - bl)] = -1
-        new.box[F & (z > zhi + bu)] = 1
-        new.box[~fixed_var & (act.box < 0) & (nu > tol)] = 0
-        new.box[~fixed_var & (act.box > 0) & (nu < -tol)] = 0
+        new.box[F & (z < zlo_t)] = -1
+        new.box[F & (z > zhi_t)] = 1
+        new.box[free_var & (act.box < 0) & (nu > tol)] = 0
+        new.box[free_var & (act.box > 0) & (nu < -tol)] = 0
         if np.array_equal(new.rows, act.rows) and np.array_equal(new.box, act.box):
             # every KKT condition: stationarity (by construction), primal feasibility of the
             # inactive rows and free variables, signs of the active multipliers

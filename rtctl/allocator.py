@@ -237,12 +237,16 @@ class QpAllocator:
         shapes = {"x": (nx,), "p": (npar,), "g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, npar), "grad_f": (nx,),
                   "hess_lag": (nx, nx), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,)}
         f: dict[str, NDArray[np.float64]] = {}
+        # a TablePoint's interpolated row holds every field: when its one sum is finite, so is
+        # every field (and the per-field sums are skipped); otherwise each field is judged alone
+        row = getattr(tp, "_row", None)
+        all_finite = isinstance(row, np.ndarray) and math.isfinite(float(row.sum()))
         for name, shape in shapes.items():
             a = np.asarray(getattr(tp, name), dtype=float)
             if a.shape != shape:
                 raise AllocatorError(f"table point field {name!r} has shape {a.shape}, expected {shape} for this layout")
             # one reduction per field: a NaN or inf anywhere makes the sum non-finite
-            if name not in ("lbx", "ubx", "lbg", "ubg") and not math.isfinite(float(a.sum())):
+            if not all_finite and name not in ("lbx", "ubx", "lbg", "ubg") and not math.isfinite(float(a.sum())):
                 raise AllocatorError(f"table point field {name!r} is not finite")
             f[name] = a
         hxp = getattr(tp, "hess_lag_xp", None)
@@ -408,7 +412,7 @@ class QpAllocator:
         q = self._q_base.copy()
         q[:self.nx] += self._Hxp @ dp  # d^2 L / dx dp: the gradient's move with the parameters
         if x_ref is not None:
-            zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - self._x0) / sx)
+            zr = _finite((np.asarray(x_ref, dtype=float) - self._x0) / sx)
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
@@ -443,7 +447,7 @@ class QpAllocator:
         if res.info.status_val != osqp.SolverStatus.OSQP_SOLVED or zf is None or not np.all(np.isfinite(zf)):
             return False, status, it, self.last_solution, np.zeros(self.nx), math.inf, math.nan
         zf = np.asarray(zf, dtype=float)
-        z = np.clip(zf[:self.nx], zlo, zhi)
+        z = np.minimum(np.maximum(zf[:self.nx], zlo), zhi)
         sig = np.maximum(zf[self.nx:], 0.0)
         slack = float(np.max(sig[:self.ng] + sig[self.ng:])) if self.ng else 0.0
         self._res_y = np.asarray(res.y, dtype=float).copy()
@@ -501,7 +505,7 @@ class QpAllocator:
         q = self._q_base.copy()
         q[:self.nx] = sx * grad / self._cf
         if x_ref is not None:
-            zr = np.nan_to_num((np.asarray(x_ref, dtype=float) - x_lin) / sx)
+            zr = _finite((np.asarray(x_ref, dtype=float) - x_lin) / sx)
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
@@ -538,7 +542,7 @@ class QpAllocator:
         if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):
             return None
         self._active = r.active
-        z = np.clip(r.z, zlo, zhi)
+        z = np.minimum(np.maximum(r.z, zlo), zhi)  # np.clip's definition, without its Python-level dispatch
         ng = self.ng
         # OSQP's multipliers of the same point (warm start of a later fallback): rows, bounds, and
         # the slacks' lower bounds from the slack columns' stationarity at zero slack
@@ -574,6 +578,12 @@ class QpAllocator:
         P = sp.csc_matrix((Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
         A = sp.csc_matrix((Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
         return QpProblem(P, q.copy(), A, l.copy(), u.copy())
+
+
+def _finite(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.nan_to_num(v)`` (NaN to 0, +-inf to the largest finite values), the array itself
+    when it is finite already (the usual case: np.nan_to_num costs tens of microseconds)."""
+    return v if math.isfinite(float(v.sum())) else np.nan_to_num(v)
 
 
 def solve_with_qpsolvers(problem: QpProblem, solver: str = "clarabel") -> NDArray[np.float64] | None:

@@ -1168,9 +1168,15 @@ def _nearest_grid_feasible(table: Any, op: Mapping[str, float]) -> bool:
     """Whether the table's grid point nearest to ``op`` (each axis clamped into its range) has a
     primitive."""
     idx = []
-    for axis in table.axis_order:
-        vals = np.asarray(table.axes[axis], dtype=float)
-        idx.append(int(np.argmin(np.abs(vals - op.get(axis, float(vals[0]))))))
+    lists = getattr(table, "_ax", None)  # rtctl.table.Table: each axis as a list of floats
+    for i, axis in enumerate(table.axis_order):
+        if lists is not None:  # plain floats: the same differences and the first of equal ones, as np.argmin
+            ax = lists[i]
+            v = float(op.get(axis, ax[0]))
+            idx.append(min(range(len(ax)), key=lambda j: abs(ax[j] - v)))
+        else:
+            vals = np.asarray(table.axes[axis], dtype=float)
+            idx.append(int(np.argmin(np.abs(vals - op.get(axis, float(vals[0]))))))
     return bool(np.asarray(table.feasible)[tuple(idx)])
 
 

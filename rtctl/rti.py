@@ -61,6 +61,8 @@ class BoundedRows:
     def __init__(self, tp: Any, keep: Sequence[int]) -> None:
         self._tp = tp
         free = free_rows(tp.lbg, tp.ubg, keep)
+        self.free_mask = free
+        """The rows without bounds (:func:`free_rows`), all False when none."""
         self._free = free if bool(free.any()) else None
 
     def __getattr__(self, name: str) -> Any:
@@ -122,9 +124,10 @@ class RealTimeIteration:
         if self.iterate is None:
             self._H, self._prev, self.hessian_updates = None, None, 0
         # the iteration goes on: keep what it learnt of the curvature (else the table's, convexified)
-        self.allocator.prepare(BoundedRows(tp, self.keep_rows), hessian=self._H)
+        bounded = BoundedRows(tp, self.keep_rows)
+        self.allocator.prepare(bounded, hessian=self._H)
         self._point = tp
-        self._free = free_rows(tp.lbg, tp.ubg, self.keep_rows)
+        self._free = bounded.free_mask
         if self.iterate is None:
             self.iterate = self.allocator.x0
 

@@ -24,6 +24,7 @@ os.environ.setdefault("OFFNOMINAL_COMPILE", "off")
 # --- tolerances (relative unless named _abs) -------------------------------------------
 RTOL_BACKENDS = 1e-10  # numpy vs casadi evaluation of the same graph
 RTOL_AD_FD = 1e-5  # exact derivative vs central finite difference
+RTOL_REFACTOR = 1e-12  # a faster evaluation of the same physics vs values frozen from the code before it
 RTOL_QUADRATURE = 2e-3  # default Gauss-Legendre nodes vs a 100-node reference
 RTOL_SINKAGE_LOAD = 1e-6  # |F_z(h) - W| / W after the sinkage solve
 RTOL_SWITCH = 5e-5  # value jump across the slip/skid switch, relative to |F| scale: the exact model is

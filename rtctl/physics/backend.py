@@ -66,13 +66,54 @@ class Backend:
         """Clip ``x`` to ``[lo, hi]`` (kinks at the bounds)."""
         return self.fmin(self.fmax(x, lo), hi)
 
+    def segment_nodes(self, lo: Any, hi: Any, breaks: list[Any], x: np.ndarray, w: np.ndarray) -> tuple[Any, Any]:
+        """Quadrature nodes and weights on the segments between ``lo``, the ``breaks`` clamped
+        into ``[lo, hi]`` and sorted, and ``hi``: on each segment ``[a, b]`` the nodes
+        ``(a + b) / 2 + (b - a) / 2 x`` and weights ``(b - a) / 2 w`` (``x``, ``w``: a rule on
+        ``[-1, 1]``), joined by :meth:`cat`.
+
+        The sort is a network (bubble) of :attr:`fmin` / :attr:`fmax`, continuous and
+        differentiable almost everywhere, as the casadi graph needs. With numpy the same
+        numbers come from one clamp and one ``np.sort`` of the stacked breaks and whole-array
+        arithmetic on the segment ends (a sort and the network select the same values, and
+        every node is the same expression of its segment's ends), in a few array operations
+        instead of some eighty: the cost of the rover's numpy physics is in the operation count.
+        """
+        xs, ws_ = np.asarray(x, dtype=float).reshape(-1), np.asarray(w, dtype=float).reshape(-1)
+        if self.name == "numpy":
+            nb = len(breaks)
+            parts = [lo, *breaks, hi]
+            if len({np.shape(q) for q in parts}) > 1:  # states of mixed shapes: broadcast them first
+                parts = list(np.broadcast_arrays(*parts))
+            ends = np.concatenate(parts, axis=-1)
+            mid_ = ends[..., 1:nb + 1]
+            np.maximum(mid_, lo, out=mid_)
+            np.minimum(mid_, hi, out=mid_)
+            mid_.sort(axis=-1)
+            a, b = ends[..., :-1, None], ends[..., 1:, None]
+            half = 0.5 * (b - a)
+            shape = half.shape[:-2] + (-1,)
+            return (0.5 * (b + a) + half * xs).reshape(shape), (half * ws_).reshape(shape)
+        bs = [self.fmin(self.fmax(b_, lo), hi) for b_ in breaks]
+        for i in range(len(bs)):
+            for j in range(len(bs) - 1 - i):
+                bs[j], bs[j + 1] = self.fmin(bs[j], bs[j + 1]), self.fmax(bs[j], bs[j + 1])
+        xn, wn = self.nodes(xs), self.nodes(ws_)
+        thetas, weights = [], []
+        edges = [lo, *bs, hi]
+        for a_, b_ in zip(edges[:-1], edges[1:]):
+            half_ = 0.5 * (b_ - a_)
+            thetas.append(0.5 * (b_ + a_) + half_ * xn)
+            weights.append(half_ * wn)
+        return self.cat(thetas), self.cat(weights)
+
 
 def _np_where(c: Any, a: Any, b: Any) -> Any:
     return np.where(c, a, b)
 
 
-def _np_qsum(x: Any) -> Any:
-    return np.sum(x, axis=-1, keepdims=True)
+def _np_qsum(x: Any, _add: Any = np.add.reduce) -> Any:
+    return _add(x, axis=-1, keepdims=True)  # np.sum's own reduction, without its Python-level dispatch
 
 
 def _np_nodes(x: np.ndarray) -> Any:

@@ -145,8 +145,11 @@ class FourWheelRocker:
     def wheel_centre(self, ops: Backend, wheel: str, phi: Any) -> tuple[Any, Any, Any]:
         """Wheel centre relative to the reference point O for a nose-up rocker angle ``phi``
         (module docstring)."""
+        return self._centre(wheel, ops.cos(phi), ops.sin(phi))
+
+    def _centre(self, wheel: str, c: Any, s: Any) -> tuple[Any, Any, Any]:
+        """:meth:`wheel_centre` from ``cos(phi)``, ``sin(phi)`` (shared by a rocker's two wheels)."""
         lr, hr, wr = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
-        c, s = ops.cos(phi), ops.sin(phi)
         sx = 1.0 if _FRONT[wheel] else -1.0
         y = -wr / 2 if _SIDE[wheel] == "R" else wr / 2
         return sx * c * lr / 2 + s * hr, y, sx * s * lr / 2 - c * hr
@@ -176,7 +179,7 @@ class FourWheelRocker:
         W = self.rover.weight
         F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
         phi_r, phi_l = self.rocker_angles(ops, h, contact)
-        phi = {"R": phi_r, "L": phi_l}
+        trig = {"R": (ops.cos(phi_r), ops.sin(phi_r)), "L": (ops.cos(phi_l), ops.sin(phi_l))}
         res: dict[str, Any] = {
             "Fx": sum(F[k][0] for k in self.wheels) - W * ops.sin(slope),
             "Fy": sum(F[k][1] for k in self.wheels) - W * ops.cos(slope) * ops.sin(cross_slope) - fy_offset,
@@ -186,7 +189,7 @@ class FourWheelRocker:
         mz = -mz_offset
         for k in self.wheels:
             fx, fy, fz, wmx, wmy, wmz = F[k]
-            rx, ry, rz = self.wheel_centre(ops, k, phi[_SIDE[k]])
+            rx, ry, rz = self._centre(k, *trig[_SIDE[k]])
             mx = mx + wmx + ry * fz - rz * fy
             pitch = rz * fx - rx * fz + (wmy if self.pitch_includes_wheel_torque else 0.0)
             if _SIDE[k] == "R":

@@ -15,8 +15,11 @@ against :class:`rtctl.physics.backend.Backend`:
 With numpy the wheels are evaluated in one batched call of
 :func:`~rtctl.physics.terramechanics.wrench_core` (every wheel's wrench and zero-slip wrench,
 and with :meth:`SteadyStateResidual.evaluate` ``gradient=True`` the forward-difference
-perturbations of each wheel's own variables too: the cost of the numpy physics is in the number
-of array operations, almost not in the batch size).
+perturbations of each wheel's own variables too). Its cost is mostly the number of array
+operations (measured on the shared 2-core machine: about 150 us for one wheel state), and at
+the tick's 32 states about as much again in the element-wise work, most of it the sines and
+cosines over the 48 nodes of every state (numpy's float64 sin/cos are not vectorised there,
+about 20 ns an element, against about 3 ns for exp).
 """
 
 from __future__ import annotations
@@ -233,11 +236,16 @@ def steady_state_rows(ops: Backend, model: SteadyStateModel, x: Mapping[str, Seq
         om, b, Wi, hi, h0 = x[k]
         vx, vy = vel[k]
         c = P[f"contact {k}"]
-        w6 = tuple(c * q for q in with_hub(ops, model, ws[2 * i], vx, vy, om, hi))
+        # a wheel on the ground (c the number 1.0, not a symbol): x * 1.0 is x, bit for bit, so the
+        # rover's numpy residual skips those multiplications (the cost there is the operation count)
+        one = isinstance(c, float) and c == 1.0
+        w6 = tuple(with_hub(ops, model, ws[2 * i], vx, vy, om, hi))
+        if not one:
+            w6 = tuple(c * q for q in w6)
         w0 = ws[2 * i + 1]
         wr[k], beta[k], h[k], load[k], contact[k] = w6, b, hi, Wi, c
         rows[f"load {k}"] = w6[2] - Wi
-        rows[f"zero-slip load {k}"] = c * (w0[2] - Wi)
+        rows[f"zero-slip load {k}"] = (w0[2] - Wi) if one else c * (w0[2] - Wi)
         rows[f"wheel torque {k}"] = w6[4]
         f = f + w6[4] * w6[4]
         if k == model.trench_wheel:
@@ -307,23 +315,42 @@ class SteadyStateResidual:
         self._iv = {v: np.array([self._var[(v, w)] for w in wheels]) for v in WHEEL_VARIABLES}
         self._inv_rs = 1.0 / np.asarray(model.shearing_radius, dtype=float)
         nk = 1 + len(kinds)
-        self._params = _stack_params(model.phys, [2 * nk] * len(wheels))
+        # a wheel's zero-slip state (speed / r_s, h0, h0) depends on its beta and h0 only: of the
+        # nk columns, the omega and h ones repeat the base, so they are not evaluated again
+        self._zero_cols = np.array([0] + [1 + j for j, v in enumerate(kinds) if v in ("beta", "h0")], dtype=np.intp)
+        zero_of = np.zeros(nk, dtype=np.intp)
+        for i, c in enumerate(self._zero_cols):
+            zero_of[c] = i
+        nz = len(self._zero_cols)
+        self._params = _stack_params(model.phys + model.phys, [nk] * len(wheels) + [nz] * len(wheels))
+        # flat positions in the batch (mains wheel-major, then zero-slip states wheel-major) of each
+        # wheel's main and zero-slip state of every column (see evaluate)
+        nw = len(wheels)
 
-    def _batched_wrenches(self, Xk: NDArray[np.float64], speed: float) -> list[tuple[tuple[NDArray[np.float64], ...], ...]]:
-        """Soil wrenches of every wheel and its zero-slip state at the ``nk`` rows of ``Xk``, in one
-        :func:`wrench_core` call: per wheel ``(main, zero-slip)``, each six arrays of length nk."""
-        nw, nk = len(self.model.wheels), Xk.shape[0]
+        def batch_index(sel: NDArray[np.intp]) -> NDArray[np.intp]:
+            main = np.arange(nw)[:, None] * nk + sel
+            zero = nw * nk + np.arange(nw)[:, None] * nz + zero_of[sel]
+            return np.stack([main, zero], axis=1)  # (nw, 2, columns)
+
+        self._jac_batch = batch_index(self._jac_sel)
+        self._grad_batch = batch_index(self._grad_sel)
+
+    def _batched_wrenches(self, Xk: NDArray[np.float64], speed: float) -> NDArray[np.float64]:
+        """Soil wrenches of every wheel at the ``nk`` rows of ``Xk`` and of its zero-slip state at
+        the rows ``_zero_cols`` (the others repeat the base), in one :func:`wrench_core` call:
+        an array ``(6, nw * (nk + nz))``, the main states wheel-major, then the zero-slip ones."""
         OM, B, H, H0 = (Xk[:, self._iv[v]].T for v in ("omega", "beta", "h", "h0"))  # (nw, nk)
         VX, VY = self.model.statics.wheel_velocity(NUMPY, speed, B)
-        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], OM.shape)
+        zc = self._zero_cols
+        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], (OM.shape[0], zc.size))
+        H0z = H0[:, zc]
 
-        def pair(a: Any, b: Any) -> NDArray[np.float64]:
-            return np.stack([a, b], axis=1).reshape(-1, 1)  # wheel-major, then (main, zero-slip), then rows
+        def col(a: Any, b: Any) -> NDArray[np.float64]:
+            return np.concatenate([np.ravel(a), np.ravel(b)]).reshape(-1, 1)
 
-        w, _ = wrench_core(NUMPY, pair(VX, VX), pair(VY, VY), pair(OM, OM0), pair(H, H0), pair(H0, H0), self._params,
-                           self.model.options)
-        qs = [np.asarray(q, dtype=float).reshape(nw, 2, nk) for q in w]
-        return [(tuple(q[kw, 0] for q in qs), tuple(q[kw, 1] for q in qs)) for kw in range(nw)]
+        w, _ = wrench_core(NUMPY, col(VX, VX[:, zc]), col(VY, VY[:, zc]), col(OM, OM0), col(H, H0z), col(H0, H0z),
+                           self._params, self.model.options)
+        return np.concatenate([np.asarray(q, dtype=float).reshape(1, -1) for q in w])
 
     def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """``(g, f)`` at physical ``x`` (nx,) and parameters ``p`` (np,): every row's physical
@@ -347,7 +374,8 @@ class SteadyStateResidual:
         Structured differences: a wheel's wrench depends on its own ``omega, beta, h, h0`` only
         (not on its load ``W`` nor on other wheels), so the wrenches are evaluated for the base
         point and four columns that move one variable kind on every wheel at once (one batched
-        call of 4 wheels x 2 states x 5 columns); the rows are then assembled for the base and
+        call: per wheel its state at the 5 columns and its zero-slip state, which depends on
+        ``beta`` and ``h0`` only, at 3 of them); the rows are then assembled for the base and
         every single-variable column from those wrenches, so each column is an exact
         one-variable difference of the full rows and objective.
         """
@@ -362,21 +390,27 @@ class SteadyStateResidual:
         Xk[self._kind_rows, self._kind_cols] += self._kind_steps
         ws = self._batched_wrenches(Xk, P["speed"])
         # columns: base, then every variable alone (the gradient needs only the wrench kinds)
-        cols, sel, steps = (self._jac_cols, self._jac_sel, self._jac_steps) if jacobian else \
-            (self._grad_cols, self._grad_sel, self._grad_steps)
+        cols, bidx, steps = (self._jac_cols, self._jac_batch, self._jac_steps) if jacobian else \
+            (self._grad_cols, self._grad_batch, self._grad_steps)
         nc = 1 + len(cols)
-        X = np.repeat(x[None, :], nc, axis=0)
-        X[np.arange(1, nc), cols] += steps
-        wsel = []
-        for kw in range(len(wheels)):
-            for blk in ws[kw]:
-                wsel.append(tuple(q[sel[kw]].reshape(-1, 1) for q in blk))
-        xs = {w: tuple(X[:, i].reshape(-1, 1) for i in self._wheel_cols[w]) for w in wheels}
+        X = np.repeat(x[:, None], nc, axis=1)  # (nx, nc): each variable's columns contiguous
+        X[cols, np.arange(1, nc)] += steps
+        X3 = X[:, :, None]
+        # per wheel and state (main, zero-slip), the six components at every column: one gather
+        Wsel = ws[:, bidx].reshape(6, -1, nc, 1)  # (6, nw * 2, nc, 1)
+        wsel = list(zip(*Wsel))  # per block, its six (nc, 1) views
+        xs = {w: tuple(X3[i] for i in self._wheel_cols[w]) for w in wheels}
         rows, f, _ = steady_state_rows(NUMPY, model, xs, P, wrenches=wsel)
-        G = np.empty((len(self._names), nc))
-        for r, n in enumerate(self._names):
-            G[r] = np.asarray(rows[n], dtype=float).reshape(-1)
-        fv = np.broadcast_to(np.asarray(f, dtype=float).reshape(-1), (nc,))
+        vals = [rows[n] for n in self._names]
+        if all(isinstance(v, np.ndarray) and v.shape == (nc, 1) for v in vals):  # every row depends on the columns
+            G = np.concatenate(vals, axis=1).T
+        else:
+            G = np.empty((len(self._names), nc))
+            for r, v in enumerate(vals):
+                G[r] = np.asarray(v, dtype=float).reshape(-1)
+        fv = np.asarray(f, dtype=float).reshape(-1)
+        if fv.size != nc:
+            fv = np.broadcast_to(fv, (nc,))
         g = G[:, 0].copy()
         grad = np.zeros(self.nx)
         grad[cols] = (fv[1:] - fv[0]) / steps

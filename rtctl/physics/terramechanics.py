@@ -180,6 +180,37 @@ class PhysParams(NamedTuple):
         )
 
 
+def _parameter_terms(ops: Backend, phi: Any) -> tuple[Any, Any]:
+    """``(cot X_c, tan phi)`` with ``X_c = pi/4 - phi/2`` (eqs. (5.24)-(5.25)): terms of the
+    parameters alone. With numpy and a number ``phi`` they are computed once per value (the
+    same numpy functions on the same number, so the same values), not at every evaluation."""
+    if ops.name == "numpy" and isinstance(phi, float):
+        return _parameter_terms_of(phi)
+    return 1.0 / ops.tan(math.pi / 4 - phi / 2), ops.tan(phi)
+
+
+@functools.lru_cache(maxsize=64)
+def _parameter_terms_of(phi: float) -> tuple[Any, Any]:
+    return 1.0 / np.tan(math.pi / 4 - phi / 2), np.tan(phi)
+
+
+def _log_of(ops: Backend, v: Any) -> Any:
+    """``log(v)`` of a parameter (a wheel radius): once per value with numpy and a number."""
+    if ops.name == "numpy" and isinstance(v, float):
+        return _log_of_number(v)
+    return ops.log(v)
+
+
+@functools.lru_cache(maxsize=64)
+def _log_of_number(v: float) -> Any:
+    return np.log(v)
+
+
+def _scaled(scale: float, v: Any) -> Any:
+    """``scale * v``; ``v`` itself when ``scale`` is 1.0 (the same value, one array operation less)."""
+    return v if scale == 1.0 else scale * v
+
+
 def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
     """Bulldozing resistance of a unit-width blade of depth ``h_b`` (section 5.2.4), N/m.
 
@@ -189,8 +220,7 @@ def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, fo
     (eq. (5.24) without its |sin beta| factor), ``hegedus`` [66] has ``(1 + cot X_c tan phi)``
     and ``ishigami`` [58] twice the first term of [66]. ``X_c = pi/4 - phi/2``.
     """
-    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
-    tphi = ops.tan(phi)
+    cot_x, tphi = _parameter_terms(ops, phi)
     coh = 2.0 * h_b * c * cot_x
     if form == "pavlov":
         return 0.5 * rho * h_b**2 * cot_x**2 * (1.0 + 0.5 * cot_x * tphi) + coh
@@ -208,8 +238,7 @@ def _centre_of_pressure_depth(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any
     ``(A h^2 / 3 + C h / 2) / (A h / 2 + C)``; ``A``, ``C`` match the chosen R_b form so
     that the moment is consistent with the force. (5.33) as printed uses ``C / 2``.
     """
-    cot_x = 1.0 / ops.tan(math.pi / 4 - phi / 2)
-    tphi = ops.tan(phi)
+    cot_x, tphi = _parameter_terms(ops, phi)
     if form == "pavlov":
         a = rho * cot_x**2 * (1.0 + 0.5 * cot_x * tphi)
     elif form == "hegedus":
@@ -361,22 +390,9 @@ def wrench_core(
     theta_1 = ops.where(skid, ops.arccos(ops.clip(S, -one, one)), theta_f)
     ratio = rw / ops.fmax(vxp, SPEED_FLOOR)
     theta_star = ops.arccos(ops.clip(ratio, -one, one))
-    breaks = [theta_m, theta_0, theta_1, theta_star, -theta_star]
-    breaks = [ops.fmin(ops.fmax(b_, theta_r), theta_f) for b_ in breaks]
-    for i in range(len(breaks)):  # sorting network (bubble) of fmin/fmax: continuous, differentiable a.e.
-        for j in range(len(breaks) - 1 - i):
-            lo_, hi_ = ops.fmin(breaks[j], breaks[j + 1]), ops.fmax(breaks[j], breaks[j + 1])
-            breaks[j], breaks[j + 1] = lo_, hi_
+    # sorted and clamped into [theta_r, theta_f] by a network of fmin/fmax (Backend.segment_nodes)
     x_gl, w_gl = _gauss_legendre_cached(options.nodes_per_segment)
-    xn, wn = ops.nodes(x_gl), ops.nodes(w_gl)
-    thetas, weights = [], []
-    edges = [theta_r, *breaks, theta_f]
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        half = 0.5 * (hi - lo)
-        thetas.append(0.5 * (hi + lo) + half * xn)
-        weights.append(half * wn)
-    th = ops.cat(thetas)
-    wq = ops.cat(weights)
+    th, wq = ops.segment_nodes(theta_r, theta_f, [theta_m, theta_0, theta_1, theta_star, -theta_star], x_gl, w_gl)
     ct = ops.cos(th)
     st = ops.sin(th)
 
@@ -386,7 +402,7 @@ def wrench_core(
     # (zero-length segments): 1e-300 made log''/sqrt'' overflow to inf, and 0 * inf = NaN in
     # IPOPT's Hessian. sigma ~ base^n, so the 1e-12 floor changes stresses by < 1e-15 Pa.
     base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-12)
-    radial = p.mu * ops.exp(n * ops.log(rs)) + (1.0 - p.mu) * ops.exp(n * ops.log(p.r))
+    radial = p.mu * ops.exp(n * _log_of(ops, rs)) + (1.0 - p.mu) * ops.exp(n * _log_of(ops, p.r))
     sigma = p.k * radial * ops.exp(n * ops.log(base))
 
     # Shear velocities (5.13)-(5.19) and deformations (5.20)-(5.21), both multiplied by w.
@@ -396,7 +412,7 @@ def wrench_core(
     shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
     eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
     vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
-    tau_max = (p.c + sigma * ops.tan(p.phi)) * shear_fraction / vj
+    tau_max = (p.c + sigma * _parameter_terms(ops, p.phi)[1]) * shear_fraction / vj
     tauT = vjT * tau_max
     tauL = vjL * tau_max
 
@@ -411,10 +427,10 @@ def wrench_core(
         # eq. (5.29) with Ishigami 2007's blade depth: the local sinkage below the entry
         # height, h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
         h_b = ops.fmax(rs * (ct - cos_f), 0.0)
-        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
         dfy_bull = (1.0 - h_b * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
     else:
-        r_b = scale * bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form)
+        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
         # eq. (5.27) with R_b of (5.24) including its |sin beta| ("printed"), or the face
         # normal's single sin(beta) ("single")
         proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b
@@ -425,10 +441,12 @@ def wrench_core(
     area = rs * p.b
     Fx = area * ops.qsum(wq * (-sigma * st + tauT * ct))  # (5.26)
     Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28)
-    Fy = area * ops.qsum(wq * tauL) + rs * ops.qsum(wq * dfy_bull)  # (5.27) / (5.29)
+    wtl = wq * tauL  # shared weighted integrands (the same products as written out in each row)
+    wdb = wq * dfy_bull
+    Fy = area * ops.qsum(wtl) + rs * ops.qsum(wdb)  # (5.27) / (5.29)
     My = -rs * area * ops.qsum(wq * tauT)  # (5.31)
-    Mx = rs * area * ops.qsum(wq * tauL * ct) + rs * ops.qsum(wq * dfy_bull * arm_x)  # r x F, cf. (5.30)
-    Mz = rs * area * ops.qsum(wq * tauL * st) + rs * ops.qsum(wq * dfy_bull * rs * st)  # r x F, cf. (5.32)
+    Mx = rs * area * ops.qsum(wtl * ct) + rs * ops.qsum(wdb * arm_x)  # r x F, cf. (5.30)
+    Mz = rs * area * ops.qsum(wtl * st) + rs * ops.qsum(wdb * rs * st)  # r x F, cf. (5.32)
 
     wrench = (sgn * Fx, Fy, Fz, Mx, sgn * My, sgn * Mz)
     diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,

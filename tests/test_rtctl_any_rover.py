@@ -1,0 +1,95 @@
+"""rtctl on a rover from a file (issue 23): the six-wheel MER-class table of
+``tests/data/tables/rovers/`` (right-front wheel locked, driving backward; README there).
+
+* The exact residual a rover file's table gets on the rover
+  (:meth:`rtctl.physics.steady_state.SteadyStateModel.from_table_header`: the suspension statics of
+  the header's rover record, :class:`rtctl.physics.suspension.SuspensionStatics`, torque scale
+  ``W / 6 r_s``) equals the offline NLP's own rows (casadi graph rebuilt from the decoded scenario)
+  at every grid point of the table: the values to rounding, the Jacobian (forward differences on
+  the rover) to the differences' truncation on the columns the bounds leave free.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtctl.physics.rover_file import driving_backward, rover_spec_from_record, shipped_rover
+from rtctl.physics.steady_state import SteadyStateModel, SteadyStateResidual
+from rtctl.physics.suspension import SuspensionStatics
+from rtctl.table import load_table
+
+MER_TABLE = Path(__file__).resolve().parent / "data" / "tables" / "rovers" / "mer_rf_locked_backward.npz"
+
+TOL_ROWS = 1e-9  # |g_numpy - g_casadi| / row scale: the same expressions, two backends (measured ~1e-15)
+TOL_JAC_FD = 1e-5  # forward differences of step 1e-7 variable scales vs casadi's exact Jacobian, per
+# row and variable scale, on the free columns (measured ~1.4e-6)
+TOL_GRAD_FD = 2e-6  # objective gradient, relative to its largest entry, free columns (measured ~3e-7)
+TOL_EQ_AT_PRIMITIVE = 1e-8  # |g| / row scale on the equality rows at the table's primitive (IPOPT tol 1e-9)
+
+
+@pytest.fixture(scope="module")
+def mer_table():
+    return load_table(MER_TABLE)
+
+
+def test_header_rover_record_is_the_turned_rover_file(mer_table):
+    spec = rover_spec_from_record(mer_table.header["scenario"]["rover_file"])
+    ref = driving_backward(shipped_rover("mer_class_rocker_bogie"))
+    assert spec.wheels == ref.wheels and spec.links == ref.links and spec.weight == ref.weight
+    assert spec.centre_of_mass == ref.centre_of_mass and spec.actuators == ref.actuators
+
+
+def test_model_from_header_is_the_suspension_statics(mer_table):
+    lay = mer_table.layout
+    model = SteadyStateModel.from_table_header(mer_table.header, lay.wheels)
+    assert isinstance(model.statics, SuspensionStatics)
+    assert model.statics.balance_names == tuple(b.name[len("balance "):] for b in lay.constraints
+                                                if b.name.startswith("balance "))
+    rs = model.shearing_radius[0]
+    assert model.torque_scale == pytest.approx(645.54 / 6 * rs, rel=1e-15)
+    assert lay["wheel torque RF"].scale == pytest.approx(model.torque_scale, rel=1e-12)  # the NLP's W / N
+
+
+def test_numpy_residual_equals_the_offline_nlp_at_the_grid_points(mer_table):
+    import casadi as ca
+
+    from offline.rover.table_builder import _problem
+    from offline.rover.table_verify import spec_from_table
+
+    t = mer_table
+    lay = t.layout
+    res = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, lay.wheels), lay)
+    spec = spec_from_table(t)
+    pb = _problem(spec.scenario, spec.solver)
+    xs, ps = pb.symbols["x"], pb.symbols["p"]
+    grad = ca.Function("grad", [xs, ps], [ca.gradient(pb.symbols["f"], xs), ca.jacobian(pb.symbols["g"], xs)])
+    xsc, gsc = np.asarray(lay.variable_scale), np.asarray(lay.constraint_scale)
+    points = np.argwhere(t.feasible)
+    assert len(points) == 6
+    worst = {"g": 0.0, "jac": 0.0, "grad": 0.0, "eq": 0.0}
+    for k in points:
+        tp = t.at(**t.grid_point(tuple(k)))
+        x, p = np.array(tp.x, dtype=float), np.array(tp.p, dtype=float)
+        g, f, gf, jac = res.evaluate(x, p, jacobian=True)
+        g_ref, f_ref = (np.asarray(v, dtype=float).ravel() for v in pb.eval_g(x / xsc, p))
+        g_ref = g_ref * gsc
+        gf_ref, jac_ref = (np.asarray(v, dtype=float) for v in grad(x / xsc, p))
+        gf_ref = gf_ref.ravel() / xsc
+        jac_ref = jac_ref * gsc[:, None] / xsc[None, :]
+        assert np.max(np.abs(np.asarray(tp.jac_g_x) - jac_ref) * xsc[None, :] / gsc[:, None]) < TOL_ROWS  # the table's
+        free = np.asarray(tp.lbx) < np.asarray(tp.ubx)  # the locked omega and the fixed middle steering: bound
+        assert (~free).sum() == 3
+        eq = np.asarray(tp.lbg) == np.asarray(tp.ubg)
+        worst["g"] = max(worst["g"], float(np.max(np.abs(g - g_ref) / gsc)))
+        worst["jac"] = max(worst["jac"], float(np.max((np.abs(jac - jac_ref) * xsc[None, :] / gsc[:, None])[:, free])))
+        worst["grad"] = max(worst["grad"], float(np.max(np.abs(gf - gf_ref)[free]) / np.max(np.abs(gf_ref))))
+        worst["eq"] = max(worst["eq"], float(np.max(np.abs(g[eq]) / gsc[eq])))
+        assert f == pytest.approx(float(f_ref[0]), rel=1e-12)
+        assert f == pytest.approx(float(np.asarray(tp.objective).ravel()[0]), rel=1e-9)  # the stored optimum
+    assert worst["g"] < TOL_ROWS, worst
+    assert worst["jac"] < TOL_JAC_FD, worst
+    assert worst["grad"] < TOL_GRAD_FD, worst
+    assert worst["eq"] < TOL_EQ_AT_PRIMITIVE, worst

@@ -81,7 +81,7 @@ from .inputs import Inputs, TickClock, read_measurements, wheel_vector_problem
 from .layout import WHEELS
 from .wheel_set import WheelSet, unsupported_reason, wheel_set_of
 from .messages import Commands, Diagnostics, Measurements, Task
-from .mirror import MIRROR_WHEEL, MirrorError, mirror_table
+from .mirror import MirrorError, mirror_table, mirror_wheel_map
 from .rti import RealTimeIteration
 from .physics.rover_file import RoverFileError, rover_spec_from_record
 
@@ -393,7 +393,11 @@ class Controller:
             sigs = {table_signature(t) for t in tables.values()}
             for name, t in sorted(tables.items()):
                 sig = table_signature(t)
-                msig = frozenset((MIRROR_WHEEL.get(w, w), k) for w, k in sig)
+                try:  # the mirror map from the wheel positions (the mini rover's FR-FL, RR-RL)
+                    wmap = mirror_wheel_map(t)
+                except MirrorError:  # not left-right symmetric, or a rigid frame: its mirror must be built
+                    continue
+                msig = frozenset((wmap.get(w, w), k) for w, k in sig)
                 if not sig or msig in sigs:
                     continue
                 try:

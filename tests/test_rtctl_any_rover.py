@@ -93,3 +93,60 @@ def test_numpy_residual_equals_the_offline_nlp_at_the_grid_points(mer_table):
     assert worst["jac"] < TOL_JAC_FD, worst
     assert worst["grad"] < TOL_GRAD_FD, worst
     assert worst["eq"] < TOL_EQ_AT_PRIMITIVE, worst
+
+
+# --- mirror and recordings (step 3) ---------------------------------------------------------
+
+def test_mirror_map_from_wheel_positions(mer_table):
+    from rtctl.mirror import MIRROR_WHEEL, mirror_wheel_map
+
+    assert mirror_wheel_map(mer_table) == {"RF": "LF", "LF": "RF", "RM": "LM", "LM": "RM", "RR": "LR", "LR": "RR"}
+    nominal = load_table(Path(__file__).resolve().parents[1] / "tables" / "nominal.npz")
+    assert mirror_wheel_map(nominal) == MIRROR_WHEEL  # the mini rover's, unchanged
+
+
+def test_mirrored_six_wheel_table_is_the_mirrored_rovers_steady_state(mer_table):
+    """The mirror (locked LF) is checked by the physics, not by its own construction: the exact
+    residual of the mirrored table (its header's model) at its mirrored primitives vanishes on
+    the equality rows and equals the mirrored stored rows (the differential row flips sign, the
+    bogie rows swap)."""
+    from rtctl.mirror import mirror_table
+
+    m = mirror_table(mer_table)
+    assert m.name == "mer_rf_locked_backward_mirror"
+    assert [f["wheel"] for f in m.header["failures"]] == ["LF"]
+    lay = m.layout
+    res = SteadyStateResidual(SteadyStateModel.from_table_header(m.header, lay.wheels), lay)
+    gsc = np.asarray(lay.constraint_scale)
+    worst_eq = worst_g = 0.0
+    for k in np.argwhere(m.feasible):
+        tp = m.at(**m.grid_point(tuple(k)))
+        g, f = res.residual(np.array(tp.x, dtype=float), np.array(tp.p, dtype=float))
+        eq = np.asarray(tp.lbg) == np.asarray(tp.ubg)
+        worst_eq = max(worst_eq, float(np.max(np.abs(g[eq]) / gsc[eq])))
+        worst_g = max(worst_g, float(np.max(np.abs(g - np.asarray(tp.g)) / gsc)))
+        assert f == pytest.approx(float(np.ravel(tp.objective)[0]), rel=1e-12)
+        assert float(np.asarray(tp.x)[lay.var("omega", "LF")]) == 0.0  # the locked wheel, mirrored
+    assert worst_eq < TOL_EQ_AT_PRIMITIVE and worst_g < TOL_ROWS, (worst_eq, worst_g)
+
+
+def test_six_wheel_recording_round_trip_and_old_recordings_read_as_mini_rover(tmp_path):
+    from rtctl.messages import Commands, Measurements
+    from rtctl.recording import MINI_ROVER_WHEELS, Recorder, RecordingError, read_recording
+
+    wheels = ("RF", "LF", "RM", "LM", "RR", "LR")
+    m = Measurements(t=0.2, seq=1, wheel_speed=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6), steer_angle=(0.0,) * 6, yaw_rate=0.0)
+    c = Commands(0.2, 1, (0.01,) * 6, (0.0, 0.0, 0.0, 0.0, 0.1, -0.1))
+    with Recorder(tmp_path / "six.mcap", {"seed": 1}, wheels=wheels) as rec:
+        rec.measurements(m)
+        rec.commands(c)
+    back = read_recording(tmp_path / "six.mcap")
+    assert back.wheels == wheels and back.measurements == [m] and back.commands == [c]
+    with Recorder(tmp_path / "four.mcap", {"seed": 1}) as rec:  # no wheel set given: as before
+        rec.measurements(Measurements(0.2, 1, (0.1,) * 4, (0.0,) * 4, 0.0))
+    four = read_recording(tmp_path / "four.mcap")
+    assert "wheels" not in four.metadata and four.wheels == MINI_ROVER_WHEELS
+    with Recorder(tmp_path / "bad.mcap", wheels=wheels) as rec:  # a vector of the wrong count
+        rec.measurements(Measurements(0.2, 1, (0.1,) * 4, (0.0,) * 4, 0.0))
+    with pytest.raises(RecordingError, match=r"expected 6 values \(RF, LF, RM, LM, RR, LR\)"):
+        read_recording(tmp_path / "bad.mcap")

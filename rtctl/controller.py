@@ -65,6 +65,7 @@ flagged fallback: the interpolated primitive (with the declared failures), rate-
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,7 +81,7 @@ from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds
 from .inputs import Inputs, TickClock, read_measurements, wheel_vector_problem
 from .layout import WHEELS
 from .wheel_set import WheelSet, unsupported_reason, wheel_set_of
-from .messages import Commands, Diagnostics, Measurements, Task
+from .messages import Commands, Diagnostics, Measurements, Pose, Task
 from .mirror import MirrorError, mirror_table, mirror_wheel_map
 from .rti import RealTimeIteration
 from .physics.rover_file import RoverFileError, rover_spec_from_record
@@ -211,14 +212,27 @@ def _wheel_xy(table: Any) -> NDArray[np.float64] | None:
     return xy
 
 
+def _turned_half_round(inp: Inputs) -> Inputs:
+    """A body-frame measurement in the frame of a rover driving backward (the body turned by pi
+    about z, :meth:`Controller.feedback`)."""
+    def neg(v: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        return None if v is None else tuple(-q for q in v)
+
+    pose = inp.pose
+    if pose is not None:
+        pose = Pose(pose.t, pose.x, pose.y, float(wrap_angle(pose.heading + math.pi)))
+    return dataclasses.replace(inp, wheel_speed=neg(inp.wheel_speed), motor_torque=neg(inp.motor_torque),
+                               roll=-inp.roll, pitch=-inp.pitch, pose=pose)
+
+
 def _common_wheel_set(tables: Mapping[str, Any]) -> WheelSet:
     """The one wheel set of every table (:func:`rtctl.wheel_set.wheel_set_of`): the same wheel
     names in the same order, and the same steerable and driven flags where both tables record
-    them; else :class:`ControllerError` naming the tables of each wheel set."""
+    them, and one drive direction; else :class:`ControllerError` naming the tables of each."""
     sets = {name: wheel_set_of(t.header, t.layout) for name, t in sorted(tables.items())}
-    groups: dict[tuple[str, ...], list[str]] = {}
+    groups: dict[tuple[tuple[str, ...], str], list[str]] = {}
     for name, ws in sets.items():
-        groups.setdefault(ws.wheels, []).append(name)
+        groups.setdefault((ws.wheels, ws.drive_direction), []).append(name)
     if len(groups) > 1:
         raise ControllerError("the tables are for different wheel sets: " + "; ".join(
             f"{', '.join(names)}: {sets[names[0]].text()}" for names in groups.values())
@@ -385,6 +399,7 @@ class Controller:
         """The wheel set every loaded table is for (:mod:`rtctl.wheel_set`): names, count, steerable,
         driven; every per-wheel vector of the measurements and commands follows it."""
         self.wheels: tuple[str, ...] = self.wheel_set.wheels
+        self._backward = self.wheel_set.drive_direction == "backward"
         """Wheel names in the order of every per-wheel vector (the mini rover's FR, FL, RR, RL)."""
         self.mirrored: dict[str, str] = {}
         """Tables added as the left-right mirror of a loaded one (mirror name -> original), where no
@@ -760,10 +775,26 @@ class Controller:
         """Feedback phase: from the measurement to the commands (module docstring). Every field
         is converted once by :func:`rtctl.inputs.read_measurements`, and the time stamp and
         sequence number judged by :class:`rtctl.inputs.TickClock` (its docstring states the rule
-        and its constants); nothing raises."""
+        and its constants); nothing raises.
+
+        Tables of a rover driving backward (``wheel_set.drive_direction``, the rover turned half
+        round, :func:`rtctl.physics.rover_file.driving_backward`) are in the frame of the travel
+        direction; measurements and commands stay in the rover's body frame. The controller
+        turns them at this boundary: wheel speeds, motor torques and rim-speed commands change
+        sign, pitch and roll change sign, a pose's heading gains pi; steering angles (rotations
+        about z), the yaw rate and the position of O are the same in both frames. Diagnostics
+        are in the travel frame."""
+        cmd, diag = self._feedback(m)
+        if self._backward:
+            cmd = Commands(cmd.t, cmd.seq, tuple(-v for v in cmd.rim_speed), cmd.steer_angle)
+        return cmd, diag
+
+    def _feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
         cfg = self.config
         self._tick_flags = []
         inp = read_measurements(m, self.wheels)
+        if self._backward:
+            inp = _turned_half_round(inp)
         t, seq = inp.t, inp.seq
         if t is None or seq is None:
             self._count("rejected_bad_time_or_seq")

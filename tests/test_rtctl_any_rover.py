@@ -150,3 +150,116 @@ def test_six_wheel_recording_round_trip_and_old_recordings_read_as_mini_rover(tm
         rec.measurements(Measurements(0.2, 1, (0.1,) * 4, (0.0,) * 4, 0.0))
     with pytest.raises(RecordingError, match=r"expected 6 values \(RF, LF, RM, LM, RR, LR\)"):
         read_recording(tmp_path / "bad.mcap")
+
+
+# --- the controller on a six-wheel table (steps 1 and 4) --------------------------------------
+
+TOL_CMD_AT_GRID = 1e-6  # |command - primitive| / variable scale after 30 ticks at a grid point
+TOL_RESIDUAL_AT_GRID = 1e-8  # |exact residual| / row scale on the equality rows at the final iterate
+
+
+def _mer_controller(t, speed=0.02):
+    from dataclasses import replace
+
+    from rtctl.config import ControllerConfig
+    from rtctl.controller import Controller
+
+    cfg = ControllerConfig()
+    return Controller({t.name: t}, replace(cfg, drive=replace(cfg.drive, speed=speed)))
+
+
+def test_controller_drives_the_six_wheel_table_open_loop_to_its_primitive(mer_table):
+    """Synthetic body-frame measurements of the backward-driving rover at the grid point
+    (slope 0, speed 2 cm/s; wheel speeds negative: the rover drives backward) with the dead
+    wheel declared: every tick the QP, commands finite and within the rover file's limits, and
+    the commands (turned back into the travel frame) converge to the table's primitive, where the
+    exact residual vanishes."""
+    import math
+
+    from rtctl.controller import wheel_radius_of
+    from rtctl.messages import FailureDeclaration, Measurements
+
+    t = mer_table
+    c = _mer_controller(t)
+    assert c.wheels == ("RF", "LF", "RM", "LM", "RR", "LR") and c.wheel_set.drive_direction == "backward"
+    assert t.name in c.tables and not c.unavailable
+    assert c.mirrored == {"mer_rf_locked_backward_mirror": t.name}  # the locked left-front, from the positions
+    lay = t.layout
+    tp = t.at(slope=0.0, cross_slope=0.0, speed=0.02)
+    om = np.array([tp.x[lay.var("omega", w)] for w in lay.wheels])
+    be = np.array([tp.x[lay.var("beta", w)] for w in lay.wheels])
+    rs = wheel_radius_of(t)
+    spec = rover_spec_from_record(t.header["scenario"]["rover_file"])
+    fails = (FailureDeclaration("RF", "locked", math.nan),)
+    sx = lay.variable_scale
+    for k in range(30):
+        cmd, d = c.step(Measurements(0.2 * k, k, tuple(-om), tuple(be), 0.0, failures=fails))
+        assert d.mode == "qp" and d.table == t.name, (k, d.mode, d.reason)
+        rim, steer = np.array(cmd.rim_speed), np.array(cmd.steer_angle)
+        assert len(rim) == len(steer) == 6 and np.all(np.isfinite(rim)) and np.all(np.isfinite(steer))
+        omega = -rim / rs  # body frame -> travel frame
+        assert np.all(np.abs(omega) <= spec.actuators.drive_speed_max + 1e-12)
+        for i, w in enumerate(spec.wheels):
+            assert w.steer_min - 1e-12 <= steer[i] <= w.steer_max + 1e-12, (w.name, steer[i])
+        assert omega[0] == 0.0  # the locked wheel
+    err_om = np.max(np.abs(omega - om) / sx[[lay.var("omega", w) for w in lay.wheels]])
+    err_be = np.max(np.abs(steer - be) / sx[[lay.var("beta", w) for w in lay.wheels]])
+    assert max(err_om, err_be) < TOL_CMD_AT_GRID, (err_om, err_be)
+    res = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, lay.wheels), lay)
+    g, _ = res.residual(c._rtis[t.name].iterate, np.array(tp.p, dtype=float))
+    eq = np.asarray(tp.lbg) == np.asarray(tp.ubg)
+    assert np.max(np.abs(g[eq]) / lay.constraint_scale[eq]) < TOL_RESIDUAL_AT_GRID
+
+
+def test_measurements_of_another_wheel_count_are_rejected_with_the_expected_count(mer_table):
+    from rtctl.messages import Measurements
+
+    c = _mer_controller(mer_table)
+    cmd, d = c.step(Measurements(0.0, 0, (0.1,) * 4, (0.0,) * 4, 0.0))
+    assert len(cmd.rim_speed) == 6 and all(np.isfinite(cmd.rim_speed))
+    assert any("wheel_speed rejected: 4 entries, expected 6: one per wheel RF, LF, RM, LM, RR, LR" in f for f in d.flags)
+    assert dict(d.counters).get("rejected_wheel_vectors", 0) == 1
+
+
+def test_tables_of_two_wheel_sets_are_a_start_up_error(mer_table):
+    from rtctl.config import ControllerConfig
+    from rtctl.controller import Controller, ControllerError
+
+    nominal = load_table(Path(__file__).resolve().parents[1] / "tables" / "nominal.npz")
+    with pytest.raises(ControllerError, match=r"different wheel sets: mer_rf_locked_backward: 6 wheels RF.*; nominal: 4 "
+                                              r"wheels FR, FL, RR, RL"):
+        Controller({"nominal": nominal, "mer_rf_locked_backward": mer_table}, ControllerConfig())
+
+
+def _with_rover(t, spec, name):
+    import copy
+    import dataclasses
+
+    from rtctl.table import Table, content_hash
+
+    h = copy.deepcopy(t.header)
+    h["name"] = name
+    h["scenario"]["rover_file"] = dataclasses.asdict(spec)
+    h["wheel_set"] = {**h["wheel_set"], "suspension": spec.suspension, "rover": spec.name}
+    h.pop("content_hash", None)
+    arrays = {k: np.asarray(v) for k, v in t.arrays.items()}
+    h["content_hash"] = content_hash(h, arrays)
+    return Table(h, arrays, source="test")
+
+
+def test_skid_steer_and_headerless_rover_tables_stay_refused_with_their_reason(mer_table):
+    from rtctl.config import ControllerConfig
+    from rtctl.controller import Controller
+    from rtctl.wheel_set import unsupported_reason
+
+    assert unsupported_reason(mer_table.header, mer_table.layout) is None
+    skid = _with_rover(mer_table, shipped_rover("skid_steer_4w"), "skid_header")
+    why = unsupported_reason(skid.header, skid.layout)
+    assert why is not None and "'rigid' (skid-steer) rover is refused" in why and "unverified" in why
+    h = dict(mer_table.header)
+    h["scenario"] = {k: v for k, v in h["scenario"].items() if k != "rover_file"}
+    why2 = unsupported_reason(h, mer_table.layout)
+    assert why2 is not None and "no rover record" in why2
+    c = Controller({"mer_rf_locked_backward": mer_table, "skid_header": skid}, ControllerConfig())
+    assert "skid_header" in c.unavailable and "skid-steer" in c.unavailable["skid_header"]
+    assert c.wheels == ("RF", "LF", "RM", "LM", "RR", "LR")  # the refused table does not enter the wheel set

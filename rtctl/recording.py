@@ -95,7 +95,7 @@ def _schemas(wheels: tuple[str, ...]) -> dict[str, dict[str, Any]]:
     props["wheel_speed"] = props["steer_angle"] = arr
     props["motor_torque"] = {"oneOf": [arr, {"type": "null"}]}
     out["commands"]["properties"]["rim_speed"] = out["commands"]["properties"]["steer_angle"] = arr
-    return out  # type: ignore[no-any-return]
+    return out
 
 
 _SCHEMAS: dict[str, dict[str, Any]] = {

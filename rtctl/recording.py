@@ -51,6 +51,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from .layout import WHEELS
 from .messages import Commands, FailureDeclaration, Measurements, Pose, Task
 
 __all__ = ["RecordingError", "Recorder", "Recording", "read_recording", "export_csv", "TOPICS", "FORMAT_VERSION",
@@ -73,7 +74,7 @@ TOPICS = {
 
 _NUM = {"type": ["number", "string"], "description": "SI value; non-finite as 'NaN' / 'Infinity' / '-Infinity'"}
 _WHEELS4 = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4, "description": "FR, FL, RR, RL"}
-MINI_ROVER_WHEELS: tuple[str, ...] = ("FR", "FL", "RR", "RL")
+MINI_ROVER_WHEELS: tuple[str, ...] = WHEELS
 """The wheels of a recording whose metadata names none (every recording before issue 23; the mini
 rover of Table 7.2, :data:`rtctl.layout.WHEELS`)."""
 

@@ -263,3 +263,35 @@ def test_skid_steer_and_headerless_rover_tables_stay_refused_with_their_reason(m
     c = Controller({"mer_rf_locked_backward": mer_table, "skid_header": skid}, ControllerConfig())
     assert "skid_header" in c.unavailable and "skid-steer" in c.unavailable["skid_header"]
     assert c.wheels == ("RF", "LF", "RM", "LM", "RR", "LR")  # the refused table does not enter the wheel set
+
+
+def test_backward_table_turns_heading_and_tilt_at_the_boundary(mer_table):
+    """The rover drives backward: its body heading is the travel heading plus pi and it backs
+    uphill nose down. A body heading of pi + 3 deg is a travel heading 3 deg to the left (the
+    yaw-moment offset turns right, negative, as on the mini rover, tests/test_rtctl_real_table.py);
+    a body pitch of -2.5 deg (nose down) is the table's uphill slope +2.5 deg, +2.5 deg (nose up) a
+    downhill slope, read at the table's axis end 0."""
+    import math
+
+    from rtctl.messages import FailureDeclaration, Measurements, Pose
+
+    t = mer_table
+    lay = t.layout
+    tp = t.at(slope=0.0, cross_slope=0.0, speed=0.02)
+    om = tuple(-float(tp.x[lay.var("omega", w)]) for w in lay.wheels)
+    be = tuple(float(tp.x[lay.var("beta", w)]) for w in lay.wheels)
+    fails = (FailureDeclaration("RF", "locked", math.nan),)
+    for dh, sign in ((0.0, 0.0), (3.0, -1.0), (-3.0, 1.0)):
+        c = _mer_controller(t)
+        c.step(Measurements(0.0, 0, om, be, 0.0, failures=fails))
+        c.step(Measurements(0.2, 1, om, be, 0.0, failures=fails, pose=Pose(0.2, 0.0, 0.0, math.pi + math.radians(dh))))
+        _, d = c.step(Measurements(0.4, 2, om, be, 0.0, failures=fails))
+        assert d.mode == "qp" and math.degrees(d.heading_error) == pytest.approx(-dh, abs=1e-9)
+        assert np.sign(d.mz_offset) == sign
+    slopes = []
+    for pitch in (-2.5, 2.5):
+        c = _mer_controller(t)
+        for k in range(30):
+            _, d = c.step(Measurements(0.2 * k, k, om, be, 0.0, failures=fails, pitch=math.radians(pitch)))
+        slopes.append(dict(d.operating_point)["slope"])
+    assert slopes[0] == pytest.approx(math.radians(2.5), rel=0.05) and slopes[1] == 0.0

@@ -4,6 +4,15 @@
 the same sequence of measurements gives the same commands bit for bit; there is no clock, no
 randomness and no global state (the 5 Hz clock and the deadline are :mod:`rtctl.runner`'s).
 
+Wheel set: the controller takes it from its tables (:mod:`rtctl.wheel_set`: the mini rover's
+FR, FL, RR, RL, or a rover file's wheels, e.g. the MER-class RF, LF, RM, LM, RR, LR); every
+loaded table must be for the same wheels, steerable and driven flags and drive direction (else a
+start-up :class:`ControllerError` naming the tables), and every per-wheel vector of the
+measurements and commands has one entry per wheel in that order (:attr:`Controller.wheels`). A
+table this rtctl does not drive (a skid-steer rover's) is refused at start-up with its reason.
+Tables of a rover driving backward are in the travel frame; :meth:`Controller.feedback` turns the
+body-frame measurements and commands at the boundary.
+
 Each tick is one real-time iteration of the steady-state problem (7.25) (acados' SQP-RTI), split
 as there:
 

@@ -9,7 +9,8 @@ FR, FL, RR, RL, or a rover file's wheels, e.g. the MER-class RF, LF, RM, LM, RR,
 loaded table must be for the same wheels, steerable and driven flags and drive direction (else a
 start-up :class:`ControllerError` naming the tables), and every per-wheel vector of the
 measurements and commands has one entry per wheel in that order (:attr:`Controller.wheels`). A
-table this rtctl does not drive (a skid-steer rover's) is refused at start-up with its reason.
+table this rtctl does not drive (:func:`rtctl.wheel_set.unsupported_reason`) is refused at
+start-up with its reason.
 Tables of a rover driving backward are in the travel frame; :meth:`Controller.feedback` turns the
 body-frame measurements and commands at the boundary.
 

@@ -10,13 +10,13 @@ wheels are its layout's, and it was built from a rover file when its scenario re
 This version of rtctl drives the four-wheel rocker of Table 7.2 (wheels
 :data:`rtctl.layout.WHEELS`, balance rows :data:`rtctl.layout.BALANCE_ROWS`, from a scenario without
 a rover file) and the tables of a rover file whose suspension is a ``rocker`` or a
-``rocker_bogie`` (the MER-class six-wheel rover): the exact residual of each tick
+``rocker_bogie`` (the MER-class six-wheel rover) or ``rigid`` (the four-wheel skid-steer): the
+exact residual of each tick
 (:meth:`rtctl.physics.steady_state.SteadyStateModel.from_table_header`) is rebuilt from the
 header's rover record with :class:`rtctl.physics.suspension.SuspensionStatics`, the source the
 NLP's rows come from. A controller takes its wheel set from its tables (all of them agree, else a
-start-up error). Any other table (a ``rigid`` skid-steer rover's; :func:`unsupported_reason` says
-why) is refused at start-up with that text (counted among the unavailable tables and flagged),
-never driven.
+start-up error). Any other table (:func:`unsupported_reason` says which and why) is refused at
+start-up with that text (counted among the unavailable tables and flagged), never driven.
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def wheel_set_of(header: Mapping[str, Any], layout: NlpLayout) -> WheelSet:
     return WheelSet(wheels, None, None, "rocker", rover_name, None, None)
 
 
-SUPPORTED_SUSPENSIONS: tuple[str, ...] = ("rocker", "rocker_bogie")
+SUPPORTED_SUSPENSIONS: tuple[str, ...] = ("rocker", "rocker_bogie", "rigid")
 """Suspension kinds of a rover file whose tables this rtctl drives (:func:`unsupported_reason`)."""
 
 
@@ -131,19 +131,20 @@ def unsupported_reason(header: Mapping[str, Any], layout: NlpLayout) -> str | No
     * the four-wheel rocker of Table 7.2 (wheels :data:`rtctl.layout.WHEELS`, balance rows
       :data:`rtctl.layout.BALANCE_ROWS`) built from a scenario without a rover file;
     * a rover file's table of a suspension in :data:`SUPPORTED_SUSPENSIONS` (``rocker``,
-      ``rocker_bogie``: the MER-class six-wheel rover) whose header carries the rover record
-      (``scenario.rover_file``) the exact residual is rebuilt from, with the layout's wheels and
-      balance rows those of that record's suspension
+      ``rocker_bogie``: the MER-class six-wheel rover, ``rigid``: the four-wheel skid-steer)
+      whose header carries the rover record (``scenario.rover_file``) the exact residual is
+      rebuilt from, with the layout's wheels and balance rows those of that record's suspension
       (:class:`rtctl.physics.suspension.SuspensionStatics`), driving forward or backward.
 
-    Refused:
+    Refused (each with what to do):
 
-    * ``rigid`` (a skid-steer rover): no skid-steer table has been driven by rtctl's tests
-      yet (its turning by wheel-speed differences alone, with no steerable wheel, and the rigid
-      frame's height-compatibility rows in the QP are unverified on the rover side);
     * a rover file's table without the rover record (written before the header carried it):
       the exact residual cannot be rebuilt;
+    * a suspension kind outside :data:`SUPPORTED_SUSPENSIONS`, or a record whose wheels or
+      balance rows are not the layout's;
     * a table without a rover file whose wheels or balance rows are not the mini rover's.
+
+    (A rigid rover's table is driven but not mirrored: :func:`rtctl.mirror.mirror_wheel_map`.)
 
     Parameters
     ----------
@@ -177,10 +178,8 @@ def unsupported_reason(header: Mapping[str, Any], layout: NlpLayout) -> str | No
         return f"this table is for the {ws.text()}: {exc}"
     if spec.suspension not in SUPPORTED_SUSPENSIONS:
         return (f"this table is for the {ws.text()}: rtctl drives rover files with suspension "
-                f"{' or '.join(SUPPORTED_SUSPENSIONS)}; a {spec.suspension!r} (skid-steer) rover is refused because no "
-                "skid-steer table has been driven by rtctl's tests yet (turning by wheel-speed differences alone, "
-                "the rigid frame's height-compatibility rows in the QP: unverified on the rover side); take it out "
-                "of the controller's index (it serves the offline tools: offnominal tables verify/info)")
+                f"{', '.join(SUPPORTED_SUSPENSIONS)}, not {spec.suspension!r} (its statics are not built on the rover); "
+                "take it out of the controller's index (it serves the offline tools: offnominal tables verify/info)")
     if spec.wheel_names != ws.wheels:
         return (f"this table's rover record has wheels {', '.join(spec.wheel_names)}, its layout "
                 f"{', '.join(ws.wheels)}: rebuild the table")

@@ -157,7 +157,7 @@ def _layout(wheels=("FR", "FL", "RR", "RL"), rows=None):
 
 def test_wheel_set_rule_on_four_wheel_rover_files_and_older_headers():
     """Four wheels named FR, FL, RR, RL are not enough: a rover file's four-wheel rover (the rigid
-    skid-steer: its statics are not the rocker's the rover's residual uses) is refused too, and a
+    skid-steer) whose header lacks the rover record the residual is rebuilt from is refused, and a
     table written before the header carried the wheel set is judged from its scenario record."""
     lay = _layout()
     assert unsupported_reason({}, lay) is None

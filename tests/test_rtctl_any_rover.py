@@ -63,7 +63,7 @@ def test_model_from_header_is_the_suspension_statics(mer_table):
 def test_numpy_residual_equals_the_offline_nlp_at_the_grid_points(path, points, fixed, jacobian_points):
     """Values at every grid point; the Jacobian and gradient on the columns the bounds leave free,
     at the points where no wheel sits on the slip/skid switch (there the forward differences
-    straddle the wheel model's kink: measured up to 1.5 row scales per variable scale on the
+    straddle the wheel model's kink: measured up to 6 row scales per variable scale on the
     skid-steer's FL at slope 5 deg, which the optimizer put at slip 0)."""
     import casadi as ca
 

@@ -4,6 +4,16 @@
 the same sequence of measurements gives the same commands bit for bit; there is no clock, no
 randomness and no global state (the 5 Hz clock and the deadline are :mod:`rtctl.runner`'s).
 
+Wheel set: the controller takes it from its tables (:mod:`rtctl.wheel_set`: the mini rover's
+FR, FL, RR, RL, or a rover file's wheels, e.g. the MER-class RF, LF, RM, LM, RR, LR); every
+loaded table must be for the same wheels, steerable and driven flags and drive direction (else a
+start-up :class:`ControllerError` naming the tables), and every per-wheel vector of the
+measurements and commands has one entry per wheel in that order (:attr:`Controller.wheels`). A
+table this rtctl does not drive (:func:`rtctl.wheel_set.unsupported_reason`) is refused at
+start-up with its reason.
+Tables of a rover driving backward are in the travel frame; :meth:`Controller.feedback` turns the
+body-frame measurements and commands at the boundary.
+
 Each tick is one real-time iteration of the steady-state problem (7.25) (acados' SQP-RTI), split
 as there:
 
@@ -65,6 +75,7 @@ flagged fallback: the interpolated primitive (with the declared failures), rate-
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,14 +88,15 @@ from .allocator import AllocatorError, QpAllocator, merge_bounds
 from .config import ControllerConfig
 from .estimator import Odometry, SlipHeadingEKF, wheel_odometry, wrap_angle
 from .failures import FailureDescriptionError, KindSpec, apply_rules, read_kinds, read_table_failures, read_task_kinds, rule_text
-from .inputs import Inputs, TickClock, read_measurements
+from .inputs import Inputs, TickClock, read_measurements, wheel_vector_problem
 from .layout import WHEELS
-from .wheel_set import unsupported_reason
-from .messages import Commands, Diagnostics, Measurements, Task
-from .mirror import MIRROR_WHEEL, MirrorError, mirror_table
+from .wheel_set import WheelSet, unsupported_reason, wheel_set_of
+from .messages import Commands, Diagnostics, Measurements, Pose, Task
+from .mirror import MirrorError, mirror_table, mirror_wheel_map
 from .rti import RealTimeIteration
+from .physics.rover_file import RoverFileError, rover_spec_from_record
 
-_Quad = tuple[float, float, float, float]  # one value per wheel, in WHEELS order
+_Quad = tuple[float, ...]  # one value per wheel, in the wheel set's order (Controller.wheels)
 
 __all__ = ["ControllerError", "Controller", "table_signature", "wheel_radius_of", "wheel_radii_of", "steer_offsets_of",
            "load_tables"]
@@ -177,9 +189,10 @@ def wheel_radii_of(table: Any) -> tuple[float, ...]:
     with per-wheel radii), else :func:`wheel_radius_of` on every wheel."""
     world = table.header.get("world") or {}
     rs = world.get("shearing_radius_m")
-    if isinstance(rs, list) and len(rs) == len(WHEELS) and all(isinstance(v, (int, float)) for v in rs):
+    n = len(table.layout.wheels)
+    if isinstance(rs, list) and len(rs) == n and all(isinstance(v, (int, float)) for v in rs):
         return tuple(float(v) for v in rs)
-    return (wheel_radius_of(table),) * len(WHEELS)
+    return (wheel_radius_of(table),) * n
 
 
 def steer_offsets_of(table: Any) -> tuple[float, ...]:
@@ -187,9 +200,62 @@ def steer_offsets_of(table: Any) -> tuple[float, ...]:
     ``world`` record; zeros when the table has none."""
     world = table.header.get("world") or {}
     d = world.get("steer_offset_rad")
-    if isinstance(d, list) and len(d) == len(WHEELS) and all(isinstance(v, (int, float)) for v in d):
+    n = len(table.layout.wheels)
+    if isinstance(d, list) and len(d) == n and all(isinstance(v, (int, float)) for v in d):
         return tuple(float(v) for v in d)
-    return (0.0,) * len(WHEELS)
+    return (0.0,) * n
+
+
+def _wheel_xy(table: Any) -> NDArray[np.float64] | None:
+    """Wheel centres ``(2, N)`` (x forward, y left, body frame about O, m) of a table built from a
+    rover file (the header's ``scenario.rover_file`` record, as the builder used it); None for the
+    mini rover's tables (their geometry is the Table 7.2 rocker's track and length)."""
+    sc = table.header.get("scenario")
+    rec = sc.get("rover_file") if isinstance(sc, Mapping) else None
+    xy: NDArray[np.float64] | None = None
+    if isinstance(rec, Mapping):
+        try:
+            spec = rover_spec_from_record(rec, f"table {getattr(table, 'name', '?')}")
+            xy = np.array([[w.position[0] for w in spec.wheels], [w.position[1] for w in spec.wheels]])
+        except RoverFileError:
+            xy = None
+    return xy
+
+
+def _turned_half_round(inp: Inputs) -> Inputs:
+    """A body-frame measurement in the frame of a rover driving backward (the body turned by pi
+    about z, :meth:`Controller.feedback`)."""
+    def neg(v: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        return None if v is None else tuple(-q for q in v)
+
+    pose = inp.pose
+    if pose is not None:
+        pose = Pose(pose.t, pose.x, pose.y, float(wrap_angle(pose.heading + math.pi)))
+    return dataclasses.replace(inp, wheel_speed=neg(inp.wheel_speed), motor_torque=neg(inp.motor_torque),
+                               roll=-inp.roll, pitch=-inp.pitch, pose=pose)
+
+
+def _common_wheel_set(tables: Mapping[str, Any]) -> WheelSet:
+    """The one wheel set of every table (:func:`rtctl.wheel_set.wheel_set_of`): the same wheel
+    names in the same order, and the same steerable and driven flags where both tables record
+    them, and one drive direction; else :class:`ControllerError` naming the tables of each."""
+    sets = {name: wheel_set_of(t.header, t.layout) for name, t in sorted(tables.items())}
+    groups: dict[tuple[tuple[str, ...], str], list[str]] = {}
+    for name, ws in sets.items():
+        groups.setdefault((ws.wheels, ws.drive_direction), []).append(name)
+    if len(groups) > 1:
+        raise ControllerError("the tables are for different wheel sets: " + "; ".join(
+            f"{', '.join(names)}: {sets[names[0]].text()}" for names in groups.values())
+            + "; give the controller the tables of one rover (one index per rover)")
+    first = next(iter(sets.values()))
+    for attr in ("steerable", "driven"):
+        known = {name: getattr(ws, attr) for name, ws in sets.items() if getattr(ws, attr) is not None}
+        if len(set(known.values())) > 1:
+            raise ControllerError(f"the tables disagree on which wheels are {attr}: " + "; ".join(
+                f"{name}: {[w for w, f in zip(first.wheels, v) if f]}" for name, v in known.items())
+                + "; rebuild them from one rover file")
+    ref = next((ws for ws in sets.values() if ws.steerable is not None), first)
+    return ref
 
 
 class _Index:
@@ -339,6 +405,12 @@ class Controller:
                 kind_from.setdefault("task:" + k, name)
         if not tables:
             raise ControllerError("no usable table: " + "; ".join(f"{k}: {v}" for k, v in sorted(unavailable.items())))
+        self.wheel_set: WheelSet = _common_wheel_set(tables)
+        """The wheel set every loaded table is for (:mod:`rtctl.wheel_set`): names, count, steerable,
+        driven; every per-wheel vector of the measurements and commands follows it."""
+        self.wheels: tuple[str, ...] = self.wheel_set.wheels
+        self._backward = self.wheel_set.drive_direction == "backward"
+        """Wheel names in the order of every per-wheel vector (the mini rover's FR, FL, RR, RL)."""
         self.mirrored: dict[str, str] = {}
         """Tables added as the left-right mirror of a loaded one (mirror name -> original), where no
         loaded table serves the mirrored failures (:func:`rtctl.mirror.mirror_table`)."""
@@ -346,7 +418,11 @@ class Controller:
             sigs = {table_signature(t) for t in tables.values()}
             for name, t in sorted(tables.items()):
                 sig = table_signature(t)
-                msig = frozenset((MIRROR_WHEEL.get(w, w), k) for w, k in sig)
+                try:  # the mirror map from the wheel positions (the mini rover's FR-FL, RR-RL)
+                    wmap = mirror_wheel_map(t)
+                except MirrorError:  # not left-right symmetric, or a rigid frame: its mirror must be built
+                    continue
+                msig = frozenset((wmap.get(w, w), k) for w, k in sig)
                 if not sig or msig in sigs:
                     continue
                 try:
@@ -369,6 +445,7 @@ class Controller:
         self._gap_flags = tuple(f"table {k} unavailable since start-up: {v}; failures it served are imposed on "
                                 "another table" for k, v in self.unavailable.items())
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
+        self._xy = {k: _wheel_xy(t) for k, t in self.tables.items()}  # rover-file wheel centres (None: mini rover)
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         self._no_primitive = frozenset(k for k, t in self.tables.items()
                                        if getattr(t, "feasible", None) is not None and not np.any(t.feasible))
@@ -390,7 +467,7 @@ class Controller:
                                       "config (or build every table with the same per-wheel radii)")
             radii = sets.pop()
         else:
-            radii = (float(rs),) * len(WHEELS)
+            radii = (float(rs),) * len(self.wheels)
         offsets = {steer_offsets_of(t) for t in self.tables.values()}
         if len(offsets) != 1:
             raise ControllerError(f"steering offsets: tables give {sorted(offsets)}; build every table with the same "
@@ -448,7 +525,7 @@ class Controller:
         self._task: Task | None = None
         self._tick_flags: list[str] = []
         self._crab_cmd = self._crab_used = 0.0
-        self._steer_meas = [math.nan] * len(WHEELS)
+        self._steer_meas = [math.nan] * len(self.wheels)
         self._counters: dict[str, int] = {}
         self._prep: _Prepared | None = None
         self._table_error = ""
@@ -458,9 +535,9 @@ class Controller:
         self._steady_short = 0  # ... of them with the QP's answer held by no transient bound
         self._small_short = 0  # consecutive ticks with any slack above the small tolerance
         self._steady_box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
-        self._cmd_rules: list[tuple[float, float, bool, bool]] = [(-math.inf, math.inf, False, False)] * len(WHEELS)
+        self._cmd_rules: list[tuple[float, float, bool, bool]] = [(-math.inf, math.inf, False, False)] * len(self.wheels)
         self._param_fix: list[tuple[int, float]] = []
-        self._prev_cmd: tuple[_Quad, _Quad] = ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0))
+        self._prev_cmd: tuple[_Quad, _Quad] = ((0.0,) * len(self.wheels), (0.0,) * len(self.wheels))
         self.prepare()
         if self._prep is None:
             raise ControllerError(f"no table could be prepared at the start ({self._table_error}); check the tables")
@@ -627,8 +704,8 @@ class Controller:
         tname = getattr(table, "name", "?")
         mid = float(values[len(values) // 2])
         v = math.nan
-        if w in WHEELS and fam.get("axis") == axis:
-            i = WHEELS.index(w)
+        if w in self.wheels and fam.get("axis") == axis:
+            i = self.wheels.index(w)
             kind = dec.get("kind")
             if isinstance(kind, str):
                 spec = self.kinds.get(kind)
@@ -658,15 +735,15 @@ class Controller:
         wheel of a task whose description says so (a trench's digging wheel spins at several times
         the travel speed on purpose: in the trench primitive of section 7.3.1 it would make the
         rover-level slip ~0.6, dominated by that wheel, and the slip correction would chase it)."""
-        out = [True] * len(WHEELS)
-        if self._task is not None and self._task.wheel in WHEELS:  # the task's description says
+        out = [True] * len(self.wheels)
+        if self._task is not None and self._task.wheel in self.wheels:  # the task's description says
             spec = self.task_kinds.get(self._task.kind)
             if spec is None or not spec.odometry:
-                out[WHEELS.index(self._task.wheel)] = False
+                out[self.wheels.index(self._task.wheel)] = False
         for (w, k) in self._failures:  # the kind's description says; an unknown kind: left out to be safe
             spec = self.kinds.get(k)
-            if w in WHEELS and (spec is None or not spec.odometry):
-                out[WHEELS.index(w)] = False
+            if w in self.wheels and (spec is None or not spec.odometry):
+                out[self.wheels.index(w)] = False
         return out
 
     def _primitive_slip(self, x: NDArray[np.float64], tp: Any, ix: _Index, carried: bool = False) -> float:
@@ -690,7 +767,10 @@ class Controller:
         fx, fy, mz = c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 5]
         dfy = float(fy.sum())
         dmz = 0.0
-        if isinstance(wr, (int, float)) and isinstance(lr, (int, float)) and len(b) == len(WHEELS):
+        xy = self._xy.get(str(getattr(table, "name", "")))
+        if xy is not None and len(b) == xy.shape[1]:  # a rover file's wheel centres (body frame, about O)
+            dmz = float(np.sum(mz - xy[1] * fx + xy[0] * fy))
+        elif isinstance(wr, (int, float)) and isinstance(lr, (int, float)) and len(b) == len(WHEELS):
             dmz = float(np.sum(mz - _SIDE * fx * wr / 2 + _FRONT * fy * lr / 2))
         return dfy, dmz
 
@@ -705,10 +785,26 @@ class Controller:
         """Feedback phase: from the measurement to the commands (module docstring). Every field
         is converted once by :func:`rtctl.inputs.read_measurements`, and the time stamp and
         sequence number judged by :class:`rtctl.inputs.TickClock` (its docstring states the rule
-        and its constants); nothing raises."""
+        and its constants); nothing raises.
+
+        Tables of a rover driving backward (``wheel_set.drive_direction``, the rover turned half
+        round, :func:`rtctl.physics.rover_file.driving_backward`) are in the frame of the travel
+        direction; measurements and commands stay in the rover's body frame. The controller
+        turns them at this boundary: wheel speeds, motor torques and rim-speed commands change
+        sign, pitch and roll change sign, a pose's heading gains pi; steering angles (rotations
+        about z), the yaw rate and the position of O are the same in both frames. Diagnostics
+        are in the travel frame."""
+        cmd, diag = self._feedback(m)
+        if self._backward:
+            cmd = Commands(cmd.t, cmd.seq, tuple(-v for v in cmd.rim_speed), cmd.steer_angle)
+        return cmd, diag
+
+    def _feedback(self, m: Measurements) -> tuple[Commands, Diagnostics]:
         cfg = self.config
         self._tick_flags = []
-        inp = read_measurements(m)
+        inp = read_measurements(m, self.wheels)
+        if self._backward:
+            inp = _turned_half_round(inp)
         t, seq = inp.t, inp.seq
         if t is None or seq is None:
             self._count("rejected_bad_time_or_seq")
@@ -746,6 +842,11 @@ class Controller:
         self._read_task(inp)
         # ---- wheels
         om, st, valid = self._read_wheels(inp)
+        if inp.wheel_speed is None or inp.steer_angle is None:
+            for fname in ("wheel_speed", "steer_angle"):
+                why_w = wheel_vector_problem(getattr(m, fname, None), self.wheels)
+                if why_w:
+                    self._tick_flags.append(f"measurement {fname} rejected: {why_w}; every wheel taken out of the odometry")
         if first and (self._prep is None or self._prep.signature != self._declared()):
             # the first tick declares failures or a task the start-up preparation did not know:
             # prepare on the right table now and take its primitive as the previous command (the
@@ -897,12 +998,13 @@ class Controller:
         non-finite or out-of-range entry takes that wheel out, a missing vector all four."""
         cfg = self.config
         om_max = 2.0 * cfg.actuators.max_rim_speed / float(np.min(self.wheel_radii))
+        n = len(self.wheels)
         if inp.wheel_speed is None or inp.steer_angle is None:
             self._count("rejected_wheel_vectors")
-            return [0.0] * len(WHEELS), [0.0] * len(WHEELS), [False] * len(WHEELS)
+            return [0.0] * n, [0.0] * n, [False] * n
         om, st = list(inp.wheel_speed), list(inp.steer_angle)
         valid = []
-        for i, w in enumerate(WHEELS):
+        for i, w in enumerate(self.wheels):
             ok = abs(om[i]) <= om_max and abs(st[i]) <= math.pi  # NaN (rejected at the boundary) fails
             if not ok:
                 self._count(f"rejected_wheel_{w}")
@@ -1035,7 +1137,7 @@ class Controller:
         act = self.config.actuators
         r = [min(max(v, act.min_rim_speed), act.max_rim_speed) for v in rim]
         b = [min(max(v, -act.max_steer), act.max_steer) for v in steer]
-        return (r[0], r[1], r[2], r[3]), (b[0], b[1], b[2], b[3])
+        return tuple(r), tuple(b)
 
     def _limit(self, rim: tuple[float, ...], steer: tuple[float, ...], dt: float) -> tuple[_Quad, _Quad]:
         """Rate-limit from the previous command and clip into the actuator range; the result
@@ -1045,7 +1147,7 @@ class Controller:
         act = self.config.actuators
         prev_rim, prev_steer = self._prev_cmd
         out_r, out_s = [], []
-        for i in range(len(WHEELS)):
+        for i in range(len(self.wheels)):
             a = rim[i] if math.isfinite(rim[i]) else prev_rim[i]
             b = steer[i] if math.isfinite(steer[i]) else prev_steer[i]
             da, db = act.max_rim_accel * dt * (1 + 1e-9), act.max_steer_rate * dt * (1 + 1e-9)
@@ -1059,11 +1161,11 @@ class Controller:
                 a = min(max(a, r_lo), r_hi)  # a declared cap holds at once, like a lock
             out_r.append(min(max(a, act.min_rim_speed), act.max_rim_speed))
             out_s.append(min(max(b, -act.max_steer), act.max_steer))
-        return (out_r[0], out_r[1], out_r[2], out_r[3]), (out_s[0], out_s[1], out_s[2], out_s[3])
+        return tuple(out_r), tuple(out_s)
 
     def _valid(self, c: Commands) -> bool:
         act = self.config.actuators
-        return c.is_valid(act.max_rim_speed, act.max_steer) and all(v >= act.min_rim_speed for v in c.rim_speed)
+        return c.is_valid(act.max_rim_speed, act.max_steer, len(self.wheels)) and all(v >= act.min_rim_speed for v in c.rim_speed)
 
     def _unreachable(self, res: Any, box: tuple[NDArray[np.float64], NDArray[np.float64]]) -> None:
         """Say when the steady state is out of reach: the exact residual's linearised balance has

@@ -19,13 +19,14 @@ nothing after it sees the raw values, and nothing in it raises.
 * ``seq``: an ``int`` or numpy integer (not bool, not a float even if integral) with
   ``|seq| < 2**63`` (what a recording's int64 holds), else None.
 * ``wheel_speed``, ``steer_angle`` (and ``motor_torque``): a tuple, list or 1-d numpy array of
-  exactly four entries, else the whole vector is rejected (None); each entry a finite real,
+  exactly one entry per wheel of the wheel set (four for the mini rover; the controller's
+  tables' wheel set, :mod:`rtctl.wheel_set`), else the whole vector is rejected (None); each entry a finite real,
   else that entry is NaN (the controller takes the wheel out).
 * ``yaw_rate``, ``roll``, ``pitch``: a finite real, else NaN.
 * ``pose``: None, or a :class:`rtctl.messages.Pose` whose four fields are finite reals (the
   result holds plain floats); anything else is counted as an invalid pose.
 * ``failures``: a tuple or list of :class:`rtctl.messages.FailureDeclaration` whose ``wheel``
-  is a string of :data:`rtctl.layout.WHEELS`, whose ``kind`` is a string that looks like a kind's
+  is a wheel name of the wheel set, whose ``kind`` is a string that looks like a kind's
   name (:data:`rtctl.failures.KIND_NAME`) and whose value is a real (NaN allowed: "no value";
   infinite not). Every other entry is counted and dropped; a ``failures`` field that is not a
   tuple or list counts once and declares nothing. Whether the value fits its kind (its range,
@@ -80,7 +81,7 @@ import math
 import numbers
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -90,7 +91,7 @@ from .messages import FailureDeclaration, Pose, Task
 
 __all__ = ["MAX_ABS_TIME", "MAX_ABS_SEQ", "RATE_TOLERANCE", "SLACK_TICKS", "MAX_STEP_TIME", "MAX_STEP_SEQ",
            "REBASE_AFTER", "real", "finite_real", "integer", "Inputs", "read_measurements", "TickClock",
-           "safe_repr"]
+           "safe_repr", "wheel_vector_problem"]
 
 MAX_ABS_TIME = 1e9
 """s: largest time stamp magnitude (31 years of a monotonic clock; the float spacing there is
@@ -151,20 +152,42 @@ def integer(v: Any) -> int | None:
     return i if -MAX_ABS_SEQ < i < MAX_ABS_SEQ else None
 
 
-def _quad(v: Any) -> tuple[float, float, float, float] | None:
-    """Four finite reals (NaN where an entry is not one) from a tuple, list or 1-d array of four."""
+def _per_wheel(v: Any, n: int) -> tuple[float, ...] | None:
+    """``n`` finite reals (NaN where an entry is not one) from a tuple, list or 1-d array of ``n``
+    (one per wheel of the wheel set); None for anything else (another count, another type)."""
     if isinstance(v, np.ndarray):
-        if v.ndim != 1 or v.shape[0] != len(WHEELS):
+        if v.ndim != 1 or v.shape[0] != n:
             return None
         items: list[Any] = list(v)
     elif isinstance(v, (tuple, list)):
-        if len(v) != len(WHEELS):
+        if len(v) != n:
             return None
         items = list(v)
     else:
         return None
-    a, b, c, d = (finite_real(x) for x in items)
-    return a, b, c, d
+    return tuple(finite_real(x) for x in items)
+
+
+def wheel_vector_problem(v: Any, wheels: Sequence[str]) -> str:
+    """Why a per-wheel vector is rejected (count or type against the wheel set), "" if it is not.
+
+    Parameters
+    ----------
+    v : any
+        The raw field.
+    wheels : sequence of str
+        The wheel set's names, in order.
+    """
+    n = len(wheels)
+    if isinstance(v, np.ndarray):
+        if v.ndim == 1 and v.shape[0] == n:
+            return ""
+        return f"an array of shape {v.shape}, expected ({n},): one entry per wheel {', '.join(wheels)}"
+    if isinstance(v, (tuple, list)):
+        if len(v) == n:
+            return ""
+        return f"{len(v)} entries, expected {n}: one per wheel {', '.join(wheels)}"
+    return f"a {type(v).__name__}, expected a tuple of {n} numbers (wheels {', '.join(wheels)})"
 
 
 def _get(obj: Any, name: str, default: Any) -> Any:
@@ -184,11 +207,11 @@ class Inputs:
         Time stamp, s (None: not a finite real within :data:`MAX_ABS_TIME`).
     seq : int or None
         Sequence number (None: not an integer within :data:`MAX_ABS_SEQ`).
-    wheel_speed, steer_angle : tuple of 4 float or None
+    wheel_speed, steer_angle : tuple of float (one per wheel) or None
         Per-wheel readings (NaN: that entry rejected; None: the vector rejected).
     yaw_rate, roll, pitch : float
         NaN where rejected.
-    motor_torque : tuple of 4 float or None
+    motor_torque : tuple of float (one per wheel) or None
         As ``wheel_speed`` (None also when not measured).
     pose : Pose or None
         The fix with float fields; None when none came or it was rejected (``pose_invalid``).
@@ -206,12 +229,12 @@ class Inputs:
 
     t: float | None
     seq: int | None
-    wheel_speed: tuple[float, float, float, float] | None
-    steer_angle: tuple[float, float, float, float] | None
+    wheel_speed: tuple[float, ...] | None
+    steer_angle: tuple[float, ...] | None
     yaw_rate: float
     roll: float
     pitch: float
-    motor_torque: tuple[float, float, float, float] | None
+    motor_torque: tuple[float, ...] | None
     pose: Pose | None
     pose_invalid: bool
     failures: tuple[FailureDeclaration, ...]
@@ -220,11 +243,11 @@ class Inputs:
     rejected_task: str
 
 
-def _failure(f: Any) -> FailureDeclaration | None:
+def _failure(f: Any, wheels: Sequence[str]) -> FailureDeclaration | None:
     if not isinstance(f, FailureDeclaration):
         return None
     w, k = _get(f, "wheel", None), _get(f, "kind", None)
-    if not (isinstance(w, str) and w in WHEELS and isinstance(k, str) and KIND_NAME.match(k)):
+    if not (isinstance(w, str) and w in wheels and isinstance(k, str) and KIND_NAME.match(k)):
         return None
     v = real(_get(f, "value", None))
     if v is None or math.isinf(v):
@@ -232,18 +255,27 @@ def _failure(f: Any) -> FailureDeclaration | None:
     return FailureDeclaration(w, k, v)
 
 
-def _task(task: Any) -> Task | None:
+def _task(task: Any, wheels: Sequence[str]) -> Task | None:
     if not isinstance(task, Task):
         return None
     k, w = _get(task, "kind", None), _get(task, "wheel", None)
     v = finite_real(_get(task, "value", None))
-    if not (isinstance(k, str) and KIND_NAME.match(k) and isinstance(w, str) and w in WHEELS and math.isfinite(v)):
+    if not (isinstance(k, str) and KIND_NAME.match(k) and isinstance(w, str) and w in wheels and math.isfinite(v)):
         return None  # the kind and its value's range are checked against the tables' descriptions
     return Task(k, w, v)
 
 
-def read_measurements(m: Any) -> Inputs:
-    """Convert every field of a measurement (module docstring); never raises."""
+def read_measurements(m: Any, wheels: Sequence[str] = WHEELS) -> Inputs:
+    """Convert every field of a measurement (module docstring); never raises.
+
+    Parameters
+    ----------
+    m : any
+        The measurement (:class:`rtctl.messages.Measurements` or anything with its fields).
+    wheels : sequence of str
+        The wheel set (default the mini rover's :data:`rtctl.layout.WHEELS`): the count of every
+        per-wheel vector and the names a failure or a task may name.
+    """
     t = finite_real(_get(m, "t", None))
     seq = integer(_get(m, "seq", None))
     raw_pose = _get(m, "pose", None)
@@ -261,7 +293,7 @@ def read_measurements(m: Any) -> Inputs:
     n_bad = 0
     if isinstance(raw_f, (tuple, list)):
         for f in raw_f:
-            ok = _failure(f)
+            ok = _failure(f, wheels)
             if ok is None:
                 n_bad += 1
             else:
@@ -269,12 +301,14 @@ def read_measurements(m: Any) -> Inputs:
     else:
         n_bad = 1
     raw_task = _get(m, "task", None)
-    task = _task(raw_task)
+    task = _task(raw_task, wheels)
+    n = len(wheels)
     return Inputs(
         t=t if abs(t) <= MAX_ABS_TIME else None, seq=seq,
-        wheel_speed=_quad(_get(m, "wheel_speed", None)), steer_angle=_quad(_get(m, "steer_angle", None)),
+        wheel_speed=_per_wheel(_get(m, "wheel_speed", None), n),
+        steer_angle=_per_wheel(_get(m, "steer_angle", None), n),
         yaw_rate=finite_real(_get(m, "yaw_rate", None)), roll=finite_real(_get(m, "roll", None)),
-        pitch=finite_real(_get(m, "pitch", None)), motor_torque=_quad(_get(m, "motor_torque", None)),
+        pitch=finite_real(_get(m, "pitch", None)), motor_torque=_per_wheel(_get(m, "motor_torque", None), n),
         pose=pose, pose_invalid=pose_invalid, failures=tuple(fails), rejected_failures=n_bad, task=task,
         rejected_task="" if raw_task is None or task is not None else safe_repr(raw_task))
 

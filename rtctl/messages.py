@@ -9,7 +9,9 @@ controller converts every field once at its boundary (:mod:`rtctl.inputs`: a fie
 a finite real number of the right type -- a string, None, a bool, an int beyond the float
 range -- is rejected and counted, never parsed and never an exception).
 
-Wheel order everywhere: :data:`rtctl.layout.WHEELS` (FR, FL, RR, RL).
+Wheel order everywhere: the tables' wheel set (:mod:`rtctl.wheel_set`, the controller's
+:attr:`~rtctl.controller.Controller.wheels`): the mini rover's :data:`rtctl.layout.WHEELS` (FR, FL,
+RR, RL), or a rover file's wheels in file order (N per-wheel entries).
 """
 
 from __future__ import annotations
@@ -112,15 +114,15 @@ class Measurements:
         Sequence number (increments by one per tick; gaps and repeats are detected). A time
         stamp and sequence number that jump implausibly from the last accepted measurement are
         rejected; a restart is taken up after a few consistent ticks (:mod:`rtctl.inputs`).
-    wheel_speed : tuple of 4 float
+    wheel_speed : tuple of float (one per wheel)
         Encoder wheel angular speed omega per wheel, rad/s.
-    steer_angle : tuple of 4 float
+    steer_angle : tuple of float (one per wheel)
         Encoder steering angle per wheel, rad (positive turns the wheel's heading left).
     yaw_rate : float
         IMU (gyro) yaw rate, rad/s.
     roll, pitch : float
         IMU tilt, rad (pitch positive nose up, roll positive left side up).
-    motor_torque : tuple of 4 float or None
+    motor_torque : tuple of float (one per wheel) or None
         Drive motor torque per wheel, N m, where the rover measures it.
     pose : Pose or None
         A pose fix, if one arrived at this tick.
@@ -132,12 +134,12 @@ class Measurements:
 
     t: float
     seq: int
-    wheel_speed: tuple[float, float, float, float]
-    steer_angle: tuple[float, float, float, float]
+    wheel_speed: tuple[float, ...]
+    steer_angle: tuple[float, ...]
     yaw_rate: float
     roll: float = 0.0
     pitch: float = 0.0
-    motor_torque: tuple[float, float, float, float] | None = None
+    motor_torque: tuple[float, ...] | None = None
     pose: Pose | None = None
     failures: tuple[FailureDeclaration, ...] = field(default_factory=tuple)
     task: Task | None = None
@@ -153,21 +155,22 @@ class Commands:
         Time stamp of the measurement they answer, s.
     seq : int
         Sequence number of that measurement.
-    rim_speed : tuple of 4 float
+    rim_speed : tuple of float (one per wheel)
         Commanded rim speed ``omega * r_s`` per wheel, m/s.
-    steer_angle : tuple of 4 float
+    steer_angle : tuple of float (one per wheel)
         Commanded steering angle per wheel, rad.
     """
 
     t: float
     seq: int
-    rim_speed: tuple[float, float, float, float]
-    steer_angle: tuple[float, float, float, float]
+    rim_speed: tuple[float, ...]
+    steer_angle: tuple[float, ...]
 
-    def is_valid(self, max_rim_speed: float, max_steer: float) -> bool:
-        """Finite, four wheels, within ``|rim_speed| <= max_rim_speed`` and ``|steer| <= max_steer``."""
+    def is_valid(self, max_rim_speed: float, max_steer: float, n_wheels: int = len(WHEELS)) -> bool:
+        """Finite, ``n_wheels`` entries in each vector (default the mini rover's four), within
+        ``|rim_speed| <= max_rim_speed`` and ``|steer| <= max_steer``."""
         vals = (*self.rim_speed, *self.steer_angle)
-        return (len(self.rim_speed) == len(WHEELS) == len(self.steer_angle)
+        return (len(self.rim_speed) == n_wheels == len(self.steer_angle)
                 and all(math.isfinite(v) for v in vals)
                 and all(abs(v) <= max_rim_speed for v in self.rim_speed)
                 and all(abs(v) <= max_steer for v in self.steer_angle))

@@ -22,19 +22,22 @@ part of the soil-flow model's convention, not checked here to be symmetric.
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .physics.rover_file import RoverFileError, rover_spec_from_record
 from .table import CONTROLLER_NAMES, Table, content_hash
 
-__all__ = ["MirrorError", "MIRROR_WHEEL", "mirror_table", "mirror_name"]
+__all__ = ["MirrorError", "MIRROR_WHEEL", "mirror_table", "mirror_name", "mirror_wheel_map"]
 
 MIRROR_WHEEL = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}
-"""The wheel each wheel becomes in the mirror."""
+"""The wheel each wheel becomes in the mirror (the mini rover's; a rover file's: :func:`mirror_wheel_map`)."""
+_MIRROR_TOL_M = 1e-9  # m: a wheel centre or pivot and its mirror image may differ by this
 _LATERAL_PARAMETERS = ("cross_slope", "fy_offset", "mz_offset")
-_LATERAL_ROWS = ("balance Fy", "balance Mx", "balance Mz")
+_LATERAL_ROWS = ("balance Fy", "balance Mx", "balance Mz", "balance My_differential")
+"""Rows that change sign in the mirror (the rocker-bogie's differential row is right minus left)."""
 _FLIPPED_AXES = ("cross_slope", "steer_stuck")
 _WRENCH_SIGN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # Fx, Fy, Fz, Mx, My, Mz
 _STATE_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0])  # vx, vy, omega, h, h0
@@ -44,27 +47,116 @@ class MirrorError(ValueError):
     """A table that cannot be mirrored (its name says why)."""
 
 
-def mirror_name(name: str) -> str:
-    """``rr_steer_stuck`` -> ``rl_steer_stuck`` (a wheel prefix swapped), else ``<name>_mirror``."""
+def mirror_name(name: str, wheel_map: Mapping[str, str] = MIRROR_WHEEL) -> str:
+    """``rr_steer_stuck`` -> ``rl_steer_stuck`` (a wheel prefix swapped), else ``<name>_mirror``.
+
+    Parameters
+    ----------
+    name : str
+        The table's name.
+    wheel_map : mapping
+        Wheel -> its mirror (default the mini rover's :data:`MIRROR_WHEEL`).
+    """
     head, _, rest = name.partition("_")
+    upper = {k.upper(): v for k, v in wheel_map.items()}
     w = head.upper()
-    return f"{MIRROR_WHEEL[w].lower()}_{rest}" if w in MIRROR_WHEEL and rest else f"{name}_mirror"
+    return f"{upper[w].lower()}_{rest}" if w in upper and rest else f"{name}_mirror"
 
 
-def _names_map(names: list[str]) -> NDArray[np.intp]:
+def _rover_record(t: Any) -> Mapping[str, Any] | None:
+    sc = t.header.get("scenario")
+    rec = sc.get("rover_file") if isinstance(sc, Mapping) else None
+    return rec if isinstance(rec, Mapping) else None
+
+
+def _mirror_maps(t: Any) -> tuple[dict[str, str], dict[str, str]]:
+    """``(wheel map, name-token map)`` of a table's mirror (:func:`mirror_wheel_map`); the token map
+    also swaps the balance rows of mirrored links (``My_right`` <-> ``My_left``,
+    ``My_bogie_right`` <-> ``My_bogie_left``)."""
+    rec = _rover_record(t)
+    name = getattr(t, "name", "?")
+    if rec is None:  # the mini rover of Table 7.2
+        wheels = tuple(t.layout.wheels)
+        if not set(wheels) <= set(MIRROR_WHEEL):
+            raise MirrorError(f"table {name}: wheels {list(wheels)} without a rover record: no mirror map")
+        return dict(MIRROR_WHEEL), {**MIRROR_WHEEL, "My_right": "My_left", "My_left": "My_right"}
+    try:
+        spec = rover_spec_from_record(rec, f"table {name}")
+    except RoverFileError as exc:
+        raise MirrorError(str(exc)) from None
+    if spec.suspension == "rigid":
+        raise MirrorError(f"table {name}: a rigid (skid-steer) rover's height-compatibility rows are a basis of "
+                          "the wheel heights' null space, not a signed permutation under the mirror; build the "
+                          "mirrored table")
+    if spec.suspension == "rocker" and any(c != 0.0 for c in spec.centre_of_mass):
+        raise MirrorError(f"table {name}: the body of this rocker rover is fixed to one rocker and its centre of "
+                          "mass is off O, so its mirror is another rover; build the mirrored table")
+    tol = _MIRROR_TOL_M
+
+    def image(v: tuple[float, float, float]) -> tuple[float, float, float]:
+        return v[0], -v[1], v[2]
+
+    def near(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+        return all(abs(x - y) <= tol for x, y in zip(a, b))
+
+    why = f"table {name}: rover {spec.name} is not left-right symmetric"
+    if abs(spec.centre_of_mass[1]) > tol:
+        raise MirrorError(f"{why} (centre of mass y = {spec.centre_of_mass[1]} m); build the mirrored table")
+    wmap: dict[str, str] = {}
+    for w in spec.wheels:
+        match = [v for v in spec.wheels if near(v.position, image(w.position))]
+        if len(match) != 1 or (match[0].steerable, match[0].driven) != (w.steerable, w.driven) \
+                or abs(match[0].steer_min + w.steer_max) > tol or abs(match[0].steer_max + w.steer_min) > tol:
+            raise MirrorError(f"{why} (wheel {w.name} has no mirror image of the same kind); build the mirrored table")
+        wmap[w.name] = match[0].name
+    tokens = dict(wmap)
+    for lk in spec.links:
+        match_l = [m for m in spec.links if near(m.pivot, image(lk.pivot))]
+        if len(match_l) != 1:
+            raise MirrorError(f"{why} (link {lk.name} has no mirror image); build the mirrored table")
+        tokens[f"My_{lk.name}"] = f"My_{match_l[0].name}"
+    tokens.update({"My_right": "My_left", "My_left": "My_right"})
+    return wmap, tokens
+
+
+def mirror_wheel_map(t: Any) -> dict[str, str]:
+    """The wheel each wheel of a table becomes in its left-right mirror.
+
+    The mini rover's :data:`MIRROR_WHEEL` for a table without a rover record; for a table built
+    from a rover file, from its wheel positions (the header's ``scenario.rover_file``): the wheel
+    at ``(x, -y, z)`` with the same steerable and driven flags and the mirrored steering range.
+
+    Parameters
+    ----------
+    t : Table
+        The table.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    MirrorError
+        No mirror within this rover: not left-right symmetric, or a rigid frame (its
+        height-compatibility rows do not map to rows), or a one-sided rocker body off O.
+    """
+    return _mirror_maps(t)[0]
+
+
+def _names_map(names: list[str], tokens: Mapping[str, str]) -> NDArray[np.intp]:
     """Index of each name's mirror in the same list (``'load RR'`` <-> ``'load RL'``, ...)."""
     out = []
     for n in names:
-        parts = n.split(" ")
-        m = " ".join(MIRROR_WHEEL.get(p, p) for p in parts)
-        m = {"balance My_right": "balance My_left", "balance My_left": "balance My_right"}.get(m, m)
+        m = " ".join(tokens.get(p, p) for p in n.split(" "))
         out.append(names.index(m))
     return np.array(out, dtype=np.intp)
 
 
-def _signed_permutation(names: list[str], flipped: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+def _signed_permutation(names: list[str], flipped: Any, tokens: Mapping[str, str]
+                        ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
     """``(source index, sign)`` per entry: entry ``i`` of the mirror is ``sign[i] * v[src[i]]``."""
-    src = _names_map(names)
+    src = _names_map(names, tokens)
     sign = np.array([-1.0 if flipped(names[j]) else 1.0 for j in src])
     return src, sign
 
@@ -83,14 +175,15 @@ def mirror_table(t: Table) -> Table:
         raise MirrorError(f"table {t.name}: a trench table is not mirrored (the clean side is a convention of the "
                           "soil-flow model); build the mirrored trench table")
     lay = t.layout
+    wmap, tokens = _mirror_maps(t)
     try:
-        vs, vsign = _signed_permutation(list(lay.variable_names), lambda n: n.startswith("beta "))
-        ps, psign = _signed_permutation(list(lay.parameter_names), lambda n: n in _LATERAL_PARAMETERS)
-        gs, gsign = _signed_permutation(list(lay.constraint_names), lambda n: n in _LATERAL_ROWS)
-    except ValueError as exc:
+        vs, vsign = _signed_permutation(list(lay.variable_names), lambda n: n.startswith("beta "), tokens)
+        ps, psign = _signed_permutation(list(lay.parameter_names), lambda n: n in _LATERAL_PARAMETERS, tokens)
+        gs, gsign = _signed_permutation(list(lay.constraint_names), lambda n: n in _LATERAL_ROWS, tokens)
+        wheels = list(lay.wheels)
+        ws = np.array([wheels.index(wmap[w]) for w in wheels])
+    except (ValueError, KeyError) as exc:
         raise MirrorError(f"table {t.name}: a name of its layout has no mirror ({exc})") from None
-    wheels = list(lay.wheels)
-    ws = np.array([wheels.index(MIRROR_WHEEL[w]) for w in wheels])
     flip_axes = [i for i, k in enumerate(t.axis_order) if k in _FLIPPED_AXES and len(t.axes[k]) > 1]
     nd = len(t.shape)
 
@@ -170,7 +263,7 @@ def mirror_table(t: Table) -> Table:
     arrays = {k: grid(np.asarray(v)) for k, v in out.items()}
 
     hm = copy.deepcopy(h)
-    name = mirror_name(t.name)
+    name = mirror_name(t.name, wmap)
     hm["name"] = name
     hm["description"] = f"Left-right mirror of table {t.name} (rtctl.mirror): {h.get('description', '')}"
     hm["mirror_of"] = {"name": t.name, "content_hash": h.get("content_hash")}
@@ -178,8 +271,8 @@ def mirror_table(t: Table) -> Table:
         if k in hm.get("axes", {}):
             hm["axes"][k]["values"] = [-float(v) for v in reversed(hm["axes"][k]["values"])]
     fam = hm.get("family")
-    if isinstance(fam, dict) and fam.get("wheel") in MIRROR_WHEEL:
-        fam["wheel"] = MIRROR_WHEEL[fam["wheel"]]
+    if isinstance(fam, dict) and fam.get("wheel") in wmap:
+        fam["wheel"] = wmap[fam["wheel"]]
     scm = hm.get("scenario")
     if isinstance(scm, dict):
         scm["name"] = name
@@ -197,7 +290,7 @@ def mirror_table(t: Table) -> Table:
                         f["steer_min"], f["steer_max"] = -float(hi), -float(lo)
                     if isinstance(f.get("steer_stuck"), (int, float)):
                         f["steer_stuck"] = -float(f["steer_stuck"])
-                new[MIRROR_WHEEL.get(w, w)] = f
+                new[wmap.get(w, w)] = f
             scm["failures"] = new
     recs = hm.get("failures")  # the failure description (rtctl.failures): wheels swapped, values by their kind's rule
     if isinstance(recs, list):
@@ -208,7 +301,7 @@ def mirror_table(t: Table) -> Table:
             if isinstance(r, dict):
                 r = dict(r)
                 w0 = str(r.get("wheel"))
-                r["wheel"] = MIRROR_WHEEL.get(w0, w0)
+                r["wheel"] = wmap.get(w0, w0)
                 kd = kinds.get(str(r.get("kind")))
                 mv = kd.get("mirror_value") if isinstance(kd, dict) else None
                 if isinstance(r.get("value"), (int, float)) and isinstance(mv, (int, float)):
@@ -219,8 +312,8 @@ def mirror_table(t: Table) -> Table:
             new_recs.append(r)
         hm["failures"] = new_recs
     task = hm.get("task")
-    if isinstance(task, dict) and task.get("wheel") in MIRROR_WHEEL:
-        hm["task"] = {**task, "wheel": MIRROR_WHEEL[task["wheel"]]}
+    if isinstance(task, dict) and task.get("wheel") in wmap:
+        hm["task"] = {**task, "wheel": wmap[task["wheel"]]}
     world = hm.get("world")
     if isinstance(world, dict):
         for key in ("wheel_radius_m", "shearing_radius_m", "steer_offset_rad"):

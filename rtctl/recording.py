@@ -51,11 +51,12 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from .layout import WHEELS
 from .messages import Commands, FailureDeclaration, Measurements, Pose, Task
 
 __all__ = ["RecordingError", "Recorder", "Recording", "read_recording", "export_csv", "TOPICS", "FORMAT_VERSION",
            "READABLE_VERSIONS", "to_jsonable", "provenance", "compare_provenance", "PROVENANCE_REFUSE",
-           "PROVENANCE_WARN"]
+           "PROVENANCE_WARN", "MINI_ROVER_WHEELS"]
 
 FORMAT_VERSION = "2"
 """Written by this recorder. 2 added the measurements' ``task`` (the operator's driving task)."""
@@ -73,6 +74,31 @@ TOPICS = {
 
 _NUM = {"type": ["number", "string"], "description": "SI value; non-finite as 'NaN' / 'Infinity' / '-Infinity'"}
 _WHEELS4 = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4, "description": "FR, FL, RR, RL"}
+MINI_ROVER_WHEELS: tuple[str, ...] = WHEELS
+"""The wheels of a recording whose metadata names none (every recording before issue 23; the mini
+rover of Table 7.2, :data:`rtctl.layout.WHEELS`)."""
+
+
+def _wheel_array(wheels: tuple[str, ...]) -> dict[str, Any]:
+    if wheels == MINI_ROVER_WHEELS:
+        return _WHEELS4  # the schema every mini-rover recording has carried
+    n = len(wheels)
+    return {"type": "array", "items": _NUM, "minItems": n, "maxItems": n, "description": ", ".join(wheels)}
+
+
+def _schemas(wheels: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """The channel schemas of a recording of ``wheels`` (the mini rover's: :data:`_SCHEMAS` itself)."""
+    if wheels == MINI_ROVER_WHEELS:
+        return _SCHEMAS
+    arr = _wheel_array(wheels)
+    out = json.loads(json.dumps(_SCHEMAS))
+    props = out["measurements"]["properties"]
+    props["wheel_speed"] = props["steer_angle"] = arr
+    props["motor_torque"] = {"oneOf": [arr, {"type": "null"}]}
+    out["commands"]["properties"]["rim_speed"] = out["commands"]["properties"]["steer_angle"] = arr
+    return out
+
+
 _SCHEMAS: dict[str, dict[str, Any]] = {
     "measurements": {
         "title": "rtctl.Measurements", "type": "object",
@@ -153,22 +179,23 @@ def _commands_out(c: Commands) -> dict[str, Any]:
     return to_jsonable(c)
 
 
-def _tuple4(v: Any, what: str) -> tuple[float, float, float, float]:
-    if not isinstance(v, list) or len(v) != 4:
-        raise RecordingError(f"{what}: expected 4 values (FR, FL, RR, RL), got {v!r}")
-    return tuple(_num_in(x) for x in v)  # type: ignore[return-value]
+def _per_wheel(v: Any, what: str, wheels: tuple[str, ...]) -> tuple[float, ...]:
+    if not isinstance(v, list) or len(v) != len(wheels):
+        raise RecordingError(f"{what}: expected {len(wheels)} values ({', '.join(wheels)}), got {v!r}")
+    return tuple(_num_in(x) for x in v)
 
 
-def measurements_from_json(d: Mapping[str, Any]) -> Measurements:
-    """Rebuild a :class:`Measurements` from its recorded JSON object."""
+def measurements_from_json(d: Mapping[str, Any], wheels: tuple[str, ...] = MINI_ROVER_WHEELS) -> Measurements:
+    """Rebuild a :class:`Measurements` from its recorded JSON object (``wheels``: the recording's
+    wheel set, :attr:`Recording.wheels`)."""
     pose = d.get("pose")
     mt = d.get("motor_torque")
     task = d.get("task")
     return Measurements(
-        t=_num_in(d["t"]), seq=int(d["seq"]), wheel_speed=_tuple4(d["wheel_speed"], "wheel_speed"),
-        steer_angle=_tuple4(d["steer_angle"], "steer_angle"), yaw_rate=_num_in(d["yaw_rate"]),
+        t=_num_in(d["t"]), seq=int(d["seq"]), wheel_speed=_per_wheel(d["wheel_speed"], "wheel_speed", wheels),
+        steer_angle=_per_wheel(d["steer_angle"], "steer_angle", wheels), yaw_rate=_num_in(d["yaw_rate"]),
         roll=_num_in(d.get("roll", 0.0)), pitch=_num_in(d.get("pitch", 0.0)),
-        motor_torque=None if mt is None else _tuple4(mt, "motor_torque"),
+        motor_torque=None if mt is None else _per_wheel(mt, "motor_torque", wheels),
         pose=None if pose is None else Pose(_num_in(pose["t"]), _num_in(pose["x"]), _num_in(pose["y"]),
                                             _num_in(pose["heading"])),
         failures=tuple(FailureDeclaration(f["wheel"], f["kind"], _num_in(f.get("value", "NaN")))
@@ -177,10 +204,11 @@ def measurements_from_json(d: Mapping[str, Any]) -> Measurements:
     )
 
 
-def commands_from_json(d: Mapping[str, Any]) -> Commands:
-    """Rebuild a :class:`Commands` from its recorded JSON object."""
-    return Commands(t=_num_in(d["t"]), seq=int(d["seq"]), rim_speed=_tuple4(d["rim_speed"], "rim_speed"),
-                    steer_angle=_tuple4(d["steer_angle"], "steer_angle"))
+def commands_from_json(d: Mapping[str, Any], wheels: tuple[str, ...] = MINI_ROVER_WHEELS) -> Commands:
+    """Rebuild a :class:`Commands` from its recorded JSON object (``wheels`` as
+    :func:`measurements_from_json`)."""
+    return Commands(t=_num_in(d["t"]), seq=int(d["seq"]), rim_speed=_per_wheel(d["rim_speed"], "rim_speed", wheels),
+                    steer_angle=_per_wheel(d["steer_angle"], "steer_angle", wheels))
 
 
 def _ns(t: float) -> int:
@@ -204,6 +232,12 @@ class Recorder:
     provenance : mapping, optional
         What made the commands (:func:`provenance`), stored as the metadata record
         ``"provenance"`` (each value as JSON).
+    wheels : sequence of str, optional
+        The wheel set of every per-wheel vector (the controller's
+        :attr:`~rtctl.controller.Controller.wheels`): stored in the ``"run"`` record as
+        ``wheels`` (a JSON list) and sizing the channel schemas. None: the mini rover's four
+        wheels, written as every recording before the entry existed (no ``wheels`` entry, the
+        same schemas), which is how a reader takes a recording without one.
 
     Examples
     --------
@@ -212,12 +246,16 @@ class Recorder:
     """
 
     def __init__(self, path: str | Path, metadata: Mapping[str, Any] | None = None, truth: bool = False,
-                 provenance: Mapping[str, Any] | None = None) -> None:
+                 provenance: Mapping[str, Any] | None = None, wheels: Iterable[str] | None = None) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
         if self.path.is_dir():
             raise RecordingError(f"{self.path}: is a folder; give a file name ending in .mcap")
+        self.wheels = MINI_ROVER_WHEELS if wheels is None else tuple(str(w) for w in wheels)
+        if not self.wheels or len(set(self.wheels)) != len(self.wheels):
+            raise RecordingError(f"wheels: expected distinct wheel names, got {list(self.wheels)}")
+        schemas = _schemas(self.wheels)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent)
         self._tmp = Path(tmp)
@@ -228,13 +266,15 @@ class Recorder:
         self._seq: dict[str, int] = {}
         kinds = [k for k in TOPICS if k != "truth" or truth]
         for kind in kinds:
-            sid = self._writer.register_schema(_SCHEMAS[kind]["title"], "jsonschema",
-                                               json.dumps(_SCHEMAS[kind]).encode())
+            sid = self._writer.register_schema(schemas[kind]["title"], "jsonschema",
+                                               json.dumps(schemas[kind]).encode())
             self._channels[kind] = self._writer.register_channel(TOPICS[kind], "json", sid)
             self._seq[kind] = 0
         meta = {"format_version": FORMAT_VERSION}
         for k, v in (metadata or {}).items():
             meta[str(k)] = v if isinstance(v, str) else json.dumps(to_jsonable(v))
+        if wheels is not None:
+            meta["wheels"] = json.dumps(list(self.wheels))
         self._writer.add_metadata("run", meta)
         if provenance is not None:
             self._writer.add_metadata("provenance", {str(k): json.dumps(to_jsonable(v), sort_keys=True)
@@ -323,6 +363,25 @@ class Recording:
     provenance: dict[str, Any] = field(default_factory=dict)
     """The ``"provenance"`` record, values decoded from JSON (empty: the recording has none)."""
 
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """The wheel set of the per-wheel vectors: the ``"run"`` record's ``wheels`` entry, else
+        (a recording before it) the mini rover's :data:`MINI_ROVER_WHEELS`."""
+        return _wheels_of(self.metadata, self.path)
+
+
+def _wheels_of(meta: Mapping[str, str], path: str) -> tuple[str, ...]:
+    raw = meta.get("wheels")
+    if raw is None:
+        return MINI_ROVER_WHEELS
+    try:
+        names = json.loads(raw)
+    except ValueError:
+        names = None
+    if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
+        raise RecordingError(f"{path}: metadata 'wheels' is {raw!r}, expected a JSON list of wheel names")
+    return tuple(names)
+
 
 def read_recording(path: str | Path) -> Recording:
     """Read an MCAP recording written by :class:`Recorder`.
@@ -351,6 +410,7 @@ def read_recording(path: str | Path) -> Recording:
                         rec.provenance = {k: json.loads(v) for k, v in md.metadata.items()}
                     except ValueError as exc:
                         raise RecordingError(f"{p}: provenance record does not decode ({exc})") from None
+            wheels = _wheels_of(rec.metadata, str(p))
             for _schema, channel, message in reader.iter_messages(log_time_order=False):
                 kind = by_topic.get(channel.topic)
                 if kind is None:
@@ -358,9 +418,9 @@ def read_recording(path: str | Path) -> Recording:
                 try:
                     obj = json.loads(message.data)
                     if kind == "measurements":
-                        rec.measurements.append(measurements_from_json(obj))
+                        rec.measurements.append(measurements_from_json(obj, wheels))
                     elif kind == "commands":
-                        rec.commands.append(commands_from_json(obj))
+                        rec.commands.append(commands_from_json(obj, wheels))
                     else:
                         getattr(rec, kind).append(obj)
                 except (ValueError, KeyError, TypeError) as exc:

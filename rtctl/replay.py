@@ -73,17 +73,22 @@ def _differ(x: float, y: float, rtol: float | None, atol: float | None) -> bool:
 
 
 def compare_commands(index: int, recorded: Commands, replayed: Commands, rtol: float | None = None,
-                     atol: float | None = None) -> Divergence | None:
+                     atol: float | None = None, wheels: Sequence[str] = WHEELS) -> Divergence | None:
     """First field (rim speed then steering angle, wheels in order) whose bits differ (or, with
     ``rtol``/``atol``, that differs by more than ``atol + rtol * |recorded|``); ``t`` and ``seq``
-    must match exactly (reported as field ``t`` / ``seq`` on wheel ``-``)."""
+    must match exactly (reported as field ``t`` / ``seq`` on wheel ``-``); a different number of
+    wheels is a divergence of field ``<name> count``. ``wheels`` names the entries (default the
+    mini rover's; a recording's :attr:`rtctl.recording.Recording.wheels`)."""
     if recorded.seq != replayed.seq:
         return Divergence(index, recorded.t, recorded.seq, "-", "seq", float(recorded.seq), float(replayed.seq))
     if _bits(recorded.t) != _bits(replayed.t):
         return Divergence(index, recorded.t, recorded.seq, "-", "t", recorded.t, replayed.t)
     for name in ("rim_speed", "steer_angle"):
         a, b = getattr(recorded, name), getattr(replayed, name)
-        for w, x, y in zip(WHEELS, a, b):
+        if len(a) != len(b):
+            return Divergence(index, recorded.t, recorded.seq, "-", f"{name} count", float(len(a)), float(len(b)))
+        names = list(wheels) if len(wheels) == len(a) else [str(i) for i in range(len(a))]
+        for w, x, y in zip(names, a, b):
             if _differ(float(x), float(y), rtol, atol):
                 return Divergence(index, recorded.t, recorded.seq, w, name, float(x), float(y))
     return None
@@ -165,7 +170,8 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
     Raises
     ------
     ReplayError
-        No measurements, fewer commands than measurements, or a negative or non-finite tolerance.
+        No measurements, fewer commands than measurements, a negative or non-finite tolerance, or
+        a controller whose wheel set is not the recording's.
     """
     for name, tol in (("rtol", rtol), ("atol", atol)):
         if tol is not None and not (math.isfinite(tol) and tol >= 0):
@@ -176,6 +182,10 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
     if len(rec.commands) < len(rec.measurements):
         raise ReplayError(f"{rec.path or 'recording'}: {len(rec.measurements)} measurements but only "
                           f"{len(rec.commands)} commands; was the recorder fed every tick?")
+    ctl_wheels = getattr(controller, "wheels", None)
+    if isinstance(ctl_wheels, tuple) and ctl_wheels != rec.wheels:
+        raise ReplayError(f"{rec.path or 'recording'}: recorded with wheels {', '.join(rec.wheels)}, but the controller "
+                          f"drives {', '.join(ctl_wheels)}: replay it with the tables of the recorded rover")
     if reset and hasattr(controller, "reset"):
         controller.reset()
     first: Divergence | None = None
@@ -188,11 +198,11 @@ def replay(recording: Recording | str | Path, controller: Any, reset: bool = Tru
         cmd, _diag = controller.step(m)
         times.append(time.perf_counter() - t0)
         out.append(cmd)
-        d = compare_commands(i, c, cmd, rtol, atol)
+        d = compare_commands(i, c, cmd, rtol, atol, rec.wheels)
         if d is not None:
             n_div += 1
             first = first or d
-        if compare_commands(i, c, cmd) is None:
+        if compare_commands(i, c, cmd, wheels=rec.wheels) is None:
             n_bits += 1
         elif d is None or d.field not in ("t", "seq"):
             largest = max(largest, _largest_difference(c, cmd))

@@ -7,12 +7,16 @@ name and, for a scenario that names a rover file (:mod:`rtctl.physics.rover_file
 name and sha256 (never a machine path). A table written before the entry existed has none: its
 wheels are its layout's, and it was built from a rover file when its scenario record names one.
 
-This version of rtctl drives one wheel set: the four-wheel rocker of Table 7.2, wheels
-:data:`rtctl.layout.WHEELS` with the balance rows :data:`rtctl.layout.BALANCE_ROWS`, built from a
-scenario without a rover file (the exact residual of each tick,
-:meth:`rtctl.physics.steady_state.SteadyStateModel.from_table_header`, is that rocker's statics).
-Any other table is refused at start-up by the controller with :func:`unsupported_reason`'s text
-(counted among the unavailable tables and flagged), never driven.
+This version of rtctl drives the four-wheel rocker of Table 7.2 (wheels
+:data:`rtctl.layout.WHEELS`, balance rows :data:`rtctl.layout.BALANCE_ROWS`, from a scenario without
+a rover file) and the tables of a rover file whose suspension is a ``rocker`` or a
+``rocker_bogie`` (the MER-class six-wheel rover) or ``rigid`` (the four-wheel skid-steer): the
+exact residual of each tick
+(:meth:`rtctl.physics.steady_state.SteadyStateModel.from_table_header`) is rebuilt from the
+header's rover record with :class:`rtctl.physics.suspension.SuspensionStatics`, the source the
+NLP's rows come from. A controller takes its wheel set from its tables (all of them agree, else a
+start-up error). Any other table (:func:`unsupported_reason` says which and why) is refused at
+start-up with that text (counted among the unavailable tables and flagged), never driven.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from typing import Any, Mapping
 
 from .layout import BALANCE_ROWS, WHEELS, NlpLayout
 
-__all__ = ["WheelSet", "wheel_set_of", "unsupported_reason"]
+__all__ = ["WheelSet", "wheel_set_of", "unsupported_reason", "SUPPORTED_SUSPENSIONS"]
 
 
 @dataclass(frozen=True)
@@ -115,11 +119,32 @@ def wheel_set_of(header: Mapping[str, Any], layout: NlpLayout) -> WheelSet:
     return WheelSet(wheels, None, None, "rocker", rover_name, None, None)
 
 
+SUPPORTED_SUSPENSIONS: tuple[str, ...] = ("rocker", "rocker_bogie", "rigid")
+"""Suspension kinds of a rover file whose tables this rtctl drives (:func:`unsupported_reason`)."""
+
+
 def unsupported_reason(header: Mapping[str, Any], layout: NlpLayout) -> str | None:
     """Why this rtctl cannot drive a table's wheel set, with what to do; None when it can.
 
-    Supported: the four-wheel rocker of Table 7.2 (wheels :data:`rtctl.layout.WHEELS`, balance
-    rows :data:`rtctl.layout.BALANCE_ROWS`) built from a scenario without a rover file.
+    Supported:
+
+    * the four-wheel rocker of Table 7.2 (wheels :data:`rtctl.layout.WHEELS`, balance rows
+      :data:`rtctl.layout.BALANCE_ROWS`) built from a scenario without a rover file;
+    * a rover file's table of a suspension in :data:`SUPPORTED_SUSPENSIONS` (``rocker``,
+      ``rocker_bogie``: the MER-class six-wheel rover, ``rigid``: the four-wheel skid-steer)
+      whose header carries the rover record (``scenario.rover_file``) the exact residual is
+      rebuilt from, with the layout's wheels and balance rows those of that record's suspension
+      (:class:`rtctl.physics.suspension.SuspensionStatics`), driving forward or backward.
+
+    Refused (each with what to do):
+
+    * a rover file's table without the rover record (written before the header carried it):
+      the exact residual cannot be rebuilt;
+    * a suspension kind outside :data:`SUPPORTED_SUSPENSIONS`, or a record whose wheels or
+      balance rows are not the layout's;
+    * a table without a rover file whose wheels or balance rows are not the mini rover's.
+
+    (A rigid rover's table is driven but not mirrored: :func:`rtctl.mirror.mirror_wheel_map`.)
 
     Parameters
     ----------
@@ -134,10 +159,32 @@ def unsupported_reason(header: Mapping[str, Any], layout: NlpLayout) -> str | No
     """
     ws = wheel_set_of(header, layout)
     balance = tuple(b.name[len("balance "):] for b in layout.constraints if b.name.startswith("balance "))
-    if ws.rover_file is None and ws.wheels == WHEELS and balance == BALANCE_ROWS:
-        return None
-    return (f"this table is for the {ws.text()}; rtctl drives the four-wheel layout only in this version "
-            f"(wheels {', '.join(WHEELS)} of the Table 7.2 rocker, from a scenario without a rover file): "
-            "take this table out of the index the controller reads (or give the controller a config whose "
-            "index lists only four-wheel tables); a rover file's tables serve the offline tools "
-            "(offnominal tables verify/info) until rtctl takes the wheel set from the table header")
+    sc = header.get("scenario")
+    rec = sc.get("rover_file") if isinstance(sc, Mapping) else None
+    if ws.rover_file is None and not isinstance(rec, Mapping):
+        if ws.wheels == WHEELS and balance == BALANCE_ROWS:
+            return None
+        return (f"this table is for the {ws.text()}, without a rover file: rtctl drives such a table only with the "
+                f"mini rover's wheels {', '.join(WHEELS)} and balance rows; rebuild it from a rover file")
+    if not isinstance(rec, Mapping):
+        return (f"this table is for the {ws.text()}, but its header has no rover record (scenario.rover_file) to "
+                "rebuild the exact residual from: rebuild it with this library version (offnominal tables build)")
+    from .physics.rover_file import RoverFileError, rover_spec_from_record
+    from .physics.suspension import SuspensionStatics
+
+    try:
+        spec = rover_spec_from_record(rec, "table header scenario.rover_file")
+    except RoverFileError as exc:
+        return f"this table is for the {ws.text()}: {exc}"
+    if spec.suspension not in SUPPORTED_SUSPENSIONS:
+        return (f"this table is for the {ws.text()}: rtctl drives rover files with suspension "
+                f"{', '.join(SUPPORTED_SUSPENSIONS)}, not {spec.suspension!r} (its statics are not built on the rover); "
+                "take it out of the controller's index (it serves the offline tools: offnominal tables verify/info)")
+    if spec.wheel_names != ws.wheels:
+        return (f"this table's rover record has wheels {', '.join(spec.wheel_names)}, its layout "
+                f"{', '.join(ws.wheels)}: rebuild the table")
+    expect = SuspensionStatics(spec).balance_names
+    if balance != expect:
+        return (f"this table's balance rows {list(balance)} are not those of its rover record's {spec.suspension} "
+                f"suspension {list(expect)}: rebuild the table")
+    return None

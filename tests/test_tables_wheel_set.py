@@ -1,6 +1,6 @@
 """Tables for a rover file (issue 23): the header's wheel set and NLP layout, no machine path in
-the header, the three verify checks on a six-wheel table, and the controller refusing a wheel set
-it does not drive.
+the header, the three verify checks on a six-wheel table, and the controller's rule on wheel sets
+(one per controller; a rover file's rocker-bogie driven, tests/test_rtctl_any_rover.py).
 
 The six-wheel table is a committed fixture, ``tests/data/tables/rovers/mer_rf_locked_backward.npz``
 (MER-class rover, right-front wheel locked, driving backward; 3 slopes x 2 speeds), built by the
@@ -133,27 +133,19 @@ def _meas(k: int) -> Measurements:
     return Measurements(0.2 * k, k, (0.2,) * 4, (0.0,) * 4, 0.0)
 
 
-def test_controller_refuses_a_six_wheel_table_and_drives_the_four_wheel_one(six):
-    """A six-wheel table beside a four-wheel one: counted among the unavailable tables, flagged on
-    every tick with what to do, never driven; the four-wheel table drives. (Before: the first
-    tick raised numpy's broadcast ValueError.)"""
-    c = Controller({"nominal": load_table(MINI), "mer_rf_locked_backward": six}, ControllerConfig())
-    assert set(c.tables) == {"nominal"} and set(c.unavailable) == {"mer_rf_locked_backward"}
-    why = c.unavailable["mer_rf_locked_backward"]
-    assert why.startswith("this table is for the 6 wheels RF, LF, RM, LM, RR, LR of rover mer_class "
-                          "(rover file mer_class_rocker_bogie.toml, suspension rocker_bogie, driving backward); "
-                          "rtctl drives the four-wheel layout only in this version")
-    for k in range(2):
-        cmd, d = c.step(_meas(k))
-        assert any("mer_rf_locked_backward unavailable since start-up: this table is for the 6 wheels" in f
-                   for f in d.flags)
-        assert np.all(np.isfinite(cmd.rim_speed)) and len(cmd.rim_speed) == 4
-
-
-def test_controller_with_only_a_six_wheel_table_says_why(six):
-    with pytest.raises(ControllerError, match=r"no usable table: mer: this table is for the 6 wheels .* of rover "
-                                              r"mer_class .*rtctl drives the four-wheel layout only in this version"):
-        Controller({"mer": six}, ControllerConfig())
+def test_controller_refuses_tables_of_two_wheel_sets_and_drives_the_six_wheel_one(six):
+    """A six-wheel table beside a four-wheel one: a start-up error naming the tables of each
+    wheel set (the controller's measurements and commands carry one wheel set; before issue 23's
+    rtctl slice the six-wheel table was refused and the four-wheel one drove). Alone, the
+    six-wheel table drives: six commands per tick (tests/test_rtctl_any_rover.py checks them)."""
+    with pytest.raises(ControllerError, match=r"the tables are for different wheel sets: mer_rf_locked_backward: 6 "
+                                              r"wheels RF, LF, RM, LM, RR, LR of rover mer_class .*; nominal: 4 wheels "
+                                              r"FR, FL, RR, RL"):
+        Controller({"nominal": load_table(MINI), "mer_rf_locked_backward": six}, ControllerConfig())
+    c = Controller({"mer": six}, ControllerConfig())
+    assert set(c.tables) >= {"mer"} and not c.unavailable and c.wheels == ("RF", "LF", "RM", "LM", "RR", "LR")
+    cmd, d = c.step(Measurements(0.0, 0, (-0.2,) * 6, (0.0,) * 6, 0.0))
+    assert np.all(np.isfinite(cmd.rim_speed)) and len(cmd.rim_speed) == 6
 
 
 def _layout(wheels=("FR", "FL", "RR", "RL"), rows=None):
@@ -165,7 +157,7 @@ def _layout(wheels=("FR", "FL", "RR", "RL"), rows=None):
 
 def test_wheel_set_rule_on_four_wheel_rover_files_and_older_headers():
     """Four wheels named FR, FL, RR, RL are not enough: a rover file's four-wheel rover (the rigid
-    skid-steer: its statics are not the rocker's the rover's residual uses) is refused too, and a
+    skid-steer) whose header lacks the rover record the residual is rebuilt from is refused, and a
     table written before the header carried the wheel set is judged from its scenario record."""
     lay = _layout()
     assert unsupported_reason({}, lay) is None
@@ -174,7 +166,7 @@ def test_wheel_set_rule_on_four_wheel_rover_files_and_older_headers():
                           "rover_file": {"name": "skid_steer_4w.toml", "sha256": "0" * 64}}}
     assert unsupported_reason(skid, lay).startswith(
         "this table is for the 4 wheels FR, FL, RR, RL of rover skid_steer_4w (rover file skid_steer_4w.toml, "
-        "suspension rigid); rtctl drives the four-wheel layout only in this version")
+        "suspension rigid), but its header has no rover record (scenario.rover_file)")
     older = {"rover": {"name": "mer_class"}, "scenario": {"rover_file": {
         "name": "mer_class", "suspension": "rocker_bogie", "path": "/somewhere/else/mer_class_rocker_bogie.toml"}}}
     lay6 = _layout(("RF", "LF", "RM", "LM", "RR", "LR"))
@@ -193,7 +185,8 @@ def test_tables_info_prints_the_wheel_set(capsys):
     out = capsys.readouterr().out
     assert ("wheel set: 6 wheels RF, LF, RM, LM, RR, LR of rover mer_class (rover file mer_class_rocker_bogie.toml, "
             "suspension rocker_bogie, driving backward); RM not steerable, LM not steerable") in out
-    assert "rtctl (this version) does not drive it" in out
+    assert re.search(r"suspension rocker_bogie, driving backward\); RM not steerable, LM not steerable; rover file sha256 "
+                     r"[0-9a-f]{12}; rtctl drives it\n", out)
     assert main(["tables", "info", str(MINI)]) == 0
     assert "wheel set: 4 wheels FR, FL, RR, RL of rover mini_rover (no rover file, suspension rocker); rtctl drives it" in \
         capsys.readouterr().out

@@ -193,7 +193,7 @@ class PidSteeringController:
         d = d + (self.gains["Fy+"] if self._fy >= 0 else self.gains["Fy-"]) * abs(self._fy)
         rim = tuple(float(r + dr) for r, dr in zip(self.base.rim, d[:, 0]))
         steer = tuple(float(s + ds) for s, ds in zip(self.base.steer, d[:, 1]))
-        return (Commands(m.t, m.seq, rim, steer),  # type: ignore[arg-type]
+        return (Commands(m.t, m.seq, rim, steer),
                 {"controller": self.name, "mz_offset": self._mz, "fy_offset": self._fy,
                  "heading_error": self._eyaw, "cross_track_error": self._ey})
 
@@ -413,7 +413,7 @@ def _first_measurement(sim: RoverSimulator) -> Measurements:
         f = sim.scenario.failure(k)
         steer.append(f.steer_stuck if f.steer_stuck is not None else 0.0)
     om = sim.scenario.speed / sim.scenario.params.wheel.shearing_radius
-    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * 4, steer_angle=tuple(steer),  # type: ignore[arg-type]
+    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * 4, steer_angle=tuple(steer),
                         yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, 0.0), failures=sim.failures,
                         task=declared_task(sim.scenario))
 

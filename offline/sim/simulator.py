@@ -551,9 +551,9 @@ class RoverSimulator:
             torque = tuple(float(x) for x in (self.motor + c.torque_noise * n[11:15]))
         fix = self.pose_source.deliver(self.t)
         pose = Pose(*fix) if fix is not None else None
-        m = Measurements(t=self.t, seq=self.seq, wheel_speed=tuple(float(x) for x in omega),  # type: ignore[arg-type]
-                         steer_angle=tuple(float(x) for x in steer), yaw_rate=float(gyro),  # type: ignore[arg-type]
-                         roll=float(roll), pitch=float(pitch), motor_torque=torque, pose=pose,  # type: ignore[arg-type]
+        m = Measurements(t=self.t, seq=self.seq, wheel_speed=tuple(float(x) for x in omega),
+                         steer_angle=tuple(float(x) for x in steer), yaw_rate=float(gyro),
+                         roll=float(roll), pitch=float(pitch), motor_torque=torque, pose=pose,
                          failures=self.failures)
         self.seq += 1
         return m

@@ -68,7 +68,8 @@ from typing import Any, Mapping
 from .parameters import ParameterError, read_toml
 
 __all__ = ["RoverFileError", "WheelSpec", "LinkSpec", "ActuatorLimits", "RoverSpec", "load_rover_file",
-           "parse_rover", "SHIPPED_ROVERS", "shipped_rover", "SUSPENSION_KINDS", "driving_backward"]
+           "parse_rover", "SHIPPED_ROVERS", "shipped_rover", "SUSPENSION_KINDS", "driving_backward",
+           "rover_spec_from_record"]
 
 SUSPENSION_KINDS: tuple[str, ...] = ("rocker", "rocker_bogie", "rigid")
 """The suspension kinds a rover file may name (module docstring)."""
@@ -583,3 +584,64 @@ def shipped_rover(name: str) -> RoverSpec:
         known = sorted(q.stem for q in SHIPPED_ROVERS.glob("*.toml") if not q.stem.endswith("_wheel"))
         raise RoverFileError(f"no shipped rover {name!r}; shipped rovers: {known}")
     return load_rover_file(p)
+
+
+def _plain(v: Any) -> Any:
+    """A header record's value without its type tags (``{"__tuple__": [...]}``, ``{"__float__": "inf"}``)."""
+    if isinstance(v, Mapping):
+        if "__tuple__" in v:
+            return [_plain(q) for q in v["__tuple__"]]
+        if "__float__" in v:
+            return float(v["__float__"])
+        return {k: _plain(q) for k, q in v.items() if k != "__class__"}
+    if isinstance(v, list):
+        return [_plain(q) for q in v]
+    return v
+
+
+def rover_spec_from_record(rec: Mapping[str, Any], where: str = "table header") -> RoverSpec:
+    """The :class:`RoverSpec` a table was built with, from the record its header stores
+    (``scenario.rover_file``: the spec as the builder used it, already turned round for a
+    backward drive by :func:`driving_backward`), so the rover rebuilds the same statics the NLP
+    used without the file itself.
+
+    Parameters
+    ----------
+    rec : mapping
+        The record (``dataclasses.asdict`` of a RoverSpec, with the header's type tags).
+    where : str
+        Named in the error.
+
+    Returns
+    -------
+    RoverSpec
+
+    Raises
+    ------
+    RoverFileError
+        A key missing or of the wrong type (naming it).
+    """
+    d = _plain(rec)
+    try:
+        def vec(v: Any) -> tuple[float, float, float]:
+            a = [float(q) for q in v]
+            if len(a) != 3:
+                raise ValueError(f"expected 3 coordinates, got {len(a)}")
+            return a[0], a[1], a[2]
+
+        act = d["actuators"]
+        srm = act.get("steer_rate_max")
+        return RoverSpec(
+            name=str(d["name"]), source=str(d.get("source", "")), weight=float(d["weight"]),
+            centre_of_mass=vec(d["centre_of_mass"]), suspension=str(d["suspension"]),
+            links=tuple(LinkSpec(str(lk["name"]), str(lk["parent"]), vec(lk["pivot"])) for lk in d["links"]),
+            wheels=tuple(WheelSpec(str(w["name"]), str(w["link"]), vec(w["position"]), str(w["params"]),
+                                   bool(w["driven"]), bool(w["steerable"]), float(w.get("steer_min", 0.0)),
+                                   float(w.get("steer_max", 0.0))) for w in d["wheels"]),
+            actuators=ActuatorLimits(float(act["drive_speed_max"]), float(act["drive_torque_max"]),
+                                     None if srm is None else float(srm)),
+            body_fixed_to=None if d.get("body_fixed_to") is None else str(d["body_fixed_to"]),
+            travel_speed=None if d.get("travel_speed") is None else float(d["travel_speed"]),
+            path=str(d.get("path", "")))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RoverFileError(f"{where}: rover record malformed ({type(exc).__name__}: {exc}); rebuild the table") from exc

@@ -35,6 +35,7 @@ from .backend import NUMPY, Backend
 from .hub_drag import HubFace, hub_wrench
 from .parameters import ParameterError, Record, SoilLike, record
 from .statics import FourWheelRocker
+from .rover_file import rover_spec_from_record
 from .suspension import SuspensionStatics
 from .terramechanics import ModelOptions, PhysParams, _SoilView, _WheelView, wrench_core
 
@@ -77,7 +78,7 @@ class SteadyStateModel:
     trench_wheel : str or None
         The wheel whose trench rows (7.28)-(7.29) the layout holds.
     torque_scale : float
-        ``W / 4 r_s``, N m: the objective is ``sum M_y^2 / torque_scale^2`` (7.24).
+        ``W / N r_s`` (``N`` wheels: ``W / 4 r_s`` for the mini rover), N m: the objective is ``sum M_y^2 / torque_scale^2`` (7.24).
     """
 
     wheels: tuple[str, ...]
@@ -95,6 +96,13 @@ class SteadyStateModel:
     def from_table_header(cls, header: Mapping[str, Any], wheels: Sequence[str]) -> "SteadyStateModel":
         """The model a table was built with, from its header (``params``, ``rover``,
         ``scenario``, ``solver_options``, ``world``): the rover's exact residual uses it.
+
+        A table built from a rover file (its ``scenario.rover_file`` record, the spec as the
+        builder used it, turned round for a backward drive) gets that suspension's balance,
+        :class:`~rtctl.physics.suspension.SuspensionStatics` (the source the NLP's rows come
+        from, ``offline.rover.primitives.SteadyStateProblem``), and the torque scale
+        ``W / N r_s`` of its ``N`` wheels; any other the mini rover's
+        :class:`~rtctl.physics.statics.FourWheelRocker` and ``W / 4 r_s``, as before.
 
         Raises
         ------
@@ -138,9 +146,18 @@ class SteadyStateModel:
         trench = sc.get("trench")
         tw = trench.get("wheel") if isinstance(trench, Mapping) else None
         pitch = bool(so.get("pitch_includes_wheel_torque", True))
-        ts = float(rover.weight) / 4 * float(wheel.shearing_radius)
-        return cls(wheels, phys, rs, mo, FourWheelRocker(rover, pitch, wheels), soil, hub, external,
-                   tw if tw in wheels else None, ts)
+        spec_rec = sc.get("rover_file") if isinstance(sc, Mapping) else None
+        if isinstance(spec_rec, Mapping):  # a rover file's table: the statics its suspension implies
+            spec = rover_spec_from_record(spec_rec, "table header scenario.rover_file")
+            if spec.wheel_names != wheels:
+                raise ParameterError(f"table header: the rover file's wheels {list(spec.wheel_names)} are not the "
+                                     f"layout's {list(wheels)}: rebuild the table")
+            statics: FourWheelRocker | SuspensionStatics = SuspensionStatics(spec, None, pitch)
+            ts = float(spec.weight) / len(wheels) * float(wheel.shearing_radius)
+        else:
+            statics = FourWheelRocker(rover, pitch, wheels)
+            ts = float(rover.weight) / 4 * float(wheel.shearing_radius)
+        return cls(wheels, phys, rs, mo, statics, soil, hub, external, tw if tw in wheels else None, ts)
 
 
 def with_hub(ops: Backend, model: SteadyStateModel, w: Sequence[Any], vx: Any, vy: Any, omega: Any,

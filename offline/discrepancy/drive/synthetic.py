@@ -168,7 +168,7 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
     sim = RoverSimulator(scenario, truth, actuators=actuators, sensors=sensors, dt=sim_dt, seed=seed, **kw)
     to_act: ActuatorPath = actuator_path or (lambda c: c)
     rim, steer = at(0.0)
-    sim.start(to_act(Commands(0.0, 0, rim, steer)))  # type: ignore[arg-type]
+    sim.start(to_act(Commands(0.0, 0, rim, steer)))
     n = int(round(d / period))
     with Recorder(path, {"scenario": scenario.name, "seed": seed, "script": "calibration_drive",
                          "period_s": period}, truth=True) as rec:
@@ -178,7 +178,7 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
             if sensor_path is not None:
                 m = sensor_path(m, ts)
             rim, steer = at(m.t)
-            c = Commands(m.t, m.seq, rim, steer)  # type: ignore[arg-type]
+            c = Commands(m.t, m.seq, rim, steer)
             sim.apply(to_act(c))
             rec.measurements(m)
             rec.commands(c)

@@ -261,7 +261,7 @@ def per_wheel_graph(model: SteadyStateModel, L: NlpLayout) -> tuple[Any, Any, An
     """
     import casadi as ca
 
-    jopt = {"jac_penalty": 0.5, "der_options": {"jac_penalty": 0.5}}
+    jopt: dict[str, Any] = {"jac_penalty": 0.5, "der_options": {"jac_penalty": 0.5}}
     funs: list[tuple[PhysParams, float, Any]] = []
 
     def wheel_function(ph: PhysParams, rs: float) -> Any:

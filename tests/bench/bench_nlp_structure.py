@@ -17,7 +17,9 @@ Writes (and prints), all in process CPU seconds, both structures measured in the
 3. IPOPT from the nominal start, and :func:`~offline.rover.primitives.solve_primitive` (the full
    automatic search and the independent check), at several grid points of the worked example:
    status, iterations, CPU, and the largest difference of the primitives in variable scales;
-4. with ``--compile``: the per-wheel structure's IPOPT functions compiled to C
+5. the least a per-wheel exact Hessian can cost: one wheel's 4x4 Hessian in its own variables
+   (casadi SX, symmetric) and its Jacobian, instructions and per-call CPU;
+4. with ``--compile`` (run last): the per-wheel structure's IPOPT functions compiled to C
    (:mod:`offline.rover.compiled_nlp`, cold cache in a temporary folder): compiler CPU, the
    generated C's size, per-call CPU compiled, and the same outputs.
 """
@@ -176,6 +178,31 @@ def main() -> int:
     say(f"Totals: IPOPT from the nominal start inlined {tot['inlined'][0]:.2f} s, per_wheel {tot['per_wheel'][0]:.2f} s "
         f"(ratio {tot['per_wheel'][0] / tot['inlined'][0]:.2f}); solve_primitive inlined {tot['inlined'][1]:.2f} s, "
         f"per_wheel {tot['per_wheel'][1]:.2f} s (ratio {tot['per_wheel'][1] / tot['inlined'][1]:.2f}).")
+    say()
+    say("## 5. The least a per-wheel Hessian can cost (casadi SX, one wheel, its own variables)")
+    say()
+    import casadi as ca
+
+    from offline.physics.backend import CASADI
+    from rtctl.physics.terramechanics import wrench_core
+
+    m = a.steady_state
+    q, sp, mu = ca.SX.sym("q", 4), ca.SX.sym("speed"), ca.SX.sym("mu", 7)
+    vx, vy = m.statics.wheel_velocity(CASADI, sp, q[0])
+    w, _ = wrench_core(CASADI, vx, vy, q[1], q[2], q[3], m.phys[0], m.options)
+    w0, _ = wrench_core(CASADI, vx, vy, sp / m.shearing_radius[0], q[3], q[3], m.phys[0], m.options)
+    wv = ca.vertcat(*w, w0[2])
+    hq, _ = ca.hessian(ca.dot(mu, wv), q)
+    fh = ca.Function("wheel_hessian", [q, sp, mu], [ca.triu(hq)])
+    fj = ca.Function("wheel_jacobian", [q, sp], [ca.jacobian(wv, q)])
+    qa = [np.array([0.1, 1.7, 0.01, 0.01]), 0.03, np.ones(7)]
+    th, tj = per_call(fh, qa), per_call(fj, qa[:2])
+    say(f"q = (beta, omega, h, h0), the 7 outputs (wrench and zero-slip load) weighted by 7 multipliers: the 4x4 "
+        f"Hessian (upper triangle) {fh.n_instructions()} instructions, {th * 1e3:.3f} ms; the 7x4 Jacobian (which the "
+        f"Lagrangian Hessian's cross terms through the balance rows also need) {fj.n_instructions()} instructions, "
+        f"{tj * 1e3:.3f} ms. Four wheels: {4 * fh.n_instructions()} + {4 * fj.n_instructions()} = "
+        f"{4 * (fh.n_instructions() + fj.n_instructions())} instructions against the inlined Hessian's "
+        f"{a.solver.get_function('nlp_hess_l').n_instructions()}.")
     if args.compile:
         from offline.rover import compiled_nlp as C
 

@@ -17,9 +17,9 @@ Writes (and prints), all in process CPU seconds, both structures measured in the
 3. IPOPT from the nominal start, and :func:`~offline.rover.primitives.solve_primitive` (the full
    automatic search and the independent check), at several grid points of the worked example:
    status, iterations, CPU, and the largest difference of the primitives in variable scales;
-5. the least a per-wheel exact Hessian can cost: one wheel's 4x4 Hessian in its own variables
+4. the least a per-wheel exact Hessian can cost: one wheel's 4x4 Hessian in its own variables
    (casadi SX, symmetric) and its Jacobian, instructions and per-call CPU;
-4. with ``--compile`` (run last): the per-wheel structure's IPOPT functions compiled to C
+5. with ``--compile``: the per-wheel structure's IPOPT functions compiled to C
    (:mod:`offline.rover.compiled_nlp`, cold cache in a temporary folder): compiler CPU, the
    generated C's size, per-call CPU compiled, and the same outputs.
 """
@@ -179,7 +179,7 @@ def main() -> int:
         f"(ratio {tot['per_wheel'][0] / tot['inlined'][0]:.2f}); solve_primitive inlined {tot['inlined'][1]:.2f} s, "
         f"per_wheel {tot['per_wheel'][1]:.2f} s (ratio {tot['per_wheel'][1] / tot['inlined'][1]:.2f}).")
     say()
-    say("## 5. The least a per-wheel Hessian can cost (casadi SX, one wheel, its own variables)")
+    say("## 4. The least a per-wheel Hessian can cost (casadi SX, one wheel, its own variables)")
     say()
     import casadi as ca
 
@@ -207,7 +207,7 @@ def main() -> int:
         from offline.rover import compiled_nlp as C
 
         say()
-        say("## 4. The per-wheel structure compiled to C (cold cache)")
+        say("## 5. The per-wheel structure compiled to C (cold cache)")
         say()
         with tempfile.TemporaryDirectory() as cache:
             os.environ["OFFNOMINAL_CACHE"] = cache

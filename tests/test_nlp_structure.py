@@ -11,6 +11,7 @@ builds the same rows and objective from the same source as the default inlined S
   seven reference scenarios (``tests/data/mini_rover_nlp_reference.npz``) solve to the stored
   primitive (to ``RTOL_NLP_STRUCTURE`` of each variable's scale: the search's IPOPT path may part
   at rounding level, e.g. ``fr_raised``);
+* ``auto`` builds the inlined graph in casadi's virtual machine (``compile = "off"``);
 * an unknown structure is an error naming the option.
 """
 
@@ -125,6 +126,12 @@ def test_reference_scenarios_solve_to_the_stored_primitive(name):
     assert r.status == "optimal"
     assert np.all(np.abs(r.x * pb.xscale - ref[f"{name}/x_physical"]) <= RTOL_NLP_STRUCTURE * pb.layout.variable_scale)
     assert r.objective == pytest.approx(float(ref[f"{name}/objective"]), rel=RTOL_NLP_STRUCTURE)
+
+
+def test_auto_builds_inlined_in_the_virtual_machine():
+    sc = load_scenario(EXAMPLES["nominal"])
+    assert _problem_for(sc, SolverOptions(nlp_structure="auto", compile="off")).nlp_structure == "inlined"
+    assert _problem_for(sc, SolverOptions(nlp_structure="per_wheel", compile="off")).nlp_structure == "per_wheel"
 
 
 def test_unknown_structure_is_an_error_naming_the_option():

@@ -73,7 +73,7 @@ from rtctl.physics.suspension import SuspensionStatics
 from ..physics.backend import CASADI, NUMPY, Backend
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
-from .compiled_nlp import compiled_functions
+from .compiled_nlp import compiled_functions, find_compiler
 from .failures import SolutionView, WheelBounds
 from .scenario import Scenario, WheelFailure
 from .statics import WHEELS, FourWheelRocker, FreeBodyBalance, free_body_residuals
@@ -100,7 +100,7 @@ __all__ = [
 ]
 
 STATUSES = ("optimal", "infeasible", "not_found", "solver_failure")
-NLP_STRUCTURES = ("inlined", "per_wheel")
+NLP_STRUCTURES = ("auto", "inlined", "per_wheel")
 """Values of :attr:`SolverOptions.nlp_structure`."""
 """The four verdicts of :func:`solve_primitive` (module docstring)."""
 
@@ -158,17 +158,25 @@ class SolverOptions:
     compile : str
         How IPOPT evaluates the NLP's functions: ``"off"`` (casadi's virtual machine),
         ``"on"`` or ``"auto"`` (C compiled once per NLP structure and cached on disk,
-        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result, so it is not written
-        to table files and not hashed. A table build sets it from ``build.compile``.
+        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result beyond rounding (the
+        compiled C does the virtual machine's operations; with ``nlp_structure = "auto"`` a
+        compiled problem is built per wheel), so it is not written to table files and not hashed.
+        A table build sets it from ``build.compile``.
     nlp_structure : str
         How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"inlined"`` (one SX graph,
-        every wheel's wrench inlined: the default) or ``"per_wheel"`` (an MX graph calling one SX
-        function per wheel model four times, :func:`per_wheel_graph`). The same rows and
-        objective from the same source (:func:`rtctl.physics.steady_state.steady_state_rows`,
-        :func:`rtctl.physics.terramechanics.wrench_core`), values equal to rounding; measured
-        slower per IPOPT iteration in casadi's virtual machine (its Hessian 1.3x the inlined
-        one's), so not the default (``tests/bench/results_nlp_structure.md``). Not data. The
-        environment variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the default (benchmarks).
+        every wheel's wrench inlined), ``"per_wheel"`` (an MX graph calling one SX function per
+        wheel model four times, :func:`per_wheel_graph`) or ``"auto"`` (the default: per wheel
+        when the functions are compiled, ``compile`` not ``"off"`` and a C compiler found, else
+        inlined). The same rows and objective from the same source
+        (:func:`rtctl.physics.steady_state.steady_state_rows`,
+        :func:`rtctl.physics.terramechanics.wrench_core`), IPOPT's functions equal to rounding
+        (the tables equal to 1.6e-10 variable scales, not to the bit). Measured on README's
+        worked example (``tests/bench/results_nlp_structure.md``): in casadi's virtual machine
+        the per-wheel graph is slower (Hessian 3.5 against 2.4 ms per call, 1.32x the build's
+        CPU on 42 grid points); compiled, its distinct code is 0.4 of the inlined Hessian's and
+        is reused by the four wheels: 107 s of compiler CPU instead of 354 s, and 0.54 of the
+        inlined virtual machine's build CPU on the same points. Not data. The environment
+        variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the default (benchmarks).
     """
 
     tol: float = 1e-9
@@ -190,7 +198,7 @@ class SolverOptions:
     feasibility_tol: float = 1e-7
     hessian: str = "exact"
     compile: str = field(default="off", metadata={"not_data": True})
-    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "inlined",
+    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "auto",
                                metadata={"not_data": True})
 
     def __post_init__(self) -> None:
@@ -410,7 +418,12 @@ class SteadyStateProblem:
         """The rows' definition shared with the rover's exact residual (:mod:`rtctl.physics.steady_state`)."""
         xs: Any
         p: Any
-        if self.options.nlp_structure == "per_wheel":
+        self.nlp_structure = self.options.nlp_structure
+        """The graph built: ``"inlined"`` or ``"per_wheel"`` (``"auto"`` resolved, :class:`SolverOptions`)."""
+        if self.nlp_structure == "auto":
+            compiled = self.options.compile != "off" and find_compiler() is not None
+            self.nlp_structure = "per_wheel" if compiled else "inlined"
+        if self.nlp_structure == "per_wheel":
             xs, p, f, g = per_wheel_graph(self.steady_state, L)
         else:
             xs = ca.SX.sym("x", L.nx)

@@ -158,25 +158,28 @@ class SolverOptions:
     compile : str
         How IPOPT evaluates the NLP's functions: ``"off"`` (casadi's virtual machine),
         ``"on"`` or ``"auto"`` (C compiled once per NLP structure and cached on disk,
-        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result beyond rounding (the
-        compiled C does the virtual machine's operations; with ``nlp_structure = "auto"`` a
-        compiled problem is built per wheel), so it is not written to table files and not hashed.
-        A table build sets it from ``build.compile``.
+        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result (the compiled C does
+        the virtual machine's operations in the same order), so it is not written to table files
+        and not hashed. A table build sets it from ``build.compile``.
     nlp_structure : str
-        How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"inlined"`` (one SX graph,
-        every wheel's wrench inlined), ``"per_wheel"`` (an MX graph calling one SX function per
-        wheel model four times, :func:`per_wheel_graph`) or ``"auto"`` (the default: per wheel
+        How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"inlined"`` (the default:
+        one SX graph, every wheel's wrench inlined), ``"per_wheel"`` (an MX graph calling one SX
+        function per wheel model four times, :func:`per_wheel_graph`) or ``"auto"`` (per wheel
         when the functions are compiled, ``compile`` not ``"off"`` and a C compiler found, else
         inlined). The same rows and objective from the same source
         (:func:`rtctl.physics.steady_state.steady_state_rows`,
-        :func:`rtctl.physics.terramechanics.wrench_core`), IPOPT's functions equal to rounding
-        (the tables equal to 1.6e-10 variable scales, not to the bit). Measured on README's
-        worked example (``tests/bench/results_nlp_structure.md``): in casadi's virtual machine
-        the per-wheel graph is slower (Hessian 3.5 against 2.4 ms per call, 1.32x the build's
-        CPU on 42 grid points); compiled, its distinct code is 0.4 of the inlined Hessian's and
-        is reused by the four wheels: 107 s of compiler CPU instead of 354 s, and 0.54 of the
-        inlined virtual machine's build CPU on the same points. Not data. The environment
-        variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the default (benchmarks).
+        :func:`rtctl.physics.terramechanics.wrench_core`), IPOPT's functions equal to rounding.
+        Measured on README's worked example (``tests/bench/results_nlp_structure.md``): in
+        casadi's virtual machine the per-wheel graph is slower (Hessian 3.5 against 2.4 ms per
+        call, 1.32x the build's CPU on 42 grid points); compiled, its distinct code is 0.4 of the
+        inlined Hessian's and is reused by the four wheels: 107 s of compiler CPU instead of
+        354 s, and 0.64 of the inlined virtual machine's CPU for the whole worked example (391
+        against 610 s). Not the default because that build's verdicts differ at 4 of 252 points
+        (162 / 76 / 14 against 164 / 76 / 12): the automatic search's path parts at rounding
+        level at a stuck angle of -60 deg and cross slope 10 deg, where the inlined search finds a
+        checked primitive that the per-wheel search declares infeasible, and the reverse kind at
+        slope 5 deg. Not data. The environment variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the
+        default (benchmarks).
     """
 
     tol: float = 1e-9
@@ -198,7 +201,7 @@ class SolverOptions:
     feasibility_tol: float = 1e-7
     hessian: str = "exact"
     compile: str = field(default="off", metadata={"not_data": True})
-    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "auto",
+    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "inlined",
                                metadata={"not_data": True})
 
     def __post_init__(self) -> None:

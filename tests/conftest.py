@@ -33,6 +33,9 @@ RTOL_SWITCH = 5e-5  # value jump across the slip/skid switch, relative to |F| sc
 
 RTOL_NLP_REFERENCE = 1e-9  # the mini rover's NLP re-solved after a refactor vs its stored solution (per variable
 # scale; the refactor reproduced it bit for bit on the machine that made it)
+RTOL_NLP_STRUCTURE = 1e-8  # the per-wheel NLP structure's solution vs the inlined one's (per variable scale): the same
+# functions to rounding, but IPOPT's path may part at rounding level (fr_raised: 82 against 91 iterations, 8.7e-9
+# scales apart, both within IPOPT's tol = 1e-9 of the scaled KKT conditions)
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "single_wheel"
 

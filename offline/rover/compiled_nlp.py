@@ -194,7 +194,8 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
 _FUNCTION = re.compile(r"^static int (casadi_f\d+)\(const casadi_real\*\* arg, casadi_real\*\* res, "
                        r"casadi_int\* iw, casadi_real\* w, int mem\) \{$")
 _VARIABLE = re.compile(r"\ba(\d+)\b")
-_HELPER = re.compile(r"^casadi_real (casadi_\w+)\(")
+_HELPER = re.compile(r"^(casadi_real|casadi_int|void|int) (casadi_\w+)\(")
+"""A helper function of the preamble (``casadi_sq``; with an MX graph also ``casadi_copy``, ``casadi_fill``, ...)."""
 
 
 def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> list[str]:
@@ -215,7 +216,7 @@ def split_sources(text: str, chunk: int = SPLIT_STATEMENTS, units: int = 2) -> l
         end_pre = lines.index("/* Configuration this file was compiled with */")
     except ValueError:
         return [text]
-    preamble = [_HELPER.sub(r"static casadi_real \1(", ln) for ln in lines[:end_pre]]
+    preamble = [_HELPER.sub(r"static \1 \2(", ln) for ln in lines[:end_pre]]
     main: list[str] = []
     parts: list[list[str]] = []
     i = 0

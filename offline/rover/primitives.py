@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence, cast
@@ -72,7 +73,7 @@ from rtctl.physics.suspension import SuspensionStatics
 from ..physics.backend import CASADI, NUMPY, Backend
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, _SoilView, _WheelView, wrench_core
-from .compiled_nlp import compiled_functions
+from .compiled_nlp import compiled_functions, find_compiler
 from .failures import SolutionView, WheelBounds
 from .scenario import Scenario, WheelFailure
 from .statics import WHEELS, FourWheelRocker, FreeBodyBalance, free_body_residuals
@@ -83,6 +84,8 @@ __all__ = [
     "WheelSolution",
     "PrimitiveResult",
     "STATUSES",
+    "NLP_STRUCTURES",
+    "per_wheel_graph",
     "get_problem",
     "world_of",
     "solve_primitive",
@@ -97,6 +100,8 @@ __all__ = [
 ]
 
 STATUSES = ("optimal", "infeasible", "not_found", "solver_failure")
+NLP_STRUCTURES = ("auto", "inlined", "per_wheel")
+"""Values of :attr:`SolverOptions.nlp_structure`."""
 """The four verdicts of :func:`solve_primitive` (module docstring)."""
 
 BETA_LIMIT = math.radians(89.0)  # |beta| < 90 deg keeps v_x > 0 (travel direction well defined)
@@ -153,8 +158,28 @@ class SolverOptions:
     compile : str
         How IPOPT evaluates the NLP's functions: ``"off"`` (casadi's virtual machine),
         ``"on"`` or ``"auto"`` (C compiled once per NLP structure and cached on disk,
-        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result, so it is not written
-        to table files and not hashed. A table build sets it from ``build.compile``.
+        :mod:`offline.rover.compiled_nlp`). Not data: it changes no result (the compiled C does
+        the virtual machine's operations in the same order), so it is not written to table files
+        and not hashed. A table build sets it from ``build.compile``.
+    nlp_structure : str
+        How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"inlined"`` (the default:
+        one SX graph, every wheel's wrench inlined), ``"per_wheel"`` (an MX graph calling one SX
+        function per wheel model four times, :func:`per_wheel_graph`) or ``"auto"`` (per wheel
+        when the functions are compiled, ``compile`` not ``"off"`` and a C compiler found, else
+        inlined). The same rows and objective from the same source
+        (:func:`rtctl.physics.steady_state.steady_state_rows`,
+        :func:`rtctl.physics.terramechanics.wrench_core`), IPOPT's functions equal to rounding.
+        Measured on README's worked example (``tests/bench/results_nlp_structure.md``): in
+        casadi's virtual machine the per-wheel graph is slower (Hessian 3.5 against 2.4 ms per
+        call, 1.32x the build's CPU on 42 grid points); compiled, its distinct code is 0.4 of the
+        inlined Hessian's and is reused by the four wheels: 107 s of compiler CPU instead of
+        354 s, and 0.64 of the inlined virtual machine's CPU for the whole worked example (391
+        against 610 s). Not the default because that build's verdicts differ at 4 of 252 points
+        (162 / 76 / 14 against 164 / 76 / 12): the automatic search's path parts at rounding
+        level at a stuck angle of -60 deg and cross slope 10 deg, where the inlined search finds a
+        checked primitive that the per-wheel search declares infeasible, and the reverse kind at
+        slope 5 deg. Not data. The environment variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the
+        default (benchmarks).
     """
 
     tol: float = 1e-9
@@ -176,6 +201,13 @@ class SolverOptions:
     feasibility_tol: float = 1e-7
     hessian: str = "exact"
     compile: str = field(default="off", metadata={"not_data": True})
+    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "inlined",
+                               metadata={"not_data": True})
+
+    def __post_init__(self) -> None:
+        if self.nlp_structure not in NLP_STRUCTURES:
+            raise ValueError(f"SolverOptions.nlp_structure = {self.nlp_structure!r}: expected one of {NLP_STRUCTURES} "
+                             "(or set the environment variable OFFNOMINAL_NLP_STRUCTURE to one of them)")
 
 
 @functools.lru_cache(maxsize=16)
@@ -208,6 +240,72 @@ def world_of(sc: Scenario) -> dict[str, Any]:
 
 
 _problem = get_problem  # former private name
+
+
+_WHEEL_STATE = ("beta", "omega", "h", "h0")
+"""A wheel's variables its wrench depends on (its load ``W`` enters the rows only), in the order
+of the per-wheel function's input (:func:`per_wheel_graph`)."""
+
+
+def per_wheel_graph(model: SteadyStateModel, L: NlpLayout) -> tuple[Any, Any, Any, Any]:
+    """The NLP (7.25) as a casadi MX graph that calls one SX function per wheel model.
+
+    ``wheel(q, speed) -> (F_x, F_y, F_z, M_x, M_y, M_z, F_z0)``, ``q = (beta, omega, h, h0)``: the
+    wheel's soil wrench (:func:`rtctl.physics.terramechanics.wrench_core` at the wheel velocity
+    of ``model.statics``) and the load ``F_z0`` of its zero-slip state (``omega = speed / r_s``,
+    sinkage ``h0``), built once per distinct wheel (one for equal wheels) and called once per
+    wheel; the rows and objective are one SX function of ``(x, p, wrenches)``, built by
+    :func:`rtctl.physics.steady_state.steady_state_rows` from those wrenches (its ``wrenches``
+    argument: hub drag, contact, trench rows and balance as in the inlined graph). IPOPT's
+    derivative functions are then built from one wheel's derivatives (called four times) instead
+    of four inlined copies: the code is about a quarter, the operations are not fewer.
+
+    The wheel functions use ``jac_penalty = 0.5`` (also on their derivatives): casadi then takes
+    their (4-column) Jacobian instead of pushing the Hessian's 7 colour directions through each
+    call, the cheaper of the two here (``tests/bench/results_nlp_structure.md``).
+
+    Returns
+    -------
+    x, p, f, g : casadi.MX
+        Scaled variables (``x_phys = x * layout.variable_scale``), physical parameters,
+        objective and scaled rows, as :attr:`SteadyStateProblem.symbols`.
+    """
+    import casadi as ca
+
+    jopt: dict[str, Any] = {"jac_penalty": 0.5, "der_options": {"jac_penalty": 0.5}}
+    funs: list[tuple[PhysParams, float, Any]] = []
+
+    def wheel_function(ph: PhysParams, rs: float) -> Any:
+        for ph_, rs_, fun in funs:
+            if (ph_ is ph or ph_ == ph) and rs_ == rs:
+                return fun
+        q, s = ca.SX.sym("q", len(_WHEEL_STATE)), ca.SX.sym("speed")
+        vx, vy = model.statics.wheel_velocity(CASADI, s, q[0])
+        w, _ = wrench_core(CASADI, vx, vy, q[1], q[2], q[3], ph, model.options)
+        w0, _ = wrench_core(CASADI, vx, vy, s / rs, q[3], q[3], ph, model.options)
+        fun = ca.Function(f"wheel_{len(funs)}", [q, s], [ca.vertcat(*w, w0[2])], ["q", "speed"], ["w"], jopt)
+        funs.append((ph, rs, fun))
+        return fun
+
+    nw = len(model.wheels)
+    xs, p = ca.SX.sym("x", L.nx), ca.SX.sym("p", L.np_)
+    x = xs * ca.DM(L.variable_scale)
+    P = {n: p[L.index(n)] for n in L.parameter_names}
+    xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in model.wheels}
+    ws = ca.SX.sym("w", 7, nw)
+    blocks: list[tuple[Any, ...]] = []
+    for i in range(nw):  # [wheel 0, its zero-slip state, ...]: only F_z of the zero-slip state enters the rows
+        blocks += [tuple(ws[j, i] for j in range(6)), (0.0, 0.0, ws[6, i], 0.0, 0.0, 0.0)]
+    rows, f, _ = steady_state_rows(CASADI, model, xw, P, wrenches=blocks)
+    g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
+    outer = ca.Function("steady_state_rows", [xs, p, ws], [g, f], ["x", "p", "w"], ["g", "f"])
+    xm, pm = ca.MX.sym("x", L.nx), ca.MX.sym("p", L.np_)
+    xph = xm * ca.DM(L.variable_scale)
+    speed = pm[L.index("speed")]
+    cols = [wheel_function(model.phys[i], model.shearing_radius[i])(
+        ca.vertcat(*(xph[L.var(v, k)] for v in _WHEEL_STATE)), speed) for i, k in enumerate(model.wheels)]
+    gm, fm = outer(xm, pm, ca.horzcat(*cols))
+    return xm, pm, fm, gm
 
 
 class SteadyStateProblem:
@@ -317,17 +415,27 @@ class SteadyStateProblem:
         phys = PhysParams.from_sets(params.soil, wheel, params.tuning)
         phys_of = {k: phys if w is wheel else PhysParams.from_sets(params.soil, w, params.tuning)
                    for k, w in wheel_of.items()}
-        xs = ca.SX.sym("x", L.nx)
-        p = ca.SX.sym("p", L.np_)
-        x = xs * ca.DM(self.xscale)
-        P = {n: p[L.index(n)] for n in L.parameter_names}
         self.steady_state = SteadyStateModel(
             tuple(WH), tuple(phys_of[k] for k in WH), tuple(self.rs_of[k] for k in WH), self.model_options,
             self.statics, params.soil, hub, external, trench_wheel, self.torque_scale)
         """The rows' definition shared with the rover's exact residual (:mod:`rtctl.physics.steady_state`)."""
-        xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in WH}
-        rows, f, _ = steady_state_rows(CASADI, self.steady_state, xw, P)
-        g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
+        xs: Any
+        p: Any
+        self.nlp_structure = self.options.nlp_structure
+        """The graph built: ``"inlined"`` or ``"per_wheel"`` (``"auto"`` resolved, :class:`SolverOptions`)."""
+        if self.nlp_structure == "auto":
+            compiled = self.options.compile != "off" and find_compiler() is not None
+            self.nlp_structure = "per_wheel" if compiled else "inlined"
+        if self.nlp_structure == "per_wheel":
+            xs, p, f, g = per_wheel_graph(self.steady_state, L)
+        else:
+            xs = ca.SX.sym("x", L.nx)
+            p = ca.SX.sym("p", L.np_)
+            x = xs * ca.DM(self.xscale)
+            P = {n: p[L.index(n)] for n in L.parameter_names}
+            xw = {k: tuple(x[L.var(v, k)] for v in WHEEL_VARIABLES) for k in WH}
+            rows, f, _ = steady_state_rows(CASADI, self.steady_state, xw, P)
+            g = ca.vertcat(*(rows[b.name] / b.scale for b in L.constraints))
         self.symbols = {"x": xs, "p": p, "f": f, "g": g}
         self.g_names = L.constraint_names
         self._nlp = {"x": xs, "p": p, "f": f, "g": g}

@@ -552,7 +552,7 @@ class _Derivatives:
 
         s = pb.symbols
         x, p, f, g = s["x"], s["p"], s["f"], s["g"]
-        lam = ca.SX.sym("lam_g", g.shape[0])
+        lam = type(x).sym("lam_g", g.shape[0])  # SX, or MX for the per-wheel NLP structure
         lag = f + ca.dot(lam, g)
         gl = ca.gradient(lag, x)
         self.fun = ca.Function("table_data", [x, p, lam],

@@ -50,6 +50,7 @@ __all__ = [
     "fit",
     "held_out",
     "refit_held_out",
+    "refit_fold_held_out",
     "linear_held_out",
     "tangent_null",
     "adjusted_p",
@@ -365,11 +366,23 @@ def refit_held_out(
     out = np.empty(n)
     nfev = 0
     for f in np.unique(folds):
-        tr, te = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
-        res = fit(lambda x: residual_rows(x, tr).ravel(), lower, upper, starts, n_channels, max_nfev=max_nfev, tol=tol)
-        nfev += res.nfev + 1
-        out[te] = (residual_rows(res.x, te) ** 2).sum(axis=1)
+        out[folds == f], nf = refit_fold_held_out(residual_rows, folds, int(f), lower, upper, starts, n_channels,
+                                                  max_nfev=max_nfev, tol=tol)
+        nfev += nf
     return out, nfev
+
+
+def refit_fold_held_out(
+    residual_rows: Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]], folds: NDArray[np.int_],
+    fold: int, lower: NDArray[np.float64], upper: NDArray[np.float64], starts: Sequence[NDArray[np.float64]],
+    n_channels: int, max_nfev: int = 30, tol: float | None = None,
+) -> tuple[NDArray[np.float64], int]:
+    """One fold of :func:`refit_held_out`: the fit on the other folds, the held-out chi-square of
+    the rows of ``fold`` (in row order) and the model evaluations spent (the folds are
+    independent: :func:`offline.discrepancy.parallel.map_tasks` runs them side by side)."""
+    tr, te = np.flatnonzero(folds != fold), np.flatnonzero(folds == fold)
+    res = fit(lambda x: residual_rows(x, tr).ravel(), lower, upper, starts, n_channels, max_nfev=max_nfev, tol=tol)
+    return (residual_rows(res.x, te) ** 2).sum(axis=1), res.nfev + 1
 
 
 def tangent_null(

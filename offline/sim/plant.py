@@ -516,6 +516,9 @@ class _DenseCall:
         n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
         dp = ctypes.POINTER(ctypes.c_double)
         self._in = [np.zeros(ref.sparsity_in(i).nnz()) for i in range(ref.n_in())]
+        # dense inputs: a column-major view of the buffer with the input's shape
+        self._in_views = [b.reshape(ref.sparsity_in(i).shape, order="F") if ref.sparsity_in(i).is_dense() else None
+                          for i, b in enumerate(self._in)]
         self._out = [np.zeros(ref.sparsity_out(i).nnz()) for i in range(ref.n_out())]
         self._shapes = [ref.sparsity_out(i).shape for i in range(ref.n_out())]
         self._trip = []
@@ -536,8 +539,11 @@ class _DenseCall:
         self._fn.restype = ctypes.c_int
 
     def __call__(self, *args: NDArray[np.float64]) -> list[NDArray[np.float64]]:
-        for b, a in zip(self._in, args):
-            b[:] = np.asarray(a, dtype=float).ravel(order="F")
+        for b, a, view in zip(self._in, args, self._in_views):
+            if view is not None and isinstance(a, np.ndarray) and a.shape == view.shape:
+                view[...] = a  # column-major into the buffer, one copy
+            else:
+                b[:] = np.asarray(a, dtype=float).ravel(order="F")
         if self._fn(self._arg, self._res, self._iw, self._w, 0) != 0:
             raise SimulationError("the compiled wheel batch returned an error")
         out = []
@@ -615,9 +621,12 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64] | None, X: NDArray
     vx, vy, om = X[0, :4], X[1, :4], X[2, :4]
     floor2 = (1e-3 * STICTION_SPEED) ** 2
     v = np.sqrt(vx * vx + vy * vy + floor2)
-    q = np.sqrt(vx * vx + vy * vy + (rs * om) ** 2 + floor2)
     cut = _STICTION_CUTOFF * STICTION_SPEED
-    for i in np.nonzero(v < cut)[0]:
+    slow = np.flatnonzero(v < cut)
+    if not slow.size:  # every wheel travels: nothing to scale (q >= v)
+        return
+    q = np.sqrt(vx * vx + vy * vy + (rs * om) ** 2 + floor2)
+    for i in slow:
         groups = [(_LATERAL, v[i], np.array([vx[i], vy[i], 0.0, 0.0, 0.0]) / v[i])]
         if q[i] < cut:
             groups.append((_LONGITUDINAL, q[i], np.array([vx[i], vy[i], rs[i] ** 2 * om[i], 0.0, 0.0]) / q[i]))

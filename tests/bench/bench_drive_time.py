@@ -64,7 +64,10 @@ def run_one(path: str, seed: int, workers: int = 1) -> None:
     import offline.discrepancy.drive.diagnosis as dd
     from offline.rover.scenario import load_scenario
 
-    sc = load_scenario(Path(dd.__file__).resolve().parents[1] / "scenarios/nominal.toml")
+    import offline
+
+    top = Path(offline.__file__).resolve().parent  # the drive tool moved (offline/fit -> offline/discrepancy/drive)
+    sc = load_scenario(top / "scenarios/nominal.toml")
     kw = {"workers": workers} if "workers" in inspect.signature(dd.diagnose_drives).parameters else {}
 
     def children() -> float:
@@ -74,7 +77,7 @@ def run_one(path: str, seed: int, workers: int = 1) -> None:
     t0, c0, k0 = time.perf_counter(), time.process_time(), children()
     v = dd.diagnose_drives([path], sc, seed=seed, **kw)
     secs, cpu = time.perf_counter() - t0, time.process_time() - c0 + children() - k0
-    print(json.dumps({"code": str(Path(dd.__file__).resolve().parents[2]), "seconds": secs, "cpu_seconds": cpu,
+    print(json.dumps({"code": str(top.parent), "seconds": secs, "cpu_seconds": cpu,
                       "workers": kw.get("workers", 1),
                       "simulations": v.model.simulations, "status": v.status, "named": v.missing_physics,
                       "empirical": [t.law() for t in v.empirical.terms] if v.empirical is not None else None,

@@ -8,3 +8,6 @@
 * :mod:`.synthetic`: recorded drives from the simulator (calibration drive, concealed truths);
 * :mod:`.report`: the report folder a drive verdict is rendered to (plots, truth file).
 """
+
+__all__ = ["diagnosis", "candidates", "empirical", "synthetic", "report"]
+from . import candidates, diagnosis, empirical, report, synthetic  # noqa: E402  (the modules __all__ lists)

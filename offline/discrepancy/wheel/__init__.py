@@ -10,3 +10,6 @@ A diagnosis is :func:`offline.discrepancy.engine.diagnose` on a
 :class:`~offline.fit.dataset.TrialSet`; its verdict is rendered by
 :func:`offline.discrepancy.report.write_report`.
 """
+
+__all__ = ["recording", "candidates", "face_pressure"]
+from . import candidates, face_pressure, recording  # noqa: E402  (the modules __all__ lists)

@@ -236,14 +236,18 @@ class PlantModel:
         M = weight * lr
         om_scale = ro.travel_speed / rs
         t_scale = weight / 4 * rs
+        one_m = 1 - mode
+        spin = jw * inv_dt != 0.0
         return (lr, hr, wr, hg, mass, iz, jw, weight, tether, cmd, mode, torque, u0, v0, r0, inv_dt, omega0, raised,
-                rs, c, s, -s, xs, ys, P, dv, ds, ds0, R, gx, gy, normal, M, om_scale, t_scale)
+                rs, c, s, -s, xs, ys, P, dv, ds, ds0, R, gx, gy, normal, M, om_scale, t_scale, one_m, one_m / t_scale,
+                mode / om_scale, one_m * jw * inv_dt, spin)
 
     def _evaluate(self, z: NDArray[np.float64], ctx: tuple[Any, ...], d: NDArray[np.float64] | None, jacobian: bool
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """:meth:`evaluate` with its :meth:`_context`."""
         (lr, hr, wr, hg, mass, iz, jw, weight, tether, cmd, mode, torque, u0, v0, r0, inv_dt, omega0, raised,
-         rs, c, s, ms, xs, ys, P, dv, ds_t, ds0_t, R, gx, gy, normal, M, om_scale, t_scale) = ctx
+         rs, c, s, ms, xs, ys, P, dv, ds_t, ds0_t, R, gx, gy, normal, M, om_scale, t_scale, one_m, one_m_t, mode_om, inertia,
+         spin) = ctx
         u, v, r = z[0], z[1], z[2]
         omega = z[3:7]
         h, h0 = np.exp(z[7:11]), np.exp(z[11:15])
@@ -285,11 +289,11 @@ class PlantModel:
         wheel = W[:, :4].T  # (4, 6) wheel frame
         if JW is not None:
             ds, ds0 = ds_t.copy(), ds0_t.copy()
-            ds[_I4, 3, 7 + _I4] = h
-            ds[_I4, 4, 11 + _I4] = h0
+            ds[_DS_H] = h
+            ds[_DS_H0] = h0
             ds0[:, 2, 0:3] = roll[:, None] * (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
-            ds0[_I4, 3, 11 + _I4] = h0
-            ds0[_I4, 4, 11 + _I4] = h0
+            ds0[_DS0_H0] = h0
+            ds0[_DS_H0] = h0
             dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
             dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
         F = np.einsum("ijk,ik->ij", R, wheel)
@@ -316,19 +320,19 @@ class PlantModel:
         res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
         if d is not None:
             res[1] += d[1] / weight
-        res[2] = (np.sum(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
+        res[2] = ((F[:, 5] + xs * F[:, 1] - ys * F[:, 0]).sum() - iz * (r - r0) * inv_dt) / M
         if d is not None:
             res[2] += d[2] / M
         res[3] = (F[:, 2].sum() - normal) / weight
-        res[4] = np.sum(F[:, 3] + ys * F[:, 2] - pz * F[:, 1]) / M
+        res[4] = (F[:, 3] + ys * F[:, 2] - pz * F[:, 1]).sum() / M
         # the rockers: wheels 0 and 2 (right), 1 and 3 (left)
-        res[5] = np.sum(F[0::2, 4] + pz[0::2] * F[0::2, 0] - px[0::2] * F[0::2, 2]) / M
-        res[6] = np.sum(F[1::2, 4] + pz[1::2] * F[1::2, 0] - px[1::2] * F[1::2, 2]) / M
-        res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
+        res[5] = (F[0::2, 4] + pz[0::2] * F[0::2, 0] - px[0::2] * F[0::2, 2]).sum() / M
+        res[6] = (F[1::2, 4] + pz[1::2] * F[1::2, 0] - px[1::2] * F[1::2, 2]).sum() / M
+        res[7:11] = mode * (omega - cmd) / om_scale + one_m * (wheel[:, 4] + torque) / t_scale
         if d is not None:
-            res[7:11] -= (1 - mode) * d[11:15] / t_scale
-        if jw * inv_dt != 0.0:  # spin inertia of a wheel in torque mode: J (omega - omega_prev) / dt
-            res[7:11] -= (1 - mode) * jw * inv_dt * (omega - omega0) / t_scale
+            res[7:11] -= one_m * d[11:15] / t_scale
+        if spin:  # spin inertia of a wheel in torque mode: J (omega - omega_prev) / dt
+            res[7:11] -= inertia * (omega - omega0) / t_scale
         res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
         if not jacobian:
             J = np.full((N_UNKNOWNS, N_UNKNOWNS), math.nan)
@@ -337,7 +341,7 @@ class PlantModel:
                 res[5] = res[5] + res[6]
                 res[6] = z[7 + i] - math.log(hg)
                 res[11 + i] = z[11 + i] - math.log(hg)
-                if mode[i] == 0.0 and jw * inv_dt == 0.0:  # free spinning without inertia: keep its speed
+                if mode[i] == 0.0 and not spin:  # free spinning without inertia: keep its speed
                     res[7 + i] = (omega[i] - omega0[i]) / om_scale[i]
             return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
         J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
@@ -368,10 +372,10 @@ class PlantModel:
                 for i in (fr, re):
                     J[4] -= F[i, 1] * dpz[i] * dsp / M
                     J[5 + side] += (F[i, 0] * dpz[i] - F[i, 2] * dpx[i]) * dsp / M
-        J[7:11] = ((1 - mode) / t_scale)[:, None] * dwheel[:, 4]
-        J[7 + _I4, 3 + _I4] += mode / om_scale
-        if jw * inv_dt != 0.0:
-            J[7 + _I4, 3 + _I4] -= (1 - mode) * jw * inv_dt / t_scale
+        J[7:11] = one_m_t[:, None] * dwheel[:, 4]
+        J[_J_OMEGA] += mode_om
+        if spin:
+            J[_J_OMEGA] -= inertia / t_scale
         J[11:15] = (dzero[:, 2] - dwheel[:, 2]) / (weight / 4)
         if raised:
             i = raised[0]
@@ -382,7 +386,7 @@ class PlantModel:
             J[6, 7 + i] = 1.0
             res[11 + i], J[11 + i] = z[11 + i] - math.log(hg), 0.0
             J[11 + i, 11 + i] = 1.0
-            if mode[i] == 0.0 and jw * inv_dt == 0.0:  # free spinning without inertia: keep its speed
+            if mode[i] == 0.0 and not spin:  # free spinning without inertia: keep its speed
                 res[7 + i], J[7 + i] = (omega[i] - omega0[i]) / om_scale[i], 0.0
                 J[7 + i, 3 + i] = 1.0 / om_scale[i]
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
@@ -558,6 +562,10 @@ class _DenseCall:
 
 
 _I4 = np.arange(4)
+_DS_H = (_I4, 3, 7 + _I4)  # d h / d log h of each wheel in the driven states' d state / d z
+_DS_H0 = (_I4, 4, 11 + _I4)  # d h0 / d log h0 (driven states and zero-slip twins)
+_DS0_H0 = (_I4, 3, 11 + _I4)  # the twin's sinkage is h0
+_J_OMEGA = (7 + _I4, 3 + _I4)  # each axle balance's own wheel speed
 
 def _twin_direction(vx: NDArray[np.float64]) -> NDArray[np.float64]:
     """+1 or -1 per wheel: the sign of the zero-slip twin's spin, that of the wheel's travel

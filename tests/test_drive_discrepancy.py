@@ -345,7 +345,7 @@ def test_the_verdict_does_not_depend_on_the_worker_count(sc, nominal, tmp_path):
     import json
 
     r = nominal.wheel_radius[0]
-    f = record_drive(tmp_path / "w.mcap", sc, replace(nominal, wheel_radius=(r, r, 0.94 * r, r)), seed=3, duration=10.0)
+    f = record_drive(tmp_path / "w.mcap", sc, replace(nominal, wheel_radius=(r, r, 0.94 * r, r)), seed=3, duration=8.0)
     lib = [c for c in DRIVE_CANDIDATES if c.key in ("wheel_radius_RR", "torque_saturation")]  # a threshold: refits
 
     def strip(x):
@@ -355,7 +355,7 @@ def test_the_verdict_does_not_depend_on_the_worker_count(sc, nominal, tmp_path):
 
     out = []
     for workers in (1, 2):
-        v = diagnose_drives([f], sc, segment=5, candidates=lib, recalibrate=False, empirical=False, seed=1, workers=workers)
+        v = diagnose_drives([f], sc, segment=3, candidates=lib, recalibrate=False, empirical=False, seed=1, workers=workers)
         out.append((json.dumps(strip(json.loads(json.dumps(v.to_json(), default=float))), sort_keys=True),
                     v.model.simulations, v.missing_physics))
     assert out[0][2] == ["wheel_radius_RR"], out[0][0][:2000]

@@ -294,3 +294,69 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     _, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
     assert not ok
     assert lost[0] == len(d.t) // 2 + 1
+
+
+class _CountingModel:
+    """A model with the work protocol of :class:`DriveModel` (a cache of runs and their count)."""
+
+    def __init__(self):
+        self.cache, self.runs, self.simulations = {}, [], 0
+
+    def run(self, key):
+        if key not in self.cache:
+            self.cache[key] = key * key
+            self.runs.append(key)
+            self.simulations += 1
+        return self.cache[key]
+
+    def work_mark(self):
+        return len(self.runs)
+
+    def work_since(self, mark):
+        return [(k, True, self.cache[k]) for k in self.runs[mark:]]
+
+    def absorb(self, work):
+        for k, counted, v in work:
+            if k not in self.cache:
+                self.cache[k], self.simulations = v, self.simulations + int(counted)
+                self.runs.append(k)
+
+
+def test_worker_processes_give_the_serial_results_and_counts():
+    """map_tasks returns the results in task order whatever the workers and the costliest-first
+    order, and carries the workers' runs back so that a run two tasks share is counted once, as
+    the serial loop's cache counts it (the count went wrong, 2 instead of 1, without absorb)."""
+    from offline.discrepancy.parallel import map_tasks
+
+    tasks = [[1, 2], [2, 3], [4], [1, 5], [6, 2]]
+    serial = _CountingModel()
+    want = [[serial.run(k) for k in t] for t in tasks]
+    for workers in (1, 2, 3):
+        m = _CountingModel()
+        m.run(1)  # known before the workers fork
+        got = map_tasks(lambda t, m=m: [m.run(k) for k in t], tasks, workers, m, cost=[1, 5, 2, 9, 3])
+        assert got == want
+        assert m.simulations == serial.simulations and set(m.cache) == set(serial.cache), workers
+
+
+def test_the_verdict_does_not_depend_on_the_worker_count(sc, nominal, tmp_path):
+    """A short drive with a worn RR wheel diagnosed in this process and on two worker processes:
+    the same verdict.json (seconds aside) and the same count of re-simulations."""
+    import json
+
+    r = nominal.wheel_radius[0]
+    f = record_drive(tmp_path / "w.mcap", sc, replace(nominal, wheel_radius=(r, r, 0.94 * r, r)), seed=3, duration=8.0)
+    lib = [c for c in DRIVE_CANDIDATES if c.key in ("wheel_radius_RR", "torque_saturation")]  # a threshold: refits
+
+    def strip(x):
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if k != "seconds"}
+        return [strip(v) for v in x] if isinstance(x, list) else x
+
+    out = []
+    for workers in (1, 2):
+        v = diagnose_drives([f], sc, segment=3, candidates=lib, recalibrate=False, empirical=False, seed=1, workers=workers)
+        out.append((json.dumps(strip(json.loads(json.dumps(v.to_json(), default=float))), sort_keys=True),
+                    v.model.simulations, v.missing_physics))
+    assert out[0][2] == ["wheel_radius_RR"], out[0][0][:2000]
+    assert out[1] == out[0]

@@ -60,16 +60,16 @@ class _Counter:
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.full = self.residual_only = 0
-        original = PlantModel.evaluate
+        original = PlantModel._evaluate  # what the solve calls (evaluate with its per-solve context)
 
-        def evaluate(plant: PlantModel, *args: Any, jacobian: bool = True, **kw: Any) -> Any:
+        def evaluate(plant: PlantModel, z: Any, ctx: Any, d: Any, jacobian: bool) -> Any:
             if jacobian:
                 self.full += 1
             else:
                 self.residual_only += 1
-            return original(plant, *args, jacobian=jacobian, **kw)
+            return original(plant, z, ctx, d, jacobian)
 
-        monkeypatch.setattr(PlantModel, "evaluate", evaluate)
+        monkeypatch.setattr(PlantModel, "_evaluate", evaluate)
 
     def reset(self) -> None:
         self.full = self.residual_only = 0

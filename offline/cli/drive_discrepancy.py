@@ -35,6 +35,9 @@ def add_recording_arguments(d: argparse.ArgumentParser) -> None:
     g.add_argument("--per-wheel-actuators", action="store_true",
                    help="add the per-wheel actuator terms (wheel-speed saturation, extra servo lag, steering saturation "
                         "of each wheel) to the library; slower")
+    g.add_argument("--workers", type=int, default=None,
+                   help="processes for the independent re-simulations (default: every core this process may use); "
+                        "the verdict is the same for any number")
 
 
 def run_recording(args: argparse.Namespace) -> int:
@@ -74,12 +77,18 @@ def run_recording(args: argparse.Namespace) -> int:
         return fail(str(exc))
     if args.segment < 2:
         return fail(f"--segment {args.segment}: at least 2 ticks per segment")
+    from ..discrepancy.parallel import available_workers
+
+    workers = available_workers() if args.workers is None else args.workers
+    if workers < 1:
+        return fail(f"--workers {args.workers}: at least 1")
     say = None if args.quiet else (lambda s: print(f"  [{time.perf_counter() - t0:5.1f} s] {s}", flush=True))
     try:
         from ..discrepancy.drive.candidates import DRIVE_CANDIDATES, DRIVE_CANDIDATES_WITH_ACTUATORS
 
         lib = DRIVE_CANDIDATES_WITH_ACTUATORS if getattr(args, "per_wheel_actuators", False) else DRIVE_CANDIDATES
-        v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say, candidates=lib)
+        v = diagnose_drives(args.recording, sc, truth, segment=args.segment, seed=args.seed, progress=say, candidates=lib,
+                            workers=workers)
     except (DriveDataError, DriveCandidateError) as exc:
         return fail(str(exc))
     except ValueError as exc:  # the engine's DiscrepancyError (too few rows, model fails on most rows)

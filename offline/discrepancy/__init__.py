@@ -7,6 +7,8 @@ A layer above :mod:`offline.fit` (the calibrated wheel-soil model it starts from
 
 * :mod:`.engine`: the generic engine (:func:`~.engine.diagnose`, :class:`~.engine.Verdict`),
   over any :class:`~.observations.Observations` and model; :mod:`.significance` its statistics;
+* :mod:`.parallel`: the independent re-simulations of a diagnosis over worker processes, with
+  the verdict of one process bit for bit (``workers=``);
 * :mod:`.report`: renders a verdict to a report folder (the diagnosis itself writes nothing);
 * :mod:`.wheel`: the single-wheel product (testbed trials, its candidate library);
 * :mod:`.drive`: the drive product (MCAP recordings, its library, empirical terms, drive report).
@@ -14,7 +16,7 @@ A layer above :mod:`offline.fit` (the calibrated wheel-soil model it starts from
 Import the module you need: ``from offline.discrepancy.drive.diagnosis import diagnose_drives``.
 """
 
-__all__ = ["engine", "observations", "significance", "report", "wheel", "drive"]
+__all__ = ["engine", "observations", "significance", "parallel", "report", "wheel", "drive"]
 
 
 def __getattr__(name: str) -> object:

@@ -74,6 +74,7 @@ from ..physics.terramechanics import ModelOptions
 from .wheel.candidates import CANDIDATES, RECALIBRATION_KEY, Candidate, Extension, SingleWheelModel, predict_recording
 from ..fit.dataset import TrialSet
 from .wheel.recording import SingleWheelRecording
+from .parallel import map_tasks
 from .significance import (
     Region,
     adjusted_p,
@@ -83,6 +84,7 @@ from .significance import (
     linear_held_out,
     locate,
     normalised,
+    refit_fold_held_out,
     refit_held_out,
     tangent_null,
     vuong,
@@ -278,9 +280,10 @@ class Verdict:
     withheld_reason: str = ""
     """Why ``withheld`` is not named (a summary line)."""
     empirical: Any = None
-    """What the library lacks, modelled by an empirical term (drives,
-    :class:`offline.discrepancy.drive.empirical.EmpiricalResult`), or None: the status above stays the
-    library's verdict (an empirical term names no library physics)."""
+    """What the library lacks, modelled by an empirical term (drives:
+    :class:`offline.discrepancy.drive.empirical.EmpiricalResult`; single-wheel trials:
+    :class:`offline.discrepancy.wheel.empirical.WheelEmpiricalResult`), or None: the status above
+    stays the library's verdict (an empirical term names no library physics)."""
 
     @property
     def excess_removed(self) -> float:
@@ -535,6 +538,7 @@ def diagnose(
     forward_extra: bool = True,
     polish_nfev: int = 100,
     empirical: bool = True,
+    workers: int = 1,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -619,6 +623,11 @@ def diagnose(
         (:func:`offline.discrepancy.wheel.empirical.search_wheel_empirical`, same seed, level and
         folds); the result is ``verdict.empirical`` and the library's verdict is kept. Drives
         run their own family (:func:`offline.discrepancy.drive.diagnosis.diagnose_drives`).
+    workers : int
+        Processes the independent re-simulations run on (the candidates' fits, the null's
+        linearisation points, the held-out refit of each fold, the forward step's pairs:
+        :func:`~offline.discrepancy.parallel.map_tasks`); the verdict is the same, bit for bit,
+        for any number (1: this process; with more, ``progress`` is called from the workers).
 
     Raises
     ------
@@ -694,19 +703,17 @@ def diagnose(
                            f.nfev + k_folds, covariance=f.covariance)
         return s, f
 
-    singles: list[CandidateScore] = []
-    fits = []
-    for c in library:
+    def fit_single(c: Candidate) -> tuple[CandidateScore, Any]:
         say(f"fitting {c.key}")
-        starts = [np.array([q[4] for q in c.params])] + [np.array(s, dtype=float) for s in c.starts]
-        s, f = score([c], starts)
-        singles.append(s)
-        fits.append(f)
+        return score([c], [np.array([q[4] for q in c.params])] + [np.array(s, dtype=float) for s in c.starts])
+
+    # the costliest fits first (fits scale with the parameters and the starts)
+    done = map_tasks(fit_single, library, workers, model, cost=[c.k * (1 + len(c.starts)) for c in library])
+    singles: list[CandidateScore] = [s for s, _ in done]
+    fits = [f for _, f in done]
     say("null distribution (tangent bootstrap)")
-    tangents = []
-    for c, f in zip(library, fits):
-        pts = [f.jac]
-        r = resid_fn([c])
+    points: list[tuple[int, NDArray[np.float64]]] = []  # (candidate, linearisation point): drawn here, in order
+    for m, c in enumerate(library):
         if not (c.threshold or c.starts):  # smooth in its parameters: linearised at the fit and at the start
             xs = [np.array([q[4] for q in c.params])]
         else:  # thresholds and directions: the starts and points spread over the box
@@ -714,8 +721,14 @@ def diagnose(
                                    if c.starts else [])
             xs = [np.array(c.starts[j], dtype=float) for j in pick]
             xs += [c.lower + rng.uniform(0.02, 0.98, size=c.k) * (c.upper - c.lower) for _ in range(n_points - 1 - len(xs))]
-        pts += [_fd_jac(r, np.clip(x, c.lower, c.upper), c.lower, c.upper) for x in xs]
-        tangents.append(pts)
+        points += [(m, np.clip(x, c.lower, c.upper)) for x in xs]
+
+    def tangent(point: tuple[int, NDArray[np.float64]]) -> NDArray[np.float64]:
+        c = library[point[0]]
+        return _fd_jac(resid_fn([c]), point[1], c.lower, c.upper)
+
+    jacs = map_tasks(tangent, points, workers, model, cost=[library[m].k for m, _ in points])
+    tangents = [[f.jac] + [j for (m, _), j in zip(points, jacs) if m == i] for i, f in enumerate(fits)]
     null = tangent_null(tangents, folds, nc, n_boot, rng, draw=getattr(obs, "null_draw", None),
                         damping=1e-3 if forward_extra else 0.0)
     observed = np.array([s.delta_cv for s in singles])
@@ -734,12 +747,28 @@ def diagnose(
     bound = np.array([max(observed[i], chi2_base - singles[i].chi2_in) if c.threshold and forward_extra else observed[i]
                       for i, c in enumerate(library)])
     _, p_bound = adjusted_p(bound, null)
-    for i in [i for i in np.argsort(-bound) if p_bound[i] < alpha and bound[i] > max(reach, 0.0)
-              and library[i].threshold][:n_refit]:
+    refit = [int(i) for i in np.argsort(-bound) if p_bound[i] < alpha and bound[i] > max(reach, 0.0)
+             and library[i].threshold][:n_refit]
+    fold_ids = [int(f) for f in np.unique(folds)]
+
+    def refit_fold(task: tuple[int, int]) -> tuple[NDArray[np.float64], int]:
+        i, fold = task
         c = library[i]
-        say(f"held-out refits of {c.key}")
+        if fold == fold_ids[0]:
+            say(f"held-out refits of {c.key}")
         starts = [np.array(singles[i].values), np.array([q[4] for q in c.params])] + [np.array(q, dtype=float) for q in c.starts]
-        rows, nf = refit_held_out(rows_fn([c]), folds, c.lower, c.upper, starts, nc, max_nfev=max_nfev, tol=fit_tol)
+        return refit_fold_held_out(rows_fn([c]), folds, fold, c.lower, c.upper, starts, nc, max_nfev=max_nfev, tol=fit_tol)
+
+    # every fold of every candidate refitted is one task (the cost of a fold's fit grows with the starts)
+    tasks = [(i, fold) for i in refit for fold in fold_ids]
+    done_folds = map_tasks(refit_fold, tasks, workers, model, cost=[len(library[i].starts) for i, _ in tasks])
+    for i in refit:
+        rows = np.empty(folds.size)
+        nf = 0
+        for (j, fold), (te_chi2, nfev) in zip(tasks, done_folds):
+            if j == i:
+                rows[folds == fold] = te_chi2
+                nf += nfev
         singles[i] = _with(singles[i], chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                            nfev=singles[i].nfev + nf, refit=True)
     observed = np.array([s.delta_cv for s in singles])
@@ -789,8 +818,9 @@ def diagnose(
             # the pool was a chance to find one)
             say(f"screening {len(pool)} terms on top of {primary.label}")
             j1 = fits[by_key[primary.keys[0]][2]].jac
-            cond = {s.keys[0]: _conditional_rows(resid_fn, first, np.array(primary.values), j1, by_key[s.keys[0]][0], folds, nc)
-                    for s in pool}
+            cond_rows = map_tasks(lambda s: _conditional_rows(resid_fn, first, np.array(primary.values), j1,
+                                                              by_key[s.keys[0]][0], folds, nc), pool, workers, model)
+            cond = {s.keys[0]: rows for s, rows in zip(pool, cond_rows)}
             q_pool = float(np.quantile(null[[by_key[s.keys[0]][2] for s in pool]].max(axis=0), 1.0 - alpha)) if pool else math.inf
             # joint fits only for terms whose screening gain reaches half the threshold (budget)
             tries = [s for s in sorted(pool, key=lambda s: cond[s.keys[0]].sum())
@@ -802,7 +832,8 @@ def diagnose(
                 alone = [s for s in sorted(pool, key=lambda s: -s.delta_cv) if s.significant]
                 if alone and alone[0] not in tries:
                     tries.append(alone[0])
-            for s2 in tries:
+            def try_pair(s2: CandidateScore, primary: CandidateScore = primary, first: list[Candidate] = first,
+                         q_pool: float = q_pool) -> CandidateScore:
                 c2 = by_key[s2.keys[0]][0]
                 say(f"trying {primary.label} + {c2.key}")
                 x0 = np.array([*primary.values, *s2.values])
@@ -828,6 +859,11 @@ def diagnose(
                                               tol=fit_tol)
                     sc2 = _with(sc2, chi2_cv=float(rows.sum()), delta_cv=chi2_base - float(rows.sum()), rows_cv=rows,
                                 nfev=sc2.nfev + nf, refit=True)
+                return sc2
+
+            # the pairs' fits are independent of one another: side by side, then judged in order
+            for s2, sc2 in zip(tries, map_tasks(try_pair, tries, workers, model)):
+                c2 = by_key[s2.keys[0]][0]
                 extra = primary.chi2_cv - sc2.chi2_cv
                 q = q_pool
                 sig2 = bool(extra > max(q, 0.0))
@@ -860,12 +896,16 @@ def diagnose(
                 # pair and keep the pairs the held-out rows cannot tell from it
                 second = by_key[best2.keys[-1]][0]
                 pairs = [best2] + [s for s in equivalent if len(s.keys) > 1]
-                for s in [s for s in equivalent if len(s.keys) == 1]:
+                alike = [s for s in equivalent if len(s.keys) == 1
+                         and (by_key[s.keys[0]][0].family or s.keys[0]) != (second.family or second.key)]
+
+                def try_alike(s: CandidateScore, second: Candidate = second, best2: CandidateScore = best2,
+                              primary: CandidateScore = primary) -> CandidateScore:
                     c1 = by_key[s.keys[0]][0]
-                    if (c1.family or c1.key) == (second.family or second.key):
-                        continue
                     say(f"trying look-alike {c1.key} + {second.key}")
-                    alt, _ = score([c1, second], [np.array([*s.values, *best2.values[primary.k:]])])
+                    return score([c1, second], [np.array([*s.values, *best2.values[primary.k:]])])[0]
+
+                for alt in map_tasks(try_alike, alike, workers, model):
                     alt = _with(alt, significant=True)
                     scores.append(alt)
                     pairs.append(alt)

@@ -187,7 +187,16 @@ class PlantModel:
         The Jacobian is exact except for the rocker angle's dependence on the sinkages (a
         term of order ``h_r / l_r`` times the sinkage difference), so Newton converges to
         the exact root a little slower than quadratically.
+
+        What depends on the inputs ``a`` and parameters ``q`` alone (steer rotations, gravity
+        components, scales) is computed once per Newton solve (:meth:`_context`); the
+        operations and their order are those of computing it at every evaluation, so the
+        numbers are bit for bit the same.
         """
+        return self._evaluate(z, self._context(a, q), d, jacobian)
+
+    def _context(self, a: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[Any, ...]:
+        """The part of :meth:`evaluate` that does not depend on the unknowns (one Newton solve)."""
         ro = self.rover
         lr, hr, wr = ro.rocker_length, ro.pivot_height, ro.track_width
         hg = self.params.wheel.grouser_height
@@ -195,77 +204,104 @@ class PlantModel:
         jw = q[18] if len(q) > 18 else 0.0
         weight = mass * GRAVITY
         slope, cross, tether = q[13], q[14], q[15]
-        u, v, r = z[0], z[1], z[2]
-        omega = z[3:7]
-        h, h0 = np.exp(z[7:11]), np.exp(z[11:15])
         cmd, mode, torque, steer = a[0:4], a[4:8], a[8:12], a[12:16]
         u0, v0, r0, psi, inv_dt = a[16], a[17], a[18], a[19], a[20]
-        omega0 = a[21:25] if len(a) > 21 else omega
+        omega0 = a[21:25] if len(a) > 21 else None
         raised = [i for i in range(4) if len(a) > 25 and a[25 + i] == 0.0]
-        if raised:  # park the raised wheel's sinkages (the wheel model must stay finite; its wrench is dropped)
-            h, h0 = h.copy(), h0.copy()
-            h[raised] = h0[raised] = hg
         rs = q[0:4] + hg
         c, s = np.cos(steer), np.sin(steer)
-        vxr, vyr = u - r * _YS(wr), v + r * _XS(lr)
-        vx, vy = c * vxr + s * vyr, -s * vxr + c * vyr
-        speed = np.sqrt(vx * vx + vy * vy + 1e-18)
-        X = np.empty((5, 8))
-        X[:, :4] = np.vstack([vx, vy, omega, h, h0])
-        roll = _twin_direction(vx)  # the twin rolls the way the wheel travels (zero slip backward too)
-        X[:, 4:] = np.vstack([vx, vy, roll * speed / rs, h0, h0])
+        xs, ys = _XS(lr), _YS(wr)
         P = np.empty((10, 8))
         P[0, :4] = P[0, 4:] = q[0:4]
         P[1:, :] = q[4:13, None]
-        if not jacobian:
-            if self._call_residual is not None:
-                W, SL, BE = self._call_residual(X, P)
-            else:
-                W, SL, BE = (np.asarray(o, dtype=float) for o in self.residual_function(X, P))
-            JW = self._no_jacobian
-        elif self._call is not None:
-            W, JW, SL, BE = self._call(X, P)
-        else:
-            W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
-        JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
-        _stiction(W, JW if jacobian else None, X, rs)
-        if raised:  # no ground contact: no soil wrench, slip undefined
-            idx = raised + [4 + i for i in raised]
-            W[:, idx] = 0.0
-            JW[idx] = 0.0
-            SL[0, raised] = BE[0, raised] = math.nan
         # d(vx, vy)/d(u, v, r) per wheel
         dv = np.zeros((4, 2, 3))
         dv[:, 0, 0], dv[:, 0, 1], dv[:, 0, 2] = c, s, -c * _YS(wr) + s * _XS(lr)
         dv[:, 1, 0], dv[:, 1, 1], dv[:, 1, 2] = -s, c, s * _YS(wr) + c * _XS(lr)
-        # d state / d z for the driven states and the zero-slip twins, (4, 5, 15)
+        # d state / d z for the driven states and the zero-slip twins, (4, 5, 15): the parts
+        # that do not depend on the unknowns
         ds = np.zeros((4, 5, N_UNKNOWNS))
         ds0 = np.zeros((4, 5, N_UNKNOWNS))
         ds[:, 0:2, 0:3] = dv
         ds0[:, 0:2, 0:3] = dv
         ds[_I4, 2, 3 + _I4] = 1.0
-        ds[_I4, 3, 7 + _I4] = h
-        ds[_I4, 4, 11 + _I4] = h0
-        ds0[:, 2, 0:3] = roll[:, None] * (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
-        ds0[_I4, 3, 11 + _I4] = h0
-        ds0[_I4, 4, 11 + _I4] = h0
-        wheel = W[:, :4].T  # (4, 6) wheel frame
-        if jacobian:
-            dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
-            dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
-        else:  # residual only: the derivative terms below are left at zero (the Jacobian returned is NaN)
-            dwheel = dzero = np.zeros((4, 6, N_UNKNOWNS))
         # rotate into the rover frame (wrench and its derivative; steer is an input)
         R = np.zeros((4, 6, 6))
         R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = c, -s, s, c
         R[:, 2, 2] = R[:, 5, 5] = 1.0
         R[:, 3, 3], R[:, 3, 4], R[:, 4, 3], R[:, 4, 4] = c, -s, s, c
+        gX, gY = -weight * math.sin(slope), -weight * math.cos(slope) * math.sin(cross)
+        gx, gy = gX * math.cos(psi) + gY * math.sin(psi), -gX * math.sin(psi) + gY * math.cos(psi)
+        normal = weight * math.cos(slope) * math.cos(cross)
+        M = weight * lr
+        om_scale = ro.travel_speed / rs
+        t_scale = weight / 4 * rs
+        one_m = 1 - mode
+        spin = jw * inv_dt != 0.0
+        return (lr, hr, wr, hg, mass, iz, jw, weight, tether, cmd, mode, torque, u0, v0, r0, inv_dt, omega0, raised,
+                rs, c, s, -s, xs, ys, P, dv, ds, ds0, R, gx, gy, normal, M, om_scale, t_scale, one_m, one_m / t_scale,
+                mode / om_scale, one_m * jw * inv_dt, spin)
+
+    def _evaluate(self, z: NDArray[np.float64], ctx: tuple[Any, ...], d: NDArray[np.float64] | None, jacobian: bool
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`evaluate` with its :meth:`_context`."""
+        (lr, hr, wr, hg, mass, iz, jw, weight, tether, cmd, mode, torque, u0, v0, r0, inv_dt, omega0, raised,
+         rs, c, s, ms, xs, ys, P, dv, ds_t, ds0_t, R, gx, gy, normal, M, om_scale, t_scale, one_m, one_m_t, mode_om, inertia,
+         spin) = ctx
+        u, v, r = z[0], z[1], z[2]
+        omega = z[3:7]
+        h, h0 = np.exp(z[7:11]), np.exp(z[11:15])
+        if omega0 is None:
+            omega0 = omega
+        if raised:  # park the raised wheel's sinkages (the wheel model must stay finite; its wrench is dropped)
+            h, h0 = h.copy(), h0.copy()
+            h[raised] = h0[raised] = hg
+        vxr, vyr = u - r * ys, v + r * xs
+        vx, vy = c * vxr + s * vyr, ms * vxr + c * vyr
+        speed = np.sqrt(vx * vx + vy * vy + 1e-18)
+        X = np.empty((5, 8))
+        X[0, :4] = X[0, 4:] = vx
+        X[1, :4] = X[1, 4:] = vy
+        X[2, :4] = omega
+        X[3, :4] = h
+        X[4, :4] = X[3, 4:] = X[4, 4:] = h0
+        roll = _twin_direction(vx)  # the twin rolls the way the wheel travels (zero slip backward too)
+        X[2, 4:] = roll * speed / rs
+        if not jacobian:
+            if self._call_residual is not None:
+                W, SL, BE = self._call_residual(X, P)
+            else:
+                W, SL, BE = (np.asarray(o, dtype=float) for o in self.residual_function(X, P))
+            JW = None
+        elif self._call is not None:
+            W, JW, SL, BE = self._call(X, P)
+        else:
+            W, JW, SL, BE = (np.asarray(o, dtype=float) for o in self.function(X, P))
+        if JW is not None:
+            JW = JW.reshape(6, 8, 5).transpose(1, 0, 2)  # (state, wrench comp, x)
+        _stiction(W, JW, X, rs)
+        if raised:  # no ground contact: no soil wrench, slip undefined
+            idx = raised + [4 + i for i in raised]
+            W[:, idx] = 0.0
+            if JW is not None:
+                JW[idx] = 0.0
+            SL[0, raised] = BE[0, raised] = math.nan
+        wheel = W[:, :4].T  # (4, 6) wheel frame
+        if JW is not None:
+            ds, ds0 = ds_t.copy(), ds0_t.copy()
+            ds[_DS_H] = h
+            ds[_DS_H0] = h0
+            ds0[:, 2, 0:3] = roll[:, None] * (vx[:, None] * dv[:, 0] + vy[:, None] * dv[:, 1]) / (speed * rs)[:, None]
+            ds0[_DS0_H0] = h0
+            ds0[_DS_H0] = h0
+            dwheel = np.einsum("ikx,ixz->ikz", JW[:4], ds)  # (4, 6, 15)
+            dzero = np.einsum("ikx,ixz->ikz", JW[4:], ds0)
         F = np.einsum("ijk,ik->ij", R, wheel)
-        dF = np.einsum("ijk,ikz->ijz", R, dwheel) if jacobian else dwheel
+        if JW is not None:
+            dF = np.einsum("ijk,ikz->ijz", R, dwheel)
         if d is not None:
             F[:, 0] += d[3:7]
             F[:, 1] += d[7:11]
-        xs, ys = _XS(lr), _YS(wr)
         # rocker geometry (x, z of wheel centres from the pivot)
         px, pz = np.empty(4), np.empty(4)
         sps = [(h[2] - h[0]) / lr, (h[3] - h[1]) / lr]
@@ -277,38 +313,52 @@ class PlantModel:
             cp = math.sqrt(max(1.0 - sp * sp, 0.0))
             px[fr], pz[fr] = lr / 2 * cp + hr * sp, lr / 2 * sp - hr * cp
             px[re], pz[re] = -lr / 2 * cp + hr * sp, -lr / 2 * sp - hr * cp
-        gX, gY = -weight * math.sin(slope), -weight * math.cos(slope) * math.sin(cross)
-        gx, gy = gX * math.cos(psi) + gY * math.sin(psi), -gX * math.sin(psi) + gY * math.cos(psi)
-        normal = weight * math.cos(slope) * math.cos(cross)
-        M = weight * lr
         res = np.empty(N_UNKNOWNS)
-        J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
         res[0] = (F[:, 0].sum() + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
         if d is not None:
             res[0] += d[0] / weight
+        res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
+        if d is not None:
+            res[1] += d[1] / weight
+        res[2] = ((F[:, 5] + xs * F[:, 1] - ys * F[:, 0]).sum() - iz * (r - r0) * inv_dt) / M
+        if d is not None:
+            res[2] += d[2] / M
+        res[3] = (F[:, 2].sum() - normal) / weight
+        res[4] = (F[:, 3] + ys * F[:, 2] - pz * F[:, 1]).sum() / M
+        # the rockers: wheels 0 and 2 (right), 1 and 3 (left)
+        res[5] = (F[0::2, 4] + pz[0::2] * F[0::2, 0] - px[0::2] * F[0::2, 2]).sum() / M
+        res[6] = (F[1::2, 4] + pz[1::2] * F[1::2, 0] - px[1::2] * F[1::2, 2]).sum() / M
+        res[7:11] = mode * (omega - cmd) / om_scale + one_m * (wheel[:, 4] + torque) / t_scale
+        if d is not None:
+            res[7:11] -= one_m * d[11:15] / t_scale
+        if spin:  # spin inertia of a wheel in torque mode: J (omega - omega_prev) / dt
+            res[7:11] -= inertia * (omega - omega0) / t_scale
+        res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
+        if not jacobian:
+            J = np.full((N_UNKNOWNS, N_UNKNOWNS), math.nan)
+            if raised:
+                i = raised[0]
+                res[5] = res[5] + res[6]
+                res[6] = z[7 + i] - math.log(hg)
+                res[11 + i] = z[11 + i] - math.log(hg)
+                if mode[i] == 0.0 and not spin:  # free spinning without inertia: keep its speed
+                    res[7 + i] = (omega[i] - omega0[i]) / om_scale[i]
+            return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
+        J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
         J[0] = dF[:, 0].sum(0) / weight
         J[0, 0] -= mass * inv_dt / weight
         J[0, 1] += mass * r / weight
         J[0, 2] += mass * v / weight
-        res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
-        if d is not None:
-            res[1] += d[1] / weight
         J[1] = dF[:, 1].sum(0) / weight
         J[1, 1] -= mass * inv_dt / weight
         J[1, 2] -= mass * u / weight
         J[1, 0] -= mass * r / weight
-        res[2] = (np.sum(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
-        if d is not None:
-            res[2] += d[2] / M
         J[2] = (dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0]).sum(0) / M
         J[2, 2] -= iz * inv_dt / M
-        res[3] = (F[:, 2].sum() - normal) / weight
         J[3] = dF[:, 2].sum(0) / weight
-        res[4] = np.sum(F[:, 3] + ys * F[:, 2] - pz * F[:, 1]) / M
         J[4] = (dF[:, 3] + ys[:, None] * dF[:, 2] - pz[:, None] * dF[:, 1]).sum(0) / M
-        for row, idx in ((5, [0, 2]), (6, [1, 3])):
-            res[row] = np.sum(F[idx, 4] + pz[idx] * F[idx, 0] - px[idx] * F[idx, 2]) / M
-            J[row] = (dF[idx, 4] + pz[idx, None] * dF[idx, 0] - px[idx, None] * dF[idx, 2]).sum(0) / M
+        J[5] = (dF[0::2, 4] + pz[0::2, None] * dF[0::2, 0] - px[0::2, None] * dF[0::2, 2]).sum(0) / M
+        J[6] = (dF[1::2, 4] + pz[1::2, None] * dF[1::2, 0] - px[1::2, None] * dF[1::2, 2]).sum(0) / M
         if self.rocker_jacobian:  # the rocker angles' dependence on the sinkages (left out by default)
             for side, (fr, re) in enumerate(((0, 2), (1, 3))):
                 src = 1 - side if raised and raised[0] % 2 == side else side
@@ -322,17 +372,10 @@ class PlantModel:
                 for i in (fr, re):
                     J[4] -= F[i, 1] * dpz[i] * dsp / M
                     J[5 + side] += (F[i, 0] * dpz[i] - F[i, 2] * dpx[i]) * dsp / M
-        om_scale = ro.travel_speed / rs
-        t_scale = weight / 4 * rs
-        res[7:11] = mode * (omega - cmd) / om_scale + (1 - mode) * (wheel[:, 4] + torque) / t_scale
-        if d is not None:
-            res[7:11] -= (1 - mode) * d[11:15] / t_scale
-        J[7:11] = ((1 - mode) / t_scale)[:, None] * dwheel[:, 4]
-        J[7 + _I4, 3 + _I4] += mode / om_scale
-        if jw * inv_dt != 0.0:  # spin inertia of a wheel in torque mode: J (omega - omega_prev) / dt
-            res[7:11] -= (1 - mode) * jw * inv_dt * (omega - omega0) / t_scale
-            J[7 + _I4, 3 + _I4] -= (1 - mode) * jw * inv_dt / t_scale
-        res[11:15] = (W[2, 4:] - wheel[:, 2]) / (weight / 4)
+        J[7:11] = one_m_t[:, None] * dwheel[:, 4]
+        J[_J_OMEGA] += mode_om
+        if spin:
+            J[_J_OMEGA] -= inertia / t_scale
         J[11:15] = (dzero[:, 2] - dwheel[:, 2]) / (weight / 4)
         if raised:
             i = raised[0]
@@ -343,11 +386,9 @@ class PlantModel:
             J[6, 7 + i] = 1.0
             res[11 + i], J[11 + i] = z[11 + i] - math.log(hg), 0.0
             J[11 + i, 11 + i] = 1.0
-            if mode[i] == 0.0 and jw * inv_dt == 0.0:  # free spinning without inertia: keep its speed
+            if mode[i] == 0.0 and not spin:  # free spinning without inertia: keep its speed
                 res[7 + i], J[7 + i] = (omega[i] - omega0[i]) / om_scale[i], 0.0
                 J[7 + i, 3 + i] = 1.0 / om_scale[i]
-        if not jacobian:
-            J[:] = math.nan
         return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
 
     rocker_jacobian = False
@@ -380,7 +421,8 @@ class PlantModel:
             No equilibrium within :attr:`MAX_NEWTON` iterations (the message gives the residual).
         """
         z = np.array(z0, dtype=float)
-        res, J, w, sl, be = self.evaluate(z, a, q, d)
+        ctx = self._context(a, q)
+        res, J, w, sl, be = self._evaluate(z, ctx, d, True)
         res = res.ravel()
         norm = float(np.max(np.abs(res)))
         if trace is not None:
@@ -404,7 +446,7 @@ class PlantModel:
                 zt = z + lam * dz
                 # the full step with its Jacobian (usually taken, and needed unless this is the last
                 # iteration); a shortened step residual only
-                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d, jacobian=trial == 0 and it < self.MAX_NEWTON)
+                rt, Jt, wt, slt, bet = self._evaluate(zt, ctx, d, trial == 0 and it < self.MAX_NEWTON)
                 rt = rt.ravel()
                 nt = float(np.max(np.abs(rt)))
                 if np.isfinite(nt) and (nt < (1 - 1e-4 * lam) * norm or nt <= self.TOL):
@@ -419,7 +461,7 @@ class PlantModel:
             if trial and nt > self.TOL and it < self.MAX_NEWTON:
                 # a shortened step accepted and another iteration to come: its Jacobian (the
                 # residual, wrench, slip and slip angle are the same, bit for bit)
-                rt, Jt, wt, slt, bet = self.evaluate(zt, a, q, d)
+                rt, Jt, wt, slt, bet = self._evaluate(zt, ctx, d, True)
                 rt = rt.ravel()
             z, res, J, w, sl, be, norm = zt, rt, Jt, wt, slt, bet, nt
         if not (norm <= 1e-7 and np.all(np.isfinite(z))):
@@ -478,6 +520,9 @@ class _DenseCall:
         n_arg, n_res, n_iw, n_w = (int(v.value) for v in sz)
         dp = ctypes.POINTER(ctypes.c_double)
         self._in = [np.zeros(ref.sparsity_in(i).nnz()) for i in range(ref.n_in())]
+        # dense inputs: a column-major view of the buffer with the input's shape
+        self._in_views = [b.reshape(ref.sparsity_in(i).shape, order="F") if ref.sparsity_in(i).is_dense() else None
+                          for i, b in enumerate(self._in)]
         self._out = [np.zeros(ref.sparsity_out(i).nnz()) for i in range(ref.n_out())]
         self._shapes = [ref.sparsity_out(i).shape for i in range(ref.n_out())]
         self._trip = []
@@ -498,8 +543,11 @@ class _DenseCall:
         self._fn.restype = ctypes.c_int
 
     def __call__(self, *args: NDArray[np.float64]) -> list[NDArray[np.float64]]:
-        for b, a in zip(self._in, args):
-            b[:] = np.asarray(a, dtype=float).ravel(order="F")
+        for b, a, view in zip(self._in, args, self._in_views):
+            if view is not None and isinstance(a, np.ndarray) and a.shape == view.shape:
+                view[...] = a  # column-major into the buffer, one copy
+            else:
+                b[:] = np.asarray(a, dtype=float).ravel(order="F")
         if self._fn(self._arg, self._res, self._iw, self._w, 0) != 0:
             raise SimulationError("the compiled wheel batch returned an error")
         out = []
@@ -514,6 +562,10 @@ class _DenseCall:
 
 
 _I4 = np.arange(4)
+_DS_H = (_I4, 3, 7 + _I4)  # d h / d log h of each wheel in the driven states' d state / d z
+_DS_H0 = (_I4, 4, 11 + _I4)  # d h0 / d log h0 (driven states and zero-slip twins)
+_DS0_H0 = (_I4, 3, 11 + _I4)  # the twin's sinkage is h0
+_J_OMEGA = (7 + _I4, 3 + _I4)  # each axle balance's own wheel speed
 
 def _twin_direction(vx: NDArray[np.float64]) -> NDArray[np.float64]:
     """+1 or -1 per wheel: the sign of the zero-slip twin's spin, that of the wheel's travel
@@ -577,9 +629,12 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64] | None, X: NDArray
     vx, vy, om = X[0, :4], X[1, :4], X[2, :4]
     floor2 = (1e-3 * STICTION_SPEED) ** 2
     v = np.sqrt(vx * vx + vy * vy + floor2)
-    q = np.sqrt(vx * vx + vy * vy + (rs * om) ** 2 + floor2)
     cut = _STICTION_CUTOFF * STICTION_SPEED
-    for i in np.nonzero(v < cut)[0]:
+    slow = np.flatnonzero(v < cut)
+    if not slow.size:  # every wheel travels: nothing to scale (q >= v)
+        return
+    q = np.sqrt(vx * vx + vy * vy + (rs * om) ** 2 + floor2)
+    for i in slow:
         groups = [(_LATERAL, v[i], np.array([vx[i], vy[i], 0.0, 0.0, 0.0]) / v[i])]
         if q[i] < cut:
             groups.append((_LONGITUDINAL, q[i], np.array([vx[i], vy[i], rs[i] ** 2 * om[i], 0.0, 0.0]) / q[i]))

@@ -19,6 +19,10 @@ case, baseline and commit, rows of other commits are kept)::
     nice python tests/bench/bench_drive_time.py --baseline /tmp/base current_limited noise31 terrain_plane
     nice python tests/bench/bench_drive_time.py --baseline /tmp/base --parallel noise31
 
+This tree's diagnosis runs on ``--workers`` processes (default: every core; a baseline whose
+``diagnose_drives`` takes ``workers`` gets the same); the CPU seconds are the diagnosing process's
+own plus its workers'.
+
 Case names: a substring of an out-of-library case of ``bench_drive_empirical.py``, of an
 in-library case of ``bench_drive_discrepancy.py``, or ``noiseN`` (noise-only drive, seed N).
 """
@@ -50,16 +54,31 @@ def _strip(x: Any) -> Any:
     return x
 
 
-def run_one(path: str, seed: int) -> None:
-    """Child process: diagnose one recording with whatever ``offline`` is on the path; print JSON."""
+def run_one(path: str, seed: int, workers: int = 1) -> None:
+    """Child process: diagnose one recording with whatever ``offline`` is on the path; print JSON.
+    ``workers`` > 1 is passed to a tree whose ``diagnose_drives`` takes it (one process otherwise);
+    the CPU seconds are the process's own plus those of its worker processes."""
+    import inspect
+    import resource
+
     import offline.discrepancy.drive.diagnosis as dd
     from offline.rover.scenario import load_scenario
 
-    sc = load_scenario(Path(dd.__file__).resolve().parents[1] / "scenarios/nominal.toml")
-    t0, c0 = time.perf_counter(), time.process_time()
-    v = dd.diagnose_drives([path], sc, seed=seed)
-    secs, cpu = time.perf_counter() - t0, time.process_time() - c0
-    print(json.dumps({"code": str(Path(dd.__file__).resolve().parents[2]), "seconds": secs, "cpu_seconds": cpu,
+    import offline
+
+    top = Path(offline.__file__).resolve().parent  # the drive tool moved (offline/fit -> offline/discrepancy/drive)
+    sc = load_scenario(top / "scenarios/nominal.toml")
+    kw = {"workers": workers} if "workers" in inspect.signature(dd.diagnose_drives).parameters else {}
+
+    def children() -> float:
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return ru.ru_utime + ru.ru_stime
+
+    t0, c0, k0 = time.perf_counter(), time.process_time(), children()
+    v = dd.diagnose_drives([path], sc, seed=seed, **kw)
+    secs, cpu = time.perf_counter() - t0, time.process_time() - c0 + children() - k0
+    print(json.dumps({"code": str(top.parent), "seconds": secs, "cpu_seconds": cpu,
+                      "workers": kw.get("workers", 1),
                       "simulations": v.model.simulations, "status": v.status, "named": v.missing_physics,
                       "empirical": [t.law() for t in v.empirical.terms] if v.empirical is not None else None,
                       "verdict": _strip(json.loads(json.dumps(v.to_json(), default=float)))}, default=float))
@@ -89,9 +108,9 @@ def _record(name: str, tmp: Path) -> tuple[Path, int]:
     return record_concealed(f, sc, make(), seed=seed, duration=DURATION), seed
 
 
-def _start(code: Path, path: Path, seed: int) -> subprocess.Popen[str]:
+def _start(code: Path, path: Path, seed: int, workers: int = 1) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(code))
-    return subprocess.Popen([sys.executable, __file__, "--run-one", str(path), str(seed)], env=env,
+    return subprocess.Popen([sys.executable, __file__, "--run-one", str(path), str(seed), str(workers)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
 
 
@@ -121,6 +140,8 @@ def _md(data: dict[str, Any]) -> str:
           "an overloaded machine; `--parallel` runs both at the same time. Differences in verdict.json are listed by "
           "key (a count of re-simulations differs when the cache serves more).", ""]
     for r in data["rows"]:
+        wk = (f" ({r['base'].get('workers', 1)} and {r['new'].get('workers', 1)} worker processes; CPU seconds include "
+              "the workers')") if "workers" in r["new"] else ""
         same = "identical" if not r["differences"] else f"{len(r['differences'])} differences: {', '.join(r['differences'][:6])}"
         md.append(f"- `{r['case']}`: baseline `{r['baseline']}` {r['base']['seconds']:.0f} s, {r['base']['simulations']} "
                   f"simulations; this tree `{r['commit']}` {r['new']['seconds']:.0f} s, {r['new']['simulations']} simulations; "
@@ -130,7 +151,7 @@ def _md(data: dict[str, Any]) -> str:
                      if "cpu_ratio" in r else " (wall seconds only)")
                   + f"; verdict `{r['new']['status']}` "
                   f"({' + '.join(r['new']['named']) or '-'}); verdict.json without seconds: {same}; "
-                  f"{r['when']}, load average {r['load_before']} before, {r['load_after']} after")
+                  f"{r['when']}, load average {r['load_before']} before, {r['load_after']} after{wk}")
     md += ["", "| case | baseline -> this tree | baseline s | new s | ratio | CPU ratio | baseline sims | new sims | verdict | "
            "same verdict.json |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in data["rows"]:
@@ -144,12 +165,15 @@ def _md(data: dict[str, Any]) -> str:
 
 def main(argv: list[str]) -> int:
     if argv[:1] == ["--run-one"]:
-        run_one(argv[1], int(argv[2]))
+        run_one(argv[1], int(argv[2]), int(argv[3]) if len(argv) > 3 else 1)
         return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--baseline", required=True, type=Path, help="a worktree of the baseline commit")
     ap.add_argument("--parallel", action="store_true",
                     help="run the baseline and this tree at the same time (on a loaded machine the same load falls on both)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="worker processes of this tree's diagnosis (default: every core; the baseline gets them too "
+                         "if its diagnose_drives takes workers)")
     ap.add_argument("cases", nargs="+")
     a = ap.parse_args(argv)
     from offline.files import write_text
@@ -165,12 +189,13 @@ def main(argv: list[str]) -> int:
             load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
             runs = {}
             code = {"base": a.baseline, "new": ROOT}
+            workers = len(os.sched_getaffinity(0)) if a.workers is None else a.workers
             if a.parallel:  # both at once: the same load falls on both
-                procs = {w: _start(code[w], path, seed) for w in ("base", "new")}
+                procs = {w: _start(code[w], path, seed, workers) for w in ("base", "new")}
                 runs = {w: _result(code[w], p) for w, p in procs.items()}
             else:
                 for which in (("base", "new") if i % 2 == 0 else ("new", "base")):
-                    runs[which] = _result(code[which], _start(code[which], path, seed))
+                    runs[which] = _result(code[which], _start(code[which], path, seed, workers))
             for which in ("base", "new"):
                 print(name, which, runs[which]["seconds"], runs[which].get("cpu_seconds"), runs[which]["simulations"],
                       runs[which]["status"], flush=True)

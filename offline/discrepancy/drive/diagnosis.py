@@ -334,9 +334,22 @@ def _rows_from_ticks(d: DriveData, seg: _Segments, ticks: Mapping[str, NDArray[n
     """Segment rows (n_seg x channels) from tick channels and, for the pose channels, either the
     recorded pose (``body`` None) or the predicted body velocities ``body`` (n, 3: u, v, r)."""
     out = np.empty((len(seg.bounds), len(channels)))
+    m = len(seg.bounds)
+    length = int(seg.bounds[0, 1] - seg.bounds[0, 0]) if m else 0
+    blocks = (body is not None and m > 0 and bool(np.all(seg.bounds[:, 0] == np.arange(m) * length))
+              and bool(np.all(seg.bounds[:, 1] == seg.bounds[:, 0] + length)))
+    if blocks:
+        # a prediction (every call of the engine): the segments are consecutive blocks of
+        # ``length`` ticks, so each channel's segment means are one row-wise sum over an (m,
+        # length) view -- the same sum and division as np.nanmean of each finite segment, bit
+        # for bit; a segment with a lost tick is lost
+        for c, ch in enumerate(channels):
+            if ch not in POSE_CHANNELS:
+                blk = ticks[ch][1:1 + m * length].reshape(m, length)
+                out[:, c] = np.where(np.isfinite(blk).all(axis=1), blk.sum(axis=1) / length, np.nan)
     for j, (a, b) in enumerate(seg.bounds):
         for c, ch in enumerate(channels):
-            if ch in POSE_CHANNELS:
+            if ch in POSE_CHANNELS or blocks:
                 continue
             v = ticks[ch][a + 1:b + 1]
             if body is not None and not np.all(np.isfinite(v)):
@@ -715,6 +728,7 @@ class DriveModel:
     cache_size: int = 2048
     stride: int = 3
     _cache: dict[Any, Any] = field(default_factory=dict, init=False, repr=False)
+    _runs: list[tuple[Any, bool]] = field(default_factory=list, init=False, repr=False)
     simulations: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
@@ -747,9 +761,10 @@ class DriveModel:
         key = (id(d), heading_offset, soil, terms.physics_key(), extra.key() if extra is not None else None)
         hit = self._cache.pop(key, None)
         if hit is None:
+            before = self.simulations
             hit = self._run(d, ext, heading_offset, extra)
-            while len(self._cache) >= max(self.cache_size, 1):
-                self._cache.pop(next(iter(self._cache)))
+            self._runs.append((key, self.simulations > before))
+            self._trim()
         self._cache[key] = hit  # most recently used last
         ticks, body, ok = hit
         if not ok:
@@ -764,6 +779,36 @@ class DriveModel:
         if extra is not None:
             out = extra.readings(out, d.t)
         return out, body, True
+
+    def _trim(self) -> None:
+        while len(self._cache) >= max(self.cache_size, 1):
+            self._cache.pop(next(iter(self._cache)))
+
+    def work_mark(self) -> int:
+        """A mark of the re-simulations run so far (:func:`offline.discrepancy.parallel.map_tasks`)."""
+        return len(self._runs)
+
+    def work_since(self, mark: int) -> list[tuple[Any, bool, Any]]:
+        """The re-simulations run since ``mark``: (cache key, counted in :attr:`simulations`, result)."""
+        return [(k, counted, self._cache.get(k)) for k, counted in self._runs[mark:]]
+
+    def absorb(self, work: Sequence[tuple[Any, bool, Any]]) -> None:
+        """Take re-simulations a worker process ran (:meth:`work_since`), in task order.
+
+        One this model already holds (an earlier task ran it: the serial loop would have found it
+        in the cache) is neither stored nor counted again, so :attr:`simulations` and the cache
+        are those of the serial loop (with the default ``cache_size`` nothing is dropped from it).
+        The keys name drives by ``id``: a worker re-simulates the drives of the forked parent,
+        whose ids are this process's.
+        """
+        for key, counted, hit in work:
+            if key in self._cache:
+                continue
+            self._runs.append((key, counted))
+            self.simulations += int(counted)
+            if hit is not None:
+                self._trim()
+                self._cache[key] = hit
 
     def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
@@ -913,6 +958,7 @@ def diagnose_drives(
     n_points: int = 2, max_nfev: int = 8, stride: int = 3, seed: int = 0, candidates: Sequence[Any] = DRIVE_CANDIDATES,
     recalibrate: bool = True, max_tries: int = 3, fit_tol: float | None = 1e-4,
     progress: Callable[[str], None] | None = None, alpha_after: float = DRIVE_ALPHA_AFTER, empirical: bool = True,
+    workers: int = 1,
 ) -> Verdict:
     """Locate, name and fit the missing physics of recorded drives (module notes) with the engine.
 
@@ -958,6 +1004,10 @@ def diagnose_drives(
         ``partly_explained``), model what it lacks with the generic empirical family
         (:func:`offline.discrepancy.drive.empirical.search_empirical`, same seed and level); the result
         is ``verdict.empirical`` and the library's verdict is kept.
+    workers : int
+        Processes the independent re-simulations run on (:func:`offline.discrepancy.engine.diagnose`);
+        the verdict does not depend on it, bit for bit. 1 (default): this process; the command
+        line takes every core (``--workers``).
 
     Returns
     -------
@@ -978,7 +1028,7 @@ def diagnose_drives(
     v = diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
-                 polish_nfev=0)
+                 polish_nfev=0, workers=workers)
     if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
         from .empirical import search_empirical
 

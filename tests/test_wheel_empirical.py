@@ -27,18 +27,14 @@ from offline.physics.terramechanics import ModelOptions
 
 
 @pytest.fixture(scope="module")
-def params(calibrated_params):
-    return calibrated_params
-
-
-@pytest.fixture(scope="module")
 def recording(steady_recording):
+    """The real 0-60 deg trials, one row per condition (conftest)."""
     return steady_recording
 
 
 @pytest.fixture(scope="module")
-def believed(recording, params):
-    pred, ok = predict_recording(params, ModelOptions(), recording)
+def believed(recording, calibrated_params):
+    pred, ok = predict_recording(calibrated_params, ModelOptions(), recording)
     assert ok.all()
     return pred
 
@@ -141,7 +137,7 @@ def test_columns_are_exactly_the_terms(recording, believed):
     assert {s[2] for s in specs} <= set(SHAPES)
 
 
-def test_engine_attaches_the_search_and_the_writer_renders_it(recording, params, believed, tmp_path):
+def test_engine_attaches_the_search_and_the_writer_renders_it(recording, calibrated_params, believed, tmp_path):
     """Through the whole tool (on a four-term library, for the suite's time; the full library on
     this mechanism is tests/bench/bench_wheel_empirical.py): the skid pile comes out not explained
     by the library with confidence, and the empirical term is in the summary, verdict.json and
@@ -150,7 +146,7 @@ def test_engine_attaches_the_search_and_the_writer_renders_it(recording, params,
     truth = bulldozed_pile(recording, believed, height_max=0.035)
     data = recording.with_measured({ch: truth[ch] + rng.normal(0.0, recording.noise[ch]) for ch in truth})
     lib = [c for c in CANDIDATES if c.key in ("sensor_offset", "force_gain", "tether", "hub_drag")]
-    v = diagnose(data, params, candidates=lib, recalibrate=False, seed=11)
+    v = diagnose(data, calibrated_params, candidates=lib, recalibrate=False, seed=11)
     assert v.status in ("unexplained", "partly_explained", "ambiguous"), v.summary()
     assert v.empirical is not None and v.empirical.terms, v.summary()
     assert "empirical:" in v.summary()

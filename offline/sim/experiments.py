@@ -408,13 +408,17 @@ def _first_measurement(sim: RoverSimulator) -> Measurements:
     controller for its first command before the plant has a state)."""
     from rtctl.messages import Pose
 
+    wheels = getattr(sim, "wheels", WHEELS)
     steer = []
-    for k in WHEELS:
+    for k in wheels:
         f = sim.scenario.failure(k)
         steer.append(f.steer_stuck if f.steer_stuck is not None else 0.0)
     om = sim.scenario.speed / sim.scenario.params.wheel.shearing_radius
-    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * 4, steer_angle=tuple(steer),
-                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, 0.0), failures=sim.failures,
+    heading = 0.0
+    if getattr(sim, "backward", False):  # the body frame of a rover driving backward (RoverSimulator.measure)
+        om, heading = -om, math.pi
+    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * len(wheels), steer_angle=tuple(steer),
+                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, heading), failures=sim.failures,
                         task=declared_task(sim.scenario))
 
 

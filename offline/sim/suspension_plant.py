@@ -212,7 +212,7 @@ class SuspensionPlant:
         bal = self.statics.balance(CASADI, wr, {k: beta[i] for i, k in enumerate(self.wheels)},
                                    {k: h[i] for i, k in enumerate(self.wheels)},
                                    {k: Wsym[2, i] for i, k in enumerate(self.wheels)}, g[0], 0.0, 0.0, g[1],
-                                   None, (ext[0], ext[1], ext[2]))
+                                   None, (ext[0], ext[1], ext[2]))  # type: ignore[arg-type]  # SX, not float
         rows = ca.vertcat(*[bal[s] for s in names])
         wh = ca.vertcat(ca.vec(Wsym), h)
         self._balance = ca.Function("suspension_balance", [Wsym, beta, h, g, ext], [rows, ca.jacobian(rows, wh)])
@@ -372,7 +372,7 @@ class SuspensionPlant:
         if ctx["spin"]:
             res[nb:nb + n] -= inertia * (omega - omega0) / t_scale
         res[nb + n:] = (W[2, n:] - wheel[2]) / (weight / n)
-        if not jacobian:
+        if JW is None or Jb is None:
             return res, np.full((nz, nz), math.nan), wheel.T.copy(), SL[0, :n].copy(), BE[0, :n].copy()
         # d state / d z of the wheels and their twins
         I = np.arange(n)

@@ -1,4 +1,4 @@
-"""The simulated mini rover: plant, actuators and sensors behind the controller's message types.
+"""The simulated rover (the mini rover, or a rover file's): plant, actuators and sensors behind the controller's message types.
 
 :class:`RoverSimulator` consumes :class:`rtctl.messages.Commands` and produces
 :class:`rtctl.messages.Measurements`, so the same controller code drives it and the rover.
@@ -260,7 +260,17 @@ class TruthState:
 
 
 class RoverSimulator:
-    """The mini rover of Table 7.2 driving on a slope, with failures, actuators and sensors.
+    """A rover driving on a slope, with failures, actuators and sensors: the mini rover of
+    Table 7.2, or the rover of a scenario's rover file (issue 23).
+
+    A rover-file scenario (six-wheel rocker-bogie, rigid skid-steer, ...) runs on its own plant,
+    :class:`offline.sim.suspension_plant.SuspensionPlant` (the optimizer's wheel model and
+    suspension rows), with the file's wheels in its order in every per-wheel vector of the
+    measurements, commands and truth (:attr:`wheels`). A backward drive (the scenario's rover
+    file turned half round, :func:`rtctl.physics.rover_file.driving_backward`) is simulated in
+    the travel frame; its sensors and commands are in the rover's body frame, as the rover's
+    would be (:meth:`measure`, :meth:`apply`). Not for rover files in this version: a
+    disturbance hook, raised wheels.
 
     Parameters
     ----------
@@ -268,9 +278,11 @@ class RoverSimulator:
         Failures to inject (``[wheels.*]`` of the scenario file) and the believed parameter
         set (its wheel's shearing radius converts rim-speed commands to wheel speeds).
     truth : Truth, optional
-        The simulated world (default: the scenario's parameters, flat, no tether).
+        The simulated world (default: the scenario's parameters, flat, no tether; for a rover
+        file :func:`rover_file_truth`, one radius per wheel of the file).
     actuators, sensors : ActuatorConfig, SensorConfig, optional
-        Servo limits and dynamics; sensor noise and rates (defaults: the classes' defaults).
+        Servo limits and dynamics; sensor noise and rates (defaults: the classes' defaults; for a
+        rover file the servos of its ``[actuators]``, :func:`rover_file_actuators`).
     dt : float
         Fixed plant step, s (the 5 Hz control period should be a multiple).
     seed : int
@@ -616,7 +628,12 @@ class RoverSimulator:
         return roll, pitch
 
     def measure(self) -> Measurements:
-        """Sensor readings at the current time (noise drawn in a fixed order)."""
+        """Sensor readings at the current time (noise drawn in a fixed order).
+
+        A backward drive's readings are in the body frame: wheel speeds and motor torques
+        change sign, roll and pitch change sign, a pose's heading gains pi (the inverse of the
+        controller's turn, :meth:`rtctl.controller.Controller.feedback`); steering, yaw rate and
+        position are the same in both frames."""
         if self.sol is None:
             raise SimulationError("call start(first_commands) before measuring")
         c = self.sensors

@@ -141,11 +141,12 @@ def _measured_objective(res: DriveResult, sim: RoverSimulator) -> tuple[float, f
 
 
 def _verdict(m: dict[str, float], res: DriveResult, distance: float) -> str:
-    ok = (m["max_abs_heading_deg"] <= HEADING_DEG and m["max_abs_cross_track_cm"] <= CROSSTRACK_CM
-          and not res.ended and m["distance_m"] >= distance - 1e-9)
-    if ok:
-        return "**on the path**"
-    return "ended early" if res.ended else ("left the path" if m["distance_m"] >= distance - 1e-9 else "stalled")
+    on = m["max_abs_heading_deg"] <= HEADING_DEG and m["max_abs_cross_track_cm"] <= CROSSTRACK_CM
+    if res.ended:
+        return "ended early" + ("" if on else ", off the path")
+    if not on:
+        return "left the path" + ("" if m["distance_m"] >= distance - 1e-9 else f" (X {m['distance_m']:.2f} m at the time limit)")
+    return "**on the path**" if m["distance_m"] >= distance - 1e-9 else "on the path, too slow (time limit)"
 
 
 def _row(label: str, ctl: str, speed: float, res: DriveResult, distance: float, extra: str, cpu: float) -> str:

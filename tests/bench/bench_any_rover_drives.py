@@ -44,6 +44,7 @@ from offline.files import write_text
 from offline.rover.primitives import solve_primitive
 from offline.rover.scenario import Scenario, load_scenario
 from offline.sim.experiments import DriveResult, run_drive, scenario_by_name
+from offline.sim.sensors import SensorConfig
 from offline.sim.simulator import RoverSimulator
 from rtctl.messages import Commands, Measurements
 
@@ -65,6 +66,7 @@ class Case:
     speed: float
     table: str = ""
     nominal: str = ""  # the nominal scenario of the uncompensated drive
+    noise_free: bool = False  # sensors without noise (a diagnosis of the skid-steer's drive)
 
 
 CASES: tuple[Case, ...] = (
@@ -78,6 +80,8 @@ CASES: tuple[Case, ...] = (
     Case("MER, RF unpowered, backward", "mer_rf_unpowered_backward", "rtctl", 0.03, "mer_rf_unpowered_backward"),
     Case("MER, RF unpowered, backward", "mer_rf_unpowered_backward", "uncompensated", 0.03, nominal="mer_nominal_backward"),
     Case("skid-steer, FR unpowered", "skid_fr_unpowered", "rtctl", 0.03, "skid_fr_unpowered"),
+    Case("skid-steer, FR unpowered, sensors without noise", "skid_fr_unpowered", "rtctl", 0.03, "skid_fr_unpowered",
+         noise_free=True),
     Case("skid-steer, FR unpowered", "skid_fr_unpowered", "table FF", 0.03, "skid_fr_unpowered"),
     Case("skid-steer, FR unpowered", "skid_fr_unpowered", "uncompensated", 0.03, nominal="skid_nominal"),
 )
@@ -169,7 +173,11 @@ def main(argv: list[str] | None = None) -> int:
         sc = load_scenario(ROVERS / f"{case.scenario}.toml").with_(speed=case.speed)
         c0 = time.process_time()
         ctl, f_opt = _controller(case, sc)
-        sim = RoverSimulator(sc, seed=1)
+        sensors = None
+        if case.noise_free:
+            sensors = SensorConfig(wheel_speed_noise=0.0, steer_noise=0.0, gyro_bias=0.0, gyro_noise=0.0, tilt_noise=0.0,
+                                   torque_noise=0.0, pose_noise_xy=0.0, pose_noise_heading=0.0, gyro_bias_walk=0.0)
+        sim = RoverSimulator(sc, seed=1, sensors=sensors)
         res = run_drive(sim, ctl, distance=args.distance, max_time=3.0 * args.distance / case.speed)
         f_sim, power = _measured_objective(res, sim)
         cpu = time.process_time() - c0

@@ -201,3 +201,50 @@ def test_the_skid_steer_table_primitive_drives_straight_in_the_simulator():
     m = res.metrics
     assert m["max_abs_heading_deg"] <= 0.01 and m["max_abs_cross_track_cm"] <= 0.01 and abs(m["speed_error_pct"]) <= 0.1
     assert np.allclose(res.truth[-1].omega, [x[lay.var("omega", k)] for k in lay.wheels], rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("table_name", ["mer_rf_locked_backward", "skid_fr_unpowered"])
+def test_plant_balance_rows_are_the_rovers_exact_residual_off_the_primitive(table_name):
+    """Away from a primitive too, the plant (quasi-static, straight at the table's speed) and the
+    rover's exact residual (:class:`rtctl.physics.steady_state.SteadyStateResidual`, the NLP's rows)
+    give the same balance rows for the same wheel speeds, steering and sinkages: every row but
+    ``Fz`` (the plant's loads are the wheels' soil ``F_z``, the NLP's its load variables), to
+    1e-9 of the row scale, at seeded perturbations of each optimal grid point."""
+    from rtctl.physics.steady_state import SteadyStateModel, SteadyStateResidual
+
+    from offline.rover.table_verify import spec_from_table
+    from offline.sim.simulator import suspension_plant_for
+
+    t = load_table(ROVER_TABLES / f"{table_name}.npz")
+    lay = t.layout
+    sc = spec_from_table(t).scenario
+    plant = suspension_plant_for(sc.params, sc.rover_file, sc.exit_angle)
+    rover = SteadyStateResidual(SteadyStateModel.from_table_header(t.header, lay.wheels), lay)
+    rng = np.random.default_rng(23)
+    names, cn = lay.parameter_names, lay.constraint_names
+    scale = np.asarray(lay.variable_scale)
+    for idx in np.ndindex(*t.status.shape):
+        if t.status_at(idx) != "optimal":
+            continue
+        tp = t.at(**t.grid_point(idx))
+        x = np.clip(tp.x + 0.05 * scale * rng.standard_normal(len(scale)), tp.lbx, tp.ubx)
+        for k in lay.wheels:  # sinkages stay positive
+            for v in ("h", "h0"):
+                x[lay.var(v, k)] = abs(x[lay.var(v, k)])
+        g = rover.residual(x, np.asarray(tp.p))[0]
+        speed, slope = tp.p[names.index("speed")], tp.p[names.index("slope")]
+        W = lay.wheels
+        col = {v: np.array([x[lay.var(v, k)] for k in W]) for v in ("omega", "beta", "h", "h0")}
+        q = plant.param_vector((sc.params.wheel.radius,) * len(W), sc.params.soil, slope, tp.p[names.index("cross_slope")],
+                               0.0, sc.rover_file.weight / plant.gravity, 1.0, 0.0)
+        a = np.concatenate([col["omega"], np.ones(len(W)), np.zeros(len(W)), col["beta"], [speed, 0.0, 0.0, 0.0, 0.0],
+                            col["omega"]])
+        z = np.concatenate([[speed, 0.0, 0.0], col["omega"], np.log(col["h"]), np.log(col["h0"])])
+        res = plant.evaluate(z, a, q, jacobian=False)[0]
+        for i, n in enumerate(plant.balance_names):
+            if n == "Fz":
+                continue
+            row_scale = lay[f"balance {n}"].scale
+            unit = (plant.rs_nominal if n.startswith("height") else
+                    sc.rover_file.weight * (1.0 if n in ("Fx", "Fy") else plant.wheelbase))
+            assert abs(res[i] * unit - g[cn.index(f"balance {n}")]) <= 1e-9 * row_scale, (idx, n)

@@ -248,3 +248,37 @@ def test_plant_balance_rows_are_the_rovers_exact_residual_off_the_primitive(tabl
             unit = (plant.rs_nominal if n.startswith("height") else
                     sc.rover_file.weight * (1.0 if n in ("Fx", "Fy") else plant.wheelbase))
             assert abs(res[i] * unit - g[cn.index(f"balance {n}")]) <= 1e-9 * row_scale, (idx, n)
+
+
+def test_the_mini_rover_through_its_rover_file_drives_as_the_mini_rovers_own_plant(tmp_path):
+    """The ``rocker`` kind: the mini rover's rover file (``rover = "mini_rover_t72"``) runs on
+    :class:`~offline.sim.suspension_plant.SuspensionPlant` (rows from the file's link tree), the
+    mini rover's own scenario on :class:`~offline.sim.plant.PlantModel` (its own rocker statics,
+    written independently). Same world, servos and commands (steered, RL unpowered), 2 s: the same
+    motion to 1e-4 of each quantity's scale, the yaw to 1e-3. They differ by design in the yaw
+    row's lever arms: the rover file's statics take each wheel where its rocker's pitch ``phi``
+    puts it (``x = +-l_r/2 cos phi + h_r sin phi``), PlantModel's yaw row the nominal
+    ``+-l_r / 2``; a relative difference of order ``h_r phi / (l_r / 2)`` (1.4e-3 at the
+    2 mrad pitch here), measured 1.4e-4 in the yaw rate."""
+    from rtctl.messages import Commands
+
+    from offline.rover.scenario import load_scenario
+    from offline.sim.simulator import RoverSimulator
+
+    p = tmp_path / "mini_file_rl_unpowered.toml"
+    p.write_text('[scenario]\nname = "mini_file_rl_unpowered"\nrover = "mini_rover_t72"\nparams = "dissertation-ch7"\n'
+                 'speed_m_s = 0.03\n\n[wheels.RL]\nunpowered = true\n')
+    own = RoverSimulator(load_scenario(ROOT / "offline" / "scenarios" / "rl_unpowered.toml"), seed=1)
+    via = RoverSimulator(load_scenario(p), truth=own.truth, actuators=own.act.config, seed=1)
+    assert type(via.plant).__name__ == "SuspensionPlant" and type(own.plant).__name__ == "PlantModel"
+    assert via.wheels == own.wheels and via.weight == pytest.approx(own.weight, rel=1e-12)
+    rim, steer = (0.034, 0.036, 0.033, 0.035), (0.05, 0.02, -0.03, 0.0)
+    for sim in (own, via):
+        sim.start(Commands(0.0, 0, rim, steer))
+        sim.advance(2.0)
+    z0, z1 = own.z, via.z
+    assert abs(z1[0] - z0[0]) <= 1e-4 * 0.03 and abs(z1[1] - z0[1]) <= 1e-4 * 0.03 and abs(z1[2] - z0[2]) <= 1e-3 * abs(z0[2])
+    assert np.max(np.abs(z1[3:7] - z0[3:7])) <= 1e-4 * np.max(np.abs(z0[3:7]))  # wheel speeds (RL free)
+    assert np.max(np.abs(z1[7:] - z0[7:])) <= 1e-4  # log sinkages
+    assert abs(via.heading - own.heading) <= 1e-3 * abs(own.heading) and abs(via.y - own.y) <= 1e-3 * abs(own.y)
+    assert abs(z0[2]) > 1e-3 and abs(z0[3 + 3] - rim[3] / own.scenario.params.wheel.shearing_radius) > 1e-3  # turning; RL free

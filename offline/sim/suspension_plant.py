@@ -178,11 +178,14 @@ class SuspensionPlant:
         self.options = options or ModelOptions(shear_direction_smoothing=1e-6)
         self._wheel_model = WheelModel(params.soil, params.wheel, params.tuning, self.options)
         f = self._build(True)
-        self.function = self._wheel_model._compile(f, f"sim_wheels_{2 * n}") if compiled else f
+        # four wheels: the mini rover's plant's tags, so one compiled library serves both (same graph)
+        tag = "sim_wheels" if n == 4 else f"sim_wheels_{2 * n}"
+        self.function = self._wheel_model._compile(f, tag) if compiled else f
         so = self._wheel_model._so_paths.get(f.name()) if compiled else None
         self._call = _DenseCall(so, f) if so else None
         fr = self._build(False)
-        self.residual_function = self._wheel_model._compile(fr, f"sim_wheels_residual_{2 * n}") if compiled else fr
+        self.residual_function = self._wheel_model._compile(fr, "sim_wheels_residual" if n == 4 else
+                                                            f"sim_wheels_residual_{2 * n}") if compiled else fr
         so_r = self._wheel_model._so_paths.get(fr.name()) if compiled else None
         self._call_residual = _DenseCall(so_r, fr) if so_r else None
         self.rs_nominal = params.wheel.shearing_radius

@@ -282,3 +282,22 @@ def test_the_mini_rover_through_its_rover_file_drives_as_the_mini_rovers_own_pla
     assert np.max(np.abs(z1[7:] - z0[7:])) <= 1e-4  # log sinkages
     assert abs(via.heading - own.heading) <= 1e-3 * abs(own.heading) and abs(via.y - own.y) <= 1e-3 * abs(own.y)
     assert abs(z0[2]) > 1e-3 and abs(z0[3 + 3] - rim[3] / own.scenario.params.wheel.shearing_radius) > 1e-3  # turning; RL free
+
+
+def test_offnominal_drive_on_a_rover_file_records_its_wheel_set(tmp_path, capsys):
+    """``offnominal drive`` on a six-wheel scenario with rtctl on one table: the drive on the path,
+    the recording with the six wheels and the truth; the mini rover's section 7.2.4 PID
+    controllers are refused for a rover file with the reason."""
+    from rtctl.recording import read_recording
+
+    from offline.cli import main
+
+    scen = str(SCENARIOS / "mer_rf_steer_stuck_7.toml")
+    rc = main(["drive", scen, "--controllers", "rtctl", "--tables", str(ROVER_TABLES / "mer_rf_steer_stuck_7.npz"),
+               "--distance", "0.2", "--out", str(tmp_path / "a"), "--quiet"])
+    assert rc == 0
+    r = read_recording(tmp_path / "a" / "mer_rf_steer_stuck_7_rtctl.mcap")
+    assert r.wheels == ("RF", "LF", "RM", "LM", "RR", "LR") and len(r.truth[-1]["omega"]) == 6
+    assert abs(math.degrees(r.truth[-1]["heading"])) <= HEADING_TARGET_DEG
+    assert main(["drive", scen, "--controllers", "fb", "--out", str(tmp_path / "b"), "--quiet"]) == 2
+    assert "section 7.2.4 steering controllers are built for the mini rover's four wheels" in capsys.readouterr().err

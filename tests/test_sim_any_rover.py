@@ -12,8 +12,9 @@
   Opportunity's), with the body-frame sensors and commands of a backward drive, and the drive
   records and replays bit for bit with its wheel set.
 
-Tables: ``tests/data/tables/rovers/`` (README there). Short drives (0.3 m), a few seconds of CPU
-in all with the compiled wheel functions cached (their one-off compile is about 16 CPU-s per rover).
+Tables: ``tests/data/tables/rovers/`` (README there). Short drives (0.2-0.3 m): about 5 CPU-s in
+all with the compiled wheel functions cached (a one-off compile of about 16 CPU-s for the six-wheel
+batch; a four-wheel rover file shares the mini rover's).
 """
 
 from __future__ import annotations

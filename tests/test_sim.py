@@ -215,17 +215,23 @@ def test_plant_compiled_equals_interpreted(nominal):
     assert sim.weight == pytest.approx(sc.rover.weight) and sim.mass == pytest.approx(sc.rover.weight / GRAVITY)
 
 
-@pytest.mark.parametrize("name", ["mer_nominal", "skid_nominal"])
-def test_a_rover_file_scenario_is_refused_with_the_reason(name):
-    """The plant's statics are the Table 7.2 rocker's: a rover-file scenario (six-wheel
-    rocker-bogie, four-wheel skid-steer) is refused at construction with what to use instead.
-    Before, `offnominal drive` ran the six-wheel scenario on the four-wheel plant and failed with
-    "no equilibrium ... reduce the slope or the step size"."""
+@pytest.mark.parametrize("name, wheels, kind", [
+    ("mer_nominal", ("RF", "LF", "RM", "LM", "RR", "LR"), "SuspensionPlant"),
+    ("skid_nominal", ("FR", "FL", "RR", "RL"), "SuspensionPlant"),
+])
+def test_a_rover_file_scenario_gets_its_own_wheels_and_plant(name, wheels, kind):
+    """A rover-file scenario (six-wheel rocker-bogie, four-wheel skid-steer) is simulated on its
+    own suspension's plant with the file's wheel set (issue 23; before, it was refused at
+    construction, and before that it ran on the four-wheel rocker's plant and failed with "no
+    equilibrium"); a disturbance hook, modelled for the mini rover's plant only, is refused
+    with the reason. The closed loops are in tests/test_sim_any_rover.py."""
     from pathlib import Path
 
     from offline.sim.plant import SimulationError
 
     sc = load_scenario(Path(__file__).resolve().parents[1] / "offline" / "scenarios" / "rovers" / f"{name}.toml")
-    with pytest.raises(SimulationError, match=r"rover file of .* suspension (rocker_bogie|rigid)\): the simulator "
-                                              r"models the four-wheel rocker of Table 7.2 only"):
-        RoverSimulator(sc)
+    sim = RoverSimulator(sc)
+    assert sim.wheels == wheels and type(sim.plant).__name__ == kind and sim.z.shape == (3 + 3 * len(wheels),)
+    assert sim.weight == pytest.approx(sc.rover_file.weight, rel=1e-12)
+    with pytest.raises(SimulationError, match=r"disturbance hook is modelled for the mini rover's plant only"):
+        RoverSimulator(sc, disturbance=lambda t, s: None)

@@ -98,7 +98,7 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
         from rtctl.recording import provenance
 
         with Recorder(rec_path, {**meta, "hil": True, "deadline_misses": rep.deadline_misses}, truth=True,
-                      provenance=provenance(ctl)) as rec:
+                      provenance=provenance(ctl), wheels=sim.wheels if sim.rover_file is not None else None) as rec:
             for i, (m, ts) in enumerate(zip(plant.measurements, plant.truth)):
                 rec.measurements(m)
                 if i < len(rep.commands) and rep.commands[i] is not None:
@@ -161,7 +161,8 @@ def _cmd_drive(args: argparse.Namespace) -> int:
             try:
                 sc = scenario_by_name(name)
                 truth = (load_truth(resolve_truth_path(truth_file), sc.rover, sc.params) if truth_file
-                         else Truth.nominal(sc.params, sc.rover))
+                         else Truth.nominal(sc.params, sc.rover) if sc.rover_file is None
+                         else None)  # a rover file's world: the simulator's rover_file_truth
             except (ExperimentError, TruthError) as exc:
                 bar.close()
                 return fail(str(exc))
@@ -175,9 +176,9 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                 try:
                     ctl = build_controller(kind, sc, rtctl_factory=factory)
                     sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed,
-                                         disturbance=_truth_hooks(truth, sc.rover))
+                                         disturbance=None if truth is None else _truth_hooks(truth, sc.rover))
                     meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
-                            "seed": args.seed, "dt": args.dt, "truth": truth.describe(), "truth_label": label,
+                            "seed": args.seed, "dt": args.dt, "truth": sim.truth.describe(), "truth_label": label,
                             "sensors": sensors.__dict__, "distance_m": args.distance}
                     if args.hil and kind == "rtctl":
                         r = _hil_drive(args, sim, ctl, kind, meta, out / f"{sc.name}{tag}_{kind}.mcap")
@@ -185,7 +186,8 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                         r = run_drive(sim, ctl, distance=args.distance, name=kind)
                     else:
                         rec_path = out / f"{sc.name}{tag}_{kind.replace('+', '_')}.mcap"
-                        with Recorder(rec_path, meta, truth=True, provenance=provenance(ctl)) as rec:
+                        wheels = sim.wheels if sc.rover_file is not None else None  # mini rover: as every recording before
+                        with Recorder(rec_path, meta, truth=True, provenance=provenance(ctl), wheels=wheels) as rec:
                             r = run_drive(sim, ctl, distance=args.distance, recorder=rec, name=kind)
                 except (ExperimentError, ActuatorError, SimulationError) as exc:
                     bar.close()

@@ -72,7 +72,7 @@ class ActuatorConfig:
 
 @dataclass
 class Actuators:
-    """Servo states of the four wheels and the failures acting on them.
+    """Servo states of the wheels (four for the mini rover, a rover file's wheel set) and the failures acting on them.
 
     Parameters
     ----------
@@ -82,10 +82,12 @@ class Actuators:
     rs_nominal : float
         Shearing radius the rover software uses to turn a rim-speed command into a wheel
         speed (``omega = rim / r_s``): a worn wheel of the truth still gets this conversion.
-    steer, omega_servo : ndarray, shape (4,)
+    steer, omega_servo : ndarray, shape (N,)
         Servo states (rad, rad/s), zero at the start.
-    steer_cmd, omega_cmd : ndarray, shape (4,)
+    steer_cmd, omega_cmd : ndarray, shape (N,)
         The latched commands (rad, rad/s), zero at the start.
+    wheels : tuple of str
+        Wheel names in layout order (default: the mini rover's FR, FL, RR, RL).
     """
 
     config: ActuatorConfig
@@ -95,26 +97,32 @@ class Actuators:
     omega_servo: NDArray[np.float64] = field(default_factory=lambda: np.zeros(4))
     steer_cmd: NDArray[np.float64] = field(default_factory=lambda: np.zeros(4))
     omega_cmd: NDArray[np.float64] = field(default_factory=lambda: np.zeros(4))
+    wheels: tuple[str, ...] = WHEELS
+    """Wheel names in layout order (a rover file's; the mini rover's FR, FL, RR, RL by default)."""
 
     def __post_init__(self) -> None:
+        n = len(self.wheels)
+        if n != 4:  # the servo state vectors follow the wheel set
+            self.steer, self.omega_servo = np.zeros(n), np.zeros(n)
+            self.steer_cmd, self.omega_cmd = np.zeros(n), np.zeros(n)
         for k, f in self.failures.items():
-            if k not in WHEELS:
-                raise ActuatorError(f"failure on unknown wheel {k!r}; use one of {list(WHEELS)}")
+            if k not in self.wheels:
+                raise ActuatorError(f"failure on unknown wheel {k!r}; use one of {list(self.wheels)}")
         if sum(bool(f.raised) for f in self.failures.values()) > 1:
             raise ActuatorError("more than one raised wheel: a 4-wheel rover cannot stand on two wheels")
 
     def contact(self) -> NDArray[np.float64]:
         """Ground contact per wheel: 1 on the ground, 0 raised."""
-        return np.array([0.0 if self.failure(i).raised else 1.0 for i in range(4)])
+        return np.array([0.0 if self.failure(i).raised else 1.0 for i in range(len(self.wheels))])
 
     def failure(self, i: int) -> WheelFailure:
         """The failure on wheel ``i`` (nominal when none)."""
-        return self.failures.get(WHEELS[i], WheelFailure())
+        return self.failures.get(self.wheels[i], WheelFailure())
 
     def command(self, rim_speed: tuple[float, ...], steer: tuple[float, ...]) -> None:
         """Latch new commands (clipped to the actuator limits, non-finite values ignored)."""
         c = self.config
-        for i in range(4):
+        for i in range(len(self.wheels)):
             s, w = float(steer[i]), float(rim_speed[i])
             if math.isfinite(s):
                 self.steer_cmd[i] = min(max(s, -c.steer_limit), c.steer_limit)
@@ -131,7 +139,7 @@ class Actuators:
         """Start with the servos settled at these commands (stuck wheels at their stuck angle)."""
         self.command(rim_speed, steer)
         self.steer = self.steer_cmd.copy()
-        for i in range(4):
+        for i in range(len(self.wheels)):
             f = self.failure(i)
             if f.steer_stuck is not None:
                 self.steer[i] = f.steer_stuck
@@ -141,7 +149,7 @@ class Actuators:
         """Move the servos over ``dt``: steering at most ``steer_rate_max dt``, wheel speed by the lag."""
         c = self.config
         step = c.steer_rate_max * dt
-        for i in range(4):
+        for i in range(len(self.wheels)):
             if self.failure(i).steer_stuck is None:
                 self.steer[i] += min(max(self.steer_cmd[i] - self.steer[i], -step), step)
         decay = math.exp(-dt / c.wheel_lag) if c.wheel_lag > 0 else 0.0
@@ -149,8 +157,8 @@ class Actuators:
 
     def drive_modes(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Per wheel: speed mode (1) or torque mode (0), and the fixed motor torque in torque mode."""
-        mode, torque = np.ones(4), np.zeros(4)
-        for i in range(4):
+        mode, torque = np.ones(len(self.wheels)), np.zeros(len(self.wheels))
+        for i in range(len(self.wheels)):
             if self.failure(i).unpowered:
                 mode[i], torque[i] = 0.0, 0.0
         return mode, torque

@@ -109,12 +109,25 @@ class PidGains:
 
 
 class PrimitiveController:
-    """Open loop: the same wheel speeds and angles every tick (a driving primitive)."""
+    """Open loop: the same wheel speeds and angles every tick (a driving primitive).
+
+    The commands are in the rover's body frame, wheels in the scenario's order: a rover file's
+    wheel set; a backward drive's primitive (the rover file turned half round) has its rim
+    speeds negated, as the rover's controller outputs them (:meth:`RoverSimulator.apply
+    <offline.sim.simulator.RoverSimulator.apply>`)."""
 
     def __init__(self, primitive: PrimitiveResult, name: str = "ff") -> None:
         self.name = name
-        self.rim = wheel_tuple({k: w.rim_speed for k, w in primitive.wheels.items()})
-        self.steer = wheel_tuple({k: w.steer for k, w in primitive.wheels.items()})
+        sc = primitive.scenario
+        self.rim: tuple[float, ...]
+        self.steer: tuple[float, ...]
+        if sc.rover_file is None:
+            self.rim = wheel_tuple({k: w.rim_speed for k, w in primitive.wheels.items()})
+            self.steer = wheel_tuple({k: w.steer for k, w in primitive.wheels.items()})
+        else:
+            sign = -1.0 if sc.rover_file.name.endswith(" (backward)") else 1.0
+            self.rim = tuple(sign * float(primitive.wheels[k].rim_speed) for k in sc.wheels)
+            self.steer = tuple(float(primitive.wheels[k].steer) for k in sc.wheels)
 
     def reset(self) -> None:
         """Nothing to reset (stateless)."""
@@ -270,6 +283,9 @@ def build_controller(kind: str, sc: Scenario, pid: PidGains | None = None,
         return rtctl_factory(sc)
     if kind not in BUILTIN_CONTROLLERS:
         raise ExperimentError(f"unknown controller {kind!r}; use one of {list(BUILTIN_CONTROLLERS) + ['rtctl']}")
+    if sc.rover_file is not None and kind not in ("none", "ff"):
+        raise ExperimentError(f"controller {kind!r}: the section 7.2.4 steering controllers are built for the mini "
+                              f"rover's four wheels; for the rover file of {sc.rover_file.name} use rtctl, 'none' or 'ff'")
     nominal = _primitive(_nominal_of(sc))
     if kind in ("none", "fb"):
         prim = nominal
@@ -408,13 +424,17 @@ def _first_measurement(sim: RoverSimulator) -> Measurements:
     controller for its first command before the plant has a state)."""
     from rtctl.messages import Pose
 
+    wheels = getattr(sim, "wheels", WHEELS)
     steer = []
-    for k in WHEELS:
+    for k in wheels:
         f = sim.scenario.failure(k)
         steer.append(f.steer_stuck if f.steer_stuck is not None else 0.0)
     om = sim.scenario.speed / sim.scenario.params.wheel.shearing_radius
-    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * 4, steer_angle=tuple(steer),
-                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, 0.0), failures=sim.failures,
+    heading = 0.0
+    if getattr(sim, "backward", False):  # the body frame of a rover driving backward (RoverSimulator.measure)
+        om, heading = -om, math.pi
+    return Measurements(t=-1.0, seq=-1, wheel_speed=(om,) * len(wheels), steer_angle=tuple(steer),
+                        yaw_rate=0.0, pose=Pose(-1.0, 0.0, 0.0, heading), failures=sim.failures,
                         task=declared_task(sim.scenario))
 
 

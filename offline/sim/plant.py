@@ -609,24 +609,25 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64] | None, X: NDArray
       travel) by ``tanh(v / v_s)``, ``v = sqrt(v_x^2 + v_y^2)``.
 
     ``F_z`` is not scaled (the wheel still carries its load and sinks). Only the wheel states
-    ``W[:, :4]`` are touched (not the zero-slip twins, whose ``F_z`` alone is used), and only
+    ``W[:, :n]`` (``n = len(rs)``, four for the mini rover) are touched (not the zero-slip twins, whose ``F_z`` alone is used), and only
     below ``20 v_s`` (2 mm/s), where ``tanh`` differs from 1 in double precision: a drive whose
     wheels all travel faster is bit for bit the unregularised plant. Not modelled: the sinkage
     growth of a wheel spinning in place (digging); the plant is quasi-static in sinkage.
 
     Parameters
     ----------
-    W : ndarray (6, 8)
-        Wrenches of the 8 wheel states (wheel frame), scaled in place.
-    JW : ndarray (8, 6, 5) or None
+    W : ndarray (6, 2 n)
+        Wrenches of the ``2 n`` wheel states (the wheels, then their twins; wheel frame), scaled in place.
+    JW : ndarray (2 n, 6, 5) or None
         Their derivatives with respect to the states ``(v_x, v_y, omega, h, h0)``, in place
         (None: a residual-only evaluation).
-    X : ndarray (5, 8)
+    X : ndarray (5, 2 n)
         The states.
-    rs : ndarray (4,)
+    rs : ndarray (n,)
         Shearing radius of each wheel, m.
     """
-    vx, vy, om = X[0, :4], X[1, :4], X[2, :4]
+    n = len(rs)  # wheels (the zero-slip twins follow them)
+    vx, vy, om = X[0, :n], X[1, :n], X[2, :n]
     floor2 = (1e-3 * STICTION_SPEED) ** 2
     v = np.sqrt(vx * vx + vy * vy + floor2)
     cut = _STICTION_CUTOFF * STICTION_SPEED

@@ -1,4 +1,4 @@
-"""The simulated mini rover: plant, actuators and sensors behind the controller's message types.
+"""The simulated rover (the mini rover, or a rover file's): plant, actuators and sensors behind the controller's message types.
 
 :class:`RoverSimulator` consumes :class:`rtctl.messages.Commands` and produces
 :class:`rtctl.messages.Measurements`, so the same controller code drives it and the rover.
@@ -33,15 +33,19 @@ from numpy.typing import NDArray
 
 from rtctl.messages import WHEELS, Commands, FailureDeclaration, Measurements, Pose
 
+from rtctl.physics.rover_file import RoverSpec
+
 from ..physics.params import ParameterSet, Rover
 from ..physics.terramechanics import ModelOptions
 from ..rover.scenario import Scenario
 from .actuators import ActuatorConfig, Actuators
 from .plant import DISTURBANCE_NAMES, GRAVITY, STICTION_SPEED, PlantModel, PlantSolution, SimulationError
 from .sensors import GyroBias, PoseSource, SensorConfig
+from .suspension_plant import SuspensionPlant, suspension_yaw_inertia
 from .truth import Truth
 
-__all__ = ["RoverSimulator", "TruthState", "plant_for", "declared_failures", "SimulationError", "RoverStuck", "WheelLiftOff",
+__all__ = ["RoverSimulator", "TruthState", "plant_for", "suspension_plant_for", "rover_file_truth", "rover_file_actuators",
+           "declared_failures", "SimulationError", "RoverStuck", "WheelLiftOff",
            "Disturbance",
            "DisturbanceForces", "DisturbanceError", "DISTURBANCE_NAMES"]
 
@@ -64,6 +68,56 @@ def plant_for(params: ParameterSet, rover: Rover, exit_angle: str = "classic", c
     return PlantModel(params, rover, opts, compiled=compiled)
 
 
+@functools.lru_cache(maxsize=8)
+def suspension_plant_for(params: ParameterSet, spec: RoverSpec, exit_angle: str = "classic", compiled: bool = True,
+                         pitch_includes_wheel_torque: bool = True) -> SuspensionPlant:
+    """A cached :class:`offline.sim.suspension_plant.SuspensionPlant` of a rover file (the soil
+    enters per call)."""
+    opts = ModelOptions(exit_angle=exit_angle, shear_direction_smoothing=1e-6)  # type: ignore[arg-type]
+    return SuspensionPlant(params, spec, opts, compiled=compiled, pitch_includes_wheel_torque=pitch_includes_wheel_torque)
+
+
+def rover_file_truth(sc: Scenario, plant: SuspensionPlant) -> Truth:
+    """The world a rover file's tables believe in: the scenario's wheel on every wheel of the
+    file, flat ground, no tether; mass the file's weight over its gravity, yaw inertia
+    :func:`offline.sim.suspension_plant.suspension_yaw_inertia`, wheel spin inertia
+    :meth:`SuspensionPlant.default_wheel_inertia` (estimates, stated there).
+
+    Parameters
+    ----------
+    sc : Scenario
+        A scenario with a rover file.
+    plant : SuspensionPlant
+    """
+    spec = plant.spec
+    n = len(spec.wheels)
+    radius = tuple(sc.params.wheel.radius if sc.rim_radius(k) is None else float(sc.rim_radius(k) or 0.0)
+                   for k in spec.wheel_names)
+    offset = tuple(sc.offset(k) for k in spec.wheel_names)
+    return Truth(params=sc.params, wheel_radius=radius, steer_offset=offset if any(offset) else (0.0,) * n,  # type: ignore[arg-type]
+                 slope=sc.slope, cross_slope=sc.cross_slope, mass=spec.weight / plant.gravity,
+                 yaw_inertia=suspension_yaw_inertia(spec), wheel_inertia=plant.default_wheel_inertia(),
+                 source=f"nominal world of {spec.name} (rover file {spec.path or spec.name})")
+
+
+def rover_file_actuators(spec: RoverSpec, rs: float) -> ActuatorConfig:
+    """The servos of a rover file (its ``[actuators]`` section): drive torque limit, largest rim
+    speed ``drive_speed_max * r_s``, steering rate and the widest steering range of its wheels;
+    the wheel-speed lag is :class:`ActuatorConfig`'s default.
+
+    Parameters
+    ----------
+    spec : RoverSpec
+    rs : float
+        Shearing radius of the wheels, m.
+    """
+    act = spec.actuators
+    lim = max([max(abs(w.steer_min), abs(w.steer_max)) for w in spec.wheels if w.steerable] or [math.pi / 2])
+    base = ActuatorConfig()
+    return ActuatorConfig(steer_rate_max=act.steer_rate_max or base.steer_rate_max, steer_limit=lim,
+                          torque_limit=act.drive_torque_max, max_rim_speed=act.drive_speed_max * rs)
+
+
 def declared_failures(sc: Scenario) -> tuple[FailureDeclaration, ...]:
     """The failures of a scenario as the rover's fault management declares them: every failure
     kind the rover can declare (``ROVER_KIND``) with its declared value
@@ -72,7 +126,7 @@ def declared_failures(sc: Scenario) -> tuple[FailureDeclaration, ...]:
     from ..rover.failures import with_task
 
     out = []
-    for k in ("FR", "FL", "RR", "RL"):
+    for k in sc.wheels:
         for kind in sc.failure(k).kinds():
             if kind.ROVER_KIND and not with_task(kind, k, sc.trench):
                 out.append(FailureDeclaration(k, kind.ROVER_KIND, kind.declared_value()))
@@ -206,7 +260,17 @@ class TruthState:
 
 
 class RoverSimulator:
-    """The mini rover of Table 7.2 driving on a slope, with failures, actuators and sensors.
+    """A rover driving on a slope, with failures, actuators and sensors: the mini rover of
+    Table 7.2, or the rover of a scenario's rover file (issue 23).
+
+    A rover-file scenario (six-wheel rocker-bogie, rigid skid-steer, ...) runs on its own plant,
+    :class:`offline.sim.suspension_plant.SuspensionPlant` (the optimizer's wheel model and
+    suspension rows), with the file's wheels in its order in every per-wheel vector of the
+    measurements, commands and truth (:attr:`wheels`). A backward drive (the scenario's rover
+    file turned half round, :func:`rtctl.physics.rover_file.driving_backward`) is simulated in
+    the travel frame; its sensors and commands are in the rover's body frame, as the rover's
+    would be (:meth:`measure`, :meth:`apply`). Not for rover files in this version: a
+    disturbance hook, raised wheels.
 
     Parameters
     ----------
@@ -214,9 +278,11 @@ class RoverSimulator:
         Failures to inject (``[wheels.*]`` of the scenario file) and the believed parameter
         set (its wheel's shearing radius converts rim-speed commands to wheel speeds).
     truth : Truth, optional
-        The simulated world (default: the scenario's parameters, flat, no tether).
+        The simulated world (default: the scenario's parameters, flat, no tether; for a rover
+        file :func:`rover_file_truth`, one radius per wheel of the file).
     actuators, sensors : ActuatorConfig, SensorConfig, optional
-        Servo limits and dynamics; sensor noise and rates (defaults: the classes' defaults).
+        Servo limits and dynamics; sensor noise and rates (defaults: the classes' defaults; for a
+        rover file the servos of its ``[actuators]``, :func:`rover_file_actuators`).
     dt : float
         Fixed plant step, s (the 5 Hz control period should be a multiple).
     seed : int
@@ -240,19 +306,32 @@ class RoverSimulator:
         if not (math.isfinite(dt) and 1e-4 <= dt <= 1.0):
             raise ValueError(f"dt must be in [1e-4, 1] s, got {dt!r}")
         rf = getattr(scenario, "rover_file", None)
-        if rf is not None:  # the plant's statics are the Table 7.2 rocker's (issue 23: not yet N wheels)
-            raise SimulationError(
-                f"scenario {scenario.name}: rover file of {rf.name} ({len(rf.wheel_names)} wheels "
-                f"{', '.join(rf.wheel_names)}, suspension {rf.suspension}): the simulator models the four-wheel "
-                "rocker of Table 7.2 only in this version (a scenario without 'rover', or rover = "
-                "\"mini-rover-t72\"); rover files work in the optimizer and the tables "
-                "('offnominal primitive', 'offnominal tables build')")
+        self.rover_file: RoverSpec | None = rf
+        self.wheels: tuple[str, ...] = tuple(scenario.wheels)
+        n = self.n = len(self.wheels)
+        # a backward drive's rover file is turned half round (the table builder's rule, wheel_set_header)
+        self.backward = bool(rf is not None and rf.name.endswith(" (backward)"))
         self.scenario = scenario
-        self.truth = truth or Truth.nominal(scenario.params, scenario.rover)
-        self.plant = plant_for(self.truth.params, scenario.rover, scenario.exit_angle, compiled)
+        if rf is None:
+            self.truth = truth or Truth.nominal(scenario.params, scenario.rover)
+            self.plant: PlantModel | SuspensionPlant = plant_for(self.truth.params, scenario.rover, scenario.exit_angle,
+                                                                 compiled)
+        else:  # a rover file: its suspension's plant (the optimizer's statics), in the travel frame
+            if disturbance is not None:
+                raise SimulationError(f"scenario {scenario.name}: a disturbance hook is modelled for the mini rover's "
+                                      f"plant only, not for the rover file of {rf.name} in this version")
+            params = truth.params if truth is not None else scenario.params
+            self.plant = suspension_plant_for(params, rf, scenario.exit_angle, compiled)
+            self.truth = truth or rover_file_truth(scenario, self.plant)
+            if len(self.truth.wheel_radius) != n:
+                raise SimulationError(f"scenario {scenario.name}: the truth gives {len(self.truth.wheel_radius)} wheel "
+                                      f"radii; the rover file of {rf.name} has {n} wheels ({', '.join(self.wheels)})")
+            if actuators is None:
+                actuators = rover_file_actuators(rf, scenario.params.wheel.shearing_radius)
         self.q = self.truth.vector()
         self.rs_true = np.asarray(self.truth.wheel_radius) + self.truth.params.wheel.grouser_height
-        self.act = Actuators(actuators or ActuatorConfig(), dict(scenario.failures), scenario.params.wheel.shearing_radius)
+        self.act = Actuators(actuators or ActuatorConfig(), dict(scenario.failures), scenario.params.wheel.shearing_radius,
+                             wheels=self.wheels)
         self.sensors = sensors or SensorConfig()
         self.dt = dt
         self.rng = np.random.default_rng(seed)
@@ -264,14 +343,14 @@ class RoverSimulator:
         self.steps = 0
         self.x = self.y = self.heading = 0.0
         self.travelled = 0.0
-        self.z = np.zeros(15)
+        self.z = np.zeros(3 + 3 * n)
         self.sol: PlantSolution | None = None
-        self.mode = np.ones(4)
-        self.torque = np.zeros(4)
+        self.mode = np.ones(n)
+        self.torque = np.zeros(n)
         self.newton_iterations = 0
         self.substepped = 0  # steps that needed sub-steps (see :meth:`step`)
         self.contact = self.act.contact()
-        self.motor = np.zeros(4)
+        self.motor = np.zeros(n)
         if disturbance is not None and not callable(disturbance):
             raise DisturbanceError(f"disturbance must be a callable (t, TruthState) -> DisturbanceForces, got {disturbance!r}")
         self.disturbance = disturbance
@@ -281,6 +360,9 @@ class RoverSimulator:
     # ------------------------------------------------------------------ plant
     def _inputs(self, inv_dt: float) -> NDArray[np.float64]:
         steer = self.act.steer + np.asarray(self.truth.steer_offset)
+        if self.rover_file is not None:  # every wheel on the ground (no contact inputs)
+            return np.concatenate([self.act.omega_servo, self.mode, self.torque, steer,
+                                   self.z[:3], [self.heading, inv_dt], self.z[3:3 + self.n]])
         return np.concatenate([self.act.omega_servo, self.mode, self.torque, steer,
                                self.z[:3], [self.heading, inv_dt], self.z[3:7], self.contact])
 
@@ -303,13 +385,13 @@ class RoverSimulator:
                 except SimulationError:
                     zs = z_last.copy()
                     held = (self.mode == 0) & (base_mode == 1)
-                    zs[3:7] = np.where(held, 1e-3 * zs[3:7], zs[3:7])
+                    zs[3:3 + self.n] = np.where(held, 1e-3 * zs[3:3 + self.n], zs[3:3 + self.n])
                     z, sol = self.plant.solve(zs, self._inputs(inv_dt), self.q, self._d)
             z_last = z
             self.newton_iterations += sol.iterations
             motor = self._motor(sol, inv_dt)
             changed = False
-            for i in range(4):
+            for i in range(self.n):
                 lim = self.act.torque_limit(i)
                 if base_mode[i] == 0:
                     continue
@@ -335,7 +417,7 @@ class RoverSimulator:
             motor = motor + self._d[11:15]
         jw = self.truth.wheel_inertia
         if jw * inv_dt != 0.0:
-            motor = motor + jw * inv_dt * (sol.omega - self.z[3:7])
+            motor = motor + jw * inv_dt * (sol.omega - self.z[3:3 + self.n])
         return motor
 
     def _disturb(self) -> NDArray[np.float64] | None:
@@ -352,12 +434,13 @@ class RoverSimulator:
     def start(self, commands: Commands) -> None:
         """Begin at the steady state of the first commands (the rover already driving them, as
         in section 7.3 where it drove 5 s before each run), at the origin, heading 0."""
-        self.act.reset(commands.rim_speed, commands.steer_angle)
+        rim = tuple(-float(v) for v in commands.rim_speed) if self.backward else commands.rim_speed  # see apply
+        self.act.reset(rim, commands.steer_angle)
         self.z = self.plant.initial_guess(self.scenario.speed, self.q, self.contact)
         # quasi-static steady state, reached by continuation from straight driving (Newton from a
         # straight guess need not converge for a strongly steered primitive such as the trench)
         om_t, st_t = self.act.omega_servo.copy(), self.act.steer.copy()
-        om_0 = np.full(4, self.scenario.speed / (self.scenario.params.wheel.shearing_radius * 0.92))
+        om_0 = np.full(self.n, self.scenario.speed / (self.scenario.params.wheel.shearing_radius * 0.92))
         lam, step, solved = 0.0, 1.0, False
         while True:
             trial = min(1.0, lam + step)
@@ -405,8 +488,16 @@ class RoverSimulator:
         self._d = full
 
     def apply(self, commands: Commands) -> None:
-        """Latch commands (clipped to actuator limits by the servos; NaN ignored)."""
-        self.act.command(commands.rim_speed, commands.steer_angle)
+        """Latch commands (clipped to actuator limits by the servos; NaN ignored).
+
+        A backward drive's commands are in the rover's body frame (the controller's boundary,
+        :meth:`rtctl.controller.Controller.feedback`); the plant is in the travel frame (the rover
+        file turned half round), where a rim speed changes sign and a steering angle does not.
+        """
+        rim = commands.rim_speed
+        if self.backward:
+            rim = tuple(-float(v) for v in rim)
+        self.act.command(rim, commands.steer_angle)
 
     def step(self) -> None:
         """Advance one fixed step ``dt``."""
@@ -468,22 +559,24 @@ class RoverSimulator:
         its shearing radius (the wheel model's domain ends at an entry angle of 90 deg), at the
         step's start ``z`` or where the first failed Newton solve stopped (``err.z``), and
         :class:`WheelLiftOff` when instead a wheel in contact is unloaded to its grouser height."""
-        h = np.exp(z[7:11]) * self.contact
-        if err.z is not None and np.all(np.isfinite(err.z[7:11])):
-            h = np.maximum(h, np.exp(err.z[7:11]) * self.contact)
-        deep = [i for i in range(4) if h[i] > self.rs_true[i]]
+        n = self.n
+        hs = slice(3 + n, 3 + 2 * n)
+        h = np.exp(z[hs]) * self.contact
+        if err.z is not None and np.all(np.isfinite(err.z[hs])):
+            h = np.maximum(h, np.exp(err.z[hs]) * self.contact)
+        deep = [i for i in range(n) if h[i] > self.rs_true[i]]
         if not deep:
             hg = self.truth.params.wheel.grouser_height
-            zz = err.z if err.z is not None and np.all(np.isfinite(err.z[7:11])) else z
-            light = [i for i in range(4) if self.contact[i] and np.exp(zz[7 + i]) < 1.1 * hg]
+            zz = err.z if err.z is not None and np.all(np.isfinite(err.z[hs])) else z
+            light = [i for i in range(n) if self.contact[i] and np.exp(zz[3 + n + i]) < 1.1 * hg]
             if light:
-                what = ", ".join(f"{WHEELS[i]} {1e3 * np.exp(zz[7 + i]):.1f} mm" for i in light)
+                what = ", ".join(f"{self.wheels[i]} {1e3 * np.exp(zz[3 + n + i]):.1f} mm" for i in light)
                 raise WheelLiftOff(f"t={self.t + self.dt:.6g} s: a wheel is unloading ({what}: sinkage at the "
                                       f"{1e3 * hg:.0f} mm grouser height, almost no load); the plant does not model a "
                                       f"wheel lifting off the ground ({err})") from None
             return
-        slip = self.sol.slip if self.sol is not None else np.full(4, math.nan)
-        what = ", ".join(f"{WHEELS[i]} {1e3 * h[i]:.1f} mm at slip {slip[i]:.2f}" for i in deep)
+        slip = self.sol.slip if self.sol is not None else np.full(n, math.nan)
+        what = ", ".join(f"{self.wheels[i]} {1e3 * h[i]:.1f} mm at slip {slip[i]:.2f}" for i in deep)
         raise RoverStuck(f"t={self.t + self.dt:.6g} s: the rover is stuck, dug in: {what}, deeper than the wheel's "
                          f"{1e3 * float(self.rs_true[deep[0]]):.0f} mm shearing radius, where the wheel model ends "
                          f"(x = {self.x:.3f} m; {err})")
@@ -535,22 +628,34 @@ class RoverSimulator:
         return roll, pitch
 
     def measure(self) -> Measurements:
-        """Sensor readings at the current time (noise drawn in a fixed order)."""
+        """Sensor readings at the current time (noise drawn in a fixed order).
+
+        A backward drive's readings are in the body frame: wheel speeds and motor torques
+        change sign, roll and pitch change sign, a pose's heading gains pi (the inverse of the
+        controller's turn, :meth:`rtctl.controller.Controller.feedback`); steering, yaw rate and
+        position are the same in both frames."""
         if self.sol is None:
             raise SimulationError("call start(first_commands) before measuring")
         c = self.sensors
-        n = self.rng.standard_normal(4 + 4 + 1 + 2 + 4)
-        omega = self.sol.omega + c.wheel_speed_noise * n[0:4]
-        steer = self.act.steer + c.steer_noise * n[4:8]
-        gyro = self.z[2] + self.gyro_bias.value + c.gyro_noise * n[8]
+        k = self.n  # the mini rover: 4 + 4 + 1 + 2 + 4 draws, in this order
+        n = self.rng.standard_normal(k + k + 1 + 2 + k)
+        omega = self.sol.omega + c.wheel_speed_noise * n[0:k]
+        steer = self.act.steer + c.steer_noise * n[k:2 * k]
+        gyro = self.z[2] + self.gyro_bias.value + c.gyro_noise * n[2 * k]
         roll, pitch = self._tilt()
-        roll += c.tilt_offset[0] + c.tilt_noise * n[9]
-        pitch += c.tilt_offset[1] + c.tilt_noise * n[10]
+        roll += c.tilt_offset[0] + c.tilt_noise * n[2 * k + 1]
+        pitch += c.tilt_offset[1] + c.tilt_noise * n[2 * k + 2]
         torque = None
         if math.isfinite(c.torque_noise):
-            torque = tuple(float(x) for x in (self.motor + c.torque_noise * n[11:15]))
+            torque = tuple(float(x) for x in (self.motor + c.torque_noise * n[2 * k + 3:3 * k + 3]))
         fix = self.pose_source.deliver(self.t)
         pose = Pose(*fix) if fix is not None else None
+        if self.backward:  # the body frame of a rover driving backward (see apply)
+            omega, torque = -omega, None if torque is None else tuple(-x for x in torque)
+            roll, pitch = -roll, -pitch
+            if pose is not None:
+                pose = Pose(pose.t, pose.x, pose.y, math.atan2(math.sin(pose.heading + math.pi),
+                                                               math.cos(pose.heading + math.pi)))
         m = Measurements(t=self.t, seq=self.seq, wheel_speed=tuple(float(x) for x in omega),
                          steer_angle=tuple(float(x) for x in steer), yaw_rate=float(gyro),
                          roll=float(roll), pitch=float(pitch), motor_torque=torque, pose=pose,
@@ -577,4 +682,4 @@ class RoverSimulator:
     @property
     def weight(self) -> float:
         """Rover weight of the truth, N."""
-        return float(self.truth.mass * GRAVITY)
+        return float(self.truth.mass * (GRAVITY if self.rover_file is None else getattr(self.plant, "gravity", GRAVITY)))

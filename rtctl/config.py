@@ -551,14 +551,15 @@ max_fy_offset = 2.0         # N
 [qp]
 slack_l1 = 10.0
 slack_l2 = 100.0
-regularization = 1e-5
-command_weight = 1e-5
+regularization = 1e-8
+command_weight = 1e-8
 max_iter = 4000
 eps = 1e-6
 balance_tolerance = 0.5
 step_limit = 1.0            # variable scales: the tick's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
+gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature
 active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales

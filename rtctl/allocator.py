@@ -354,6 +354,11 @@ class QpAllocator:
         return self._H * self._cf
 
     @property
+    def set_up(self) -> bool:
+        """OSQP was set up (the first :meth:`prepare`); later ones only update values."""
+        return self._solver is not None
+
+    @property
     def objective_scale(self) -> float:
         """``c_f``, the normalisation of the QP's objective (module docstring)."""
         return float(self._cf)

@@ -115,6 +115,8 @@ class RealTimeIteration:
         """Quasi-Newton updates applied since the iterate last restarted (diagnostics)."""
         self._A: NDArray[np.float64] | None = None  # structured Hessian: the constraints' curvature part
         self._corner_cache: dict[int, NDArray[np.float64]] = {}  # curvature part per grid point
+        self._cell_cache: dict[bytes, tuple[NDArray[np.float64], NDArray[np.bool_]]] = {}  # per cell: stack, kept
+        self._A_table: NDArray[np.float64] | None = None  # the prepared point's curvature part
         self._torque_rows = np.array([table.layout.index(f"wheel torque {w}") for w in table.layout.wheels], dtype=int) \
             if self.residual is not None else np.zeros(0, dtype=int)
         self._point: Any = None
@@ -135,12 +137,19 @@ class RealTimeIteration:
         bounded = BoundedRows(tp, self.keep_rows)
         self._point = tp
         if self._structured():
+            # the table's Lagrangian Hessian less its objective's Gauss-Newton part: what the
+            # constraints' curvature contributes (the exact Gauss-Newton part is added per
+            # iteration); an iteration that goes on keeps what it learnt
+            A_table = self._A_table = self._table_curvature(tp)
             if self._H is None:
-                # the table's Lagrangian Hessian less its objective's Gauss-Newton part: what the
-                # constraints' curvature contributes (the exact Gauss-Newton part is added per
-                # iteration); an iteration that goes on keeps what it learnt
-                self._A = self._table_curvature(tp)
-            self.allocator.prepare(bounded, hessian=self._start_hessian(tp), scale_by_hessian=True)
+                self._A = A_table
+            # the QP's matrix is replaced at every iteration (_structured_hessian) before any
+            # solve; here it sets the objective's normalisation only, so it needs no convexifying
+            start = self._H if self._H is not None else self._gauss_newton(np.asarray(tp.jac_g_x, dtype=float)) + A_table
+            if not self.allocator.set_up:  # OSQP's set-up (once) needs a convex P
+                w, V = np.linalg.eigh(0.5 * (start + start.T))
+                start = (V * np.maximum(w, self.settings.regularization * max(float(np.abs(w).max()), 1e-12))) @ V.T
+            self.allocator.prepare(bounded, hessian=start, scale_by_hessian=True)
         else:
             self.allocator.prepare(bounded, hessian=self._H)
         self._free = bounded.free_mask
@@ -183,9 +192,7 @@ class RealTimeIteration:
             # slope: max heading 2.4 deg keeping the learnt matrix across ticks, 2.1 without QN)
             self._H, self.hessian_updates = None, 0
             if self._structured():
-                self._A = self._table_curvature(self._point)
-                self.allocator.prepare(BoundedRows(self._point, self.keep_rows), hessian=self._start_hessian(self._point),
-                                       scale_by_hessian=True)
+                self._A = self._A_table  # the next iteration sets the QP's matrix from it
             else:
                 self.allocator.prepare(BoundedRows(self._point, self.keep_rows))
         fresh = self.iterate is None
@@ -296,32 +303,25 @@ class RealTimeIteration:
         idx, w = cell
         use = w > 0.0
         idx, w = idx[use], w[use]
-        As = []
-        for c in idx:
-            A = self._corner_cache.get(int(c))
-            if A is None:
-                A = self._corner_curvature(table.point_field(int(c), "hess_lag"), table.point_field(int(c), "jac_g_x"))
-                self._corner_cache[int(c)] = A
-            As.append(A)
-        stack = np.stack(As)
-        size = np.abs(stack).reshape(len(As), -1).max(axis=1)
-        keep = size <= _CURVATURE_OUTLIER * float(np.median(size))
-        if keep.any() and not keep.all():
-            w = w * keep
-        A = np.tensordot(w / float(w.sum()), stack, axes=1)
-        return 0.5 * (A + A.T)
-
-    def _start_hessian(self, tp: Any) -> NDArray[np.float64]:
-        """The structured Hessian at the table point (its Gauss-Newton part plus ``A``),
-        convexified: what the QP is prepared with (and normalised by) before the first exact
-        linearisation replaces the Gauss-Newton part by the iterate's."""
-        assert self._A is not None
-        B = self._gauss_newton(np.asarray(tp.jac_g_x, dtype=float)) + self._A
-        B = 0.5 * (B + B.T)
-        w, V = np.linalg.eigh(B)
-        top = max(float(np.abs(w).max()), 1e-12)
-        H = (V * np.clip(w, self.settings.regularization * top, None)) @ V.T
-        return 0.5 * (H + H.T)
+        key = idx.tobytes()
+        hit = self._cell_cache.get(key)
+        if hit is None:
+            As = []
+            for c in idx:
+                A = self._corner_cache.get(int(c))
+                if A is None:
+                    A = self._corner_curvature(table.point_field(int(c), "hess_lag"), table.point_field(int(c), "jac_g_x"))
+                    self._corner_cache[int(c)] = A
+                As.append(A)
+            stack = np.stack(As).reshape(len(As), -1)
+            size = np.abs(stack).max(axis=1)
+            keep = size <= _CURVATURE_OUTLIER * float(np.median(size))
+            hit = self._cell_cache[key] = (stack, keep if (keep.any() and not keep.all()) else np.ones(len(As), dtype=bool))
+        stack, keep = hit
+        w = w * keep
+        n = self.allocator.nx
+        A = ((w / float(w.sum())) @ stack).reshape(n, n)  # each corner's is symmetric
+        return A
 
     def _structured_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64],
                             p: NDArray[np.float64]) -> None:
@@ -364,8 +364,17 @@ class RealTimeIteration:
                     self.hessian_updates += 1
         self._A = B - G
         cf = self.allocator.objective_scale
-        w, V = np.linalg.eigh(B)
-        H = (V * np.clip(w, self.settings.regularization * cf, 10.0 * cf)) @ V.T
+        floor = self.settings.regularization * cf
+        Bf = B.copy()
+        Bf.flat[::Bf.shape[0] + 1] -= floor
+        try:  # every eigenvalue above the floor (the usual case, a Cholesky factor proves it) ...
+            np.linalg.cholesky(Bf)
+            H = B if float(np.abs(B).max()) <= 10.0 * cf else None
+        except np.linalg.LinAlgError:
+            H = None
+        if H is None:  # ... else floor (and cap) the eigenvalues
+            w, V = np.linalg.eigh(B)
+            H = (V * np.clip(w, floor, 10.0 * cf)) @ V.T
         self._H = 0.5 * (H + H.T)
         self.allocator.set_hessian(self._H)
 

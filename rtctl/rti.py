@@ -14,8 +14,12 @@ A tick may take more than one iteration (``QpSettings.iterations_per_tick``): an
 last step was longer than ``extra_iteration_step`` variable scales, so that after a jump of the
 operating point (a new table, a cross slope beyond the axes) the commanded point is balanced at
 the first tick; in steady driving the steps are short and a tick is one iteration. With
-``quasi_newton`` the table's Hessian is corrected by damped BFGS updates along the way (the
-table's Hessian is another point's, worst in the objective's flat directions).
+``gauss_newton`` (the default) the QP's Hessian is structured: the exact Gauss-Newton part of
+the objective (7.24), from the wheel-torque rows of each iteration's exact Jacobian, plus the
+constraints' curvature from the table's cell corners (a corner on the wheel model's zero-slip
+kink left out); with ``quasi_newton`` that curvature part is corrected by damped BFGS updates
+along the way (the table's Hessian is another point's, worst in the objective's flat
+directions).
 
 A table whose header does not define the physics (no ``params`` / ``rover`` records, as in a
 hand-made table) is iterated on its own first-order model at the iterate

@@ -299,7 +299,13 @@ class QpSettings:
         Trust region of one tick: the largest change of each variable from the tick's starting
         iterate, in variable scales (the step in x is limited; the measured parameters never are).
         1.0: a point beyond a table's axes (a 6-8 deg cross slope on a table built at 0) lies
-        0.5-1 scales from the table's primitive, and 0.5 left its first tick unbalanced.
+        0.5-1 scales from the table's primitive, and 0.5 left its first tick unbalanced. 2.0 since
+        the structured Hessian: with the curvature no longer overestimated, the remaining slow
+        points took a step at the box every tick (an off-grid rim-speed-cap point whose optimum
+        lies 3.7 scales from the interpolated primitive), and the 6 deg cross-slope point of
+        rr_steer_stuck was unbalanced after its first tick (1.1 N); measured
+        (``bench_online_step.py accuracy``, 73 points, same day): tick-1 66/73 and tick-5 64/73 at
+        1.0, 69/73 and 66/73 at 2.0. The actuators' rate limits still bound each command's change.
     exact_jacobian : bool
         Linearise the rows with their exact Jacobian at the iterate (structured forward
         differences of the shared physics, :class:`rtctl.physics.steady_state.SteadyStateResidual`):
@@ -358,7 +364,7 @@ class QpSettings:
     max_iter: int = 4000
     eps: float = 1e-6
     balance_tolerance: float = 0.5
-    step_limit: float = 1.0
+    step_limit: float = 2.0
     exact_jacobian: bool = True
     quasi_newton: bool = True
     active_set_iterations: int = 5
@@ -556,7 +562,7 @@ command_weight = 1e-8
 max_iter = 4000
 eps = 1e-6
 balance_tolerance = 0.5
-step_limit = 1.0            # variable scales: the tick's step in x (never the parameters)
+step_limit = 2.0            # variable scales: the tick's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
 gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature

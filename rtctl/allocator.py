@@ -228,11 +228,15 @@ class QpAllocator:
         """Which solver answered the last :meth:`solve_at`: ``"active set"`` or ``"osqp"``."""
 
     # ------------------------------------------------------------------ preparation phase
-    def prepare(self, tp: TablePointLike, hessian: NDArray[np.float64] | None = None) -> None:
+    def prepare(self, tp: TablePointLike, hessian: NDArray[np.float64] | None = None,
+                scale_by_hessian: bool = False) -> None:
         """Load a table point: matrix values (convexified Hessian, scaled Jacobian) and OSQP's
         refactorisation. Needs no measurement (the preparation phase). ``hessian``: use this
         positive definite matrix (scaled, not normalised, as :attr:`hessian`) instead of the
-        table point's (a quasi-Newton iteration that goes on)."""
+        table point's (a quasi-Newton iteration that goes on, or the structured Hessian of
+        :class:`rtctl.rti.RealTimeIteration`); ``scale_by_hessian``: the objective's
+        normalisation ``c_f`` from that matrix and the gradient, not from the table point's
+        Hessian (which may be a corner's kink interpolated, many orders larger)."""
         nx, ng, npar = self.nx, self.ng, self.layout.np_
         shapes = {"x": (nx,), "p": (npar,), "g": (ng,), "jac_g_x": (ng, nx), "jac_g_p": (ng, npar), "grad_f": (nx,),
                   "hess_lag": (nx, nx), "lbx": (nx,), "ubx": (nx,), "lbg": (ng,), "ubg": (ng,)}
@@ -260,7 +264,8 @@ class QpAllocator:
         H = self._sxx * f["hess_lag"]
         H = 0.5 * (H + H.T)
         g = sx * f["grad_f"]
-        cf = max(float(np.abs(H).max()), float(np.abs(g).max()), 1e-12)
+        Hn = H if (hessian is None or not scale_by_hessian) else np.asarray(hessian, dtype=float)
+        cf = max(float(np.abs(Hn).max()), float(np.abs(g).max()), 1e-12)
         H /= cf
         g /= cf
         if hessian is not None:
@@ -347,6 +352,11 @@ class QpAllocator:
         """The QP's Hessian of the Lagrangian in scaled variables, *not* normalised (``S_x H S_x``
         after convexification; the QP uses it divided by :attr:`objective_scale`), copy."""
         return self._H * self._cf
+
+    @property
+    def set_up(self) -> bool:
+        """OSQP was set up (the first :meth:`prepare`); later ones only update values."""
+        return self._solver is not None
 
     @property
     def objective_scale(self) -> float:

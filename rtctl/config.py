@@ -272,12 +272,19 @@ class QpSettings:
         conditioning from it; at 1e-3 (the value while OSQP solved every tick) it dominated the
         curvature in the objective's flat directions, and the iterate crept a few % a tick toward
         the optimum (measured: tick-5 agreement with the NLP 14/76 points at 1e-3, 36/76 at 1e-5,
-        same at 1e-6; ``tests/bench/bench_online_step.py accuracy``).
+        same at 1e-6; ``tests/bench/bench_online_step.py accuracy``). 1e-8 since the structured
+        Hessian (``gauss_newton``): the exact reduced curvature of the off-grid rim-speed-cap and
+        unpowered points is 1e-7-1e-6 of the normalisation, so a floor of 1e-5 was a proximal term
+        that limited each tick's step in the flat directions to a constant (measured on an
+        unpowered point: speeds 21 % -> 6 % off the optimum in five ticks at 1e-5, 0.1 % at 1e-8 or
+        1e-9; all tables, tick-5 agreement 60/73 at 1e-5 against 64/73 at 1e-8, same run).
     command_weight : float
         Weight on the change of the commanded variables from the previous command (smoothness).
         At steady state the previous command is the iterate's, so it acts as a proximal term as
         well and slows convergence in flat directions (tick-5 agreement 66/76 at 1e-5 against
         46/76 at 1e-3, with the other defaults); the actuators' rate limits bound the changes.
+        1e-8 (with ``regularization``, same measurement): 2e-5 on the diagonal of P dominated
+        the exact reduced curvature (1e-7-1e-6) in the flat directions.
     max_iter : int
         OSQP iteration budget per solve. 4000: the warm-started ADMM needs more than 1000 on the
         strongly slipping primitives of the rim-speed cap tables (measured: 196 of 253 ticks fell
@@ -292,7 +299,13 @@ class QpSettings:
         Trust region of one tick: the largest change of each variable from the tick's starting
         iterate, in variable scales (the step in x is limited; the measured parameters never are).
         1.0: a point beyond a table's axes (a 6-8 deg cross slope on a table built at 0) lies
-        0.5-1 scales from the table's primitive, and 0.5 left its first tick unbalanced.
+        0.5-1 scales from the table's primitive, and 0.5 left its first tick unbalanced. 2.0 since
+        the structured Hessian: with the curvature no longer overestimated, the remaining slow
+        points took a step at the box every tick (an off-grid rim-speed-cap point whose optimum
+        lies 3.7 scales from the interpolated primitive), and the 6 deg cross-slope point of
+        rr_steer_stuck was unbalanced after its first tick (1.1 N); measured
+        (``bench_online_step.py accuracy``, 73 points, same day): tick-1 66/73 and tick-5 64/73 at
+        1.0, 69/73 and 66/73 at 2.0. The actuators' rate limits still bound each command's change.
     exact_jacobian : bool
         Linearise the rows with their exact Jacobian at the iterate (structured forward
         differences of the shared physics, :class:`rtctl.physics.steady_state.SteadyStateResidual`):
@@ -323,6 +336,15 @@ class QpSettings:
         rounding (OSQP's ADMM stops at ``eps``) and without OSQP's refactorisation; when the set
         does not settle within the budget, or the balance needs slack, OSQP solves the tick. 0:
         OSQP alone (the C flight path of :mod:`rtctl.codegen` is OSQP's).
+    gauss_newton : bool
+        Structured Hessian (:meth:`rtctl.rti.RealTimeIteration._structured_hessian`): the exact
+        Gauss-Newton part of the objective (7.24) from the wheel-torque rows of each iteration's
+        exact Jacobian, plus the constraints' curvature from the table (each cell corner's own,
+        a corner on the wheel model's zero-slip kink left out), corrected by BFGS when
+        ``quasi_newton``; the objective's normalisation from that matrix. Needs
+        ``exact_jacobian`` and a table with physics. Measured (``bench_online_step.py accuracy``,
+        73 off-grid points, same run): tick-5 agreement 64/73 against 53/73 with the table's
+        interpolated Hessian (rr_rim_speed_cap 9/13 against 3/13, rr_unpowered 15/16 against 11/16).
     quasi_newton : bool
         Improve the table's Lagrangian Hessian from iteration to iteration by damped BFGS updates
         with the exact Lagrangian gradients (:meth:`rtctl.rti.RealTimeIteration.step`); needs
@@ -337,15 +359,16 @@ class QpSettings:
 
     slack_l1: float = 10.0
     slack_l2: float = 100.0
-    regularization: float = 1e-5
-    command_weight: float = 1e-5
+    regularization: float = 1e-8
+    command_weight: float = 1e-8
     max_iter: int = 4000
     eps: float = 1e-6
     balance_tolerance: float = 0.5
-    step_limit: float = 1.0
+    step_limit: float = 2.0
     exact_jacobian: bool = True
     quasi_newton: bool = True
     active_set_iterations: int = 5
+    gauss_newton: bool = True
     iterations_per_tick: int = 3
     extra_iteration_step: float = 0.05
 
@@ -354,7 +377,7 @@ class QpSettings:
             "max_iter": _key("max_iter", check=lambda v: None if (v >= 10 and v == int(v)) else "must be an integer >= 10"),
             "eps": _key("eps", check=_pos), "balance_tolerance": _key("balance_tolerance", check=_pos),
             "step_limit": _key("step_limit", check=_pos), "exact_jacobian": _key("exact_jacobian"),
-            "quasi_newton": _key("quasi_newton"),
+            "quasi_newton": _key("quasi_newton"), "gauss_newton": _key("gauss_newton"),
             "iterations_per_tick": _key("iterations_per_tick",
                                         check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
             "extra_iteration_step": _key("extra_iteration_step", check=_pos),
@@ -534,14 +557,15 @@ max_fy_offset = 2.0         # N
 [qp]
 slack_l1 = 10.0
 slack_l2 = 100.0
-regularization = 1e-5
-command_weight = 1e-5
+regularization = 1e-8
+command_weight = 1e-8
 max_iter = 4000
 eps = 1e-6
 balance_tolerance = 0.5
-step_limit = 1.0            # variable scales: the tick's step in x (never the parameters)
+step_limit = 2.0            # variable scales: the tick's step in x (never the parameters)
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
+gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature
 active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales

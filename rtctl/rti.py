@@ -14,8 +14,12 @@ A tick may take more than one iteration (``QpSettings.iterations_per_tick``): an
 last step was longer than ``extra_iteration_step`` variable scales, so that after a jump of the
 operating point (a new table, a cross slope beyond the axes) the commanded point is balanced at
 the first tick; in steady driving the steps are short and a tick is one iteration. With
-``quasi_newton`` the table's Hessian is corrected by damped BFGS updates along the way (the
-table's Hessian is another point's, worst in the objective's flat directions).
+``gauss_newton`` (the default) the QP's Hessian is structured: the exact Gauss-Newton part of
+the objective (7.24), from the wheel-torque rows of each iteration's exact Jacobian, plus the
+constraints' curvature from the table's cell corners (a corner on the wheel model's zero-slip
+kink left out); with ``quasi_newton`` that curvature part is corrected by damped BFGS updates
+along the way (the table's Hessian is another point's, worst in the objective's flat
+directions).
 
 A table whose header does not define the physics (no ``params`` / ``rover`` records, as in a
 hand-made table) is iterated on its own first-order model at the iterate
@@ -37,6 +41,10 @@ from .physics.parameters import ParameterError
 from .physics.steady_state import SteadyStateModel, SteadyStateResidual
 
 __all__ = ["RealTimeIteration", "BoundedRows", "free_rows"]
+
+_CURVATURE_OUTLIER = 100.0
+"""A cell corner whose curvature part exceeds this many times the median corner's is left out
+(:meth:`RealTimeIteration._table_curvature`)."""
 
 _TILT_JUMP = math.radians(1.0)
 """A change of slope or cross slope between ticks (rad) beyond which a tick may iterate again."""
@@ -109,6 +117,12 @@ class RealTimeIteration:
         self._prev: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
         self.hessian_updates = 0
         """Quasi-Newton updates applied since the iterate last restarted (diagnostics)."""
+        self._A: NDArray[np.float64] | None = None  # structured Hessian: the constraints' curvature part
+        self._corner_cache: dict[int, NDArray[np.float64]] = {}  # curvature part per grid point
+        self._cell_cache: dict[bytes, tuple[NDArray[np.float64], NDArray[np.bool_]]] = {}  # per cell: stack, kept
+        self._A_table: NDArray[np.float64] | None = None  # the prepared point's curvature part
+        self._torque_rows = np.array([table.layout.index(f"wheel torque {w}") for w in table.layout.wheels], dtype=int) \
+            if self.residual is not None else np.zeros(0, dtype=int)
         self._point: Any = None
         self._free: NDArray[np.bool_] = np.zeros(table.layout.ng, dtype=bool)
         self.sqp_iterations = 0
@@ -125,8 +139,23 @@ class RealTimeIteration:
             self._H, self._prev, self.hessian_updates = None, None, 0
         # the iteration goes on: keep what it learnt of the curvature (else the table's, convexified)
         bounded = BoundedRows(tp, self.keep_rows)
-        self.allocator.prepare(bounded, hessian=self._H)
         self._point = tp
+        if self._structured():
+            # the table's Lagrangian Hessian less its objective's Gauss-Newton part: what the
+            # constraints' curvature contributes (the exact Gauss-Newton part is added per
+            # iteration); an iteration that goes on keeps what it learnt
+            A_table = self._A_table = self._table_curvature(tp)
+            if self._H is None:
+                self._A = A_table
+            # the QP's matrix is replaced at every iteration (_structured_hessian) before any
+            # solve; here it sets the objective's normalisation only, so it needs no convexifying
+            start = self._H if self._H is not None else self._gauss_newton(np.asarray(tp.jac_g_x, dtype=float)) + A_table
+            if not self.allocator.set_up:  # OSQP's set-up (once) needs a convex P
+                w, V = np.linalg.eigh(0.5 * (start + start.T))
+                start = (V * np.maximum(w, self.settings.regularization * max(float(np.abs(w).max()), 1e-12))) @ V.T
+            self.allocator.prepare(bounded, hessian=start, scale_by_hessian=True)
+        else:
+            self.allocator.prepare(bounded, hessian=self._H)
         self._free = bounded.free_mask
         if self.iterate is None:
             self.iterate = self.allocator.x0
@@ -166,7 +195,10 @@ class RealTimeIteration:
             # table's Hessian again (measured in closed loop, RR stuck at -65 deg on a 6 deg cross
             # slope: max heading 2.4 deg keeping the learnt matrix across ticks, 2.1 without QN)
             self._H, self.hessian_updates = None, 0
-            self.allocator.prepare(BoundedRows(self._point, self.keep_rows))
+            if self._structured():
+                self._A = self._A_table  # the next iteration sets the QP's matrix from it
+            else:
+                self.allocator.prepare(BoundedRows(self._point, self.keep_rows))
         fresh = self.iterate is None
         x_start = self.iterate if self.iterate is not None else self.allocator.x0
         p = np.asarray(p, dtype=float)
@@ -207,7 +239,9 @@ class RealTimeIteration:
              x_ref: NDArray[np.float64] | None) -> Allocation:
         """One SQP iteration from ``xk``; carries the iterate (see :meth:`step`)."""
         g, grad, jac = self.linearise(xk, p)
-        if self.settings.quasi_newton and jac is not None:
+        if jac is not None and self._structured():
+            self._structured_hessian(xk, grad, jac, p)
+        elif self.settings.quasi_newton and jac is not None:
             self._update_hessian(xk, grad, jac, p)
         res = self.allocator.solve_at(xk, g, grad, jac, box, lbg, ubg, x_ref=x_ref)
         if res.ok:
@@ -229,6 +263,124 @@ class RealTimeIteration:
     def _lagrangian_gradient(grad: NDArray[np.float64], jac: NDArray[np.float64] | None,
                              y: NDArray[np.float64] | None) -> NDArray[np.float64]:
         return grad if (jac is None or y is None) else grad + jac.T @ y
+
+    def _structured(self) -> bool:
+        return bool(self.settings.gauss_newton and self.settings.exact_jacobian and self._torque_rows.size)
+
+    def _gauss_newton(self, jac: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The Gauss-Newton part of the objective's Hessian (7.24), ``2 J_T^T J_T / torque_scale^2``
+        with ``J_T`` the wheel-torque rows' Jacobian, in scaled variables (not normalised)."""
+        assert self.residual is not None
+        Jt = jac[self._torque_rows] * self.allocator.sx[None, :]
+        return (2.0 / self.residual.model.torque_scale ** 2) * (Jt.T @ Jt)
+
+    def _corner_curvature(self, hess_lag: NDArray[np.float64], jac_g_x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A Lagrangian Hessian less the Gauss-Newton part of its objective (scaled variables, not
+        normalised): the constraints' curvature with IPOPT's multipliers, plus the objective's
+        own second-order term."""
+        sx = self.allocator.sx
+        H = (sx[:, None] * sx[None, :]) * np.asarray(hess_lag, dtype=float)
+        A = 0.5 * (H + H.T) - self._gauss_newton(np.asarray(jac_g_x, dtype=float))
+        return 0.5 * (A + A.T)
+
+    def _table_curvature(self, tp: Any) -> NDArray[np.float64]:
+        """The curvature part of the table's Hessian at a point: the corners' curvature parts
+        (:meth:`_corner_curvature`, each from the corner's own Hessian and Jacobian) combined with
+        the interpolation weights, leaving out a corner whose curvature is more than
+        ``_CURVATURE_OUTLIER`` times the median corner's (largest entry) while another corner
+        carries weight.
+
+        Why: a corner whose primitive puts a wheel on the wheel model's zero-slip kink (the
+        rim-speed cap at fraction 1 and cross slope 0: the capped wheel's rim speed is the
+        rover's speed) has a Lagrangian Hessian of 1e5-1e6 in that wheel's omega and beta,
+        against 2-40 at the other corners of the cell; interpolated, it sets the curvature a
+        few % inside the cell, where the wheel slips and the exact curvature is 1e-5 of it, so
+        the iterate crawled along the wheel's steering (measured: normalised reduced Hessian's
+        largest eigenvalue 7e-3 against 1.3e-6 exact). An underestimated curvature costs a step
+        that the trust region bounds and BFGS corrects along it; an overestimated one is never
+        corrected, since BFGS learns only along the steps it takes. A table point without
+        ``cell`` (a hand-made point) uses its own Hessian."""
+        cell = getattr(tp, "cell", None)
+        table = getattr(tp, "_table", None)
+        if cell is None or table is None or not hasattr(table, "point_field"):
+            return self._corner_curvature(tp.hess_lag, tp.jac_g_x)
+        idx, w = cell
+        use = w > 0.0
+        idx, w = idx[use], w[use]
+        key = idx.tobytes()
+        hit = self._cell_cache.get(key)
+        if hit is None:
+            As = []
+            for c in idx:
+                A = self._corner_cache.get(int(c))
+                if A is None:
+                    A = self._corner_curvature(table.point_field(int(c), "hess_lag"), table.point_field(int(c), "jac_g_x"))
+                    self._corner_cache[int(c)] = A
+                As.append(A)
+            stack = np.stack(As).reshape(len(As), -1)
+            size = np.abs(stack).max(axis=1)
+            keep = size <= _CURVATURE_OUTLIER * float(np.median(size))
+            hit = self._cell_cache[key] = (stack, keep if (keep.any() and not keep.all()) else np.ones(len(As), dtype=bool))
+        stack, keep = hit
+        w = w * keep
+        n = self.allocator.nx
+        A = ((w / float(w.sum())) @ stack).reshape(n, n)  # each corner's is symmetric
+        return A
+
+    def _structured_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64],
+                            p: NDArray[np.float64]) -> None:
+        """The QP's Hessian as the exact Gauss-Newton part of (7.24) at the iterate plus a
+        curvature part ``A`` (the table's, then corrected by Powell-damped BFGS updates with the
+        exact Lagrangian gradients when ``quasi_newton``; a structured quasi-Newton method, Dennis,
+        Gay & Welsch 1981 and Nocedal & Wright, 2nd ed., section 10.3 / procedure 18.2).
+
+        Why: the objective is a sum of squared wheel torques, and the table's interpolated Hessian
+        is dominated by its Gauss-Newton part ``2 J_T^T J_T``, which changes by orders of
+        magnitude across a cell where a wheel's torque-slip curve flattens (measured at an
+        off-grid rim-speed-cap point: the table's normalised Hessian 0.47 and 0.023 on the capped
+        wheel's omega and beta, the exact Lagrangian's -4e-5 and -8e-8; reduced-Hessian largest
+        eigenvalue 1.7e-2 against 1.3e-6 exact, so the step along it was 1e-4 of what the
+        gradient asked, and the iterate crept). BFGS learns only along the steps it takes, and a
+        direction the Hessian overestimates is one it never steps along. The exact Jacobian is
+        there each iteration, so its torque rows give the exact Gauss-Newton part for free.
+
+        The matrix handed to the QP is convexified (eigenvalues floored at ``regularization``
+        relative to the objective's normalisation, capped at 10 times it); ``A`` keeps the
+        unconvexified update, so the floor does not accumulate from tick to tick."""
+        G = self._gauss_newton(jac)
+        A = self._A if self._A is not None else self._table_curvature(self._point)
+        B = G + A
+        if self.settings.quasi_newton and self._prev is not None:
+            x0, gl0, lam, p0 = self._prev
+            if np.array_equal(p0, np.asarray(p, dtype=float)):
+                sx = self.allocator.sx
+                s = (x - x0) / sx
+                yv = (self._lagrangian_gradient(grad, jac, lam) - gl0) * sx
+                Bs = B @ s
+                sBs, sy = float(s @ Bs), float(s @ yv)
+                if np.any(s) and math.isfinite(sBs) and math.isfinite(sy) and sBs > 0.0:
+                    if sy < 0.2 * sBs:
+                        theta = 0.8 * sBs / (sBs - sy)
+                        yv = theta * yv + (1.0 - theta) * Bs
+                        sy = float(s @ yv)
+                    B = B + np.outer(yv, yv) / sy - np.outer(Bs, Bs) / sBs
+                    B = 0.5 * (B + B.T)
+                    self.hessian_updates += 1
+        self._A = B - G
+        cf = self.allocator.objective_scale
+        floor = self.settings.regularization * cf
+        Bf = B.copy()
+        Bf.flat[::Bf.shape[0] + 1] -= floor
+        try:  # every eigenvalue above the floor (the usual case, a Cholesky factor proves it) ...
+            np.linalg.cholesky(Bf)
+            H = B if float(np.abs(B).max()) <= 10.0 * cf else None
+        except np.linalg.LinAlgError:
+            H = None
+        if H is None:  # ... else floor (and cap) the eigenvalues
+            w, V = np.linalg.eigh(B)
+            H = (V * np.clip(w, floor, 10.0 * cf)) @ V.T
+        self._H = 0.5 * (H + H.T)
+        self.allocator.set_hessian(self._H)
 
     def _update_hessian(self, x: NDArray[np.float64], grad: NDArray[np.float64], jac: NDArray[np.float64],
                         p: NDArray[np.float64]) -> None:

@@ -203,11 +203,17 @@ class TablePoint:
     operating_point : dict  the point actually used (after clamping), SI
     """
 
-    __slots__ = ("_table", "_row", "_corner", "feasible", "extrapolated", "clamped", "status", "operating_point")
+    __slots__ = ("_table", "_row", "_corner", "feasible", "extrapolated", "clamped", "status", "operating_point",
+                 "cell")
 
     def __init__(self, table: "Table", row: NDArray[np.float64], corner: int, feasible: bool, extrapolated: bool,
-                 clamped: bool, status: str, operating_point: dict[str, float]) -> None:
+                 clamped: bool, status: str, operating_point: dict[str, float],
+                 cell: tuple[NDArray[np.intp], NDArray[np.float64]] | None = None) -> None:
         self._table, self._row, self._corner = table, row, corner
+        self.cell = cell
+        """``(flat grid indices, weights)`` of the corners the point interpolates (weights summing
+        to one, zero on corners without a primitive); None at the nearest feasible grid point.
+        See :meth:`Table.point_field`."""
         self.feasible, self.extrapolated, self.clamped = feasible, extrapolated, clamped
         self.status, self.operating_point = status, operating_point
 
@@ -433,10 +439,12 @@ class Table:
         w = np.array(wl)
         idx = np.add(self._offsets, base, out=self._idx_buf)
         feas = self._feas_flat[idx]
+        cell: tuple[NDArray[np.intp], NDArray[np.float64]] | None
         if feas.all():
             row = w @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
             corner = int(idx[int(np.argmax(w))])
             feasible, extrapolated, status = True, False, "interpolated"
+            cell = (idx.copy(), w)
         elif (s := float((wf := w * feas).sum())) > 1e-12:
             extrapolated = float(w.sum()) - s > 1e-12
             wf = wf / s
@@ -444,6 +452,7 @@ class Table:
             corner = int(idx[int(np.argmax(wf))])
             feasible = not extrapolated
             status = "extrapolated" if extrapolated else "interpolated"
+            cell = (idx.copy(), wf)
         else:
             if self._nearest is None:
                 raise TableError(f"table {self.name}: no grid point has a primitive (all infeasible or not found); "
@@ -452,7 +461,14 @@ class Table:
             row = self._flat[corner].copy()
             used = self.grid_point(tuple(int(i) for i in np.unravel_index(corner, self.shape)))
             feasible, extrapolated, clamped, status = False, True, True, "nearest feasible grid point"
-        return TablePoint(self, row, corner, feasible, extrapolated, clamped, status, used)
+            cell = (np.array([corner], dtype=np.intp), np.ones(1))
+        return TablePoint(self, row, corner, feasible, extrapolated, clamped, status, used, cell)
+
+    def point_field(self, flat_index: int, name: str) -> NDArray[np.float64]:
+        """One field (as :class:`TablePoint`'s attribute of that name) at one grid point, by its
+        flat index (``TablePoint.cell``); a view, not to be changed."""
+        a, b, shape = self._slices[name]
+        return self._flat[int(flat_index), a:b].reshape(shape)
 
     def __repr__(self) -> str:
         ax = ", ".join(f"{k}[{len(v)}]" for k, v in self.axes.items())

@@ -1,0 +1,142 @@
+"""Convergence of the online step at a constant operating point (issue 20, weak spots).
+
+At an off-grid rim-speed-cap point the table's interpolated Lagrangian Hessian carries a cell
+corner whose capped wheel sits on the wheel model's zero-slip kink (fraction 1, cross slope 0:
+1e5-1e6 on that wheel's omega and beta against 2-40 at the other corners), and the iterate crept
+along the wheel's steering (4 deg off the NLP's optimum after five ticks, creeping ~0.05 deg a
+tick). At an off-grid unpowered point the proximal terms (regularisation and command weight
+1e-5 of the normalised objective, above the exact reduced curvature 1e-7-1e-6) held each tick's
+step to a constant and the speeds were 6 % off after five ticks. The structured Hessian
+(:meth:`rtctl.rti.RealTimeIteration._structured_hessian`) and the 1e-8 floors fix both; each
+test fails with the previous settings (``PREVIOUS``), which the last test checks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtctl.allocator import merge_bounds
+from rtctl.config import QpSettings
+from rtctl.rti import RealTimeIteration
+from rtctl.table import load_table
+
+ROOT = Path(__file__).resolve().parents[1]
+TABLES = ROOT / "tables"
+DEG = math.pi / 180
+
+# strictly between grid values (tests/bench/bench_online_step.py accuracy --seed 0 drew them)
+RIM_CAP = {"cross_slope": -0.062711, "rim_speed_cap_fraction": 0.939809, "slope": 0.039165, "speed": 0.032534}
+UNPOWERED = {"cross_slope": -0.052187, "slope": 0.195404, "speed": 0.028582}
+
+PREVIOUS = replace(QpSettings(), gauss_newton=False, regularization=1e-5, command_weight=1e-5)
+"""The settings before the structured Hessian (the table's interpolated Hessian, 1e-5 floors)."""
+
+
+def _optimum(t, op):
+    from offline.rover.primitives import check_solution
+    from offline.rover.table_builder import _problem, scenario_at
+    from offline.rover.table_verify import spec_from_table
+
+    spec = spec_from_table(t)
+    pb = _problem(spec.scenario, spec.solver)
+    sc = scenario_at(spec.scenario, spec.family, op)
+    xsc = np.asarray(t.layout.variable_scale)
+    loc = pb.solve(pb.bounds(sc), t.at(**op).x / xsc)
+    assert loc["success"] and check_solution(pb, sc, loc["x"])[1], loc["status"]
+    return np.asarray(loc["x"]) * xsc
+
+
+def _ticks(t, op, n, settings):
+    lay = t.layout
+    xsc = np.asarray(lay.variable_scale)
+    tp = t.at(**op)
+    rti = RealTimeIteration(t, settings, [lay.index(f"wheel torque {w}") for w in lay.wheels])
+    rti.prepare(tp)
+    p = np.array(tp.p, dtype=float)
+    for k in ("speed", "slope", "cross_slope"):
+        p[lay.index(k)] = op[k]
+    xs, steps = [], []
+    for _ in range(n):
+        x = rti.iterate
+        box = merge_bounds(tp.lbx, tp.ubx, (x - settings.step_limit * xsc, x + settings.step_limit * xsc))
+        res = rti.step(p, box)
+        assert res.ok, res.status
+        assert np.all(np.isfinite(res.x)) and np.all(res.x >= box[0]) and np.all(res.x <= box[1])
+        xs.append(res.x)
+        steps.append(rti.sqp_iterations)
+    return tp, p, rti, xs, steps
+
+
+def _agreement(t, rti, p, x, xstar):
+    lay = t.layout
+    om = [lay.var("omega", w) for w in lay.wheels]
+    be = [lay.var("beta", w) for w in lay.wheels]
+    floor = 0.05 * np.asarray(lay.variable_scale)[om]
+    ds = float(np.max(np.abs(x[om] - xstar[om]) / np.maximum(np.abs(xstar[om]), floor)))
+    db = float(np.max(np.abs(x[be] - xstar[be]))) / DEG
+    f, fstar = rti.residual.residual(x, p)[1], rti.residual.residual(xstar, p)[1]
+    return ds, db, abs(f - fstar) / fstar
+
+
+@pytest.fixture(scope="module")
+def rim_cap():
+    t = load_table(TABLES / "rr_rim_speed_cap.npz")
+    return t, _optimum(t, RIM_CAP)
+
+
+@pytest.fixture(scope="module")
+def unpowered():
+    t = load_table(TABLES / "rr_unpowered.npz")
+    return t, _optimum(t, UNPOWERED)
+
+
+def test_the_kink_corner_is_left_out_of_the_curvature(rim_cap):
+    t, _ = rim_cap
+    tp = t.at(**RIM_CAP)
+    rti = RealTimeIteration(t, QpSettings(), [t.layout.index(f"wheel torque {w}") for w in t.layout.wheels])
+    sx = np.asarray(t.layout.variable_scale)
+    interpolated = float(np.abs(tp.hess_lag * np.outer(sx, sx)).max())
+    assert interpolated > 1e4, interpolated  # the kink corners, interpolated (measured 2.1e5)
+    A = rti._table_curvature(tp)
+    assert float(np.abs(A).max()) < 1e3, float(np.abs(A).max())  # the other corners': tens
+    # on a grid point away from the kink, every corner weight sits on it: its own curvature
+    q = {k: float(t.axes[k][i]) for k, i in (("cross_slope", 0), ("rim_speed_cap_fraction", 2), ("slope", 1), ("speed", 0))}
+    tq = t.at(**q)
+    assert np.allclose(rti._table_curvature(tq), rti._corner_curvature(tq.hess_lag, tq.jac_g_x), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", ["rim_cap", "unpowered"])
+def test_five_ticks_at_a_constant_point_reach_the_nlp_optimum(case, request):
+    t, xstar = request.getfixturevalue(case)
+    op = RIM_CAP if case == "rim_cap" else UNPOWERED
+    _, p, rti, xs, _ = _ticks(t, op, 5, QpSettings())
+    ds, db, df = _agreement(t, rti, p, xs[-1], xstar)
+    # issue-20 targets: speeds 2 %, steering 0.3 deg, objective 0.5 % (measured: rim cap 0.02 %,
+    # 0.003 deg; unpowered 0.1 %, 0.04 deg)
+    assert ds <= 0.02 and db <= 0.3 and df <= 0.005, (ds, db, df)
+
+
+@pytest.mark.parametrize("case", ["rim_cap", "unpowered"])
+def test_the_previous_settings_do_not(case, request):
+    """The assertion above fails with the previous settings (it can fail)."""
+    t, xstar = request.getfixturevalue(case)
+    op = RIM_CAP if case == "rim_cap" else UNPOWERED
+    _, p, rti, xs, _ = _ticks(t, op, 5, PREVIOUS)
+    ds, db, df = _agreement(t, rti, p, xs[-1], xstar)
+    assert not (ds <= 0.02 and db <= 0.3 and df <= 0.005), (ds, db, df)
+
+
+def test_a_steady_tick_is_deterministic_bounded_and_settles(rim_cap):
+    t, _ = rim_cap
+    a = _ticks(t, RIM_CAP, 20, QpSettings())
+    b = _ticks(t, RIM_CAP, 20, QpSettings())
+    assert all(np.array_equal(x, y) for x, y in zip(a[3], b[3]))  # bit for bit
+    steps = a[4]
+    assert steps[0] <= QpSettings().iterations_per_tick and all(s == 1 for s in steps[1:])  # a budget in iterations
+    sx = np.asarray(t.layout.variable_scale)
+    assert float(np.max(np.abs(a[3][-1] - a[3][-2]) / sx)) < 1e-3  # settled: the last step is short

@@ -1348,6 +1348,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if twin_of:
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
+        bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
+        rechecked = _recheck_infeasible(spec, recs, ck, ex)
         polished = _polish(spec, recs, ck, ex, bar)
         relaxed = 0
         if spec.build.relaxation_evidence:
@@ -1388,7 +1390,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
+               "retried": len(retried), "rechecked": rechecked, "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
                "refinement": header.get("refinement"), "searched": searched,
                "continuation": header.get("continuation", {}).get("counts")}
     return path, summary
@@ -1445,6 +1447,94 @@ def _search_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], pending: set[
                 rec["evidence"] = {"continuation": recs[f].get("evidence"), **(rec.get("evidence") or {})}
             recs[f] = rec
     return len(left)
+
+
+RECHECK_WAVES = 4
+"""Waves of :func:`_recheck_infeasible`: a point re-solved in one wave offers its primitive to its
+still-infeasible neighbours in the next (each (point, neighbour) pair is tried once)."""
+
+
+def search_verdict(rec: Mapping[str, Any]) -> bool:
+    """Whether an ``infeasible`` record rests on a search (the optimizer's automatic start, its
+    confirmation search, or a speed twin's such verdict) rather than on a relaxation's confirmed
+    verdict (evidence key ``"relaxation"``: the failures only add constraints, a proof given the
+    relaxation's verdict)."""
+    return rec["status"] == "infeasible" and "relaxation" not in (rec.get("evidence") or {})
+
+
+def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                        ex: cf.Executor | None) -> dict[str, int]:
+    """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
+    its solved grid neighbours before accepting it.
+
+    A search's "infeasible" is the optimizer's failure to find a feasible point from its own
+    starts within its budgets, not a proof: on README's worked example the per-wheel NLP's
+    search declared cross slope 10 deg, stuck -60 deg infeasible after 908 iterations where the
+    inlined NLP's (the same functions to rounding) found a checked primitive
+    (``tests/bench/results_nlp_structure.md``). A solved neighbour is a start on the branch the
+    table already holds: each is tried in turn (its primitive moved by its sensitivity to this
+    point, :func:`predicted_start`, with its multipliers; one IPOPT run of the solver's
+    ``max_iter`` each, :func:`retry_point`), and the first that converges and passes the
+    optimizer's independent numeric check replaces the verdict. In waves
+    (:data:`RECHECK_WAVES`): a point re-solved in one wave is a start for its neighbours in the
+    next; each wave uses the records as they were at its start (deterministic). A verdict no
+    start overturns stays ``infeasible`` with the re-solves added to its evidence
+    (``"neighbour re-solves"``). A relaxation's verdict is kept without a solve.
+
+    Returns
+    -------
+    dict
+        ``{"re-solved": points made optimal, "kept": search verdicts re-checked and kept}``.
+    """
+    shape = spec.grid.shape
+    tried: dict[int, list[str]] = {}
+    done_pairs: set[tuple[int, int]] = set()
+    fresh = {f for f in recs if recs[f]["status"] == "optimal"}  # the starts new in this wave
+    solved = 0
+    for wave in range(RECHECK_WAVES):
+        tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+        got: dict[int, dict[str, Any]] = {}
+        for f in sorted(recs):
+            if not search_verdict(recs[f]):
+                continue
+            nbs = [nb for nb in _neighbours(shape, f)
+                   if nb in fresh and recs[nb]["status"] == "optimal" and (f, nb) not in done_pairs]
+            if not nbs:
+                continue
+            done_pairs.update((f, nb) for nb in nbs)
+            c = ck.load(f"recheck{wave}", f) if ck is not None else None
+            if c is not None:
+                got[f] = c[0]
+                continue
+            op = spec.grid.point(f)
+            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op), recs[nb]["lam_x"], recs[nb]["lam_g"])
+                      for nb in nbs]
+            tasks.append((retry_point, (spec, f, starts), f))
+
+        def done(f: int, rec: dict[str, Any], wave: int = wave) -> None:
+            if ck is not None:
+                ck.save(f"recheck{wave}", f, [rec])
+            got[f] = rec
+
+        _run(tasks, ex, done)
+        fresh = set()
+        for f in sorted(got):
+            rec = got[f]
+            if rec["status"] == "optimal":
+                recs[f] = {**rec, "continued_from": f"re-check from neighbour {rec['retried_from']} (a search had "
+                                                    "said infeasible)"}
+                fresh.add(f)
+                solved += 1
+            else:
+                tried.setdefault(f, []).extend((rec.get("evidence") or {}).get("retries", []))
+        if not fresh:
+            break
+    kept = 0
+    for f, t in sorted(tried.items()):
+        if recs[f]["status"] == "infeasible":
+            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), "neighbour re-solves": t}}
+            kept += 1
+    return {"re-solved": solved, "kept": kept}
 
 
 def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],

@@ -303,3 +303,18 @@ def test_a_relaxations_verdict_is_not_re_solved_and_a_kept_verdict_says_what_was
     assert recs[2]["status"] == "infeasible"
     assert recs[2]["evidence"]["verdict"] == "search (test)"
     assert recs[2]["evidence"]["neighbour re-solves"] == ["from neighbour 1: test"]
+
+
+def test_deferred_resolves_give_the_same_file(continued, tmp_path):
+    """``build.defer_resolves`` (default) computes the controllers and trust radii once, for the
+    primitives the table finally holds; a build computing them for every primitive found gives
+    the same file byte for byte (the fields depend only on the final primal-dual point)."""
+    spec, path, _ = continued
+    assert spec.build.defer_resolves
+    now = replace(spec, build=replace(spec.build, defer_resolves=False))
+    assert now.key() == spec.key()  # not data
+    path2, _ = build_table(now, tmp_path, progress=False)
+    assert path2.read_bytes() == path.read_bytes()
+    t = load_table(path)
+    cols = [t.layout.index(n) for n in ("speed", "slope", "cross_slope", "fy_offset", "mz_offset")]
+    assert np.all(t.arrays["trust_radius"][t.status == 0][:, cols] > 0)  # computed, not left empty

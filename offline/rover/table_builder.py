@@ -370,6 +370,12 @@ class BuildOptions:
         354 CPU s (``tests/bench/results_worked_example_compiled.md``). The environment variable
         ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data: the same
         table either way, so neither written to the file nor hashed.
+    defer_resolves : bool
+        Compute a point's re-solve fields (:data:`RESOLVE_FIELDS`: the section 7.2.4 controllers
+        and the trust radius, about 30 short IPOPT runs per point) once, for the primitive the
+        table finally holds (:func:`_resolve_pass`), instead of for every primitive a pass finds
+        and a later pass replaces (a speed twin's, the neighbour pass's, a retry's). The same
+        numbers either way (they depend only on the final primal-dual point), so not data.
     """
 
     mz_offset: float = 0.2
@@ -388,6 +394,7 @@ class BuildOptions:
     seed_index: str = "shipped"
     compile: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_COMPILE") or "off",
                          metadata={"not_data": True})
+    defer_resolves: bool = field(default=True, metadata={"not_data": True})
 
     def __post_init__(self) -> None:
         if self.schedule not in ("continuation", "chains"):
@@ -675,6 +682,36 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         torque[k] = -wr[k, 4]
         power[k] = torque[k] * om
     out.update(wrench=wr, wrench_jac=wj, slip=slip, slip_angle=sang, torque=torque, power=power)
+    out["active_x"], out["active_g"] = act_x, act_g
+    out["kkt_cond"] = np.float64(cond)
+    if not spec.build.defer_resolves:
+        out.update(point_resolves(spec, sc, x_s, lam_x_s, lam_g_s, out))
+    return out
+
+
+RESOLVE_FIELDS = ("controllers", "controller_source", "trust_radius", "trust_unverified")
+"""The fields of a point's data that come from NLP re-solves around its primitive
+(:func:`point_resolves`); with ``build.defer_resolves`` they are computed once, for the final
+primitive, by :func:`_resolve_pass`."""
+
+
+def point_resolves(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDArray[np.float64],
+                   lam_g_s: NDArray[np.float64], data: Mapping[str, Any]) -> dict[str, Any]:
+    """The table fields of one solved point that come from NLP re-solves around it
+    (:data:`RESOLVE_FIELDS`): the steering controllers of section 7.2.4 (eqs. (7.26)-(7.27)) and
+    the per-parameter trust radius (:func:`point_trust_radius`).
+
+    ``data``: the point's other data (:func:`point_data`: ``x``, ``p``, ``dx_dp`` in physical
+    units). Deterministic in ``(x_s, lam_x_s, lam_g_s)``: computed when the point is solved or
+    later for the same primal-dual point, the numbers are the same.
+    """
+    pb = _problem(sc, spec.solver)
+    lay: NlpLayout = pb.layout
+    xsc = lay.variable_scale
+    b = pb.bounds(sc)
+    p = np.asarray(data["p"], dtype=float)
+    nw = len(lay.wheels)
+    out: dict[str, Any] = {}
     # steering controllers of section 7.2.4: +-offset re-solves minus the primitive, per unit offset
     ctl = np.zeros((len(CONTROLLER_NAMES), nw, 2))
     src = np.zeros(len(CONTROLLER_NAMES), dtype=np.int8)
@@ -689,16 +726,14 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         if r["success"]:
             dx = (np.asarray(r["x"]) - x_s) * xsc / (sgn * mag)
         else:
-            dx = out["dx_dp"][:, lay.index(par)]
+            dx = np.asarray(data["dx_dp"])[:, lay.index(par)]
             src[c] = 1
         for k, wname in enumerate(lay.wheels):
             ctl[c, k] = (dx[lay.var("omega", wname)] * pb.rs_of[wname], dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
-    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s, out["x"],
-                                                                      out["dx_dp"])
-    out["active_x"], out["active_g"] = act_x, act_g
-    out["kkt_cond"] = np.float64(cond)
+    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s,
+                                                                      np.asarray(data["x"]), np.asarray(data["dx_dp"]))
     return out
 
 
@@ -1371,6 +1406,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                     ev = dict(recs[f].get("evidence") or {})
                     ev["undecided"] = hole_reason(spec, f, relax_known.get(tuple(spec.grid.point(f).values())))
                     recs[f] = {**recs[f], "evidence": ev}
+        if spec.build.defer_resolves:
+            bar.set_description(f"{spec.name} (controllers and trust radii)")
+            _resolve_pass(spec, recs, ck, ex)
     finally:
         bar.close()
         if executor is None:
@@ -1447,6 +1485,42 @@ def _search_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], pending: set[
                 rec["evidence"] = {"continuation": recs[f].get("evidence"), **(rec.get("evidence") or {})}
             recs[f] = rec
     return len(left)
+
+
+def _resolve_task(spec: TableSpec, flat: int, x_s: NDArray[np.float64], lam_x: NDArray[np.float64],
+                  lam_g: NDArray[np.float64], data: Mapping[str, Any]) -> dict[str, Any]:
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    return point_resolves(spec, sc, x_s, lam_x, lam_g, data)
+
+
+def _resolve_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                  ex: cf.Executor | None) -> int:
+    """The re-solve fields (:data:`RESOLVE_FIELDS`, :func:`point_resolves`) of every optimal
+    point that lacks them (``build.defer_resolves``), one task per point, for the primitive the
+    table holds now. Checkpointed with the primitive they belong to (a checkpoint of another
+    primitive is recomputed). Returns the number of points computed."""
+    tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    for f in sorted(recs):
+        r = recs[f]
+        if r["status"] != "optimal" or all(k in r["data"] for k in RESOLVE_FIELDS):
+            continue
+        c = ck.load("resolves", f) if ck is not None else None
+        if c is not None and np.array_equal(c[0]["x_scaled"], r["x_scaled"]) \
+                and np.array_equal(c[0]["lam_x"], r["lam_x"]) and np.array_equal(c[0]["lam_g"], r["lam_g"]):
+            r["data"] = {**r["data"], **{k: c[0]["data"][k] for k in RESOLVE_FIELDS}}
+            continue
+        small = {k: r["data"][k] for k in ("x", "p", "dx_dp")}
+        tasks.append((_resolve_task, (spec, f, r["x_scaled"], r["lam_x"], r["lam_g"], small), f))
+
+    def done(f: int, extra: dict[str, Any]) -> None:
+        r = recs[f]
+        if ck is not None:
+            ck.save("resolves", f, [{"flat": f, "status": "optimal", "x_scaled": r["x_scaled"], "lam_x": r["lam_x"],
+                                     "lam_g": r["lam_g"], "data": extra}])
+        recs[f] = {**r, "data": {**r["data"], **extra}}
+
+    _run(tasks, ex, done)
+    return len(tasks)
 
 
 RECHECK_WAVES = 4

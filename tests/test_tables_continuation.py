@@ -318,3 +318,39 @@ def test_deferred_resolves_give_the_same_file(continued, tmp_path):
     t = load_table(path)
     cols = [t.layout.index(n) for n in ("speed", "slope", "cross_slope", "fy_offset", "mz_offset")]
     assert np.all(t.arrays["trust_radius"][t.status == 0][:, cols] > 0)  # computed, not left empty
+
+
+def test_a_run_already_made_from_a_neighbour_is_not_repeated(scenario_file, tmp_path, monkeypatch):
+    """IPOPT is deterministic: a run from a neighbour's primal-dual point that failed in the
+    continuation fails again from the same point. The neighbour retries do not repeat it, nor
+    does the re-check of a search's ``infeasible`` verdict when the neighbour is on the
+    failure's axis (its predicted start is its own primitive); the verdict stays, its evidence
+    says which runs were made. (No solve at the target point: its starts and search are faked.)"""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2;steer_stuck=-30,0", build=FAST)
+    orig_try = TC._try_starts
+
+    def try_starts(spec_, flat, starts):
+        if flat == 0:  # stuck -30 deg: every start fails
+            return None, [f"from {s[0]}: faked failure" for s in starts], 150 * len(starts)
+        return orig_try(spec_, flat, starts)
+
+    retried: list[int] = []
+
+    def retry(spec_, flat, starts):
+        retried.append(flat)
+        return {"flat": flat, "status": "not_found", "iterations": 0, "evidence": {"retries": ["test"]}}
+
+    def search(spec_, flat, x0, *a, **k):
+        assert x0 is None
+        return {"flat": flat, "status": "infeasible", "iterations": 900, "evidence": {"verdict": "search (test)"}}
+
+    monkeypatch.setattr(TC, "_try_starts", try_starts)
+    monkeypatch.setattr(TB, "retry_point", retry)
+    monkeypatch.setattr(TB, "_solve_point", search)
+    path, summary = build_table(spec, tmp_path, progress=False)
+    assert retried == []  # the only solved neighbour (stuck 0) was the continuation's start
+    assert summary["statuses"] == {"infeasible": 1, "optimal": 1}
+    assert summary["rechecked"] == {"re-solved": 0, "kept": 0}
+    ev = load_table(path).header["evidence"]["0"]
+    assert ev["verdict"] == "search (test)"
+    assert any("neighbour 1 on the failure axis" in s for s in ev["continuation"]["continuation"])

@@ -1356,13 +1356,21 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if continuation:  # one member of a speed-twin group is retried; the search carries its result
             unsolved = [f for f in unsolved if not (f in pending and speed_twin(spec.grid, f) in pending)]
         retry_tasks, retried = [], {}
+        # (point, neighbour) pairs whose run from the neighbour's primal-dual point is done: IPOPT is
+        # deterministic, so the same run again gives the same failure (not repeated)
+        tried_pairs = {(f, nb) for f in recs for nb in recs[f].get("tried_neighbours", ())}
         for f in unsolved:
+            starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
+                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"][:MAX_RETRY_NEIGHBOURS]
+            new = [s for s in starts if (f, s[0]) not in tried_pairs]
+            tried_pairs.update((f, s[0]) for s in new)
+            if starts and not new:  # every start already run: the record's evidence says so
+                continue
+            starts = new
             got = ck.load("retry", f)
             if got is not None:
                 retried[f] = got[0]
                 continue
-            starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
-                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"][:MAX_RETRY_NEIGHBOURS]
             retry_tasks.append((retry_point, (spec, f, starts), f))
         if retry_tasks:
             bar.set_description(f"{spec.name} (retrying {len(retry_tasks)})")
@@ -1384,7 +1392,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
-        rechecked = _recheck_infeasible(spec, recs, ck, ex)
+        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs)
         polished = _polish(spec, recs, ck, ex, bar)
         relaxed = 0
         if spec.build.relaxation_evidence:
@@ -1537,7 +1545,7 @@ def search_verdict(rec: Mapping[str, Any]) -> bool:
 
 
 def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
-                        ex: cf.Executor | None) -> dict[str, int]:
+                        ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None) -> dict[str, int]:
     """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
     its solved grid neighbours before accepting it.
 
@@ -1555,6 +1563,11 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     start overturns stays ``infeasible`` with the re-solves added to its evidence
     (``"neighbour re-solves"``). A relaxation's verdict is kept without a solve.
 
+    ``tried_pairs``: ``(point, neighbour)`` pairs already run from the neighbour's primal-dual
+    point (the continuation, the retries). A neighbour on the family axis (not an NLP parameter)
+    has the predicted start of its own primitive, so that run is not repeated; along slope,
+    cross slope and speed the predicted start is another start and is tried.
+
     Returns
     -------
     dict
@@ -1564,6 +1577,11 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     tried: dict[int, list[str]] = {}
     done_pairs: set[tuple[int, int]] = set()
     fresh = {f for f in recs if recs[f]["status"] == "optimal"}  # the starts new in this wave
+    fam_axis = spec.grid.names.index(spec.family["axis"]) if spec.family is not None else None
+    for f, nb in tried_pairs or ():
+        a = np.flatnonzero(np.subtract(np.unravel_index(f, shape), np.unravel_index(nb, shape)))
+        if fam_axis is not None and a.size == 1 and int(a[0]) == fam_axis:
+            done_pairs.add((f, nb))
     solved = 0
     for wave in range(RECHECK_WAVES):
         tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []

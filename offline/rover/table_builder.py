@@ -365,11 +365,17 @@ class BuildOptions:
         ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
         functions as C compiled once per NLP structure and cached on disk when a C compiler is
         found, else the virtual machine with one line saying so) or ``"on"`` (compiled or an
-        error), :mod:`offline.rover.compiled_nlp`. Default off because measured on README's
-        worked example the compiled build took 0.945 of the CPU for a one-off compilation of
-        354 CPU s (``tests/bench/results_worked_example_compiled.md``). The environment variable
-        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data: the same
-        table either way, so neither written to the file nor hashed.
+        error), :mod:`offline.rover.compiled_nlp`. Off by default in the library (the inlined
+        graph in the virtual machine, the path the tests pin); ``offnominal tables build``
+        defaults to ``auto``: compiled, the NLP is built per wheel
+        (:attr:`~offline.rover.primitives.SolverOptions.nlp_structure` ``"auto"``), which
+        compiles in about 90 CPU s once per machine and NLP structure (cached on disk) and builds
+        README's worked example in about 0.6 of the virtual machine's CPU
+        (``tests/bench/results_new_failure.md``). The environment variable
+        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data, neither
+        written to the file nor hashed: the virtual machine and the compiled C of one graph give
+        the same table; the two graphs give primitives equal to rounding (the per-wheel graph is
+        chosen only when compiled).
     defer_resolves : bool
         Compute a point's re-solve fields (:data:`RESOLVE_FIELDS`: the section 7.2.4 controllers
         and the trust radius, about 30 short IPOPT runs per point) once, for the primitive the

@@ -71,6 +71,7 @@ __all__ = [
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
     "CODE_SOURCES", "code_hash", "world_header", "wheel_set_header", "relaxation_of", "relaxation_verdict",
+    "point_resolves", "RESOLVE_FIELDS", "search_verdict", "RECHECK_WAVES",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {

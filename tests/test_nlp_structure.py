@@ -128,8 +128,11 @@ def test_reference_scenarios_solve_to_the_stored_primitive(name):
     assert r.objective == pytest.approx(float(ref[f"{name}/objective"]), rel=RTOL_NLP_STRUCTURE)
 
 
-def test_auto_builds_inlined_in_the_virtual_machine():
+def test_auto_builds_inlined_in_the_virtual_machine(monkeypatch):
+    monkeypatch.delenv("OFFNOMINAL_NLP_STRUCTURE", raising=False)
+    assert SolverOptions().nlp_structure == "auto"  # the default: per wheel only when compiled
     sc = load_scenario(EXAMPLES["nominal"])
+    assert _problem_for(sc, SolverOptions(compile="off")).nlp_structure == "inlined"
     assert _problem_for(sc, SolverOptions(nlp_structure="auto", compile="off")).nlp_structure == "inlined"
     assert _problem_for(sc, SolverOptions(nlp_structure="per_wheel", compile="off")).nlp_structure == "per_wheel"
 

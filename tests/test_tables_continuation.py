@@ -233,3 +233,124 @@ def test_points_added_by_refinement_get_the_relaxation_evidence(tmp_path, monkey
     assert asked == [25.0, 20.0]  # the base grid's verdict, then the inserted point's
     ev = t.header["evidence"]["0"]
     assert ev["relaxation"] == TC.RELAXED_EVIDENCE and ev["table search"] == {"retries": ["test"]}
+
+
+def _search_says_infeasible_at(monkeypatch, target: float) -> list[int]:
+    """Make the continuation's record of every point with the stuck angle ``target`` (deg) the
+    verdict of a search that declared it ``infeasible`` (as the automatic start's search does
+    where no start is known, and as the per-wheel NLP's search did at cross slope 10 deg, stuck
+    -60 deg on README's worked example), whatever the continuation found there."""
+    made: list[int] = []
+    orig = TC.continuation_group
+
+    def group(spec_, flats, *a, **k):
+        out = orig(spec_, flats, *a, **k)
+        for i, r in enumerate(out):
+            if math.isclose(math.degrees(spec_.grid.point(r["flat"])["steer_stuck"]), target, abs_tol=1e-9):
+                made.append(r["flat"])
+                out[i] = {"flat": r["flat"], "status": "infeasible", "iterations": 908,
+                          "evidence": {"verdict": "no primitive: a search made to fail (test)"}}
+        return out
+
+    monkeypatch.setattr(TC, "continuation_group", group)
+    return made
+
+
+def test_a_searchs_infeasible_verdict_is_re_solved_from_a_solved_neighbour(scenario_file, tmp_path, monkeypatch):
+    """Issue 22: an ``infeasible`` verdict that rests on a search (not on a relaxation) is not
+    accepted while a solved neighbour exists: the point is re-solved from the neighbour's
+    primitive first. Here the search is made to fail at stuck -30 deg (slope 5 deg), where the
+    stuck-0 neighbour is solved: the point comes out optimal, its primitive passes the
+    optimizer's independent check, and the header says where it came from. Fails on the code
+    before the re-check pass (the search's verdict was final)."""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2;steer_stuck=-30,0", build=FAST)
+    made = _search_says_infeasible_at(monkeypatch, -30.0)
+    path, summary = build_table(spec, tmp_path, progress=False)
+    assert made == [0]
+    assert summary["statuses"] == {"optimal": 2}
+    assert summary["rechecked"] == {"re-solved": 1, "kept": 0}
+    t = load_table(path)
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(0))
+    x = t.arrays["x"][np.unravel_index(0, t.shape)] / t.layout.variable_scale
+    assert P.check_solution(TB._problem(sc, spec.solver), sc, x)[1]
+    assert math.isclose(x[t.layout.var("beta", "FL")] * t.layout.variable_scale[t.layout.var("beta", "FL")],
+                        math.radians(-30.0), abs_tol=1e-9)
+
+
+def test_a_relaxations_verdict_is_not_re_solved_and_a_kept_verdict_says_what_was_tried(scenario_file, monkeypatch):
+    """The re-check pass re-solves only verdicts that rest on a search: a relaxation's confirmed
+    verdict is a proof (the failures only add constraints) and is kept without a solve. A
+    search's verdict that no neighbour's start overturns stays ``infeasible``, its evidence
+    listing the re-solves (no solve here: the starts are faked to fail)."""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2;steer_stuck=-30,0,30", build=FAST)
+    ok = {"flat": 1, "status": "optimal", "x_scaled": np.zeros(3), "lam_x": np.zeros(3), "lam_g": np.zeros(2),
+          "data": {}}
+    recs = {0: {"flat": 0, "status": "infeasible", "iterations": 5, "evidence": {"relaxation": TC.RELAXED_EVIDENCE}},
+            1: ok,
+            2: {"flat": 2, "status": "infeasible", "iterations": 5, "evidence": {"verdict": "search (test)"}}}
+    tried: list[tuple[int, list[int]]] = []
+
+    def fake_retry(spec_, flat, starts):
+        tried.append((flat, [s[0] for s in starts]))
+        return {"flat": flat, "status": "not_found", "iterations": 11, "evidence": {"retries": ["from neighbour 1: test"]}}
+
+    monkeypatch.setattr(TB, "retry_point", fake_retry)
+    monkeypatch.setattr(TB, "predicted_start", lambda spec_, rec, a, b: rec["x_scaled"])
+    counts = TB._recheck_infeasible(spec, recs, None, None)
+    assert tried == [(2, [1])]
+    assert counts == {"re-solved": 0, "kept": 1}
+    assert recs[0]["evidence"] == {"relaxation": TC.RELAXED_EVIDENCE}
+    assert recs[2]["status"] == "infeasible"
+    assert recs[2]["evidence"]["verdict"] == "search (test)"
+    assert recs[2]["evidence"]["neighbour re-solves"] == ["from neighbour 1: test"]
+
+
+def test_deferred_resolves_give_the_same_file(continued, tmp_path):
+    """``build.defer_resolves`` (default) computes the controllers and trust radii once, for the
+    primitives the table finally holds; a build computing them for every primitive found gives
+    the same file byte for byte (the fields depend only on the final primal-dual point)."""
+    spec, path, _ = continued
+    assert spec.build.defer_resolves
+    now = replace(spec, build=replace(spec.build, defer_resolves=False))
+    assert now.key() == spec.key()  # not data
+    path2, _ = build_table(now, tmp_path, progress=False)
+    assert path2.read_bytes() == path.read_bytes()
+    t = load_table(path)
+    cols = [t.layout.index(n) for n in ("speed", "slope", "cross_slope", "fy_offset", "mz_offset")]
+    assert np.all(t.arrays["trust_radius"][t.status == 0][:, cols] > 0)  # computed, not left empty
+
+
+def test_a_run_already_made_from_a_neighbour_is_not_repeated(scenario_file, tmp_path, monkeypatch):
+    """IPOPT is deterministic: a run from a neighbour's primal-dual point that failed in the
+    continuation fails again from the same point. The neighbour retries do not repeat it, nor
+    does the re-check of a search's ``infeasible`` verdict when the neighbour is on the
+    failure's axis (its predicted start is its own primitive); the verdict stays, its evidence
+    says which runs were made. (No solve at the target point: its starts and search are faked.)"""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2;steer_stuck=-30,0", build=FAST)
+    orig_try = TC._try_starts
+
+    def try_starts(spec_, flat, starts):
+        if flat == 0:  # stuck -30 deg: every start fails
+            return None, [f"from {s[0]}: faked failure" for s in starts], 150 * len(starts)
+        return orig_try(spec_, flat, starts)
+
+    retried: list[int] = []
+
+    def retry(spec_, flat, starts):
+        retried.append(flat)
+        return {"flat": flat, "status": "not_found", "iterations": 0, "evidence": {"retries": ["test"]}}
+
+    def search(spec_, flat, x0, *a, **k):
+        assert x0 is None
+        return {"flat": flat, "status": "infeasible", "iterations": 900, "evidence": {"verdict": "search (test)"}}
+
+    monkeypatch.setattr(TC, "_try_starts", try_starts)
+    monkeypatch.setattr(TB, "retry_point", retry)
+    monkeypatch.setattr(TB, "_solve_point", search)
+    path, summary = build_table(spec, tmp_path, progress=False)
+    assert retried == []  # the only solved neighbour (stuck 0) was the continuation's start
+    assert summary["statuses"] == {"infeasible": 1, "optimal": 1}
+    assert summary["rechecked"] == {"re-solved": 0, "kept": 0}
+    ev = load_table(path).header["evidence"]["0"]
+    assert ev["verdict"] == "search (test)"
+    assert any("neighbour 1 on the failure axis" in s for s in ev["continuation"]["continuation"])

@@ -162,24 +162,26 @@ class SolverOptions:
         the virtual machine's operations in the same order), so it is not written to table files
         and not hashed. A table build sets it from ``build.compile``.
     nlp_structure : str
-        How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"inlined"`` (the default:
-        one SX graph, every wheel's wrench inlined), ``"per_wheel"`` (an MX graph calling one SX
-        function per wheel model four times, :func:`per_wheel_graph`) or ``"auto"`` (per wheel
-        when the functions are compiled, ``compile`` not ``"off"`` and a C compiler found, else
-        inlined). The same rows and objective from the same source
+        How the NLP's casadi graph is built (:data:`NLP_STRUCTURES`): ``"auto"`` (the default:
+        per wheel when the functions are compiled, ``compile`` not ``"off"`` and a C compiler
+        found, else inlined), ``"inlined"`` (one SX graph, every wheel's wrench inlined) or
+        ``"per_wheel"`` (an MX graph calling one SX function per wheel model four times,
+        :func:`per_wheel_graph`). The same rows and objective from the same source
         (:func:`rtctl.physics.steady_state.steady_state_rows`,
         :func:`rtctl.physics.terramechanics.wrench_core`), IPOPT's functions equal to rounding.
         Measured on README's worked example (``tests/bench/results_nlp_structure.md``): in
         casadi's virtual machine the per-wheel graph is slower (Hessian 3.5 against 2.4 ms per
-        call, 1.32x the build's CPU on 42 grid points); compiled, its distinct code is 0.4 of the
-        inlined Hessian's and is reused by the four wheels: 107 s of compiler CPU instead of
-        354 s, and 0.64 of the inlined virtual machine's CPU for the whole worked example (391
-        against 610 s). Not the default because that build's verdicts differ at 4 of 252 points
-        (162 / 76 / 14 against 164 / 76 / 12): the automatic search's path parts at rounding
-        level at a stuck angle of -60 deg and cross slope 10 deg, where the inlined search finds a
-        checked primitive that the per-wheel search declares infeasible, and the reverse kind at
-        slope 5 deg. Not data. The environment variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the
-        default (benchmarks).
+        call, 1.32x the build's CPU on 42 grid points), so the virtual machine keeps the inlined
+        graph; compiled, the per-wheel graph's distinct code is 0.4 of the inlined Hessian's and
+        is reused by the four wheels: 92-107 s of compiler CPU instead of 354 s, and 0.64 of the
+        inlined virtual machine's CPU for the whole worked example (391 against 610 s). Its
+        search's verdicts had differed at 4 of 252 points (the search's path parts at rounding
+        level: at stuck -60 deg, cross slope 10 deg the per-wheel search declared infeasible
+        what the inlined one solved); since the table builder re-solves every search's
+        ``infeasible`` verdict from its solved neighbours before accepting it
+        (:func:`offline.rover.table_builder._recheck_infeasible`), both structures give the same
+        verdicts there (``tests/bench/results_new_failure.md``), hence ``auto``. Not data. The
+        environment variable ``OFFNOMINAL_NLP_STRUCTURE`` sets the default (benchmarks).
     """
 
     tol: float = 1e-9
@@ -201,7 +203,7 @@ class SolverOptions:
     feasibility_tol: float = 1e-7
     hessian: str = "exact"
     compile: str = field(default="off", metadata={"not_data": True})
-    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "inlined",
+    nlp_structure: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_NLP_STRUCTURE") or "auto",
                                metadata={"not_data": True})
 
     def __post_init__(self) -> None:

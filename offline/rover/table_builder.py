@@ -71,6 +71,7 @@ __all__ = [
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
     "CODE_SOURCES", "code_hash", "world_header", "wheel_set_header", "relaxation_of", "relaxation_verdict",
+    "point_resolves", "RESOLVE_FIELDS", "search_verdict", "RECHECK_WAVES",
 ]
 
 AXES: dict[str, tuple[str, str, float]] = {
@@ -365,11 +366,23 @@ class BuildOptions:
         ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
         functions as C compiled once per NLP structure and cached on disk when a C compiler is
         found, else the virtual machine with one line saying so) or ``"on"`` (compiled or an
-        error), :mod:`offline.rover.compiled_nlp`. Default off because measured on README's
-        worked example the compiled build took 0.945 of the CPU for a one-off compilation of
-        354 CPU s (``tests/bench/results_worked_example_compiled.md``). The environment variable
-        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data: the same
-        table either way, so neither written to the file nor hashed.
+        error), :mod:`offline.rover.compiled_nlp`. Off by default in the library (the inlined
+        graph in the virtual machine, the path the tests pin); ``offnominal tables build``
+        defaults to ``auto``: compiled, the NLP is built per wheel
+        (:attr:`~offline.rover.primitives.SolverOptions.nlp_structure` ``"auto"``), which
+        compiles in about 90 CPU s once per machine and NLP structure (cached on disk) and builds
+        README's worked example in about 0.6 of the virtual machine's CPU
+        (``tests/bench/results_new_failure.md``). The environment variable
+        ``OFFNOMINAL_COMPILE`` sets the default (the test suite sets ``off``). Not data, neither
+        written to the file nor hashed: the virtual machine and the compiled C of one graph give
+        the same table; the two graphs give primitives equal to rounding (the per-wheel graph is
+        chosen only when compiled).
+    defer_resolves : bool
+        Compute a point's re-solve fields (:data:`RESOLVE_FIELDS`: the section 7.2.4 controllers
+        and the trust radius, about 30 short IPOPT runs per point) once, for the primitive the
+        table finally holds (:func:`_resolve_pass`), instead of for every primitive a pass finds
+        and a later pass replaces (a speed twin's, the neighbour pass's, a retry's). The same
+        numbers either way (they depend only on the final primal-dual point), so not data.
     """
 
     mz_offset: float = 0.2
@@ -388,6 +401,7 @@ class BuildOptions:
     seed_index: str = "shipped"
     compile: str = field(default_factory=lambda: os.environ.get("OFFNOMINAL_COMPILE") or "off",
                          metadata={"not_data": True})
+    defer_resolves: bool = field(default=True, metadata={"not_data": True})
 
     def __post_init__(self) -> None:
         if self.schedule not in ("continuation", "chains"):
@@ -675,6 +689,36 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         torque[k] = -wr[k, 4]
         power[k] = torque[k] * om
     out.update(wrench=wr, wrench_jac=wj, slip=slip, slip_angle=sang, torque=torque, power=power)
+    out["active_x"], out["active_g"] = act_x, act_g
+    out["kkt_cond"] = np.float64(cond)
+    if not spec.build.defer_resolves:
+        out.update(point_resolves(spec, sc, x_s, lam_x_s, lam_g_s, out))
+    return out
+
+
+RESOLVE_FIELDS = ("controllers", "controller_source", "trust_radius", "trust_unverified")
+"""The fields of a point's data that come from NLP re-solves around its primitive
+(:func:`point_resolves`); with ``build.defer_resolves`` they are computed once, for the final
+primitive, by :func:`_resolve_pass`."""
+
+
+def point_resolves(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDArray[np.float64],
+                   lam_g_s: NDArray[np.float64], data: Mapping[str, Any]) -> dict[str, Any]:
+    """The table fields of one solved point that come from NLP re-solves around it
+    (:data:`RESOLVE_FIELDS`): the steering controllers of section 7.2.4 (eqs. (7.26)-(7.27)) and
+    the per-parameter trust radius (:func:`point_trust_radius`).
+
+    ``data``: the point's other data (:func:`point_data`: ``x``, ``p``, ``dx_dp`` in physical
+    units). Deterministic in ``(x_s, lam_x_s, lam_g_s)``: computed when the point is solved or
+    later for the same primal-dual point, the numbers are the same.
+    """
+    pb = _problem(sc, spec.solver)
+    lay: NlpLayout = pb.layout
+    xsc = lay.variable_scale
+    b = pb.bounds(sc)
+    p = np.asarray(data["p"], dtype=float)
+    nw = len(lay.wheels)
+    out: dict[str, Any] = {}
     # steering controllers of section 7.2.4: +-offset re-solves minus the primitive, per unit offset
     ctl = np.zeros((len(CONTROLLER_NAMES), nw, 2))
     src = np.zeros(len(CONTROLLER_NAMES), dtype=np.int8)
@@ -689,16 +733,14 @@ def point_data(spec: TableSpec, sc: Any, x_s: NDArray[np.float64], lam_x_s: NDAr
         if r["success"]:
             dx = (np.asarray(r["x"]) - x_s) * xsc / (sgn * mag)
         else:
-            dx = out["dx_dp"][:, lay.index(par)]
+            dx = np.asarray(data["dx_dp"])[:, lay.index(par)]
             src[c] = 1
         for k, wname in enumerate(lay.wheels):
             ctl[c, k] = (dx[lay.var("omega", wname)] * pb.rs_of[wname], dx[lay.var("beta", wname)])
     out["controllers"] = ctl
     out["controller_source"] = src
-    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s, out["x"],
-                                                                      out["dx_dp"])
-    out["active_x"], out["active_g"] = act_x, act_g
-    out["kkt_cond"] = np.float64(cond)
+    out["trust_radius"], out["trust_unverified"] = point_trust_radius(spec, pb, sc, x_s, lam_x_s, lam_g_s,
+                                                                      np.asarray(data["x"]), np.asarray(data["dx_dp"]))
     return out
 
 
@@ -1321,13 +1363,21 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if continuation:  # one member of a speed-twin group is retried; the search carries its result
             unsolved = [f for f in unsolved if not (f in pending and speed_twin(spec.grid, f) in pending)]
         retry_tasks, retried = [], {}
+        # (point, neighbour) pairs whose run from the neighbour's primal-dual point is done: IPOPT is
+        # deterministic, so the same run again gives the same failure (not repeated)
+        tried_pairs = {(f, nb) for f in recs for nb in recs[f].get("tried_neighbours", ())}
         for f in unsolved:
+            starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
+                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"][:MAX_RETRY_NEIGHBOURS]
+            new = [s for s in starts if (f, s[0]) not in tried_pairs]
+            tried_pairs.update((f, s[0]) for s in new)
+            if starts and not new:  # every start already run: the record's evidence says so
+                continue
+            starts = new
             got = ck.load("retry", f)
             if got is not None:
                 retried[f] = got[0]
                 continue
-            starts = [(nb, recs[nb]["x_scaled"], recs[nb]["lam_x"], recs[nb]["lam_g"])
-                      for nb in _neighbours(spec.grid.shape, f) if recs[nb]["status"] == "optimal"][:MAX_RETRY_NEIGHBOURS]
             retry_tasks.append((retry_point, (spec, f, starts), f))
         if retry_tasks:
             bar.set_description(f"{spec.name} (retrying {len(retry_tasks)})")
@@ -1348,6 +1398,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if twin_of:
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
+        bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
+        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs)
         polished = _polish(spec, recs, ck, ex, bar)
         relaxed = 0
         if spec.build.relaxation_evidence:
@@ -1369,6 +1421,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                     ev = dict(recs[f].get("evidence") or {})
                     ev["undecided"] = hole_reason(spec, f, relax_known.get(tuple(spec.grid.point(f).values())))
                     recs[f] = {**recs[f], "evidence": ev}
+        if spec.build.defer_resolves:
+            bar.set_description(f"{spec.name} (controllers and trust radii)")
+            _resolve_pass(spec, recs, ck, ex)
     finally:
         bar.close()
         if executor is None:
@@ -1388,7 +1443,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     summary = {"name": spec.name, "grid_points": spec.grid.size, "shape": spec.grid.shape,
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
-               "retried": len(retried), "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
+               "retried": len(retried), "rechecked": rechecked, "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
                "refinement": header.get("refinement"), "searched": searched,
                "continuation": header.get("continuation", {}).get("counts")}
     return path, summary
@@ -1445,6 +1500,140 @@ def _search_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], pending: set[
                 rec["evidence"] = {"continuation": recs[f].get("evidence"), **(rec.get("evidence") or {})}
             recs[f] = rec
     return len(left)
+
+
+def _resolve_task(spec: TableSpec, flat: int, x_s: NDArray[np.float64], lam_x: NDArray[np.float64],
+                  lam_g: NDArray[np.float64], data: Mapping[str, Any]) -> dict[str, Any]:
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    return point_resolves(spec, sc, x_s, lam_x, lam_g, data)
+
+
+def _resolve_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                  ex: cf.Executor | None) -> int:
+    """The re-solve fields (:data:`RESOLVE_FIELDS`, :func:`point_resolves`) of every optimal
+    point that lacks them (``build.defer_resolves``), one task per point, for the primitive the
+    table holds now. Checkpointed with the primitive they belong to (a checkpoint of another
+    primitive is recomputed). Returns the number of points computed."""
+    tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    for f in sorted(recs):
+        r = recs[f]
+        if r["status"] != "optimal" or all(k in r["data"] for k in RESOLVE_FIELDS):
+            continue
+        c = ck.load("resolves", f) if ck is not None else None
+        if c is not None and np.array_equal(c[0]["x_scaled"], r["x_scaled"]) \
+                and np.array_equal(c[0]["lam_x"], r["lam_x"]) and np.array_equal(c[0]["lam_g"], r["lam_g"]):
+            r["data"] = {**r["data"], **{k: c[0]["data"][k] for k in RESOLVE_FIELDS}}
+            continue
+        small = {k: r["data"][k] for k in ("x", "p", "dx_dp")}
+        tasks.append((_resolve_task, (spec, f, r["x_scaled"], r["lam_x"], r["lam_g"], small), f))
+
+    def done(f: int, extra: dict[str, Any]) -> None:
+        r = recs[f]
+        if ck is not None:
+            ck.save("resolves", f, [{"flat": f, "status": "optimal", "x_scaled": r["x_scaled"], "lam_x": r["lam_x"],
+                                     "lam_g": r["lam_g"], "data": extra}])
+        recs[f] = {**r, "data": {**r["data"], **extra}}
+
+    _run(tasks, ex, done)
+    return len(tasks)
+
+
+RECHECK_WAVES = 4
+"""Waves of :func:`_recheck_infeasible`: a point re-solved in one wave offers its primitive to its
+still-infeasible neighbours in the next (each (point, neighbour) pair is tried once)."""
+
+
+def search_verdict(rec: Mapping[str, Any]) -> bool:
+    """Whether an ``infeasible`` record rests on a search (the optimizer's automatic start, its
+    confirmation search, or a speed twin's such verdict) rather than on a relaxation's confirmed
+    verdict (evidence key ``"relaxation"``: the failures only add constraints, a proof given the
+    relaxation's verdict)."""
+    return rec["status"] == "infeasible" and "relaxation" not in (rec.get("evidence") or {})
+
+
+def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                        ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None) -> dict[str, int]:
+    """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
+    its solved grid neighbours before accepting it.
+
+    A search's "infeasible" is the optimizer's failure to find a feasible point from its own
+    starts within its budgets, not a proof: on README's worked example the per-wheel NLP's
+    search declared cross slope 10 deg, stuck -60 deg infeasible after 908 iterations where the
+    inlined NLP's (the same functions to rounding) found a checked primitive
+    (``tests/bench/results_nlp_structure.md``). A solved neighbour is a start on the branch the
+    table already holds: each is tried in turn (its primitive moved by its sensitivity to this
+    point, :func:`predicted_start`, with its multipliers; one IPOPT run of the solver's
+    ``max_iter`` each, :func:`retry_point`), and the first that converges and passes the
+    optimizer's independent numeric check replaces the verdict. In waves
+    (:data:`RECHECK_WAVES`): a point re-solved in one wave is a start for its neighbours in the
+    next; each wave uses the records as they were at its start (deterministic). A verdict no
+    start overturns stays ``infeasible`` with the re-solves added to its evidence
+    (``"neighbour re-solves"``). A relaxation's verdict is kept without a solve.
+
+    ``tried_pairs``: ``(point, neighbour)`` pairs already run from the neighbour's primal-dual
+    point (the continuation, the retries). A neighbour on the family axis (not an NLP parameter)
+    has the predicted start of its own primitive, so that run is not repeated; along slope,
+    cross slope and speed the predicted start is another start and is tried.
+
+    Returns
+    -------
+    dict
+        ``{"re-solved": points made optimal, "kept": search verdicts re-checked and kept}``.
+    """
+    shape = spec.grid.shape
+    tried: dict[int, list[str]] = {}
+    done_pairs: set[tuple[int, int]] = set()
+    fresh = {f for f in recs if recs[f]["status"] == "optimal"}  # the starts new in this wave
+    fam_axis = spec.grid.names.index(spec.family["axis"]) if spec.family is not None else None
+    for f, nb in tried_pairs or ():
+        a = np.flatnonzero(np.subtract(np.unravel_index(f, shape), np.unravel_index(nb, shape)))
+        if fam_axis is not None and a.size == 1 and int(a[0]) == fam_axis:
+            done_pairs.add((f, nb))
+    solved = 0
+    for wave in range(RECHECK_WAVES):
+        tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+        got: dict[int, dict[str, Any]] = {}
+        for f in sorted(recs):
+            if not search_verdict(recs[f]):
+                continue
+            nbs = [nb for nb in _neighbours(shape, f)
+                   if nb in fresh and recs[nb]["status"] == "optimal" and (f, nb) not in done_pairs]
+            if not nbs:
+                continue
+            done_pairs.update((f, nb) for nb in nbs)
+            c = ck.load(f"recheck{wave}", f) if ck is not None else None
+            if c is not None:
+                got[f] = c[0]
+                continue
+            op = spec.grid.point(f)
+            starts = [(nb, predicted_start(spec, recs[nb], spec.grid.point(nb), op), recs[nb]["lam_x"], recs[nb]["lam_g"])
+                      for nb in nbs]
+            tasks.append((retry_point, (spec, f, starts), f))
+
+        def done(f: int, rec: dict[str, Any], wave: int = wave) -> None:
+            if ck is not None:
+                ck.save(f"recheck{wave}", f, [rec])
+            got[f] = rec
+
+        _run(tasks, ex, done)
+        fresh = set()
+        for f in sorted(got):
+            rec = got[f]
+            if rec["status"] == "optimal":
+                recs[f] = {**rec, "continued_from": f"re-check from neighbour {rec['retried_from']} (a search had "
+                                                    "said infeasible)"}
+                fresh.add(f)
+                solved += 1
+            else:
+                tried.setdefault(f, []).extend((rec.get("evidence") or {}).get("retries", []))
+        if not fresh:
+            break
+    kept = 0
+    for f, t in sorted(tried.items()):
+        if recs[f]["status"] == "infeasible":
+            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), "neighbour re-solves": t}}
+            kept += 1
+    return {"re-solved": solved, "kept": kept}
 
 
 def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],

@@ -364,7 +364,11 @@ def continuation_group(spec: Any, flats: Sequence[int], seed: SeedStart | None, 
             continue
         rec, tried, its = _try_starts(spec, f, starts)
         recs[f] = rec if rec is not None else {"flat": f, "status": "not_found", "iterations": its, "pending": True,
-                                               "evidence": {"continuation": tried}}
+                                               "evidence": {"continuation": tried},
+                                               # the neighbours whose primal-dual point was a start (the
+                                               # builder's retries and re-checks do not repeat that run)
+                                               "tried_neighbours": [nb] if nb is not None and recs.get(nb, {}).get(
+                                                   "status") == "optimal" else []}
     # the other speeds: the first speed's primitive scaled exactly and verified (speed twins)
     for f in flats:
         if f in recs:

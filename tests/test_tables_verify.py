@@ -18,7 +18,7 @@ import pytest
 from offline.rover.scenario import PARAM_FILE_PRESETS, ScenarioError, load_scenario, param_preset_file
 from offline.rover.table_builder import write_index
 from offline.rover.table_verify import (FD_STEP, JACOBIAN_RTOL, STEEP_RTOL, _check_block, check_jacobians,
-                                        spec_from_table, verify_table)
+                                        feasible_cells, spec_from_table, verify_table)
 from rtctl.table import load_index, load_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,6 +112,50 @@ def test_trench_table_jacobians_pass_and_name_the_flat_width_row():
     assert errs["jac_g_x"] <= STEEP_RTOL and errs["jac_g_p"] <= STEEP_RTOL, errs
     assert errs["wrench_jac"] <= JACOBIAN_RTOL and errs["grad_f"] <= JACOBIAN_RTOL, errs
     assert entries and {e["row"] for e in entries} == {"trench flat width RR"}, entries
+
+
+# ------------------------------------------------------------------------------ interpolation reference
+def test_interpolation_reference_is_the_best_optimum_not_the_first_start(monkeypatch):
+    """Check 3's direct solve: of the optima its starts reach at a midpoint, the best by the builder's
+    order (lowest objective), not the first that converged. Scripted solver (cheap): the
+    interpolated start converges to a worse optimum (objective 2), the corners' continuation to a
+    better one (objective 1). The former check took the first one; issue 22: at rr_unpowered's
+    (7.5, 5) deg midpoint the first start reached an optimum of objective 1.062 (4.09 scales from
+    the interpolation) where the corners' branch, reached by a continuation, has 0.909 (2.0)."""
+    import offline.rover.table_verify as tv
+
+    t = load_table(ROOT / "tests" / "data" / "tables" / "nominal.npz")
+    spec = spec_from_table(t)
+    cell = feasible_cells(t)[0]
+    xsc = t.layout.variable_scale
+    mid_op = {k: float(0.5 * (t.axes[k][i] + t.axes[k][i + 1])) for k, i in zip(t.axis_order, cell)}
+    tp = t.at(**mid_op)
+    x_good = tp.x / xsc
+    x_bad = x_good + 0.3  # 0.3 scales off in every variable
+
+    class Scripted:
+        layout = t.layout
+
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def bounds(self, sc):
+            return {}
+
+        def solve(self, b, x0, *a, **k):
+            self.calls += 1
+            return {"success": True, "x": x_bad if self.calls == 1 else x_good, "f": 2.0 if self.calls == 1 else 1.0,
+                    "lam_x": np.zeros(t.layout.nx), "lam_g": np.zeros(t.layout.ng)}
+
+    pb = Scripted()
+    monkeypatch.setattr(tv, "_problem", lambda sc, solver=None: pb)
+    monkeypatch.setattr("offline.rover.primitives.check_solution", lambda pb, sc, x: (None, True))
+    monkeypatch.setattr(tv, "_direct_data", lambda spec, sc, x: {"x": x * xsc, "jac_g_x": tp.jac_g_x,
+                                                                  "wrench_jac": tp.wrench_jac})
+    res = tv.check_interpolation(t, spec, [cell])
+    assert res["x_error_per_scale"] < 0.01, res  # the former check: 0.3 (the first start's optimum)
+    mid = res["per_midpoint"][0]
+    assert mid["objective"] == 1.0 and mid["first_start_other_optimum"] and mid["optima"] == [1.0, 2.0], mid
 
 
 # ------------------------------------------------------------------------------ every shipped table

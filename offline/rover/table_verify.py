@@ -562,6 +562,20 @@ def _continue_from_corner(t: Table, spec: TableSpec, idx: tuple[int, ...], op: d
     return r
 
 
+def _best(found: Sequence[tuple[str, dict[str, Any]]], ib: Sequence[int]) -> tuple[str, dict[str, Any]]:
+    """The best of ``(label, solver result)`` pairs by :func:`_better` (the first of equals)."""
+    best = found[0]
+    for cand in found[1:]:
+        if _better(float(cand[1]["f"]), cand[1]["x"], float(best[1]["f"]), best[1]["x"], ib):
+            best = cand
+    return best
+
+
+def _x_error(x_interp: NDArray[np.float64], x_scaled: NDArray[np.float64], xsc: NDArray[np.float64]) -> float:
+    """Largest ``|x_interp - x|`` per variable scale (``x_interp`` physical, ``x_scaled`` scaled)."""
+    return float(np.max(np.abs(x_interp / xsc - np.asarray(x_scaled, dtype=float))))
+
+
 def _cell_corners(t: Table, cell: tuple[int, ...]) -> list[tuple[int, ...]]:
     """The feasible corners of a cell, one per speed-equivalence class: corners that differ only in
     speed hold the same NLP scaled exactly (the speed twins' rule), so the lower speed stands for
@@ -581,7 +595,8 @@ def _cell_corners(t: Table, cell: tuple[int, ...]) -> list[tuple[int, ...]]:
     return out
 
 
-def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]]) -> dict[str, Any]:
+def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]],
+                        tol: float | None = None) -> dict[str, Any]:
     """At each cell midpoint: interpolated ``x``, ``jac_g_x`` and ``wrench_jac`` against a direct solve.
 
     The direct solve must be the optimum the table's rule would store there, not whichever local
@@ -595,11 +610,18 @@ def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]])
     of all the results that pass the optimizer's independent check, the best by the builder's
     order (:func:`_better`) is the reference (warm runs with the builder's warm budgets,
     ``build.polish_max_iter`` and ``build.trust_max_iter``); only when none converges, the optimizer's search from the
-    interpolated primitive. Until issue 22's shipped rebuild the check took the first start that
+    interpolated primitive. Until issue 22 (2026-11-27) the check took the first start that
     converged: at ``rr_unpowered``'s midpoint (7.5 deg slope, 5 deg cross slope) that was a
     second optimum, the front-right wheel at 4.09 rad/s with an objective of 1.062, while the
     corners' branch continues to 1.56 rad/s at 0.909 (a "4.09 scales" error that was a branch
     change, not the grid's; measured by a continuation along the slope, forward and backward).
+
+    ``tol`` (variable scales; :func:`verify_table` passes the table's interpolation tolerance): the
+    continuations run only when the best optimum of the direct starts is farther than ``tol``
+    from the interpolation, i.e. where the reference decides a failure; None: always. Cost on the
+    quick verify of the 7 shipped tables (2 points and cells each): 12.9 CPU s with the former
+    first-start reference, 40.5 with continuations at every midpoint, 38.3 gated (the failing
+    tables' midpoints need them), the same verdicts and errors.
 
     Returns the largest errors (x: per variable scale; Jacobians: relative to the largest entry),
     the number of midpoints where no primitive was found and those midpoints, and per midpoint
@@ -628,10 +650,11 @@ def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]])
             r = pb.solve(b, *args, max_iter=spec.build.polish_max_iter if len(args) == 3 else None)
             if r["success"] and check_solution(pb, sc, r["x"])[1]:
                 found.append((label, r))
-        for idx in _cell_corners(t, c):
-            r = _continue_from_corner(t, spec, idx, op)
-            if r is not None:
-                found.append((f"continued from {t.grid_point(idx)}", r))
+        if tol is None or not found or _x_error(tp.x, _best(found, ib)[1]["x"], xsc) > tol:
+            for idx in _cell_corners(t, c):
+                r = _continue_from_corner(t, spec, idx, op)
+                if r is not None:
+                    found.append((f"continued from {t.grid_point(idx)}", r))
         if not found:
             res = solve_primitive(sc, spec.solver, x0=tp.x / xsc)
             if res.status == "optimal":
@@ -641,10 +664,7 @@ def check_interpolation(t: Table, spec: TableSpec, cells: list[tuple[int, ...]])
             fails += 1
             holes.append(opr)
             continue
-        best = found[0]
-        for cand in found[1:]:
-            if _better(float(cand[1]["f"]), cand[1]["x"], float(best[1]["f"]), best[1]["x"], ib):
-                best = cand
+        best = _best(found, ib)
         optima: list[tuple[float, NDArray[np.float64]]] = []
         for _, r in found:
             xr = np.asarray(r["x"], dtype=float)
@@ -726,8 +746,8 @@ def verify_table(path: str | Path, points: int = 3, seed: int = 0, steps: tuple[
     cells = feasible_cells(t)
     if cells:
         pick = rng.choice(len(cells), size=min(points, len(cells)), replace=False)
-        res = check_interpolation(t, spec, [cells[int(i)] for i in sorted(pick)])
         tol = interpolation_tolerance(t)
+        res = check_interpolation(t, spec, [cells[int(i)] for i in sorted(pick)], tol)
         res["tolerance_per_scale"] = tol
         rep.interpolation = res
         rep.verdicts["interpolation"] = (res["no_direct_solution"] == 0 and res["x_error_per_scale"] <= tol

@@ -250,6 +250,24 @@ def test_refinement_inserts_the_midpoint_of_a_poor_cell_within_the_point_budget(
     assert p2.read_bytes() == path.read_bytes()
 
 
+def test_refinement_retries_a_new_points_infeasible_verdict_from_its_neighbours(tmp_path):
+    """rr_unpowered, slope 5 and 10 deg x cross slope 0 and 10 deg, refined once to 3 x 3 (the
+    command-line build ``--seed-index none --refine-tol 0.5 --max-points 9 --refine-rounds 1``,
+    24 CPU s): the new point (7.5, 5) deg has primitives (issue 22: a continuation along the slope
+    finds them), but the table budgets' search called it infeasible and the refinement retried only
+    not_found points; the neighbour retries with a continuation solve it."""
+    from offline.rover.table_refine import RefineOptions
+
+    spec = table_spec(ROOT / "tables" / "scenarios" / "rr_unpowered.toml", grid="slope=5,10;cross_slope=0,10;speed=2",
+                      build=BuildOptions(seed_index="none"), refine=RefineOptions(tol=0.5, max_points=9, rounds=1))
+    path, summary = build_table(spec, tmp_path, progress=False)
+    t = load_table(path)
+    assert t.header["refinement"]["inserted"] == {"cross_slope": [pytest.approx(math.radians(5.0))],
+                                                  "slope": [pytest.approx(math.radians(7.5))]}
+    assert summary["statuses"] == {"optimal": 9}, summary["statuses"]  # the former refinement: 1 infeasible
+    assert t.status_at((1, 1, 0)) == "optimal"
+
+
 def test_refinement_reindexes_the_grid_points_a_record_names(tmp_path):
     """A refined table's speed twins (and retry / neighbour-pass sources) name grid points of the
     refined grid: before issue 22's fix they kept the base grid's flat indices, so after a slope

@@ -120,6 +120,16 @@ explained' with the named physics still reported. On the 24 s hub-drag test driv
 tether absorb 75 % of the excess and the yaw-rate misfit they leave has p = 3.3e-4: 'partly
 explained' at 0.01 / 14, 'explained' at 0.001 / 14."""
 
+SCREEN_FRACTION = 0.5
+"""A screened per-wheel term is fitted when its free score on its own wheel's encoder reaches this
+fraction of ``chi2_1(1 - alpha)`` (:meth:`DriveRecording.screen`): a margin of two on the least a
+one-parameter term must gain to pass the library's test."""
+SCREEN_GRID = 41
+"""Parameter values of a screened term's free score (evenly over its box, plus its starts)."""
+SETTLED_TICKS = 11
+"""Ticks a steering command must be unchanged before its encoder reading counts as settled
+(2.2 s at 5 Hz: the servo's 1 rad/s slew covers a crab-to-crab change of 2 rad)."""
+
 TICK_CHANNELS = (*(f"omega_{w}" for w in WHEELS), *(f"torque_{w}" for w in WHEELS), "yaw_rate", "roll", "pitch")
 """Per-tick readings averaged over a segment."""
 POSE_CHANNELS = ("dx_body", "dy_body", "dheading")
@@ -154,6 +164,10 @@ class DriveData:
         Fix noise (position m, heading rad) from the fixes' second differences.
     heading_source : str
         ``pose fixes`` or ``gyro integration`` (no pose source recorded).
+    steer_reading : ndarray (n, 4) or None
+        The steering encoders at the ticks, rad (NaN where not finite). Not a channel of the
+        observations (the model takes the commanded steering); it screens the steering-saturation
+        terms (:meth:`DriveRecording.screen`).
     """
 
     source: str
@@ -165,6 +179,7 @@ class DriveData:
     pose: NDArray[np.float64]
     pose_sigma: tuple[float, float]
     heading_source: str
+    steer_reading: NDArray[np.float64] | None = None
 
     @classmethod
     def from_file(cls, path: str | Path, gyro_bias: float = 0.0) -> "DriveData":
@@ -231,7 +246,9 @@ class DriveData:
             pose = np.stack([np.full_like(t, np.nan), np.full_like(t, np.nan), hd], axis=1)
             sxy = sh = math.nan
             src = "gyro integration (fewer than a quarter of the ticks carry a pose fix; no pose channels)"
-        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src)
+        enc = np.array([m.steer_angle for m in ms], dtype=float)
+        enc = np.where(np.isfinite(enc), enc, np.nan)
+        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src, enc)
 
 
 def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
@@ -672,6 +689,91 @@ class DriveRecording:
     def with_measured(self, measured: Mapping[str, NDArray[np.float64]]) -> "DriveRecording":
         """Same segments, other measurements (for synthetic studies)."""
         return replace(self, measured={k: np.asarray(v, dtype=float).copy() for k, v in measured.items()})
+
+    def screen(self, candidates: Sequence[Any], regions: Sequence[Any], z0: NDArray[np.float64],
+               scale: Mapping[str, float], alpha: float, params: ParameterSet) -> dict[str, tuple[bool, str]]:
+        """Which screened candidates (the per-wheel actuator terms) are fitted: ``{key: (fitted, why)}``.
+
+        A term of wheel ``W`` (its family ``speed_W`` or ``steer_W``) acts on what that wheel's
+        servo does, which that wheel's own encoder measures directly. It is fitted when its **free
+        score** reaches ``SCREEN_FRACTION`` (one half) of ``chi2_1(1 - alpha)``, the least a
+        one-parameter term must gain to pass the library's test: the largest improvement, over a
+        grid of its parameter (:data:`SCREEN_GRID` points over its box, its start and its starts),
+        that the term's change of the commands alone makes on the wheel's own encoder, with no
+        re-simulation --
+
+           - speed terms: on the ``omega_W`` rows in the units of the held-out test (noise x
+             dispersion), the predicted wheel speed moved by the change of that wheel's rim-speed
+             command over the shearing radius (the wheel follows its servo's reference: the
+             believed lag, 0.05 s, is a quarter of a tick). A torque-limited wheel does not follow,
+             so the score is optimistic there, the safe side of a screen;
+           - the steering cap: on the steering encoder's settled ticks (the command unchanged for
+             :data:`SETTLED_TICKS` ticks, so the rate-limited servo has arrived), each with its
+             white noise from the first differences: encoder minus command against the cap's
+             clipped command minus the command.
+
+        Without that encoder (no ``omega_W`` channel, no steering readings) a term is fitted when
+        a located region lies on one of its wheel's channels (``omega_W``, ``torque_W``). A
+        located region on the wheel's channels without an encoder score (a hub dragging on that
+        wheel's torque while its servo holds the speed) does not implicate the servo. Otherwise
+        the term is left out of the library's test; the reason is reported either way.
+        """
+        from scipy.stats import chi2 as _chi2
+
+        need = SCREEN_FRACTION * float(_chi2.ppf(1.0 - alpha, 1))
+        rs = params.wheel.shearing_radius
+        out: dict[str, tuple[bool, str]] = {}
+        chans = list(self.channels)
+        for c in candidates:
+            kind, _, w = c.family.partition("_")
+            if kind not in ("speed", "steer") or w not in WHEELS:
+                out[c.key] = (True, "not a per-wheel actuator term: always fitted")
+                continue
+            hit = [r.channel for r in regions if r.channel in (f"omega_{w}", f"torque_{w}")]
+            where = f"; located regions on {', '.join(sorted(set(hit)))}" if hit else ""
+            if (f"omega_{w}" not in chans if kind == "speed" else any(d.steer_reading is None for d in self.drives)):
+                out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")))
+                continue
+            i = WHEELS.index(w)
+            grid = np.unique(np.concatenate([np.linspace(c.lower[0], c.upper[0], SCREEN_GRID),
+                                             [s[0] for s in c.starts], [c.params[0][4]]]))
+            best = -math.inf
+            for th in grid:
+                terms = rover_terms(c.build(np.array([th]) * c.to_si, params))
+                if kind == "speed":
+                    ch = f"omega_{w}"
+                    z = z0[:, chans.index(ch)]
+                    dz = np.zeros(len(self))
+                    for k, (d, seg) in enumerate(zip(self.drives, self.segments)):
+                        rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        dom = (rim[:, i] - d.rim_cmd[:, i]) / rs
+                        dom = np.concatenate([dom[:1], dom[:-1]])  # tick j follows the command of tick j - 1
+                        rows = np.flatnonzero(self.drive == k)
+                        means = np.array([dom[a + 1:b + 1].mean() for a, b in seg.bounds])
+                        dz[rows] = means[self.segment[rows]] / (self.noise[ch][rows] * scale[ch])
+                    ok = np.isfinite(z) & np.isfinite(dz)
+                    g = float(np.sum(z[ok] ** 2 - (z[ok] - dz[ok]) ** 2))
+                else:
+                    g = 0.0
+                    for d in self.drives:
+                        assert d.steer_reading is not None
+                        _, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        cmd = d.steer_cmd[:, i]
+                        settled = np.zeros(len(cmd), dtype=bool)
+                        for j in range(SETTLED_TICKS, len(cmd)):
+                            settled[j] = bool(np.all(cmd[j - SETTLED_TICKS:j] == cmd[j - 1]))
+                        e = d.steer_reading[1:, i] - cmd[:-1]
+                        de = st[:-1, i] - cmd[:-1]
+                        sel = settled[1:] & np.isfinite(e)
+                        if sel.sum() < 3:
+                            continue
+                        sig = max(_difference_sigma(e[sel]), 1e-5)
+                        g += float(np.sum(e[sel] ** 2 - (e[sel] - de[sel]) ** 2)) / sig**2
+                best = max(best, g)
+            enc = "wheel-speed encoder" if kind == "speed" else "steering encoder"
+            out[c.key] = (bool(best >= need), f"free score on the {enc} {best:.3g} "
+                                              f"{'>=' if best >= need else '<'} {need:.3g}{where}")
+        return out
 
     def folds(self, k: int) -> NDArray[np.int_]:
         """Held-out time segments: each drive cut into ``k`` contiguous blocks of time (fold = block)."""

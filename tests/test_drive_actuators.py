@@ -7,7 +7,7 @@ are written in this module by mechanisms of their own, not the terms' formulas: 
 servo with a state of its own that slews toward its target at a bounded acceleration, the target
 being the command clipped at a supply-limited speed (a rate limiter in series with a saturation,
 where the term is a clip of the command); and a steering servo that stops at a mechanical end stop
-reached through its own slew (where the term clips the command). Budget: 16 s drives, a library of
+reached through its own slew (where the term clips the command). Budget: 12 s drives, a library of
 the per-wheel terms and four of their look-alikes, no recalibration, no empirical stage.
 """
 
@@ -31,7 +31,7 @@ from rtctl.messages import Commands
 
 ROOT = Path(__file__).resolve().parents[1]
 SC = load_scenario(ROOT / "offline/scenarios/nominal.toml")
-DURATION = 16.0
+DURATION = 12.0
 LOOKALIKES = ("wheel_radius_RL", "steer_offset_RL", "servo_lag", "torque_saturation")
 PER_WHEEL = [c for c in DRIVE_CANDIDATES if c.screened]
 

@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -693,7 +693,10 @@ def diagnose(
         say("screening the per-wheel terms")
         admitted = obs.screen([c for c in library if c.screened], regions, z0, scale, alpha, ps)
         screening = [(c.key, bool(admitted[c.key][0]), str(admitted[c.key][1])) for c in library if c.screened]
-        library = [c for c in library if not c.screened or admitted[c.key][0]]
+        # a term the screen scored over its whole box is fitted from the screen's best value and its
+        # declared start (refits per fold: the full fit's values too), not from its declared starts
+        library = [c if not c.screened else replace(c, starts=(tuple(admitted[c.key][2]),)) if admitted[c.key][2] else c
+                   for c in library if not c.screened or admitted[c.key][0]]
         say("screened terms fitted: " + (", ".join(k for k, f, _ in screening if f) or "none"))
     if recalibrate and hasattr(model, "recalibration"):
         library.append(model.recalibration())

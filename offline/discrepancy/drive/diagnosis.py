@@ -124,6 +124,9 @@ SCREEN_FRACTION = 0.5
 """A screened per-wheel term is fitted when its free score on its own wheel's encoder reaches this
 fraction of ``chi2_1(1 - alpha)`` (:meth:`DriveRecording.screen`): a margin of two on the least a
 one-parameter term must gain to pass the library's test."""
+SCREEN_FAMILY_FRACTION = 0.25
+"""A screened term whose free score is below this fraction of its family's best is not fitted
+(:meth:`DriveRecording.screen`: a look-alike must reach 75 % of the best's improvement)."""
 SCREEN_GRID = 41
 """Parameter values of a screened term's free score (evenly over its box, plus its starts)."""
 SETTLED_TICKS = 11
@@ -691,8 +694,12 @@ class DriveRecording:
         return replace(self, measured={k: np.asarray(v, dtype=float).copy() for k, v in measured.items()})
 
     def screen(self, candidates: Sequence[Any], regions: Sequence[Any], z0: NDArray[np.float64],
-               scale: Mapping[str, float], alpha: float, params: ParameterSet) -> dict[str, tuple[bool, str]]:
-        """Which screened candidates (the per-wheel actuator terms) are fitted: ``{key: (fitted, why)}``.
+               scale: Mapping[str, float], alpha: float, params: ParameterSet
+               ) -> dict[str, tuple[bool, str, tuple[float, ...] | None]]:
+        """Which screened candidates (the per-wheel actuator terms) are fitted: ``{key: (fitted, why,
+        start)}``, ``start`` the parameter (reported units) of the best free score (None without one):
+        the engine fits the term from it and its declared start instead of its declared starts (the
+        free score's grid is a search over the whole box, the declared starts three points of it).
 
         A term of wheel ``W`` (its family ``speed_W`` or ``steer_W``) acts on what that wheel's
         servo does, which that wheel's own encoder measures directly. It is fitted when its **free
@@ -712,6 +719,12 @@ class DriveRecording:
              white noise from the first differences: encoder minus command against the cap's
              clipped command minus the command.
 
+        Terms of one family (a wheel's three speed terms) are never combined, so one of them
+        matters beside the family's best only as its look-alike, which must reach 75 % of the
+        best's held-out improvement: a term whose free score is below :data:`SCREEN_FAMILY_FRACTION`
+        (a quarter) of its family's best is not fitted either (a servo lag scores 7 on the
+        encoder of a wheel whose cap scores 476).
+
         Without that encoder (no ``omega_W`` channel, no steering readings) a term is fitted when
         a located region lies on one of its wheel's channels (``omega_W``, ``torque_W``). A
         located region on the wheel's channels without an encoder score (a hub dragging on that
@@ -722,22 +735,23 @@ class DriveRecording:
 
         need = SCREEN_FRACTION * float(_chi2.ppf(1.0 - alpha, 1))
         rs = params.wheel.shearing_radius
-        out: dict[str, tuple[bool, str]] = {}
+        out: dict[str, tuple[bool, str, tuple[float, ...] | None]] = {}
+        scores: dict[str, tuple[str, float]] = {}
         chans = list(self.channels)
         for c in candidates:
             kind, _, w = c.family.partition("_")
             if kind not in ("speed", "steer") or w not in WHEELS:
-                out[c.key] = (True, "not a per-wheel actuator term: always fitted")
+                out[c.key] = (True, "not a per-wheel actuator term: always fitted", None)
                 continue
             hit = [r.channel for r in regions if r.channel in (f"omega_{w}", f"torque_{w}")]
             where = f"; located regions on {', '.join(sorted(set(hit)))}" if hit else ""
             if (f"omega_{w}" not in chans if kind == "speed" else any(d.steer_reading is None for d in self.drives)):
-                out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")))
+                out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")), None)
                 continue
             i = WHEELS.index(w)
             grid = np.unique(np.concatenate([np.linspace(c.lower[0], c.upper[0], SCREEN_GRID),
                                              [s[0] for s in c.starts], [c.params[0][4]]]))
-            best = -math.inf
+            best, arg = -math.inf, float(grid[0])
             for th in grid:
                 terms = rover_terms(c.build(np.array([th]) * c.to_si, params))
                 if kind == "speed":
@@ -769,10 +783,17 @@ class DriveRecording:
                             continue
                         sig = max(_difference_sigma(e[sel]), 1e-5)
                         g += float(np.sum(e[sel] ** 2 - (e[sel] - de[sel]) ** 2)) / sig**2
-                best = max(best, g)
+                if g > best:
+                    best, arg = g, float(th)
             enc = "wheel-speed encoder" if kind == "speed" else "steering encoder"
-            out[c.key] = (bool(best >= need), f"free score on the {enc} {best:.3g} "
-                                              f"{'>=' if best >= need else '<'} {need:.3g}{where}")
+            out[c.key] = (bool(best >= need), f"free score on the {enc} {best:.3g} at {c.params[0][0]} {arg:.3g} "
+                                              f"{c.params[0][1]} {'>=' if best >= need else '<'} {need:.3g}{where}", (arg,))
+            scores[c.key] = (c.family, best)
+        for key, (fam, g) in scores.items():
+            top = max(v for f, v in scores.values() if f == fam)
+            if out[key][0] and g < SCREEN_FAMILY_FRACTION * top:
+                out[key] = (False, out[key][1] + f", below {SCREEN_FAMILY_FRACTION:g} of its family's best ({top:.3g})",
+                            out[key][2])
         return out
 
     def folds(self, k: int) -> NDArray[np.int_]:

@@ -74,12 +74,12 @@ class SteeringEndStop(Effect):
         return replace(c, steer_angle=tuple(self.a if j == self.i else x for j, x in enumerate(c.steer_angle)))
 
 
-def _screen(path: Path) -> dict[str, tuple[bool, str]]:
+def _screen(path: Path) -> dict[str, tuple[bool, str, Any]]:
     model = DriveModel(SC, None)
     obs = DriveRecording.build(load_drives([path]), model, 5)
     pred, _ = model.predict(obs, None)
     scale = obs.dispersion(pred)
-    return obs.screen(PER_WHEEL, [], normalised(obs, pred, scale), scale, 0.001, model.params)
+    return obs.screen(PER_WHEEL, [], normalised(obs, pred, scale), scale, 0.001, model)
 
 
 def _diagnose(path: Path, seed: int) -> Any:
@@ -97,12 +97,12 @@ def test_encoders_screen_in_only_the_wheel_that_misbehaves(tmp_path):
     """The free scores (no re-simulation) admit the speed terms of the slewing servo's wheel and
     the steering cap of the end stop's wheel, and nothing on a noise-only drive."""
     speed = _screen(record_concealed(tmp_path / "s.mcap", SC, SlewingSupplyLimitedServo(), seed=3, duration=DURATION))
-    assert {k for k, (ok, _) in speed.items() if ok} >= {"speed_saturation_RL", "speed_shortfall_RL"}
-    assert all(k.endswith("_RL") and not k.startswith("steer") for k, (ok, _) in speed.items() if ok)
+    assert {k for k, (ok, *_) in speed.items() if ok} >= {"speed_saturation_RL", "speed_shortfall_RL"}
+    assert all(k.endswith("_RL") and not k.startswith("steer") for k, (ok, *_) in speed.items() if ok)
     steer = _screen(record_concealed(tmp_path / "t.mcap", SC, SteeringEndStop(), seed=3, duration=DURATION))
-    assert {k for k, (ok, _) in steer.items() if ok} == {"steer_saturation_FL"}
+    assert {k for k, (ok, *_) in steer.items() if ok} == {"steer_saturation_FL"}
     noise = _screen(record_concealed(tmp_path / "n.mcap", SC, Effect(), seed=5, duration=DURATION))
-    assert not [k for k, (ok, _) in noise.items() if ok], noise
+    assert not [k for k, (ok, *_) in noise.items() if ok], noise
 
 
 def test_wheel_speed_saturation_is_named_on_its_wheel_with_its_level(tmp_path):

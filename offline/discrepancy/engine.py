@@ -691,7 +691,7 @@ def diagnose(
         # score on their own wheel's encoders reaches half of what an accepted term must gain
         # (DriveRecording.screen); those left out are not part of the library's test
         say("screening the per-wheel terms")
-        admitted = obs.screen([c for c in library if c.screened], regions, z0, scale, alpha, ps)
+        admitted = obs.screen([c for c in library if c.screened], regions, z0, scale, alpha, model)
         screening = [(c.key, bool(admitted[c.key][0]), str(admitted[c.key][1])) for c in library if c.screened]
         # a term the screen scored over its whole box is fitted from the screen's best value and its
         # declared start (refits per fold: the full fit's values too), not from its declared starts

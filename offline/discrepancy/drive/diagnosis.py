@@ -78,7 +78,7 @@ from rtctl.recording import RecordingError, read_recording
 
 from ...physics.params import ParameterSet
 from ...rover.scenario import Scenario
-from ...sim.actuators import ActuatorConfig
+from ...sim.actuators import ActuatorConfig, Actuators
 from ...sim.plant import SimulationError
 from ...sim.sensors import SensorConfig
 from ...sim.simulator import RoverSimulator
@@ -129,9 +129,6 @@ SCREEN_FAMILY_FRACTION = 0.25
 (:meth:`DriveRecording.screen`: a look-alike must reach 75 % of the best's improvement)."""
 SCREEN_GRID = 41
 """Parameter values of a screened term's free score (evenly over its box, plus its starts)."""
-SETTLED_TICKS = 11
-"""Ticks a steering command must be unchanged before its encoder reading counts as settled
-(2.2 s at 5 Hz: the servo's 1 rad/s slew covers a crab-to-crab change of 2 rad)."""
 
 TICK_CHANNELS = (*(f"omega_{w}" for w in WHEELS), *(f"torque_{w}" for w in WHEELS), "yaw_rate", "roll", "pitch")
 """Per-tick readings averaged over a segment."""
@@ -694,7 +691,7 @@ class DriveRecording:
         return replace(self, measured={k: np.asarray(v, dtype=float).copy() for k, v in measured.items()})
 
     def screen(self, candidates: Sequence[Any], regions: Sequence[Any], z0: NDArray[np.float64],
-               scale: Mapping[str, float], alpha: float, params: ParameterSet
+               scale: Mapping[str, float], alpha: float, model: "DriveModel"
                ) -> dict[str, tuple[bool, str, tuple[float, ...] | None]]:
         """Which screened candidates (the per-wheel actuator terms) are fitted: ``{key: (fitted, why,
         start)}``, ``start`` the parameter (reported units) of the best free score (None without one):
@@ -714,10 +711,11 @@ class DriveRecording:
              command over the shearing radius (the wheel follows its servo's reference: the
              believed lag, 0.05 s, is a quarter of a tick). A torque-limited wheel does not follow,
              so the score is optimistic there, the safe side of a screen;
-           - the steering cap: on the steering encoder's settled ticks (the command unchanged for
-             :data:`SETTLED_TICKS` ticks, so the rate-limited servo has arrived), each with its
-             white noise from the first differences: encoder minus command against the cap's
-             clipped command minus the command.
+           - the steering cap: on every tick of the steering encoder, with its white noise from
+             the first differences: the encoder minus the believed servo angle (the recorded
+             commands through the simulator's own steering servo, :class:`~offline.sim.actuators.Actuators`:
+             its rate limit, range and the scenario's failures) against the capped commands'
+             servo angle minus the believed one.
 
         Terms of one family (a wheel's three speed terms) are never combined, so one of them
         matters beside the family's best only as its look-alike, which must reach 75 % of the
@@ -734,7 +732,9 @@ class DriveRecording:
         from scipy.stats import chi2 as _chi2
 
         need = SCREEN_FRACTION * float(_chi2.ppf(1.0 - alpha, 1))
+        params = model.params
         rs = params.wheel.shearing_radius
+        believed = [model.servo_steer(d, d.rim_cmd, d.steer_cmd) for d in self.drives]
         out: dict[str, tuple[bool, str, tuple[float, ...] | None]] = {}
         scores: dict[str, tuple[str, float]] = {}
         chans = list(self.channels)
@@ -769,16 +769,12 @@ class DriveRecording:
                     g = float(np.sum(z[ok] ** 2 - (z[ok] - dz[ok]) ** 2))
                 else:
                     g = 0.0
-                    for d in self.drives:
+                    for d, b in zip(self.drives, believed):
                         assert d.steer_reading is not None
-                        _, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
-                        cmd = d.steer_cmd[:, i]
-                        settled = np.zeros(len(cmd), dtype=bool)
-                        for j in range(SETTLED_TICKS, len(cmd)):
-                            settled[j] = bool(np.all(cmd[j - SETTLED_TICKS:j] == cmd[j - 1]))
-                        e = d.steer_reading[1:, i] - cmd[:-1]
-                        de = st[:-1, i] - cmd[:-1]
-                        sel = settled[1:] & np.isfinite(e)
+                        rim, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        e = d.steer_reading[:, i] - b[:, i]
+                        de = model.servo_steer(d, rim, st)[:, i] - b[:, i]
+                        sel = np.isfinite(e)
                         if sel.sum() < 3:
                             continue
                         sig = max(_difference_sigma(e[sel]), 1e-5)
@@ -932,6 +928,23 @@ class DriveModel:
             if hit is not None:
                 self._trim()
                 self._cache[key] = hit
+
+    def servo_steer(self, d: DriveData, rim_cmd: NDArray[np.float64], steer_cmd: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The steering servos' angles at the ticks (n, 4; rad) for these per-tick commands: the
+        simulator's own servo (:class:`~offline.sim.actuators.Actuators`: rate limit, range, the
+        scenario's failures) started settled at the first commands and moved one command period
+        per tick by the previous tick's commands, as the re-simulation and the recording do. No
+        plant solve."""
+        assert self.actuators is not None
+        acts = Actuators(self.actuators, dict(self.scenario.failures), self.params.wheel.shearing_radius)
+        acts.reset(tuple(rim_cmd[0]), tuple(steer_cmd[0]))
+        out = np.empty((len(d.t), 4))
+        out[0] = acts.steer
+        for k in range(1, len(d.t)):
+            acts.command(tuple(rim_cmd[k - 1]), tuple(steer_cmd[k - 1]))
+            acts.advance(d.period)
+            out[k] = acts.steer
+        return out
 
     def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
@@ -1100,7 +1113,9 @@ def diagnose_drives(
         Candidates tried on top of the first explanation (a tether under a slope ranks third on its
         own, behind the IMU tilt that mimics the slope's roll and pitch).
     candidates, recalibrate
-        The library (default :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`) and whether
+        The library (default :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`: its
+        per-wheel actuator terms are screened, fitted only on the wheels whose own encoders
+        implicate them, :meth:`DriveRecording.screen`; the verdict lists the screen) and whether
         the soil recalibration joins it.
     stride : int
         Plant solved every ``stride`` ticks (:class:`DriveModel`).

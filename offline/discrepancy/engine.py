@@ -1051,6 +1051,11 @@ def diagnose(
                  "gives way to the full recalibration when that fits the held-out rows as well (Vuong V < 2 and at least "
                  f"{100 * (1 - equal_fraction):.0f} % of the pair's improvement). The accepted fit is continued for "
                  f"{polish_nfev} iterations in noise units before its remaining misfit is judged.")
+    if screening:
+        crit += (f" {len(screening)} screened terms (per-wheel actuator terms) were fitted only where the observations' "
+                 f"screen admitted them ({sum(f for _, f, _ in screening)} here): a free score on their own wheel's encoder "
+                 "reaching half of chi2_1(1 - alpha), and at least a quarter of their family's best; the others are not part "
+                 "of the library's test.")
     zb = np.concatenate([res0[ch] / obs.noise[ch] for ch in chans])
     za = np.concatenate([res1[ch] / obs.noise[ch] for ch in chans])
     fin = np.isfinite(zb) & np.isfinite(za)

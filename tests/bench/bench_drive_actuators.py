@@ -183,7 +183,7 @@ def _record(name: str, tmp: Path) -> tuple[Path, int]:
 
 def _start(code: Path, path: Path, seed: int, library: str) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(code), OPENBLAS_NUM_THREADS="1")
-    return subprocess.Popen(["nice", "-n", "10", sys.executable, __file__, "--run-one", str(path), str(seed), library],
+    return subprocess.Popen([sys.executable, __file__, "--run-one", str(path), str(seed), library],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
 
 

@@ -7,18 +7,21 @@ are written in this module by mechanisms of their own, not the terms' formulas: 
 servo with a state of its own that slews toward its target at a bounded acceleration, the target
 being the command clipped at a supply-limited speed (a rate limiter in series with a saturation,
 where the term is a clip of the command); and a steering servo that stops at a mechanical end stop
-reached through its own slew (where the term clips the command). Budget: 12 s drives, a library of
-the per-wheel terms and four of their look-alikes, no recalibration, no empirical stage.
+reached through its own slew (where the term clips the command). Budget (about 30 CPU-s): 12 s
+drives; the per-wheel terms beside the RL wheel's radius (the base library's best attempt at the
+RL servo on main: -20 % at its bound) or the IMU tilt (no re-simulation); no recalibration, no
+empirical stage. The full library, 40 s drives and 20 noise-only drives are in
+``tests/bench/bench_drive_actuators.py``.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
 from concealed_effects import Effect, record_concealed
@@ -32,7 +35,7 @@ from rtctl.messages import Commands
 ROOT = Path(__file__).resolve().parents[1]
 SC = load_scenario(ROOT / "offline/scenarios/nominal.toml")
 DURATION = 12.0
-LOOKALIKES = ("wheel_radius_RL", "steer_offset_RL", "servo_lag", "torque_saturation")
+LOOKALIKES = ("wheel_radius_RL",)
 PER_WHEEL = [c for c in DRIVE_CANDIDATES if c.screened]
 
 
@@ -82,8 +85,8 @@ def _screen(path: Path) -> dict[str, tuple[bool, str, Any]]:
     return obs.screen(PER_WHEEL, [], normalised(obs, pred, scale), scale, 0.001, model)
 
 
-def _diagnose(path: Path, seed: int) -> Any:
-    lib = [c for c in DRIVE_CANDIDATES if c.key in LOOKALIKES or c.screened]
+def _diagnose(path: Path, seed: int, base: tuple[str, ...] = LOOKALIKES, screened: bool = True) -> Any:
+    lib = [c for c in DRIVE_CANDIDATES if c.key in base or (screened and c.screened)]
     return diagnose_drives([path], SC, candidates=lib, recalibrate=False, empirical=False, seed=seed)
 
 
@@ -120,8 +123,15 @@ def test_wheel_speed_saturation_is_named_on_its_wheel_with_its_level(tmp_path):
 
 @pytest.mark.parametrize("seed", [5])
 def test_noise_only_drive_yields_no_per_wheel_term(tmp_path, seed):
-    v = _diagnose(record_concealed(tmp_path / "noise.mcap", SC, Effect(), seed=seed, duration=DURATION), seed=seed)
+    """Nothing screened in, so the diagnosis is the one without the per-wheel terms, draw for draw
+    (verdict.json equal but for the screen's list and the criterion's sentence on it)."""
+    f = record_concealed(tmp_path / "noise.mcap", SC, Effect(), seed=seed, duration=DURATION)
+    v = _diagnose(f, seed, base=("imu_tilt",))
     assert len(v.screening) == 16 and not [k for k, ok, _ in v.screening if ok], v.screening
     assert not any(k.startswith(("speed_", "steer_saturation")) or k.endswith(tuple(f"lag_{w}" for w in WHEELS))
                    for s in v.scores for k in s.keys)
     assert v.status == "agree", v.summary()
+    without = _diagnose(f, seed, base=("imu_tilt",), screened=False)
+    strip = ("seconds", "screening", "decision_criterion")
+    a, b = ({k: x for k, x in w.to_json().items() if k not in strip} for w in (v, without))
+    assert json.dumps(a, default=float, sort_keys=True) == json.dumps(b, default=float, sort_keys=True)

@@ -207,8 +207,11 @@ def _md(data: dict[str, Any]) -> str:
             md.append(f"| {r['case']} | {r['config']} | `{r['commit']}` | error | | | | | | {r['when']} |")
             continue
         emp = "-" if x["empirical"] is None else ("; ".join(x["empirical"]) or "none")
+        ch = x.get("chosen")
+        fitted = ("" if not ch else " (" + ", ".join(f"{n} {v:.4g} {u}" for n, v, u in zip(ch["names"], ch["values"], ch["units"]))
+                  + ("" if x["named"] else f"; best attempt {' + '.join(ch['keys'])}") + ")")
         md.append(f"| {r['case']} | {r['config']} | `{r['commit']}` | {x['cpu_seconds']:.0f} | {x['seconds']:.0f} | "
-                  f"{x['simulations']} | {x['status']} | {' + '.join(x['named']) or '-'} | {emp} | "
+                  f"{x['simulations']} | {x['status']} | {' + '.join(x['named']) or '-'}{fitted} | {emp} | "
                   f"{r['when']} ({r['load']}) |")
     if data.get("screen"):
         md += ["", "## The screen alone (`--screen-only`)", "",

@@ -206,8 +206,9 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     """Issue 24's per-wheel actuator terms act on the commands that wheel's servos follow:
     a fraction and a cap of the rim speed (sign kept), an extra first-order lag (exact
     exponential per command period), a steering cap; other wheels and other keys untouched.
-    Every term is a rover key, every candidate has a table-builder line, and none is in the
-    default library (their cost and false alarms on the drive benchmark are not measured)."""
+    Every term is a rover key, every candidate has a table-builder line; all sixteen are in the
+    default library, screened (fitted only on the wheels the data implicate), and unscreened in
+    DRIVE_CANDIDATES_WITH_ACTUATORS (--per-wheel-actuators)."""
     from offline.discrepancy.drive.candidates import (
         ACTUATOR_CANDIDATES,
         DRIVE_CANDIDATES_WITH_ACTUATORS,
@@ -237,8 +238,9 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     RoverExtension(terms={k: 0.5 for k in PER_WHEEL_ACTUATOR_KEYS})  # accepted (no DriveCandidateError)
     keys = {c.key for c in ACTUATOR_CANDIDATES}
     assert len(keys) == 16 and keys <= set(TABLE_BUILDER_TAKES)
-    assert not keys & {c.key for c in DRIVE_CANDIDATES}
-    assert keys <= {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS}
+    assert {c.key for c in DRIVE_CANDIDATES if c.screened} == keys
+    assert {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS} == {c.key for c in DRIVE_CANDIDATES}
+    assert not any(c.screened for c in DRIVE_CANDIDATES_WITH_ACTUATORS)
 
 
 def test_neutral_terms_share_the_believed_simulation(sc, nominal, tmp_path):

@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -279,6 +279,10 @@ class Verdict:
     :func:`withhold_without_excess`); ``chosen`` is then None."""
     withheld_reason: str = ""
     """Why ``withheld`` is not named (a summary line)."""
+    screening: list[tuple[str, bool, str]] = field(default_factory=list)
+    """Screened candidates (``Candidate.screened``: the drive's per-wheel actuator terms): ``(key,
+    fitted, why)`` for each, in library order; a candidate not fitted is not part of the library's
+    test (the adapter's screen, e.g. :meth:`offline.discrepancy.drive.diagnosis.DriveRecording.screen`)."""
     empirical: Any = None
     """What the library lacks, modelled by an empirical term (drives:
     :class:`offline.discrepancy.drive.empirical.EmpiricalResult`; single-wheel trials:
@@ -368,6 +372,11 @@ class Verdict:
                          f"(p = {p:.2g})")
         if self.failed_after:
             lines.append(f"the explained model still fails in {self.failed_after} rows")
+        if self.screening:
+            fitted = [(k, why) for k, f, why in self.screening if f]
+            lines.append(f"screened terms: {len(fitted)} of {len(self.screening)} fitted"
+                         + (": " + "; ".join(f"{k} ({why})" for k, why in fitted) if fitted else
+                            " (no located region and no encoder implicates any of their wheels)"))
         if self.empirical is not None:
             lines += self.empirical.summary_lines()
         return "\n".join(lines)
@@ -446,6 +455,7 @@ class Verdict:
                             "values": self.noise_chi2[2], "k": self.noise_chi2[3],
                             "excess_removed": self.excess_removed},
             "candidates": [sc(s) for s in self.scores],
+            "screening": [{"term": k, "fitted": f, "why": why} for k, f, why in self.screening],
             "decision_criterion": self.criterion,
             "seconds": self.seconds,
             "empirical": self.empirical.to_json() if self.empirical is not None else None,
@@ -674,6 +684,20 @@ def diagnose(
     ps = getattr(model, "params", None)
     empty = model.empty_extension() if hasattr(model, "empty_extension") else Extension()
     library = list(candidates)
+    screening: list[tuple[str, bool, str]] = []
+    if any(c.screened for c in library) and hasattr(obs, "screen"):
+        # screened candidates (drives: the per-wheel actuator terms) are fitted only where the
+        # adapter's screen admits them: their wheel's channels hold a located region, or a free
+        # score on their own wheel's encoders reaches half of what an accepted term must gain
+        # (DriveRecording.screen); those left out are not part of the library's test
+        say("screening the per-wheel terms")
+        admitted = obs.screen([c for c in library if c.screened], regions, z0, scale, alpha, model)
+        screening = [(c.key, bool(admitted[c.key][0]), str(admitted[c.key][1])) for c in library if c.screened]
+        # a term the screen scored over its whole box is fitted from the screen's best value and its
+        # declared start (refits per fold: the full fit's values too), not from its declared starts
+        library = [c if not c.screened else replace(c, starts=(tuple(admitted[c.key][2]),)) if admitted[c.key][2] else c
+                   for c in library if not c.screened or admitted[c.key][0]]
+        say("screened terms fitted: " + (", ".join(k for k, f, _ in screening if f) or "none"))
     if recalibrate and hasattr(model, "recalibration"):
         library.append(model.recalibration())
 
@@ -1027,13 +1051,19 @@ def diagnose(
                  "gives way to the full recalibration when that fits the held-out rows as well (Vuong V < 2 and at least "
                  f"{100 * (1 - equal_fraction):.0f} % of the pair's improvement). The accepted fit is continued for "
                  f"{polish_nfev} iterations in noise units before its remaining misfit is judged.")
+    if screening:
+        crit += (f" {len(screening)} screened terms (per-wheel actuator terms) were fitted only where the observations' "
+                 f"screen admitted them ({sum(f for _, f, _ in screening)} here): a free score on their own wheel's encoder "
+                 "reaching half of chi2_1(1 - alpha), and at least a quarter of their family's best; the others are not part "
+                 "of the library's test.")
     zb = np.concatenate([res0[ch] / obs.noise[ch] for ch in chans])
     za = np.concatenate([res1[ch] / obs.noise[ch] for ch in chans])
     fin = np.isfinite(zb) & np.isfinite(za)
     noise_chi2 = (float(zb[fin] @ zb[fin]), float(za[fin] @ za[fin]), int(fin.sum()), chosen.k if chosen is not None else 0)
     v = Verdict(status, obs, model, scale, res0, res1, pred0, pred1, failed0, failed1, regions, regions_after, scores,
                 chosen, equivalent, separations, chi2_base, float(frac), recal, crit, time.perf_counter() - t0, misfit,
-                ambiguity, noise_chi2, equal_fraction, withheld=withheld, withheld_reason=withheld_reason)
+                ambiguity, noise_chi2, equal_fraction, withheld=withheld, withheld_reason=withheld_reason,
+                screening=screening)
     if empirical and isinstance(obs, SingleWheelRecording) and status in ("unexplained", "ambiguous", "partly_explained"):
         from .wheel.empirical import search_wheel_empirical
 

@@ -32,8 +32,8 @@ gyro_scale           gyro scale-factor error (readings only)              (measu
 speed_saturation_<W> one wheel's speed servo capped at a rim speed         commands the servo follows
 speed_shortfall_<W>  one wheel's speed servo reaches a fraction of its     (:func:`actuator_commands`;
                      command                                               per-wheel actuator terms,
-servo_lag_<W>        one wheel's speed servo lags more (extra 1st order)   only in
-steer_saturation_<W> one wheel's steering servo capped at an angle         ``DRIVE_CANDIDATES_WITH_ACTUATORS``)
+servo_lag_<W>        one wheel's speed servo lags more (extra 1st order)   screened: fitted only on the
+steer_saturation_<W> one wheel's steering servo capped at an angle         wheels the data implicate)
 soil_stiffness       soil stiffer / softer than believed (k)              ``soil_stiffness_scale``
 wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
 recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
@@ -86,6 +86,7 @@ from ...sim.truth import WHEELS, Truth
 from ..wheel.candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
+           "BASE_DRIVE_CANDIDATES",
            "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
            "disturbance_from_truth",
@@ -461,15 +462,19 @@ def _actuator_candidates() -> list[Candidate]:
             (("steer_max", "deg", 1.0, 60.0, 20.0, _D),),
             _term_build(f"steer_max.{w}", 0.0), (f"torque_{w}", "yaw_rate", "dheading", "dy_body"),
             starts=((5.0,), (15.0,), (30.0,)), threshold=True, family=f"steer_{w}"))
-    return out
+    return [replace(c, screened=True) for c in out]
 
 
 ACTUATOR_CANDIDATES: tuple[Candidate, ...] = tuple(_actuator_candidates())
 """Per-wheel actuator terms (issue 24): wheel-speed saturation (an absolute cap, and a shortfall
-in proportion to the command), extra servo lag and steering saturation of each wheel. Not in :data:`DRIVE_CANDIDATES` by default: twelve more terms cost
-every drive diagnosis their fits, and their effect on the drive benchmark's false alarms is not
-measured yet; :data:`DRIVE_CANDIDATES_WITH_ACTUATORS` (``offnominal discrepancy drive
---per-wheel-actuators``) is the library with them."""
+in proportion to the command), extra servo lag and steering saturation of each wheel; part of
+:data:`DRIVE_CANDIDATES`, *screened* (``Candidate.screened``): sixteen more fits on every drive
+would cost each diagnosis about as much again, so a term is fitted only on a wheel the data
+implicate -- a located region on that wheel's own channels, or a free score on its own encoders
+(the wheel-speed encoder's segment rows for the speed terms, the steering encoder's settled ticks
+for the steering cap) that reaches half of what an accepted term must gain
+(:meth:`offline.discrepancy.drive.diagnosis.DriveRecording.screen`). The family (``speed_<W>``,
+``steer_<W>``) names the wheel and which encoder screens it."""
 
 
 def _wheel_candidates() -> list[Candidate]:
@@ -542,8 +547,18 @@ DRIVE_CANDIDATES: tuple[Candidate, ...] = (
 )
 """The rover-level library (module table)."""
 
-DRIVE_CANDIDATES_WITH_ACTUATORS: tuple[Candidate, ...] = DRIVE_CANDIDATES + ACTUATOR_CANDIDATES
-"""The rover-level library with the per-wheel actuator terms (:data:`ACTUATOR_CANDIDATES`)."""
+BASE_DRIVE_CANDIDATES: tuple[Candidate, ...] = DRIVE_CANDIDATES
+"""The rover-level library without the per-wheel actuator terms (the default library before issue 24)."""
+
+DRIVE_CANDIDATES = BASE_DRIVE_CANDIDATES + ACTUATOR_CANDIDATES
+"""The rover-level library (module table): the base terms, always fitted, and the per-wheel
+actuator terms, fitted on the wheels the screen admits (:data:`ACTUATOR_CANDIDATES`)."""
+
+DRIVE_CANDIDATES_WITH_ACTUATORS: tuple[Candidate, ...] = BASE_DRIVE_CANDIDATES + tuple(
+    replace(c, screened=False) for c in ACTUATOR_CANDIDATES)
+"""The rover-level library with every per-wheel actuator term fitted on every drive, unscreened
+(``offnominal discrepancy --recording ... --per-wheel-actuators``: slower; what the screen is
+checked against on the benchmark)."""
 
 
 TABLE_BUILDER_TAKES: dict[str, str] = {

@@ -78,7 +78,7 @@ from rtctl.recording import RecordingError, read_recording
 
 from ...physics.params import ParameterSet
 from ...rover.scenario import Scenario
-from ...sim.actuators import ActuatorConfig
+from ...sim.actuators import ActuatorConfig, Actuators
 from ...sim.plant import SimulationError
 from ...sim.sensors import SensorConfig
 from ...sim.simulator import RoverSimulator
@@ -120,6 +120,16 @@ explained' with the named physics still reported. On the 24 s hub-drag test driv
 tether absorb 75 % of the excess and the yaw-rate misfit they leave has p = 3.3e-4: 'partly
 explained' at 0.01 / 14, 'explained' at 0.001 / 14."""
 
+SCREEN_FRACTION = 0.5
+"""A screened per-wheel term is fitted when its free score on its own wheel's encoder reaches this
+fraction of ``chi2_1(1 - alpha)`` (:meth:`DriveRecording.screen`): a margin of two on the least a
+one-parameter term must gain to pass the library's test."""
+SCREEN_FAMILY_FRACTION = 0.25
+"""A screened term whose free score is below this fraction of its family's best is not fitted
+(:meth:`DriveRecording.screen`: a look-alike must reach 75 % of the best's improvement)."""
+SCREEN_GRID = 41
+"""Parameter values of a screened term's free score (evenly over its box, plus its starts)."""
+
 TICK_CHANNELS = (*(f"omega_{w}" for w in WHEELS), *(f"torque_{w}" for w in WHEELS), "yaw_rate", "roll", "pitch")
 """Per-tick readings averaged over a segment."""
 POSE_CHANNELS = ("dx_body", "dy_body", "dheading")
@@ -154,6 +164,10 @@ class DriveData:
         Fix noise (position m, heading rad) from the fixes' second differences.
     heading_source : str
         ``pose fixes`` or ``gyro integration`` (no pose source recorded).
+    steer_reading : ndarray (n, 4) or None
+        The steering encoders at the ticks, rad (NaN where not finite). Not a channel of the
+        observations (the model takes the commanded steering); it screens the steering-saturation
+        terms (:meth:`DriveRecording.screen`).
     """
 
     source: str
@@ -165,6 +179,7 @@ class DriveData:
     pose: NDArray[np.float64]
     pose_sigma: tuple[float, float]
     heading_source: str
+    steer_reading: NDArray[np.float64] | None = None
 
     @classmethod
     def from_file(cls, path: str | Path, gyro_bias: float = 0.0) -> "DriveData":
@@ -231,7 +246,9 @@ class DriveData:
             pose = np.stack([np.full_like(t, np.nan), np.full_like(t, np.nan), hd], axis=1)
             sxy = sh = math.nan
             src = "gyro integration (fewer than a quarter of the ticks carry a pose fix; no pose channels)"
-        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src)
+        enc = np.array([m.steer_angle for m in ms], dtype=float)
+        enc = np.where(np.isfinite(enc), enc, np.nan)
+        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src, enc)
 
 
 def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
@@ -673,6 +690,108 @@ class DriveRecording:
         """Same segments, other measurements (for synthetic studies)."""
         return replace(self, measured={k: np.asarray(v, dtype=float).copy() for k, v in measured.items()})
 
+    def screen(self, candidates: Sequence[Any], regions: Sequence[Any], z0: NDArray[np.float64],
+               scale: Mapping[str, float], alpha: float, model: "DriveModel"
+               ) -> dict[str, tuple[bool, str, tuple[float, ...] | None]]:
+        """Which screened candidates (the per-wheel actuator terms) are fitted: ``{key: (fitted, why,
+        start)}``, ``start`` the parameter (reported units) of the best free score (None without one):
+        the engine fits the term from it and its declared start instead of its declared starts (the
+        free score's grid is a search over the whole box, the declared starts three points of it).
+
+        A term of wheel ``W`` (its family ``speed_W`` or ``steer_W``) acts on what that wheel's
+        servo does, which that wheel's own encoder measures directly. It is fitted when its **free
+        score** reaches ``SCREEN_FRACTION`` (one half) of ``chi2_1(1 - alpha)``, the least a
+        one-parameter term must gain to pass the library's test: the largest improvement, over a
+        grid of its parameter (:data:`SCREEN_GRID` points over its box, its start and its starts),
+        that the term's change of the commands alone makes on the wheel's own encoder, with no
+        re-simulation --
+
+           - speed terms: on the ``omega_W`` rows in the units of the held-out test (noise x
+             dispersion), the predicted wheel speed moved by the change of that wheel's rim-speed
+             command over the shearing radius (the wheel follows its servo's reference: the
+             believed lag, 0.05 s, is a quarter of a tick). A torque-limited wheel does not follow,
+             so the score is optimistic there, the safe side of a screen;
+           - the steering cap: on every tick of the steering encoder, with its white noise from
+             the first differences: the encoder minus the believed servo angle (the recorded
+             commands through the simulator's own steering servo, :class:`~offline.sim.actuators.Actuators`:
+             its rate limit, range and the scenario's failures) against the capped commands'
+             servo angle minus the believed one.
+
+        Terms of one family (a wheel's three speed terms) are never combined, so one of them
+        matters beside the family's best only as its look-alike, which must reach 75 % of the
+        best's held-out improvement: a term whose free score is below :data:`SCREEN_FAMILY_FRACTION`
+        (a quarter) of its family's best is not fitted either (a servo lag scores 7 on the
+        encoder of a wheel whose cap scores 476).
+
+        Without that encoder (no ``omega_W`` channel, no steering readings) a term is fitted when
+        a located region lies on one of its wheel's channels (``omega_W``, ``torque_W``). A
+        located region on the wheel's channels without an encoder score (a hub dragging on that
+        wheel's torque while its servo holds the speed) does not implicate the servo. Otherwise
+        the term is left out of the library's test; the reason is reported either way.
+        """
+        from scipy.stats import chi2 as _chi2
+
+        need = SCREEN_FRACTION * float(_chi2.ppf(1.0 - alpha, 1))
+        params = model.params
+        rs = params.wheel.shearing_radius
+        believed = [model.servo_steer(d, d.rim_cmd, d.steer_cmd) for d in self.drives]
+        out: dict[str, tuple[bool, str, tuple[float, ...] | None]] = {}
+        scores: dict[str, tuple[str, float]] = {}
+        chans = list(self.channels)
+        for c in candidates:
+            kind, _, w = c.family.partition("_")
+            if kind not in ("speed", "steer") or w not in WHEELS:
+                out[c.key] = (True, "not a per-wheel actuator term: always fitted", None)
+                continue
+            hit = [r.channel for r in regions if r.channel in (f"omega_{w}", f"torque_{w}")]
+            where = f"; located regions on {', '.join(sorted(set(hit)))}" if hit else ""
+            if (f"omega_{w}" not in chans if kind == "speed" else any(d.steer_reading is None for d in self.drives)):
+                out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")), None)
+                continue
+            i = WHEELS.index(w)
+            grid = np.unique(np.concatenate([np.linspace(c.lower[0], c.upper[0], SCREEN_GRID),
+                                             [s[0] for s in c.starts], [c.params[0][4]]]))
+            best, arg = -math.inf, float(grid[0])
+            for th in grid:
+                terms = rover_terms(c.build(np.array([th]) * c.to_si, params))
+                if kind == "speed":
+                    ch = f"omega_{w}"
+                    z = z0[:, chans.index(ch)]
+                    dz = np.zeros(len(self))
+                    for k, (d, seg) in enumerate(zip(self.drives, self.segments)):
+                        rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        dom = (rim[:, i] - d.rim_cmd[:, i]) / rs
+                        dom = np.concatenate([dom[:1], dom[:-1]])  # tick j follows the command of tick j - 1
+                        rows = np.flatnonzero(self.drive == k)
+                        means = np.array([dom[a + 1:b + 1].mean() for a, b in seg.bounds])
+                        dz[rows] = means[self.segment[rows]] / (self.noise[ch][rows] * scale[ch])
+                    ok = np.isfinite(z) & np.isfinite(dz)
+                    g = float(np.sum(z[ok] ** 2 - (z[ok] - dz[ok]) ** 2))
+                else:
+                    g = 0.0
+                    for d, b in zip(self.drives, believed):
+                        assert d.steer_reading is not None
+                        rim, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        e = d.steer_reading[:, i] - b[:, i]
+                        de = model.servo_steer(d, rim, st)[:, i] - b[:, i]
+                        sel = np.isfinite(e)
+                        if sel.sum() < 3:
+                            continue
+                        sig = max(_difference_sigma(e[sel]), 1e-5)
+                        g += float(np.sum(e[sel] ** 2 - (e[sel] - de[sel]) ** 2)) / sig**2
+                if g > best:
+                    best, arg = g, float(th)
+            enc = "wheel-speed encoder" if kind == "speed" else "steering encoder"
+            out[c.key] = (bool(best >= need), f"free score on the {enc} {best:.3g} at {c.params[0][0]} {arg:.3g} "
+                                              f"{c.params[0][1]} {'>=' if best >= need else '<'} {need:.3g}{where}", (arg,))
+            scores[c.key] = (c.family, best)
+        for key, (fam, g) in scores.items():
+            top = max(v for f, v in scores.values() if f == fam)
+            if out[key][0] and g < SCREEN_FAMILY_FRACTION * top:
+                out[key] = (False, out[key][1] + f", below {SCREEN_FAMILY_FRACTION:g} of its family's best ({top:.3g})",
+                            out[key][2])
+        return out
+
     def folds(self, k: int) -> NDArray[np.int_]:
         """Held-out time segments: each drive cut into ``k`` contiguous blocks of time (fold = block)."""
         out = np.empty(len(self), dtype=int)
@@ -809,6 +928,23 @@ class DriveModel:
             if hit is not None:
                 self._trim()
                 self._cache[key] = hit
+
+    def servo_steer(self, d: DriveData, rim_cmd: NDArray[np.float64], steer_cmd: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The steering servos' angles at the ticks (n, 4; rad) for these per-tick commands: the
+        simulator's own servo (:class:`~offline.sim.actuators.Actuators`: rate limit, range, the
+        scenario's failures) started settled at the first commands and moved one command period
+        per tick by the previous tick's commands, as the re-simulation and the recording do. No
+        plant solve."""
+        assert self.actuators is not None
+        acts = Actuators(self.actuators, dict(self.scenario.failures), self.params.wheel.shearing_radius)
+        acts.reset(tuple(rim_cmd[0]), tuple(steer_cmd[0]))
+        out = np.empty((len(d.t), 4))
+        out[0] = acts.steer
+        for k in range(1, len(d.t)):
+            acts.command(tuple(rim_cmd[k - 1]), tuple(steer_cmd[k - 1]))
+            acts.advance(d.period)
+            out[k] = acts.steer
+        return out
 
     def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
@@ -977,7 +1113,9 @@ def diagnose_drives(
         Candidates tried on top of the first explanation (a tether under a slope ranks third on its
         own, behind the IMU tilt that mimics the slope's roll and pitch).
     candidates, recalibrate
-        The library (default :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`) and whether
+        The library (default :data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`: its
+        per-wheel actuator terms are screened, fitted only on the wheels whose own encoders
+        implicate them, :meth:`DriveRecording.screen`; the verdict lists the screen) and whether
         the soil recalibration joins it.
     stride : int
         Plant solved every ``stride`` ticks (:class:`DriveModel`).

@@ -280,6 +280,11 @@ class Candidate:
         (an anchor's distance when the rover drove a metre: the pull's tension and direction are
         what the drive shows). Their intervals are reported, but a wide one does not make the
         verdict ambiguous.
+    screened : bool
+        Fitted only when the observations' screen admits it (``observations.screen``: the drive's
+        per-wheel actuator terms, admitted on the wheels the located regions or their own
+        encoders implicate, :meth:`offline.discrepancy.drive.diagnosis.DriveRecording.screen`);
+        with observations that have no screen it is always fitted.
     """
 
     key: str
@@ -293,6 +298,7 @@ class Candidate:
     threshold: bool = False
     null: tuple[float, ...] | None = None
     nuisance: tuple[str, ...] = ()
+    screened: bool = False
 
     @property
     def k(self) -> int:

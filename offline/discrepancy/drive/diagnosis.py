@@ -95,6 +95,7 @@ from .candidates import (
     rover_terms,
     truth_from_terms,
 )
+from .wheel_set import channel_unit, library_for, tick_channels
 
 __all__ = ["DriveDataError", "DriveData", "DriveRecording", "DriveModel", "load_drives", "diagnose_drives",
            "accepted_extension", "held_out_drives", "TICK_CHANNELS", "POSE_CHANNELS", "DRIVE_ALPHA",
@@ -136,7 +137,7 @@ class DriveDataError(ValueError):
 
 @dataclass(frozen=True)
 class DriveData:
-    """One recorded drive, tick by tick (SI; wheel order FR, FL, RR, RL).
+    """One recorded drive, tick by tick (SI; wheel order :attr:`wheels`).
 
     Attributes
     ----------
@@ -154,6 +155,9 @@ class DriveData:
         Fix noise (position m, heading rad) from the fixes' second differences.
     heading_source : str
         ``pose fixes`` or ``gyro integration`` (no pose source recorded).
+    wheels : tuple of str
+        The recording's wheel set (:attr:`rtctl.recording.Recording.wheels`; the mini rover's
+        FR, FL, RR, RL for a recording that names none), the order of every per-wheel column.
     """
 
     source: str
@@ -165,6 +169,7 @@ class DriveData:
     pose: NDArray[np.float64]
     pose_sigma: tuple[float, float]
     heading_source: str
+    wheels: tuple[str, ...] = WHEELS
 
     @classmethod
     def from_file(cls, path: str | Path, gyro_bias: float = 0.0) -> "DriveData":
@@ -204,12 +209,13 @@ class DriveData:
             i = int(np.flatnonzero(~np.all(np.isfinite(np.hstack([rim, steer])), axis=1))[0])
             raise DriveDataError(f"{name}: commands of seq {seq[i]} are not finite (commands are always finite)")
         rd: dict[str, NDArray[np.float64]] = {}
+        wheels = tuple(getattr(rec, "wheels", WHEELS))
         ws = np.array([m.wheel_speed for m in ms], dtype=float)
-        for i, w in enumerate(WHEELS):
+        for i, w in enumerate(wheels):
             rd[f"omega_{w}"] = ws[:, i]
         if all(m.motor_torque is not None for m in ms):
             tq = np.array([m.motor_torque for m in ms], dtype=float)
-            for i, w in enumerate(WHEELS):
+            for i, w in enumerate(wheels):
                 rd[f"torque_{w}"] = tq[:, i]
         rd["yaw_rate"] = np.array([m.yaw_rate for m in ms], dtype=float)
         rd["roll"] = np.array([m.roll for m in ms], dtype=float)
@@ -231,7 +237,7 @@ class DriveData:
             pose = np.stack([np.full_like(t, np.nan), np.full_like(t, np.nan), hd], axis=1)
             sxy = sh = math.nan
             src = "gyro integration (fewer than a quarter of the ticks carry a pose fix; no pose channels)"
-        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src)
+        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src, wheels)
 
 
 def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
@@ -443,8 +449,13 @@ class DriveRecording:
         if segment < 2:
             raise DriveDataError(f"segment = {segment} ticks; at least 2 are needed for the noise estimate")
         drives = tuple(drives)
+        for d in drives:
+            if d.wheels != model.wheels:
+                raise DriveDataError(f"{d.source}: the recording's wheels are {', '.join(d.wheels)}; the believed scenario "
+                                     f"{model.scenario.name}'s rover has {', '.join(model.wheels)}: diagnose it with the "
+                                     "scenario of the rover that drove it")
         have = set.intersection(*(set(d.readings) for d in drives))
-        chans = [c for c in TICK_CHANNELS if c in have]
+        chans = [c for c in tick_channels(model.wheels) if c in have]
         if all(math.isfinite(d.pose[0, 0]) for d in drives):
             chans += list(POSE_CHANNELS)
         segs = tuple(_Segments.of(len(d.t), segment) for d in drives)
@@ -500,7 +511,7 @@ class DriveRecording:
         return cls(drives, segs, drive, segi, tuple(chans), {c: M[:, i] for i, c in enumerate(chans)},
                    {c: N[:, i] for i, c in enumerate(chans)}, features, src,
                    ", ".join(d.source for d in drives),
-                   units={c: _UNITS[c][0] for c in chans}, scale_out={c: _UNITS[c][1] for c in chans},
+                   units={c: channel_unit(c, _UNITS)[0] for c in chans}, scale_out={c: channel_unit(c, _UNITS)[1] for c in chans},
                    segment_corr=corr)
 
     def null_draw(self, rng: np.random.Generator, n: int, n_boot: int) -> NDArray[np.float64]:
@@ -732,10 +743,33 @@ class DriveModel:
     simulations: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
+        if getattr(self.scenario, "rover_file", None) is not None:
+            self._rover_file_defaults()
         if self.truth is None:
             self.truth = Truth.nominal(self.scenario.params, self.scenario.rover)
         self.actuators = self.actuators or ActuatorConfig()
         self.sensors = self.sensors or SensorConfig()
+
+    def _rover_file_defaults(self) -> None:
+        """A rover file's believed world and servos (issue 23): the simulator's own defaults for it
+        (:func:`offline.sim.simulator.rover_file_truth`, :func:`~offline.sim.simulator.rover_file_actuators`),
+        so the re-simulation is the rover's as the recording's simulator ran it."""
+        from ...sim.simulator import rover_file_actuators, rover_file_truth, suspension_plant_for
+
+        sc = self.scenario
+        if self.truth is None:
+            self.truth = rover_file_truth(sc, suspension_plant_for(sc.params, sc.rover_file, sc.exit_angle))
+        if len(self.truth.wheel_radius) != len(self.wheels):
+            raise DriveDataError(f"the believed world has {len(self.truth.wheel_radius)} wheel radii; the rover of "
+                                 f"scenario {sc.name} has {len(self.wheels)} wheels ({', '.join(self.wheels)})")
+        if self.actuators is None:
+            self.actuators = rover_file_actuators(sc.rover_file, sc.params.wheel.shearing_radius)
+
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """The believed rover's wheels (the scenario's: the mini rover's or a rover file's), in the
+        order of every per-wheel column."""
+        return tuple(self.scenario.wheels)
 
     @property
     def params(self) -> ParameterSet:
@@ -813,11 +847,11 @@ class DriveModel:
     def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         assert self.truth is not None and self.sensors is not None and self.actuators is not None
-        n = len(d.t)
-        ticks = {c: np.full(n, np.nan) for c in TICK_CHANNELS}
+        n, wheels = len(d.t), self.wheels
+        ticks = {c: np.full(n, np.nan) for c in tick_channels(wheels)}
         body = np.full((n, 3), np.nan)
         try:
-            truth, act, _ = truth_from_terms(self.params, self.truth, ext)
+            truth, act, _ = truth_from_terms(self.params, self.truth, ext, wheels)
             # pose-dependent hooks (an anchored tether) see the recorded pose of the tick being solved
             # (the simulator's own clock skips the ticks interpolated in steady stretches)
             path, clock = _recorded_pose(d), [0.0]
@@ -841,17 +875,17 @@ class DriveModel:
             hd = d.pose[:, 2] + heading_offset
             sim.heading = float(hd[0])
             # the commands each wheel's servos really follow (per-wheel actuator terms)
-            rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period)
+            rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period, wheels)
             if extra is not None:
                 rim_cmd, steer_cmd = extra.commands(rim_cmd, steer_cmd, d.t)
             sim.start(Commands(0.0, 0, tuple(rim_cmd[0]), tuple(steer_cmd[0])))
 
-            servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
+            servo, omega = np.full((n, len(wheels)), np.nan), np.full((n, len(wheels)), np.nan)
             failed = np.zeros(n, dtype=bool)
 
             def record(k: int) -> None:
                 m = sim.measure()
-                for i, w in enumerate(WHEELS):
+                for i, w in enumerate(wheels):
                     ticks[f"omega_{w}"][k] = m.wheel_speed[i]
                     ticks[f"torque_{w}"][k] = m.motor_torque[i]  # type: ignore[index]
                 ticks["yaw_rate"][k], ticks["roll"][k], ticks["pitch"][k] = m.yaw_rate, m.roll, m.pitch
@@ -897,7 +931,7 @@ class DriveModel:
                                and np.allclose(acts.omega_servo, acts.omega_cmd, rtol=1e-3, atol=1e-6))
             for ch, v in ticks.items():
                 ticks[ch] = np.interp(np.arange(n), solved, v[solved])
-            for i, w in enumerate(WHEELS):  # wheel speed: the servo's every tick, plus what the plant changed
+            for i, w in enumerate(wheels):  # wheel speed: the servo's every tick, plus what the plant changed
                 ch = f"omega_{w}"
                 ticks[ch] = servo[:, i] + np.interp(np.arange(n), solved, (omega[solved, i] - servo[solved, i]))
             for j in range(3):
@@ -935,7 +969,7 @@ class DriveModel:
 
     def recalibration(self) -> Any:
         """The soil recalibration candidate (:func:`offline.discrepancy.drive.candidates.recalibration_candidate`)."""
-        return recalibration_candidate(self.params)
+        return library_for([recalibration_candidate(self.params)], self.scenario)[0]
 
     def parameter_set(self, ext: RoverExtension, note: str = "") -> ParameterSet:
         """The believed parameter set with the extension's soil changes (for "parameters off")."""
@@ -1003,7 +1037,10 @@ def diagnose_drives(
         When the library does not explain the drive (verdict ``unexplained``, ``ambiguous`` or
         ``partly_explained``), model what it lacks with the generic empirical family
         (:func:`offline.discrepancy.drive.empirical.search_empirical`, same seed and level); the result
-        is ``verdict.empirical`` and the library's verdict is kept.
+        is ``verdict.empirical`` and the library's verdict is kept. Not for a rover file's recording
+        in this version (the empirical terms act through the simulator's disturbance hook, which
+        the rover-file plant does not take): ``verdict.empirical`` stays None and ``progress``
+        says so.
     workers : int
         Processes the independent re-simulations run on (:func:`offline.discrepancy.engine.diagnose`);
         the verdict does not depend on it, bit for bit. 1 (default): this process; the command
@@ -1022,6 +1059,7 @@ def diagnose_drives(
                          f"{1.0 / (n_boot + 1):.2g} is above the level, so nothing could be significant; use at least "
                          f"{int(math.ceil(1.0 / alpha))} draws (default 3 / alpha) or a larger alpha")
     model = DriveModel(scenario, truth, actuators, sensors, stride=stride)
+    candidates = library_for(candidates, scenario)  # the rover's wheels (the mini rover's: as given)
     assert model.sensors is not None
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = replace(DriveRecording.build(drives, model, segment), family_alpha=alpha)
@@ -1029,7 +1067,11 @@ def diagnose_drives(
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
                  polish_nfev=0, workers=workers)
-    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
+    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained") and scenario.rover_file is not None:
+        if progress is not None:
+            progress(f"no empirical search: its terms act through the simulator's disturbance hook, which the plant of "
+                     f"the rover file {scenario.rover_file.name} does not take in this version")
+    elif empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
         from .empirical import search_empirical
 
         t0 = time.perf_counter()
@@ -1045,7 +1087,7 @@ def accepted_extension(v: Verdict) -> RoverExtension:
     if c is None or v.status in ("agree", "unexplained", "ambiguous"):
         return RoverExtension()
     model: DriveModel = v.model
-    lib = {x.key: x for x in [*DRIVE_CANDIDATES, model.recalibration()]}
+    lib = {x.key: x for x in [*library_for(DRIVE_CANDIDATES, model.scenario), model.recalibration()]}
     e, i = RoverExtension(), 0
     for k in c.keys:
         cand = lib[k]

@@ -75,7 +75,8 @@ def test_the_library_on_the_six_wheels():
     """The mini rover's library is unchanged for the mini rover; on the MER-class file every per-wheel
     family is made for its six wheels (steering offsets only for the four steerable corner wheels), the
     disturbance-hook terms are left out (the rover-file plant takes no hook), and a renamed candidate
-    sets its own wheel's term (``radius_scale.LM``), which :class:`RoverExtension` accepts."""
+    sets its own wheel's term (``radius_scale.LM``), which :class:`RoverExtension` accepts. A library
+    already made for the rover is kept as it is (``diagnose_drives`` makes it again)."""
     assert library_for(DRIVE_CANDIDATES, MINI) == DRIVE_CANDIDATES
     lib = {c.key: c for c in library_for(DRIVE_CANDIDATES_WITH_ACTUATORS, MER)}
     assert {k for k in lib if k.startswith("wheel_radius_") and k != "wheel_radius_all"} == {f"wheel_radius_{w}" for w in MER.wheels}
@@ -87,6 +88,12 @@ def test_the_library_on_the_six_wheels():
     assert c.build(np.array([-0.05]), MER.params).terms == {"radius_scale.LM": pytest.approx(0.95, rel=1e-15)}  # SI: -5 %
     assert c.family == "radius_LM" and "torque_LM" in c.channels and "LM wheel" in c.physics
     assert "torque_LR" in lib["terrain_slope"].channels and "torque_FR" not in lib["terrain_slope"].channels
+    again = library_for(tuple(lib.values()), MER)  # idempotent: a library made for the rover is kept
+    assert list(again) == list(lib.values())
+    only_fr = library_for([c for c in DRIVE_CANDIDATES if c.key == "wheel_radius_FR"], MER)
+    assert [c.key for c in only_fr] == [f"wheel_radius_{w}" for w in MER.wheels]  # a mini rover wheel: every wheel's
+    only_rr = library_for([c for c in DRIVE_CANDIDATES if c.key == "wheel_radius_RR"], MER)
+    assert [c.key for c in only_rr] == ["wheel_radius_RR"]  # a name of the rover's own: that wheel (MER's right rear)
     with pytest.raises(ValueError, match="unknown rover term 'radius.LM'"):
         RoverExtension(terms={"radius.LM": 1.0})
 

@@ -62,9 +62,9 @@ def channel_unit(channel: str, units: dict[str, tuple[str, float]]) -> tuple[str
     raise KeyError(f"no unit for channel {channel!r}; channels are omega_<wheel>, torque_<wheel> and {sorted(units)}")
 
 
-def _wheel_of(key: str) -> str | None:
-    """The mini rover's wheel a per-wheel candidate key ends with (``wheel_radius_RR``: RR), or None."""
-    for w in WHEELS:
+def _wheel_of(key: str, names: Sequence[str] = WHEELS) -> str | None:
+    """The wheel of ``names`` a per-wheel candidate key ends with (``wheel_radius_RR``: RR), or None."""
+    for w in sorted(names, key=len, reverse=True):
         if key.endswith(f"_{w}"):
             return w
     return None
@@ -89,7 +89,11 @@ def _renamed_build(build: Callable[[NDArray[np.float64], ParameterSet], Any], ol
 def _channels(channels: Sequence[str], wheels: Sequence[str], old: str | None = None, new: str | None = None
               ) -> tuple[str, ...]:
     """A candidate's report channels on a wheel set: one wheel's channel renamed (``old`` -> ``new``),
-    or the mini rover's four ``omega_`` / ``torque_`` channels replaced by the wheel set's."""
+    or, where they name a mini rover wheel the set lacks, the four ``omega_`` / ``torque_`` channels
+    replaced by the wheel set's (channels already on the set are kept)."""
+    if old is None and not any(c.partition("_")[0] in ("omega", "torque") and c.partition("_")[2] in WHEELS
+                               and c.partition("_")[2] not in wheels for c in channels):
+        return tuple(channels)
     out: list[str] = []
     for c in channels:
         kind, _, w = c.partition("_")
@@ -110,8 +114,12 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
     ----------
     candidates : sequence of Candidate
         A library written for the mini rover (:data:`~offline.discrepancy.drive.candidates.DRIVE_CANDIDATES`
-        or a selection of it); a per-wheel family is made for the rover file's wheels if the
-        library holds any of its members (its ``FR`` member is the template).
+        or a selection of it), or one already made for this rover (kept: the function is
+        idempotent). A per-wheel family (candidates whose keys differ only in the wheel name at
+        the end) with a member naming a wheel the rover lacks is the mini rover's: it is made for
+        each of the rover file's wheels (its ``FR`` member is the template). A family whose
+        members all name the rover's own wheels is kept as given (MER's ``RR`` is its right rear
+        wheel: ``wheel_radius_RR`` alone is that wheel's).
     scenario : Scenario
 
     Returns
@@ -131,14 +139,20 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
     from .candidates import DRIVE_CANDIDATES_WITH_ACTUATORS
 
     wheels = tuple(scenario.wheels)
+    names = (*WHEELS, *(w for w in wheels if w not in WHEELS))
     steerable = {w.name for w in rf.wheels if w.steerable}
     templates = {c.key: c for c in DRIVE_CANDIDATES_WITH_ACTUATORS if _wheel_of(c.key) == _TEMPLATE}
+    family: dict[str, list[tuple[Candidate, str]]] = {}
+    for c in candidates:
+        w = _wheel_of(c.key, names)
+        if w is not None:
+            family.setdefault(c.key[:-len(w)], []).append((c, w))
     out: list[Candidate] = []
     done: set[str] = set()
     for c in candidates:
         if c.key in HOOK_CANDIDATES:
             continue
-        w = _wheel_of(c.key)
+        w = _wheel_of(c.key, names)
         if w is None:
             out.append(replace(c, channels=_channels(c.channels, wheels)))
             continue
@@ -146,7 +160,11 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
         if stem in done:
             continue
         done.add(stem)
-        tpl = c if w == _TEMPLATE else templates.get(stem + _TEMPLATE)
+        members = family[stem]
+        if all(m in wheels for _, m in members):  # already the rover's own wheels
+            out += [m for m, _ in members]
+            continue
+        tpl = next((m for m, x in members if x == _TEMPLATE), None) or templates.get(stem + _TEMPLATE)
         if tpl is None:
             raise DriveCandidateError(f"candidate {c.key}: no {stem}{_TEMPLATE} template to make it for the wheels of "
                                       f"{rf.name} ({', '.join(wheels)})")

@@ -131,3 +131,17 @@ def test_a_noise_only_six_wheel_drive_gives_no_false_alarm(tmp_path):
                         sensors=_sensors(), segments=STRAIGHT)
     v = _diagnose(path, seed=2)
     assert v.status == "agree" and v.chosen is None and not v.regions, v.summary()
+
+
+def test_a_noise_only_backward_six_wheel_drive_gives_no_false_alarm(tmp_path):
+    """Driving backward (Spirit's direction; ``mer_nominal_backward``: the plant in the travel frame,
+    readings, commands and pose in the body frame): the re-simulation's body velocities, servo speeds
+    and heading are turned into the body frame, so a drive with every wheel as believed agrees. (Before
+    the turn: 'partly explained', a 10 N drawbar pull with every radius 20 % smaller, dx_body off by
+    twice the travel.)"""
+    sc = load_scenario(ROOT / "offline" / "scenarios" / "rovers" / "mer_nominal_backward.toml")
+    path = record_drive(tmp_path / "mer_backward.mcap", sc, seed=5, duration=DURATION, sensors=_sensors(),
+                        segments=(DriveSegment(0.0, DURATION, (-SPEED,) * 6, (0.0,) * 6, "straight backward"),))
+    lib = [c for c in library_for(DRIVE_CANDIDATES, sc) if c.key in LIBRARY]
+    v = diagnose_drives([path], sc, segment=5, candidates=lib, recalibrate=False, empirical=False, seed=5)
+    assert v.status == "agree" and v.chosen is None and not v.regions, v.summary()

@@ -872,7 +872,13 @@ class DriveModel:
         self.simulations += 1
         try:
             sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0, disturbance=hook)
+            # a backward drive (issue 23) runs its plant in the travel frame, its readings in the body frame
+            # (:meth:`RoverSimulator.measure`): the travel heading is the body's plus pi, the body
+            # velocities and the servo speeds change sign (yaw rate: the same)
             hd = d.pose[:, 2] + heading_offset
+            if sim.backward:
+                hd = hd + math.pi
+            flip = np.array([-1.0, -1.0, 1.0]) if sim.backward else np.ones(3)
             sim.heading = float(hd[0])
             # the commands each wheel's servos really follow (per-wheel actuator terms)
             rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period, wheels)
@@ -889,8 +895,8 @@ class DriveModel:
                     ticks[f"omega_{w}"][k] = m.wheel_speed[i]
                     ticks[f"torque_{w}"][k] = m.motor_torque[i]  # type: ignore[index]
                 ticks["yaw_rate"][k], ticks["roll"][k], ticks["pitch"][k] = m.yaw_rate, m.roll, m.pitch
-                body[k] = sim.z[:3]
-                servo[k] = sim.act.omega_servo
+                body[k] = sim.z[:3] * flip
+                servo[k] = sim.act.omega_servo * flip[0]
                 omega[k] = m.wheel_speed
 
             record(0)
@@ -904,7 +910,7 @@ class DriveModel:
                 last_of_regime = k < n - 1 and bool(np.any(cmd[k] != cmd[k - 1]))
                 if steady and not last_of_regime and k % self.stride and k != n - 1:
                     acts.advance(d.period)  # actuators follow every tick; the plant is solved where needed
-                    servo[k] = acts.omega_servo
+                    servo[k] = acts.omega_servo * flip[0]
                     continue
                 sim.heading = float(hd[k])
                 clock[0] = float(d.t[k])

@@ -86,7 +86,7 @@ from ...sim.truth import WHEELS, Truth
 from ..wheel.candidates import Candidate
 
 __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDIDATES_WITH_ACTUATORS",
-           "PER_WHEEL_ACTUATOR_KEYS", "PER_WHEEL_TERMS", "is_rover_key", "neutral_value", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
+           "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
            "disturbance_from_truth",
            "AnchoredTether", "Hooks", "PosePath",
@@ -125,6 +125,9 @@ def neutral_value(key: str) -> float:
     if key in NEUTRAL_VALUES or not dot:
         return NEUTRAL_VALUES.get(key, math.nan)
     return NEUTRAL_VALUES.get(f"{term}.FR", math.nan)
+
+
+__all__ += ["PER_WHEEL_TERMS", "is_rover_key", "neutral_value"]  # issue 23: any rover's wheels
 
 MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""

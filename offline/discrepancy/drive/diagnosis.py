@@ -155,9 +155,6 @@ class DriveData:
         Fix noise (position m, heading rad) from the fixes' second differences.
     heading_source : str
         ``pose fixes`` or ``gyro integration`` (no pose source recorded).
-    wheels : tuple of str
-        The recording's wheel set (:attr:`rtctl.recording.Recording.wheels`; the mini rover's
-        FR, FL, RR, RL for a recording that names none), the order of every per-wheel column.
     """
 
     source: str
@@ -169,7 +166,14 @@ class DriveData:
     pose: NDArray[np.float64]
     pose_sigma: tuple[float, float]
     heading_source: str
-    wheels: tuple[str, ...] = WHEELS
+
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """The recording's wheel set, the order of every per-wheel column (issue 23): the wheels of
+        its ``omega_<W>`` readings, which :meth:`from_file` takes from
+        :attr:`rtctl.recording.Recording.wheels` in its order (the mini rover's FR, FL, RR, RL for a
+        recording that names none)."""
+        return tuple(k[len("omega_"):] for k in self.readings if k.startswith("omega_"))
 
     @classmethod
     def from_file(cls, path: str | Path, gyro_bias: float = 0.0) -> "DriveData":
@@ -237,7 +241,7 @@ class DriveData:
             pose = np.stack([np.full_like(t, np.nan), np.full_like(t, np.nan), hd], axis=1)
             sxy = sh = math.nan
             src = "gyro integration (fewer than a quarter of the ticks carry a pose fix; no pose channels)"
-        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src, wheels)
+        return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src)
 
 
 def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:

@@ -19,7 +19,7 @@ torque channels are as noisy relative to the torques as on the mini rover.
 Budget: 12 s drives (12 segments of 5 ticks), a library of the six wheels' radii and their
 look-alikes (slope, IMU tilt, drawbar pull, soil stiffness, every wheel's radius, the front
 wheels' steering offsets), no soil recalibration: 24 CPU-s (22.3 user + 2.0 sys) for this file's five
-tests (measured, one process, ``-n 0``; the worn wheel about 7, each noise-only drive about 5) with the six-wheel plant's compiled wheel batch cached (its one-off compile: about 16
+tests (measured, one process, ``-n 0``; wall 17, 14 and 13 s for the three diagnoses on the loaded machine) with the six-wheel plant's compiled wheel batch cached (its one-off compile: about 16
 CPU-s). The full library, 20 s drives, another worn wheel and more noise seeds:
 ``tests/bench/bench_drive_discrepancy_any_rover.py`` (``results_drive_discrepancy_any_rover.md``).
 

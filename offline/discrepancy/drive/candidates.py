@@ -107,6 +107,29 @@ PER_WHEEL_ACTUATOR_KEYS = (*(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fr
                            *(f"wheel_lag.{w}" for w in WHEELS), *(f"steer_max.{w}" for w in WHEELS))
 """Per-wheel actuator terms (applied to the commands a wheel's servos receive, :func:`actuator_commands`)."""
 
+PER_WHEEL_TERMS = ("radius_scale", "steer_offset", "rim_speed_max", "speed_fraction", "wheel_lag", "steer_max")
+"""Rover terms of one wheel, ``<term>.<wheel>``: :data:`ROVER_KEYS` names the mini rover's wheels; a
+rover file's wheels (issue 23) take the same terms under their own names (:func:`is_rover_key`)."""
+
+
+def is_rover_key(key: str) -> bool:
+    """Whether ``key`` is a rover term: one of :data:`ROVER_KEYS`, or a per-wheel term
+    (:data:`PER_WHEEL_TERMS`) of any wheel name (a rover file's wheels, issue 23)."""
+    term, dot, wheel = key.partition(".")
+    return key in ROVER_KEYS or (bool(dot) and term in PER_WHEEL_TERMS and bool(wheel))
+
+
+def neutral_value(key: str) -> float:
+    """The value of a rover term that changes nothing (:data:`NEUTRAL_VALUES`, whatever the wheel's
+    name); NaN when it has none."""
+    term, dot, wheel = key.partition(".")
+    if key in NEUTRAL_VALUES or not dot:
+        return NEUTRAL_VALUES.get(key, math.nan)
+    return NEUTRAL_VALUES.get(f"{term}.FR", math.nan)
+
+
+__all__ += ["PER_WHEEL_TERMS", "is_rover_key", "neutral_value"]  # issue 23: any rover's wheels
+
 MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
 
@@ -134,7 +157,7 @@ class RoverTerms(dict[str, float]):
         re-simulation is bit for bit the one without it, and a fit's start at the believed model
         is the believed model's simulation)."""
         return tuple(sorted((k, float(v)) for k, v in self.items()
-                            if k not in MEASUREMENT_KEYS and NEUTRAL_VALUES.get(k, math.nan) != v))
+                            if k not in MEASUREMENT_KEYS and neutral_value(k) != v))
 
 
 @dataclass(frozen=True)
@@ -159,8 +182,9 @@ class RoverExtension:
 
     def __post_init__(self) -> None:
         for k, v in self.terms.items():
-            if k not in ROVER_KEYS:
-                raise DriveCandidateError(f"unknown rover term {k!r}; known: {list(ROVER_KEYS)}")
+            if not is_rover_key(k):
+                raise DriveCandidateError(f"unknown rover term {k!r}; known: {list(ROVER_KEYS)} (per-wheel terms "
+                                          f"{list(PER_WHEEL_TERMS)} also for a rover file's wheels: <term>.<wheel>)")
             if not math.isfinite(float(v)):
                 raise DriveCandidateError(f"rover term {k} = {v!r} is not finite")
         for k, v in self.soil.items():
@@ -391,7 +415,7 @@ def _term_build(key: str, base: float) -> Callable[[NDArray[np.float64], Paramet
 
 
 def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], steer_cmd: NDArray[np.float64],
-                      period: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                      period: float, wheels: Sequence[str] = WHEELS) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The commands each wheel's servos really follow under the per-wheel actuator terms.
 
     ``speed_fraction.<W>``: the wheel-speed servo reaches only this fraction of its command
@@ -412,6 +436,8 @@ def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], 
         Recorded per-tick commands (m/s, rad), wheel order :data:`~offline.sim.truth.WHEELS`.
     period : float
         Command period, s.
+    wheels : sequence of str
+        The columns' wheel names (default the mini rover's; a rover file's, issue 23).
 
     Returns
     -------
@@ -419,7 +445,7 @@ def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], 
         Copies with the terms applied.
     """
     rim, steer = np.array(rim_cmd, dtype=float), np.array(steer_cmd, dtype=float)
-    for i, w in enumerate(WHEELS):
+    for i, w in enumerate(wheels):
         tau = terms.get(f"wheel_lag.{w}", 0.0)
         if tau > 0.0:
             a = math.exp(-period / tau)
@@ -609,7 +635,8 @@ def recalibration_candidate(params: ParameterSet) -> Candidate:
                      kind="parameters", family="recalibration")
 
 
-def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> tuple[Truth, dict[str, float] | None, dict[str, float]]:
+def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension, wheels: Sequence[str] = WHEELS
+                     ) -> tuple[Truth, dict[str, float] | None, dict[str, float]]:
     """The simulator's view of an extension: a truth, actuator overrides and measurement terms.
 
     Parameters
@@ -619,6 +646,9 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
     base : Truth
         The believed world (flat, nominal wheels) the terms are added to.
     ext : RoverExtension
+    wheels : sequence of str
+        The wheel names of ``base``'s per-wheel tuples (default the mini rover's; a rover file's
+        wheels for its rover, issue 23).
 
     Returns
     -------
@@ -630,12 +660,15 @@ def truth_from_terms(params: ParameterSet, base: Truth, ext: RoverExtension) -> 
         ``imu_roll``, ``imu_pitch`` (rad), ``gyro_scale`` (relative).
     """
     t = rover_terms(ext)
+    if len(wheels) != len(base.wheel_radius):
+        raise DriveCandidateError(f"the believed world has {len(base.wheel_radius)} wheel radii, the wheel set "
+                                  f"{list(wheels)} has {len(wheels)} wheels: pass the rover's wheels")
     ps = params if not ext.soil else replace(params, soil=replace(params.soil, **dict[str, Any](ext.soil)))
     r_all = t.get("radius_scale_all", 1.0)
     radius = cast(tuple[float, float, float, float],
-                  tuple(base.wheel_radius[i] * r_all * t.get(f"radius_scale.{w}", 1.0) for i, w in enumerate(WHEELS)))
+                  tuple(base.wheel_radius[i] * r_all * t.get(f"radius_scale.{w}", 1.0) for i, w in enumerate(wheels)))
     offset = cast(tuple[float, float, float, float],
-                  tuple(base.steer_offset[i] + t.get(f"steer_offset.{w}", 0.0) for i, w in enumerate(WHEELS)))
+                  tuple(base.steer_offset[i] + t.get(f"steer_offset.{w}", 0.0) for i, w in enumerate(wheels)))
     if min(radius) <= ps.wheel.grouser_height:
         raise DriveCandidateError(f"wheel radii {radius} m do not exceed the grouser height")
     truth = replace(base, params=ps, wheel_radius=radius, steer_offset=offset,
@@ -658,7 +691,7 @@ _HOOK_KEYS = {"tether_anchor": {"anchor_tension_N": ("tension_N", 1.0), "anchor_
 def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed: Truth, measurement: Mapping[str, float],
                      actuator: Mapping[str, float] | None, header: Mapping[str, Any],
                      disturbance: Mapping[str, float] | None = None,
-                     empirical: Sequence[Mapping[str, Any]] = ()) -> Path:
+                     empirical: Sequence[Mapping[str, Any]] = (), wheels: Sequence[str] = WHEELS) -> Path:
     """Write the accepted terms as a truth file :func:`offline.sim.truth.load_truth` reads.
 
     Only what differs from the believed world is written. Terms the truth format has no key
@@ -669,6 +702,7 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     ``[tether_anchor]`` and ``[hub_contact]`` sections; ``empirical`` (the ``[[empirical_force]]``
     tables of :func:`offline.discrepancy.drive.empirical.truth_entries`) goes to that array of tables.
     ``header`` lines become comments (fitted values, standard errors, held-out improvement).
+    ``wheels``: the names of the truths' per-wheel tuples (a rover file's wheels, issue 23).
     """
     lines = ["# written by offline.discrepancy.drive.report: the accepted discrepancy terms as a truth file",
              "# (offline.sim.truth.load_truth reads it; the simulator and the table builder take it)"]
@@ -687,7 +721,7 @@ def write_truth_toml(path: str | Path, params_file: str, truth: Truth, believed:
     if other:
         lines.append("# soil fields refitted (not keys of the truth format; put them in the parameter file's [soil]):")
         lines += [f"#   {f} = {a:.6g} (believed {b:.6g}, SI)" for f, (a, b) in other.items()]
-    for i, w in enumerate(WHEELS):
+    for i, w in enumerate(wheels):
         wl = []
         if truth.wheel_radius[i] != believed.wheel_radius[i]:
             wl.append(f"radius_mm = {1e3 * truth.wheel_radius[i]:.6g}")

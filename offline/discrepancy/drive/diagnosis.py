@@ -95,6 +95,7 @@ from .candidates import (
     rover_terms,
     truth_from_terms,
 )
+from .wheel_set import channel_unit, library_for, tick_channels
 
 __all__ = ["DriveDataError", "DriveData", "DriveRecording", "DriveModel", "load_drives", "diagnose_drives",
            "accepted_extension", "held_out_drives", "TICK_CHANNELS", "POSE_CHANNELS", "DRIVE_ALPHA",
@@ -146,7 +147,7 @@ class DriveDataError(ValueError):
 
 @dataclass(frozen=True)
 class DriveData:
-    """One recorded drive, tick by tick (SI; wheel order FR, FL, RR, RL).
+    """One recorded drive, tick by tick (SI; wheel order :attr:`wheels`).
 
     Attributes
     ----------
@@ -180,6 +181,14 @@ class DriveData:
     pose_sigma: tuple[float, float]
     heading_source: str
     steer_reading: NDArray[np.float64] | None = None
+
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """The recording's wheel set, the order of every per-wheel column (issue 23): the wheels of
+        its ``omega_<W>`` readings, which :meth:`from_file` takes from
+        :attr:`rtctl.recording.Recording.wheels` in its order (the mini rover's FR, FL, RR, RL for a
+        recording that names none)."""
+        return tuple(k[len("omega_"):] for k in self.readings if k.startswith("omega_"))
 
     @classmethod
     def from_file(cls, path: str | Path, gyro_bias: float = 0.0) -> "DriveData":
@@ -219,12 +228,13 @@ class DriveData:
             i = int(np.flatnonzero(~np.all(np.isfinite(np.hstack([rim, steer])), axis=1))[0])
             raise DriveDataError(f"{name}: commands of seq {seq[i]} are not finite (commands are always finite)")
         rd: dict[str, NDArray[np.float64]] = {}
+        wheels = tuple(getattr(rec, "wheels", WHEELS))
         ws = np.array([m.wheel_speed for m in ms], dtype=float)
-        for i, w in enumerate(WHEELS):
+        for i, w in enumerate(wheels):
             rd[f"omega_{w}"] = ws[:, i]
         if all(m.motor_torque is not None for m in ms):
             tq = np.array([m.motor_torque for m in ms], dtype=float)
-            for i, w in enumerate(WHEELS):
+            for i, w in enumerate(wheels):
                 rd[f"torque_{w}"] = tq[:, i]
         rd["yaw_rate"] = np.array([m.yaw_rate for m in ms], dtype=float)
         rd["roll"] = np.array([m.roll for m in ms], dtype=float)
@@ -460,8 +470,13 @@ class DriveRecording:
         if segment < 2:
             raise DriveDataError(f"segment = {segment} ticks; at least 2 are needed for the noise estimate")
         drives = tuple(drives)
+        for d in drives:
+            if d.wheels != model.wheels:
+                raise DriveDataError(f"{d.source}: the recording's wheels are {', '.join(d.wheels)}; the believed scenario "
+                                     f"{model.scenario.name}'s rover has {', '.join(model.wheels)}: diagnose it with the "
+                                     "scenario of the rover that drove it")
         have = set.intersection(*(set(d.readings) for d in drives))
-        chans = [c for c in TICK_CHANNELS if c in have]
+        chans = [c for c in tick_channels(model.wheels) if c in have]
         if all(math.isfinite(d.pose[0, 0]) for d in drives):
             chans += list(POSE_CHANNELS)
         segs = tuple(_Segments.of(len(d.t), segment) for d in drives)
@@ -517,7 +532,7 @@ class DriveRecording:
         return cls(drives, segs, drive, segi, tuple(chans), {c: M[:, i] for i, c in enumerate(chans)},
                    {c: N[:, i] for i, c in enumerate(chans)}, features, src,
                    ", ".join(d.source for d in drives),
-                   units={c: _UNITS[c][0] for c in chans}, scale_out={c: _UNITS[c][1] for c in chans},
+                   units={c: channel_unit(c, _UNITS)[0] for c in chans}, scale_out={c: channel_unit(c, _UNITS)[1] for c in chans},
                    segment_corr=corr)
 
     def null_draw(self, rng: np.random.Generator, n: int, n_boot: int) -> NDArray[np.float64]:
@@ -851,10 +866,33 @@ class DriveModel:
     simulations: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
+        if getattr(self.scenario, "rover_file", None) is not None:
+            self._rover_file_defaults()
         if self.truth is None:
             self.truth = Truth.nominal(self.scenario.params, self.scenario.rover)
         self.actuators = self.actuators or ActuatorConfig()
         self.sensors = self.sensors or SensorConfig()
+
+    def _rover_file_defaults(self) -> None:
+        """A rover file's believed world and servos (issue 23): the simulator's own defaults for it
+        (:func:`offline.sim.simulator.rover_file_truth`, :func:`~offline.sim.simulator.rover_file_actuators`),
+        so the re-simulation is the rover's as the recording's simulator ran it."""
+        from ...sim.simulator import rover_file_actuators, rover_file_truth, suspension_plant_for
+
+        sc = self.scenario
+        if self.truth is None:
+            self.truth = rover_file_truth(sc, suspension_plant_for(sc.params, sc.rover_file, sc.exit_angle))
+        if len(self.truth.wheel_radius) != len(self.wheels):
+            raise DriveDataError(f"the believed world has {len(self.truth.wheel_radius)} wheel radii; the rover of "
+                                 f"scenario {sc.name} has {len(self.wheels)} wheels ({', '.join(self.wheels)})")
+        if self.actuators is None:
+            self.actuators = rover_file_actuators(sc.rover_file, sc.params.wheel.shearing_radius)
+
+    @property
+    def wheels(self) -> tuple[str, ...]:
+        """The believed rover's wheels (the scenario's: the mini rover's or a rover file's), in the
+        order of every per-wheel column."""
+        return tuple(self.scenario.wheels)
 
     @property
     def params(self) -> ParameterSet:
@@ -949,11 +987,11 @@ class DriveModel:
     def _run(self, d: DriveData, ext: RoverExtension, heading_offset: float, extra: Any = None
              ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         assert self.truth is not None and self.sensors is not None and self.actuators is not None
-        n = len(d.t)
-        ticks = {c: np.full(n, np.nan) for c in TICK_CHANNELS}
+        n, wheels = len(d.t), self.wheels
+        ticks = {c: np.full(n, np.nan) for c in tick_channels(wheels)}
         body = np.full((n, 3), np.nan)
         try:
-            truth, act, _ = truth_from_terms(self.params, self.truth, ext)
+            truth, act, _ = truth_from_terms(self.params, self.truth, ext, wheels)
             # pose-dependent hooks (an anchored tether) see the recorded pose of the tick being solved
             # (the simulator's own clock skips the ticks interpolated in steady stretches)
             path, clock = _recorded_pose(d), [0.0]
@@ -974,25 +1012,31 @@ class DriveModel:
         self.simulations += 1
         try:
             sim = RoverSimulator(self.scenario, truth, actuators=acfg, sensors=sens, dt=d.period, seed=0, disturbance=hook)
+            # a backward drive (issue 23) runs its plant in the travel frame, its readings in the body frame
+            # (:meth:`RoverSimulator.measure`): the travel heading is the body's plus pi, the body
+            # velocities and the servo speeds change sign (yaw rate: the same)
             hd = d.pose[:, 2] + heading_offset
+            if sim.backward:
+                hd = hd + math.pi
+            flip = np.array([-1.0, -1.0, 1.0]) if sim.backward else np.ones(3)
             sim.heading = float(hd[0])
             # the commands each wheel's servos really follow (per-wheel actuator terms)
-            rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period)
+            rim_cmd, steer_cmd = actuator_commands(rover_terms(ext), d.rim_cmd, d.steer_cmd, d.period, wheels)
             if extra is not None:
                 rim_cmd, steer_cmd = extra.commands(rim_cmd, steer_cmd, d.t)
             sim.start(Commands(0.0, 0, tuple(rim_cmd[0]), tuple(steer_cmd[0])))
 
-            servo, omega = np.full((n, 4), np.nan), np.full((n, 4), np.nan)
+            servo, omega = np.full((n, len(wheels)), np.nan), np.full((n, len(wheels)), np.nan)
             failed = np.zeros(n, dtype=bool)
 
             def record(k: int) -> None:
                 m = sim.measure()
-                for i, w in enumerate(WHEELS):
+                for i, w in enumerate(wheels):
                     ticks[f"omega_{w}"][k] = m.wheel_speed[i]
                     ticks[f"torque_{w}"][k] = m.motor_torque[i]  # type: ignore[index]
                 ticks["yaw_rate"][k], ticks["roll"][k], ticks["pitch"][k] = m.yaw_rate, m.roll, m.pitch
-                body[k] = sim.z[:3]
-                servo[k] = sim.act.omega_servo
+                body[k] = sim.z[:3] * flip
+                servo[k] = sim.act.omega_servo * flip[0]
                 omega[k] = m.wheel_speed
 
             record(0)
@@ -1006,7 +1050,7 @@ class DriveModel:
                 last_of_regime = k < n - 1 and bool(np.any(cmd[k] != cmd[k - 1]))
                 if steady and not last_of_regime and k % self.stride and k != n - 1:
                     acts.advance(d.period)  # actuators follow every tick; the plant is solved where needed
-                    servo[k] = acts.omega_servo
+                    servo[k] = acts.omega_servo * flip[0]
                     continue
                 sim.heading = float(hd[k])
                 clock[0] = float(d.t[k])
@@ -1033,7 +1077,7 @@ class DriveModel:
                                and np.allclose(acts.omega_servo, acts.omega_cmd, rtol=1e-3, atol=1e-6))
             for ch, v in ticks.items():
                 ticks[ch] = np.interp(np.arange(n), solved, v[solved])
-            for i, w in enumerate(WHEELS):  # wheel speed: the servo's every tick, plus what the plant changed
+            for i, w in enumerate(wheels):  # wheel speed: the servo's every tick, plus what the plant changed
                 ch = f"omega_{w}"
                 ticks[ch] = servo[:, i] + np.interp(np.arange(n), solved, (omega[solved, i] - servo[solved, i]))
             for j in range(3):
@@ -1071,7 +1115,7 @@ class DriveModel:
 
     def recalibration(self) -> Any:
         """The soil recalibration candidate (:func:`offline.discrepancy.drive.candidates.recalibration_candidate`)."""
-        return recalibration_candidate(self.params)
+        return library_for([recalibration_candidate(self.params)], self.scenario)[0]
 
     def parameter_set(self, ext: RoverExtension, note: str = "") -> ParameterSet:
         """The believed parameter set with the extension's soil changes (for "parameters off")."""
@@ -1141,7 +1185,10 @@ def diagnose_drives(
         When the library does not explain the drive (verdict ``unexplained``, ``ambiguous`` or
         ``partly_explained``), model what it lacks with the generic empirical family
         (:func:`offline.discrepancy.drive.empirical.search_empirical`, same seed and level); the result
-        is ``verdict.empirical`` and the library's verdict is kept.
+        is ``verdict.empirical`` and the library's verdict is kept. Not for a rover file's recording
+        in this version (the empirical terms act through the simulator's disturbance hook, which
+        the rover-file plant does not take): ``verdict.empirical`` stays None and ``progress``
+        says so.
     workers : int
         Processes the independent re-simulations run on (:func:`offline.discrepancy.engine.diagnose`);
         the verdict does not depend on it, bit for bit. 1 (default): this process; the command
@@ -1160,6 +1207,7 @@ def diagnose_drives(
                          f"{1.0 / (n_boot + 1):.2g} is above the level, so nothing could be significant; use at least "
                          f"{int(math.ceil(1.0 / alpha))} draws (default 3 / alpha) or a larger alpha")
     model = DriveModel(scenario, truth, actuators, sensors, stride=stride)
+    candidates = library_for(candidates, scenario)  # the rover's wheels (the mini rover's: as given)
     assert model.sensors is not None
     drives = load_drives(paths, model.sensors.gyro_bias)
     obs = replace(DriveRecording.build(drives, model, segment), family_alpha=alpha)
@@ -1167,7 +1215,11 @@ def diagnose_drives(
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
                  polish_nfev=0, workers=workers)
-    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
+    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained") and scenario.rover_file is not None:
+        if progress is not None:
+            progress(f"no empirical search: its terms act through the simulator's disturbance hook, which the plant of "
+                     f"the rover file {scenario.rover_file.name} does not take in this version")
+    elif empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
         from .empirical import search_empirical
 
         t0 = time.perf_counter()
@@ -1183,7 +1235,7 @@ def accepted_extension(v: Verdict) -> RoverExtension:
     if c is None or v.status in ("agree", "unexplained", "ambiguous"):
         return RoverExtension()
     model: DriveModel = v.model
-    lib = {x.key: x for x in [*DRIVE_CANDIDATES, model.recalibration()]}
+    lib = {x.key: x for x in [*library_for(DRIVE_CANDIDATES, model.scenario), model.recalibration()]}
     e, i = RoverExtension(), 0
     for k in c.keys:
         cand = lib[k]

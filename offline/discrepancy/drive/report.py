@@ -45,7 +45,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         entries = truth_entries(em.terms)
     if v.chosen is not None and v.status not in ("agree", "unexplained", "ambiguous"):
         assert model.truth is not None
-        truth, act, meas = truth_from_terms(model.params, model.truth, ext)
+        truth, act, meas = truth_from_terms(model.params, model.truth, ext, model.wheels)
         header = {"verdict": v.status, "terms": v.chosen.label, "fitted": v.chosen.parameters_text(),
                   "held_out_chi2": f"{v.chi2_cv_base:.1f} -> {v.chosen.chi2_cv:.1f}",
                   "recordings": obs.source}
@@ -62,7 +62,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         if entries:
             header["empirical_terms"] = "; ".join(t.law() for t in em.terms)
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
-                                      meas, act, header, dist, entries)
+                                      meas, act, header, dist, entries, wheels=model.wheels)
         extra += ["", "## Accepted terms as a simulator truth file", "",
                   f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
                   f"and `offnominal tables build SCENARIO --world {truth_file.name} --out DIR` rebuilds the tables with "
@@ -75,7 +75,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         header = {"verdict": v.status, "empirical_terms": "; ".join(t.law() for t in em.terms),
                   "held_out_chi2": f"{em.chi2_cv_base:.1f} -> {em.chi2_cv_after:.1f}", "recordings": obs.source}
         truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", model.truth,
-                                      model.truth, {}, None, header, None, entries)
+                                      model.truth, {}, None, header, None, entries, wheels=model.wheels)
     if em is not None:
         extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]
         if em.terms:

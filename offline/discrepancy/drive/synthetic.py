@@ -161,7 +161,9 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
     torques, evaluated by the simulator once per step), ``actuator_path`` (the commands the
     actuators really receive; the recording keeps the commanded ones) and ``sensor_path``
     (the readings the recording keeps, from the simulator's readings and the true state).
-    ``segments``: another command script (default :data:`CALIBRATION_SEGMENTS`).
+    ``segments``: another command script (default :data:`CALIBRATION_SEGMENTS`, the mini rover's; a
+    rover file's drive needs its own, one value per wheel of the file, in its order). A rover
+    file's recording carries its wheel set (:class:`rtctl.recording.Recorder` ``wheels``).
     """
     d, at = calibration_drive(duration, segments)
     kw = {} if disturbance is None else {"disturbance": disturbance}
@@ -170,8 +172,9 @@ def record_drive(path: str | Path, scenario: Scenario, truth: Truth | None = Non
     rim, steer = at(0.0)
     sim.start(to_act(Commands(0.0, 0, rim, steer)))
     n = int(round(d / period))
+    wheels = sim.wheels if sim.rover_file is not None else None  # the mini rover's: recorded as before
     with Recorder(path, {"scenario": scenario.name, "seed": seed, "script": "calibration_drive",
-                         "period_s": period}, truth=True) as rec:
+                         "period_s": period}, truth=True, wheels=wheels) as rec:
         for k in range(n + 1):
             m = sim.measure()
             ts = sim.truth_state()

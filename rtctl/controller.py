@@ -243,8 +243,8 @@ def lateral_authority(tp: Any, layout: Any) -> bool:
     Why: the outer loop's F_y offset and the crab bias (module docstring, slip correction (b))
     are balanced by steering. A rover with no steerable wheel (the rigid skid-steer of issue 23)
     has none: at zero wheel slip angle no wheel speed, load or sinkage changes a wheel's lateral
-    force, so that row's Jacobian in its free variables is exactly zero (in every steered table
-    the part is 0.05-0.2 of the scaled row). An F_y offset there only fills the row's slack, and
+    force, so that row's Jacobian in its free variables is exactly zero (in every steered test
+    table the part is 0.05-0.18 in the QP's scaled units, the row's largest entry 0.07-0.29). An F_y offset there only fills the row's slack, and
     the crab bias's M_z part (the crab's yaw moment, 2.4 times the table's controller offset at a
     0.75 deg crab estimate within one sigma of zero) was balanced alone by the wheel speeds and
     drove the iterate off the primitive (measured: the skid-steer turned to 180 deg). A layout

@@ -44,7 +44,10 @@ line become the yaw-moment and lateral-force offsets of eqs. (7.26)-(7.27), whic
 balance rows exactly; by default the gains reach the offsets at which the table's steering
 controllers were computed (the table's ``controller_offsets``; Table 7.2's +/-0.2 N m and
 +/-1 N if it does not say) at 5 deg of heading error and 5 cm of cross-track error. The offsets
-are clamped to the configured maxima.
+are clamped to the configured maxima. A table whose free variables cannot move the F_y balance
+row (:func:`lateral_authority`: no steerable wheel, the rigid skid-steer) gets no F_y offset and
+no crab bias; its cross-track error becomes a heading demand ``atan(e_y / (v 50 s))`` added to
+the heading error (1.9 deg at 5 cm and 3 cm/s), flagged on every tick.
 
 Slip correction: where the EKF's slip departs from the model's, the model is corrected rather
 than ignored. (a) Operating-point shift: the speed parameter is ``v (1 - s_k) / (1 - s_hat)``,
@@ -118,6 +121,14 @@ _REF_HEADING_ERROR = math.radians(5.0)
 _REF_CROSSTRACK_ERROR = 0.05
 _SIDE = np.array([-1.0, 1.0, -1.0, 1.0])  # y sign of FR, FL, RR, RL (right is negative; Fig. 7.2)
 _FRONT = np.array([1.0, 1.0, -1.0, -1.0])
+_CROSSTRACK_TIME = 50.0
+"""s: without lateral authority (:func:`lateral_authority`) a cross-track error ``e_y`` asks for
+the heading change ``atan(e_y / (v T))`` with ``T`` this time: the cross-track error then decays
+with time constant ``T``, five times the heading loop's integral time (10 s,
+:class:`rtctl.config.OuterLoop`), so the heading loop follows (measured on the skid-steer, 5 m,
+seeds 1 and 2: max heading 0.44 / 0.35 deg with 50 s; 1.74 / 0.52 deg with 19 s, where the
+cascade oscillated; 0.57 / 0.46 deg and 1.1 / 1.0 cm without the term)."""
+_AUTHORITY_RTOL = 1e-6
 
 
 class ControllerError(ValueError):
@@ -222,6 +233,46 @@ def _wheel_xy(table: Any) -> NDArray[np.float64] | None:
     return xy
 
 
+def lateral_authority(tp: Any, layout: Any) -> bool:
+    """Whether the QP can move the lateral-force balance row (``balance Fy``, eq. (7.13) with the
+    offset of (7.27)) while it keeps every other equality row, the yaw-moment balance
+    included: the row's Jacobian in the variables the table point leaves free (``lbx < ubx``),
+    scaled as the QP scales it, has a part outside the span of the other equality rows' larger
+    than ``_AUTHORITY_RTOL`` of the row's own largest entry.
+
+    Why: the outer loop's F_y offset and the crab bias (module docstring, slip correction (b))
+    are balanced by steering. A rover with no steerable wheel (the rigid skid-steer of issue 23)
+    has none: at zero wheel slip angle no wheel speed, load or sinkage changes a wheel's lateral
+    force, so that row's Jacobian in its free variables is exactly zero (in every steered test
+    table the part is 0.05-0.18 in the QP's scaled units, the row's largest entry 0.07-0.29). An F_y offset there only fills the row's slack, and
+    the crab bias's M_z part (the crab's yaw moment, 2.4 times the table's controller offset at a
+    0.75 deg crab estimate within one sigma of zero) was balanced alone by the wheel speeds and
+    drove the iterate off the primitive (measured: the skid-steer turned to 180 deg). A layout
+    without these rows, or a Jacobian that is not finite, is taken to have authority (the
+    behaviour before)."""
+    names = list(layout.constraint_names)
+    if "balance Fy" not in names or "balance Mz" not in names:
+        return True
+    iy = names.index("balance Fy")
+    sx, sg = np.asarray(layout.variable_scale, dtype=float), np.asarray(layout.constraint_scale, dtype=float)
+    J = np.asarray(tp.jac_g_x, dtype=float) * sx[None, :] / sg[:, None]
+    free = np.asarray(tp.ubx, dtype=float) - np.asarray(tp.lbx, dtype=float) > 0.0
+    row = J[iy]
+    scale = float(np.abs(row).max(initial=0.0))
+    if not math.isfinite(scale) or not math.isfinite(float(J[:, free].sum())):
+        return True  # not judged: the behaviour before
+    if scale == 0.0 or not free.any():
+        return False
+    lbg, ubg = np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float)
+    others = [i for i in range(len(names)) if i != iy and lbg[i] == ubg[i] and bool(np.any(J[i] != 0.0))]
+    a = row[free]
+    if others:
+        B = J[np.ix_(np.array(others, dtype=np.intp), np.flatnonzero(free))]
+        c, *_ = np.linalg.lstsq(B.T, a, rcond=None)
+        a = a - B.T @ c
+    return bool(np.abs(a).max(initial=0.0) > _AUTHORITY_RTOL * scale)
+
+
 def _turned_half_round(inp: Inputs) -> Inputs:
     """A body-frame measurement in the frame of a rover driving backward (the body turned by pi
     about z, :meth:`Controller.feedback`)."""
@@ -323,6 +374,9 @@ class _Prepared:
     operating_point: tuple[tuple[str, float], ...]
     signature: frozenset[tuple[str, str]]
     flags: tuple[str, ...] = ()
+    lateral: bool = True
+    """The QP can move the F_y balance row (:func:`lateral_authority`); else the cross-track
+    error is corrected through the heading and no F_y offset or crab bias is asked for."""
 
 
 class Controller:
@@ -513,6 +567,7 @@ class Controller:
         self.ekf = SlipHeadingEKF(cfg, self.wheel_radius)
         self.ekf.reset(0.0, cfg.drive.path_x, cfg.drive.path_y, cfg.drive.path_heading)
         self._rtis: dict[str, RealTimeIteration] = {}
+        self._lateral: dict[tuple[str, bytes], bool] = {}
         self._last_t: float | None = None
         self._last_seq: int | None = None
         self._clock = TickClock(cfg.period)
@@ -636,9 +691,18 @@ class Controller:
         if name in self.mirrored:
             flags.append(f"table {name} is the left-right mirror of table {self.mirrored[name]}")
         xk = rti.iterate if rti.iterate is not None else alloc.x0
+        # structural (which variables the point leaves free), so judged once per table and free set
+        key = (name, (np.asarray(tp.ubx, dtype=float) > np.asarray(tp.lbx, dtype=float)).tobytes())
+        lateral = self._lateral.get(key)
+        if lateral is None:
+            lateral = self._lateral[key] = lateral_authority(tp, lay)
+        if not lateral:
+            flags.append(f"table {name}: no free variable moves the F_y balance row (no steering): the cross-track "
+                         "error is corrected through the heading, no F_y offset or crab bias")
         self._prep = _Prepared(name, tp, alloc, ix, rti, cfg.qp.step_limit * alloc.sx, gains,
                                self._crab_sensitivity(table, tp, ix), self._primitive_slip(xk, tp, ix, prev is not None),
-                               factor, tuple(sorted(tp.operating_point.items())), self.signatures[name], tuple(flags))
+                               factor, tuple(sorted(tp.operating_point.items())), self.signatures[name], tuple(flags),
+                               lateral)
 
     def _operating_point(self, table: Any, v: float, flags: list[str]) -> dict[str, float]:
         """The table's axes at table speed ``v``: filtered IMU slope and cross slope, the declared
@@ -893,11 +957,16 @@ class Controller:
         prep = self._prep
         if prep is None:
             return self._fallback(t, seq, "no table point prepared", e_psi, e_y, 0.0, 0.0, verdict, None)
-        mz, fy = self._offsets(prep, e_psi, e_y, dt)
+        if prep.lateral:
+            mz, fy = self._offsets(prep, e_psi, e_y, dt)
+        else:  # no F_y (lateral_authority): the cross-track error becomes a heading demand
+            self._int_y = 0.0
+            look = max(abs(cfg.drive.speed), 1e-3) * _CROSSTRACK_TIME
+            mz, fy = self._offsets(prep, e_psi + math.atan(e_y / look), 0.0, dt)
         # ---- slip correction (b): crab bias into the offsets
         P = self.ekf.P
         mz_bias = fy_bias = 0.0
-        dfy, dmz = prep.crab_sensitivity
+        dfy, dmz = prep.crab_sensitivity if prep.lateral else (0.0, 0.0)
         # the lateral speed the outer loop's own offset asks for is not a disturbance: a real
         # rover balances an F_y offset by crabbing until the lateral resistance matches it. The
         # EKF is told this crab (for the next step) and its crab state is the rest.

@@ -880,13 +880,16 @@ class DriveModel:
         from ...sim.simulator import rover_file_actuators, rover_file_truth, suspension_plant_for
 
         sc = self.scenario
+        spec = sc.rover_file
+        if spec is None:
+            raise DriveDataError(f"scenario {sc.name} names no rover file")
         if self.truth is None:
-            self.truth = rover_file_truth(sc, suspension_plant_for(sc.params, sc.rover_file, sc.exit_angle))
+            self.truth = rover_file_truth(sc, suspension_plant_for(sc.params, spec, sc.exit_angle))
         if len(self.truth.wheel_radius) != len(self.wheels):
             raise DriveDataError(f"the believed world has {len(self.truth.wheel_radius)} wheel radii; the rover of "
                                  f"scenario {sc.name} has {len(self.wheels)} wheels ({', '.join(self.wheels)})")
         if self.actuators is None:
-            self.actuators = rover_file_actuators(sc.rover_file, sc.params.wheel.shearing_radius)
+            self.actuators = rover_file_actuators(spec, sc.params.wheel.shearing_radius)
 
     @property
     def wheels(self) -> tuple[str, ...]:

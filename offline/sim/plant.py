@@ -155,18 +155,7 @@ class PlantModel:
         ``(x[5, 8], p[10, 8]) -> (wrench[6, 8], d wrench / d x [6, 40], slip[1, 8], beta[1, 8])``,
         ``p = (r, k, n0, n1, n2, phi, rho, c, K, repose)`` per state; ``jacobian=False`` leaves
         the Jacobian out: ``(x, p) -> (wrench, slip, beta)`` (for the line search's trial points)."""
-        import casadi as ca
-
-        x = ca.SX.sym("x", 5)
-        pw = ca.SX.sym("p", 10)
-        base = PhysParams.from_sets(self.params.soil, self.params.wheel, self.params.tuning)
-        p = base._replace(r=pw[0], **dict(zip(_SOIL_FIELDS, [pw[1 + i] for i in range(9)])))
-        w6, diag = wrench_core(CASADI, x[0], x[1], x[2], x[3], x[4], p, self.options)
-        w = ca.vertcat(*w6)
-        if not jacobian:
-            return ca.Function("wheel_state_residual", [x, pw], [w, diag["slip"], diag["beta"]]).map(8)
-        one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
-        return one.map(8)
+        return wheel_state_batch(self.params, self.options, 8, jacobian)
 
     def evaluate(self, z: NDArray[np.float64], a: NDArray[np.float64], q: NDArray[np.float64],
                  d: NDArray[np.float64] | None = None, jacobian: bool = True
@@ -498,6 +487,26 @@ class PlantModel:
                          soil.cohesion, soil.shear_modulus, soil.repose_angle, slope, cross_slope, tether_force,
                          mass, yaw_inertia, wheel_inertia], dtype=float)
 
+
+
+def wheel_state_batch(params: ParameterSet, options: ModelOptions, n_states: int, jacobian: bool = True) -> Any:
+    """casadi function of ``n_states`` wheel states mapped over one wheel's wrench (5.x, the
+    :func:`~offline.physics.terramechanics.wrench_core` source the optimizer uses):
+    ``(x[5, n], p[10, n]) -> (wrench[6, n], d wrench / d x [6, 5 n], slip[1, n], beta[1, n])`` with
+    ``p = (r, k, n0, n1, n2, phi, rho, c, K, repose)`` per state; ``jacobian=False`` leaves the
+    Jacobian out. Shared by the mini rover's plant (8 states) and a rover file's (``2 N``)."""
+    import casadi as ca
+
+    x = ca.SX.sym("x", 5)
+    pw = ca.SX.sym("p", 10)
+    base = PhysParams.from_sets(params.soil, params.wheel, params.tuning)
+    p = base._replace(r=pw[0], **dict(zip(_SOIL_FIELDS, [pw[1 + i] for i in range(9)])))
+    w6, diag = wrench_core(CASADI, x[0], x[1], x[2], x[3], x[4], p, options)
+    w = ca.vertcat(*w6)
+    if not jacobian:
+        return ca.Function("wheel_state_residual", [x, pw], [w, diag["slip"], diag["beta"]]).map(n_states)
+    one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
+    return one.map(n_states)
 
 class _DenseCall:
     """Call the C-compiled wheel batch through ctypes with preallocated buffers (the casadi

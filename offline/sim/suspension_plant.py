@@ -60,12 +60,12 @@ from rtctl.physics.suspension import SuspensionStatics
 
 from ..physics.backend import CASADI
 from ..physics.params import ParameterSet
-from ..physics.terramechanics import ModelOptions, PhysParams, WheelModel, wrench_core
-from .plant import GRAVITY, WHEEL_MASS_ESTIMATE, PlantSolution, SimulationError, _DenseCall, _stiction, _twin_direction
+from ..physics.terramechanics import ModelOptions, WheelModel
+from .plant import (GRAVITY, WHEEL_MASS_ESTIMATE, PlantSolution, SimulationError, _DenseCall, _stiction, _twin_direction,
+                    wheel_state_batch)
 
 __all__ = ["SuspensionPlant", "param_names", "input_names", "suspension_yaw_inertia", "rover_gravity"]
 
-_SOIL_FIELDS = ("k", "n0", "n1", "n2", "phi", "rho", "c", "K", "repose")
 
 
 def param_names(wheels: tuple[str, ...]) -> tuple[str, ...]:
@@ -224,18 +224,7 @@ class SuspensionPlant:
     # ------------------------------------------------------------------ the wheel batch
     def _build(self, jacobian: bool) -> Any:
         """casadi function of the ``2 N`` wheel states, as :meth:`PlantModel._build` (mapped ``2 N``)."""
-        import casadi as ca
-
-        x = ca.SX.sym("x", 5)
-        pw = ca.SX.sym("p", 10)
-        base = PhysParams.from_sets(self.params.soil, self.params.wheel, self.params.tuning)
-        p = base._replace(r=pw[0], **dict(zip(_SOIL_FIELDS, [pw[1 + i] for i in range(9)])))
-        w6, diag = wrench_core(CASADI, x[0], x[1], x[2], x[3], x[4], p, self.options)
-        w = ca.vertcat(*w6)
-        if not jacobian:
-            return ca.Function("wheel_state_residual", [x, pw], [w, diag["slip"], diag["beta"]]).map(2 * self.n)
-        one = ca.Function("wheel_state", [x, pw], [w, ca.jacobian(w, x), diag["slip"], diag["beta"]])
-        return one.map(2 * self.n)
+        return wheel_state_batch(self.params, self.options, 2 * self.n, jacobian)
 
     # ------------------------------------------------------------------ vectors
     def param_vector(self, radius: tuple[float, ...], soil: Any, slope: float, cross_slope: float, tether_force: float,

@@ -808,7 +808,7 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
             law = e0 if math.isfinite(e0) else math.nan
             if law == law:
                 step = cap if law <= 0.0 else min(cap, d0 * math.sqrt(TRUST_MARGIN * tol / law))
-                if sgn > 0 and fallback == d0:
+                if e0 <= tol:  # the probe passed: its step on both sides (the law is even in d)
                     step = max(step, d0)
                 for _ in range(5):
                     if sgn > 0 and step == d0:
@@ -819,10 +819,17 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
                     if e <= tol:
                         r = step
                         break
-                    if fallback == fallback and step > fallback:
+                    # a smaller step from the growth law through (d0, e0) and this step (the
+                    # exponent fitted between 1, linear past a kink, and 4; 2 without a fit)
+                    k = 2.0
+                    if math.isfinite(e) and step > d0 and 0.0 < law < e:
+                        k = min(4.0, max(1.0, math.log(e / law) / math.log(step / d0)))
+                    nxt = step * (min(0.9, max(0.25, (TRUST_MARGIN * tol / e) ** (1.0 / k)))
+                                  if math.isfinite(e) else 0.5)
+                    if fallback == fallback and nxt <= fallback:
                         r = fallback  # the probe passed: a verified step, no more re-solves
                         break
-                    step *= min(0.9, max(0.25, math.sqrt(TRUST_MARGIN * tol / e))) if math.isfinite(e) else 0.5
+                    step = nxt
             if r != r:  # nothing verified by the law: the former ladder search for this sign
                 r, solved = _ladder_radius(spec, pb, sc, name, sgn, ladder, scale, lam_x, lam_g, x, dx_dp[:, j], xsc)
                 solved_any = solved_any or solved

@@ -2009,12 +2009,17 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
                              "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
                              "(7.25); verified by a warm re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
-        "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
-                              f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "
-                              f"the first-order prediction matches within {spec.build.trust_tolerance} of the variable "
-                              "scales (bisection; below the ladder: d tol / e from the smallest re-solved step); where "
-                              "no re-solve succeeded, the fallback 'smallest ladder step' with trust_unverified = 1; "
-                              "this entry: the smallest over the feasible points"),
+        "trust_radius_rule": (f"per point and parameter (field trust_radius): a step, both signs, whose NLP re-solve "
+                              f"from the first-order prediction matches it within {spec.build.trust_tolerance} of the "
+                              "variable scales; predicted by the quadratic law from the error at the probe "
+                              f"{sorted(spec.build.trust_search)[(len(spec.build.trust_search) - 1) // 2]} x the "
+                              f"parameter scale (aiming at {TRUST_MARGIN} x the tolerance, at most "
+                              f"{max(spec.build.trust_search)} x the scale), verified by one re-solve per sign and "
+                              "shrunk while it fails; fall-back: bisection on the ladder "
+                              f"{list(spec.build.trust_search)} x the parameter scale (below the ladder: d tol / e "
+                              "from the smallest re-solved step); where no re-solve succeeded, the fallback "
+                              "'smallest ladder step' with trust_unverified = 1; this entry: the smallest over the "
+                              "feasible points"),
         "trust_unverified_points": {n: int(np.sum(arrays["trust_unverified"][feas][:, lay.index(n)] > 0))
                                     for n in _LIN_PARAMS} if feas.any() else {},
         "grid_points": spec.grid.size,

@@ -831,7 +831,9 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
                         break
                     step = nxt
             if r != r:  # nothing verified by the law: the former ladder search for this sign
-                r, solved = _ladder_radius(spec, pb, sc, name, sgn, ladder, scale, lam_x, lam_g, x, dx_dp[:, j], xsc)
+                known = {(len(ladder) - 1) // 2: e0} if sgn > 0 else {}  # the probe is a ladder step: not re-solved
+                r, solved = _ladder_radius(spec, pb, sc, name, sgn, ladder, scale, lam_x, lam_g, x, dx_dp[:, j], xsc,
+                                           known)
                 solved_any = solved_any or solved
             best = min(best, r)
         if not solved_any or not math.isfinite(best):
@@ -849,7 +851,8 @@ law's radius, so that a verification rarely fails on a law that holds only appro
 
 def _ladder_radius(spec: TableSpec, pb: Any, sc: Any, name: str, sgn: float, ladder: tuple[float, ...], scale: float,
                    lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
-                   col: NDArray[np.float64], xsc: NDArray[np.float64]) -> tuple[float, bool]:
+                   col: NDArray[np.float64], xsc: NDArray[np.float64],
+                   known: Mapping[int, float] | None = None) -> tuple[float, bool]:
     """The former trust-radius search of one parameter and sign (the fall-back of
     :func:`point_trust_radius`): bisection on the ladder for the largest verified step (the
     error taken as growing with the step); when no step passes, ``d tol / e`` from the smallest
@@ -858,10 +861,14 @@ def _ladder_radius(spec: TableSpec, pb: Any, sc: Any, name: str, sgn: float, lad
     times; if no re-solve converged, the smallest step is re-solved once more from the
     prediction with the optimizer's per-run budget ``solver.max_iter`` (measured at 3
     rim-speed-cap points: such re-solves converge in 52-116 iterations to a point 1-20 variable
-    scales from the prediction, so the radius is tiny, not the fallback). Returns the radius
-    (inf: nothing converged) and whether any re-solve converged."""
+    scales from the prediction, so the radius is tiny, not the fallback). ``known``: errors of
+    ladder steps (index -> error) already re-solved with ``build.trust_max_iter`` (IPOPT is
+    deterministic: the same run is not made twice; measured on README's worked example, the
+    probe's re-solve that did not converge was otherwise repeated at every point whose slope or
+    cross-slope radius ends below the ladder). Returns the radius (inf: nothing converged) and
+    whether any re-solve converged."""
     tol = spec.build.trust_tolerance
-    cache: dict[int, float] = {}  # ladder index -> error (inf: no re-solve)
+    cache: dict[int, float] = dict(known or {})  # ladder index -> error (inf: no re-solve)
 
     def err(k: int, its: int | None = None) -> float:
         if k not in cache:

@@ -323,7 +323,8 @@ class BuildOptions:
         (layout), inside the trust radius.
     trust_search : tuple
         Steps of the per-point trust-radius search, in parameter scales, ascending (a
-        geometric ladder; searched by bisection on it, both signs; :func:`point_trust_radius`).
+        geometric ladder): its middle step is the probe of the quadratic law, its largest the
+        largest radius, and the fall-back bisects on it, both signs (:func:`point_trust_radius`).
     trust_max_iter : int
         IPOPT iterations of each of the (at most two) verification runs of one trust-radius
         step, both started at the first-order prediction (:func:`point_trust_radius`).

@@ -469,6 +469,92 @@ def test_trust_radius_verifies_steps_from_the_prediction_without_the_full_search
         assert unverified[j] == 0.0 and radius[j] == pytest.approx(a["trust_radius"][j], rel=1e-9)
 
 
+def test_every_claimed_trust_radius_is_valid_and_a_too_large_one_is_caught(nominal):
+    """The trust radius the build claims (from the quadratic law and one verifying re-solve per
+    sign, :func:`point_trust_radius`) holds: a re-solve of the NLP at +- the stored radius
+    (``tables verify``'s own check, with the optimizer's full per-run budget and its
+    independent check) lands within ``trust_tolerance`` of the first-order prediction at every
+    point and parameter. The same check catches a radius claimed 8 times too large wherever the
+    error, not the ladder's largest step, limited the radius."""
+    from offline.rover.table_verify import check_trust_radius
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    lay = t.layout
+    flats = list(range(spec.grid.size))
+    checks, notes = check_trust_radius(t, spec, flats)
+    assert not notes and len(checks) == 2 * 5 * len(flats)
+    bad = [c for c in checks if not c["error"] <= c["tolerance"]]
+    assert not bad, bad
+    # a deliberately wrong radius: 8x the claim where the error limited it (below the cap)
+    from rtctl.table import Table
+
+    tr = np.array(t.arrays["trust_radius"])
+    cap = np.array([max(spec.build.trust_search) * b.scale for b in lay.parameters])
+    limited = (tr > 0) & (tr < 0.99 * cap)
+    assert limited.sum() >= 5  # the test has something to catch
+    checks8, _ = check_trust_radius(Table(t.header, dict(t.arrays, trust_radius=np.where(limited, 8 * tr, tr))),
+                                    spec, flats)
+    caught = {(tuple(sorted(c["point"].items())), c["parameter"]) for c in checks8 if not c["error"] <= c["tolerance"]}
+    for flat in flats:
+        idx = np.unravel_index(flat, t.shape)
+        key = tuple(sorted({k: round(v, 6) for k, v in spec.grid.point(flat).items()}.items()))
+        for j in np.flatnonzero(limited[idx]):
+            assert (key, lay.parameters[j].name) in caught, (key, lay.parameters[j].name)
+
+
+def test_trust_radius_search_claims_only_verified_steps(nominal, monkeypatch):
+    """With a synthetic error law in place of the re-solves, every radius the search returns is
+    a step it re-solved (or probed) with an error within the tolerance, for the smaller sign, and
+    the other sign has a verified step at least as large -- also where the quadratic law is
+    wrong: error cubic in the step (the law's step fails and is shrunk), a kink on one side
+    (linear growth past it), a probe that does not converge (the ladder fall-back)."""
+    from offline.rover import table_builder as TB
+
+    spec, path, _ = nominal
+    t = load_table(path)
+    lay = t.layout
+    xsc, csc = lay.variable_scale, lay.constraint_scale
+    idx = np.unravel_index(0, t.shape)
+    a = {k: t.arrays[k][idx] for k in ("x", "lam_x", "lam_g", "dx_dp")}
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(0))
+    pb = TB._problem(sc, spec.solver)
+    tol = spec.build.trust_tolerance
+    laws = {  # error of the prediction at the step d (parameter scales)
+        "slope": lambda u: 0.1 * u * u,  # quadratic: the law's step is right
+        "speed": lambda u: 2.0 * abs(u) ** 3,  # cubic: the law's step fails, shrunk
+        "cross_slope": lambda u: 0.01 * u * u + (0.5 * (u - 0.05) if u > 0.05 else 0.0),  # kink on + side
+        "fy_offset": lambda u: 1e-12,  # linear response: the largest step
+        "mz_offset": lambda u: math.inf if abs(u) > 0.1 else 0.02 * u * u / 0.01,  # no convergence beyond 0.1
+    }
+    calls: list[tuple[str, float, float]] = []
+
+    def fake(spec_, pb_, sc_, name, d, *args, **kw):
+        u = d / lay.parameters[lay.index(name)].scale
+        e = laws[name](u)
+        calls.append((name, u, e))
+        return e
+
+    monkeypatch.setattr(TB, "_prediction_error", fake)
+    radius, unverified = TB.point_trust_radius(spec, pb, sc, a["x"] / xsc, a["lam_x"] * xsc, a["lam_g"] * csc,
+                                               a["x"], a["dx_dp"])
+    for name, law in laws.items():
+        j = lay.index(name)
+        r = radius[j] / lay.parameters[j].scale
+        assert unverified[j] == 0.0 and r > 0, name
+        ok = [(u, e) for n, u, e in calls if n == name and e <= tol]
+        assert any(abs(abs(u) - r) < 1e-12 for u, _ in ok), (name, r, ok)
+        for sgn in (1, -1):
+            assert any(u * sgn >= r - 1e-12 for u, _ in ok), (name, sgn, r, ok)
+        assert law(r) <= tol and law(-r) <= tol, name
+    per_param = len(calls) / len(laws)
+    assert per_param <= 6, calls  # the quadratic law saves re-solves against the ladder's bisection
+    # the exactly quadratic law: probe + one re-solve per sign, radius sqrt(margin tol / 0.1) (below the cap)
+    assert sum(1 for n, _, _ in calls if n == "slope") == 3
+    assert radius[lay.index("slope")] / lay.parameters[lay.index("slope")].scale == pytest.approx(
+        math.sqrt(TB.TRUST_MARGIN * tol / 0.1))
+
+
 def test_twin_resolve_carries_a_primitive_exactly_to_another_speed(nominal):
     """The 2 cm/s primitive carried to 4 cm/s (exact speed scaling of (7.25)) verifies in a few
     warm iterations and equals the table's 4 cm/s primitive: the scaling is checked, not

@@ -323,7 +323,8 @@ class BuildOptions:
         (layout), inside the trust radius.
     trust_search : tuple
         Steps of the per-point trust-radius search, in parameter scales, ascending (a
-        geometric ladder; searched by bisection on it, both signs; :func:`point_trust_radius`).
+        geometric ladder): its middle step is the probe of the quadratic law, its largest the
+        largest radius, and the fall-back bisects on it, both signs (:func:`point_trust_radius`).
     trust_max_iter : int
         IPOPT iterations of each of the (at most two) verification runs of one trust-radius
         step, both started at the first-order prediction (:func:`point_trust_radius`).
@@ -750,29 +751,32 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     """Per parameter, the step over which the first-order prediction ``x + dx/dp dp`` stays within
     ``trust_tolerance`` (of the variable scales) of the NLP's solution at ``p + dp``.
 
-    Search: for each sign, bisection on the ladder ``build.trust_search`` (parameter scales,
-    1/16 .. 2 by default) for the largest *verified* step: a step is verified when a re-solve
-    of the NLP at ``p + dp`` started at the prediction ``x + dx/dp dp`` converges and lands
-    within the tolerance of it (at most 3 steps per sign for 6 steps; the error is taken as
-    growing with the step). The re-solve is one IPOPT run warm-started there with the
-    primitive's multipliers and, if that does not converge, one run from the same point with
-    IPOPT's own dual initialisation (a step across a kink of the response changes the active
-    set, which the old multipliers do not describe); each run has ``build.trust_max_iter``
-    iterations. There is no further search: a step whose re-solve from the prediction does not
-    converge is not verified, whatever another optimum far away might be. (Measured with
-    ``tests/bench/profile_tables.py``: the former search -- re-solves from the primitive itself,
-    then the optimizer's multi-start search -- took 71 % of the CPU time of a nominal build
-    (cross-slope 0, 22 points; 640 IPOPT iterations per point) and 63 % of a rim-speed-cap
-    build (24 points); this one 37 % and 10 %, with the same or larger radii at all but a few
-    points.) The radius is the smaller of the
-    two signs. When no step passes, the radius is ``d tol / e`` from the smallest step ``d``
-    that was re-solved (error ``e``; the linear growth law, the smaller of the linear and
-    quadratic laws), re-solved there and shrunk (by 0.9 tol / e, at most to half) while its
-    error exceeds the tolerance, at most 3 times; if no re-solve of a sign converged, its smallest step is re-solved once
-    more from the prediction with the optimizer's per-run budget ``solver.max_iter`` (measured
-    at 3 rim-speed-cap points: such re-solves converge in 52-116 iterations to a point 1-20
-    variable scales from the prediction, so the radius is tiny, not the fallback). A speed step that would leave less than a quarter of the travel speed is
-    not tried (counts as not passing).
+    A step ``d`` is *verified* when a re-solve of the NLP at ``p + d`` started at the prediction
+    ``x + dx/dp d`` converges and lands within the tolerance of it (:func:`_prediction_error`:
+    one IPOPT run warm-started there with the primitive's multipliers and, if that does not
+    converge, one from the same point with IPOPT's own dual initialisation, each with
+    ``build.trust_max_iter`` iterations; no further search: a step whose re-solve from the
+    prediction does not converge is not verified). Every radius returned for a sign is a
+    verified step of that sign, and the radius is the smaller of the two signs.
+
+    Search (issue 22, second cut): one probe and one verification per sign instead of a
+    bisection on a ladder. Where the active set does not change, the prediction's error is the
+    second-order term ``x_pp d^2 / 2``: quadratic in the step and the same for both signs. So the
+    error ``e0`` at the probe ``+d0`` (``d0``: the middle of the ladder ``build.trust_search``,
+    1/4 of the parameter scale by default) predicts the radius
+    ``d0 sqrt(TRUST_MARGIN tol / e0)`` (at most the ladder's largest step), and one re-solve at
+    that step verifies it (the minus sign: with the plus sign's ``e0``, no probe of its own). A
+    verification that fails (a kink: the active set changes inside the step) shrinks the step by
+    the same law from its own error (at most 4 times; by half when it did not converge); the
+    probe ``d0`` itself, when it passed, is the plus sign's fall-back. A sign whose probe or
+    shrinking finds no verified step falls back to the former search (:func:`_ladder_radius`:
+    bisection on the ladder, the linear law from the smallest step, the optimizer's per-run
+    budget at the smallest step). A speed step that would leave less than a quarter of the
+    travel speed is not verified.
+
+    Measured (``tests/bench/results_new_failure.md``, 2026-11-27 section): about 3 re-solves
+    per parameter instead of 6, most of them converging (the ladder's failing upper probes cost
+    ``build.trust_max_iter`` iterations twice).
 
     Returns ``(radius, unverified)``: ``unverified`` is 1 where no re-solve of that parameter
     succeeded at any step (both signs); its radius is then the documented fallback, the
@@ -788,49 +792,116 @@ def point_trust_radius(spec: TableSpec, pb: Any, sc: Any, x_s: NDArray[np.float6
     for name in _LIN_PARAMS:
         j = lay.index(name)
         scale = lay.parameters[j].scale
+        cap, d0 = ladder[-1] * scale, ladder[(len(ladder) - 1) // 2] * scale
+
+        def err(d: float, its: int | None = None) -> float:
+            return _prediction_error(spec, pb, sc, name, d, lam_x, lam_g, x, dx_dp[:, j], xsc, its)
+
         best, solved_any = math.inf, False
+        e0 = math.inf  # error at the probe +d0 (the quadratic law's anchor)
         for sgn in (1.0, -1.0):
-            cache: dict[int, float] = {}  # ladder index -> error (inf: no re-solve)
-
-            def err(k: int, its: int | None = None) -> float:
-                if k not in cache:
-                    d = sgn * ladder[k] * scale
-                    cache[k] = _prediction_error(spec, pb, sc, name, d, lam_x, lam_g, x, dx_dp[:, j], xsc, its)
-                return cache[k]
-
-            lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                if err(mid) <= tol:
-                    lo = mid
-                else:
-                    hi = mid
-            if lo >= 0:
-                r = ladder[lo] * scale
-            else:  # no step passed: the linear law from the smallest step that was re-solved
-                err(0)
-                if not any(math.isfinite(e) for e in cache.values()):
-                    # nothing converged within build.trust_max_iter: the smallest step once more
-                    # with the optimizer's per-run budget (its error sizes the radius)
-                    del cache[0]
-                    err(0, spec.solver.max_iter if spec.solver is not None else None)
-                done = sorted(k for k, e in cache.items() if math.isfinite(e))
-                r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
-                # the linear law is an estimate: re-solve at r and shrink while it fails (at most 3
-                # re-solves; measured on a nominal point: 0.021 > 0.02 at the law's cross-slope
-                # radius, which `tables verify` rejected)
-                for _ in range(3 if math.isfinite(r) else 0):
-                    e_r = _prediction_error(spec, pb, sc, name, sgn * r, lam_x, lam_g, x, dx_dp[:, j], xsc)
-                    if e_r <= tol:
+            r, fallback = math.nan, math.nan  # this sign's verified radius; a verified smaller step
+            if sgn > 0:
+                e0 = err(d0)
+                solved_any = solved_any or math.isfinite(e0)
+                if e0 <= tol:
+                    fallback = d0
+            law = e0 if math.isfinite(e0) else math.nan
+            if law == law:
+                step = cap if law <= 0.0 else min(cap, d0 * math.sqrt(TRUST_MARGIN * tol / law))
+                if e0 <= tol:  # the probe passed: its step on both sides (the law is even in d)
+                    step = max(step, d0)
+                for _ in range(5):
+                    if sgn > 0 and step == d0:
+                        e = e0
+                    else:
+                        e = err(sgn * step)
+                        solved_any = solved_any or math.isfinite(e)
+                    if e <= tol:
+                        r = step
                         break
-                    r *= min(0.5, 0.9 * tol / e_r) if math.isfinite(e_r) else 0.5
-            solved_any = solved_any or any(math.isfinite(e) for e in cache.values())
+                    # a smaller step from the growth law through (d0, e0) and this step (the
+                    # exponent fitted between 1, linear past a kink, and 4; 2 without a fit)
+                    k = 2.0
+                    if math.isfinite(e) and step > d0 and 0.0 < law < e:
+                        k = min(4.0, max(1.0, math.log(e / law) / math.log(step / d0)))
+                    nxt = step * (min(0.9, max(0.25, (TRUST_MARGIN * tol / e) ** (1.0 / k)))
+                                  if math.isfinite(e) else 0.5)
+                    if fallback == fallback and nxt <= fallback:
+                        r = fallback  # the probe passed: a verified step, no more re-solves
+                        break
+                    step = nxt
+            if r != r:  # nothing verified by the law: the former ladder search for this sign
+                known = {(len(ladder) - 1) // 2: e0} if sgn > 0 else {}  # the probe is a ladder step: not re-solved
+                r, solved = _ladder_radius(spec, pb, sc, name, sgn, ladder, scale, lam_x, lam_g, x, dx_dp[:, j], xsc,
+                                           known)
+                solved_any = solved_any or solved
             best = min(best, r)
         if not solved_any or not math.isfinite(best):
             radius[j], unverified[j] = ladder[0] * scale, 1.0
         else:
             radius[j] = best
     return radius, unverified
+
+
+TRUST_MARGIN = 0.5
+"""Fraction of the tolerance the quadratic law aims at when it predicts a trust radius
+(:func:`point_trust_radius`): the step ``d0 sqrt(TRUST_MARGIN tol / e0)``, about 0.7 of the
+law's radius, so that a verification rarely fails on a law that holds only approximately."""
+
+
+def _ladder_radius(spec: TableSpec, pb: Any, sc: Any, name: str, sgn: float, ladder: tuple[float, ...], scale: float,
+                   lam_x: NDArray[np.float64], lam_g: NDArray[np.float64], x: NDArray[np.float64],
+                   col: NDArray[np.float64], xsc: NDArray[np.float64],
+                   known: Mapping[int, float] | None = None) -> tuple[float, bool]:
+    """The former trust-radius search of one parameter and sign (the fall-back of
+    :func:`point_trust_radius`): bisection on the ladder for the largest verified step (the
+    error taken as growing with the step); when no step passes, ``d tol / e`` from the smallest
+    step ``d`` that was re-solved (error ``e``, the linear growth law), re-solved there and
+    shrunk (by 0.9 tol / e, at most to half) while its error exceeds the tolerance, at most 3
+    times; if no re-solve converged, the smallest step is re-solved once more from the
+    prediction with the optimizer's per-run budget ``solver.max_iter`` (measured at 3
+    rim-speed-cap points: such re-solves converge in 52-116 iterations to a point 1-20 variable
+    scales from the prediction, so the radius is tiny, not the fallback). ``known``: errors of
+    ladder steps (index -> error) already re-solved with ``build.trust_max_iter`` (IPOPT is
+    deterministic: the same run is not made twice; measured on README's worked example, the
+    probe's re-solve that did not converge was otherwise repeated at every point whose slope or
+    cross-slope radius ends below the ladder). Returns the radius (inf: nothing converged) and
+    whether any re-solve converged."""
+    tol = spec.build.trust_tolerance
+    cache: dict[int, float] = dict(known or {})  # ladder index -> error (inf: no re-solve)
+
+    def err(k: int, its: int | None = None) -> float:
+        if k not in cache:
+            cache[k] = _prediction_error(spec, pb, sc, name, sgn * ladder[k] * scale, lam_x, lam_g, x, col, xsc, its)
+        return cache[k]
+
+    lo, hi = -1, len(ladder)  # invariant: lo passes (or -1), hi fails (or len)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if err(mid) <= tol:
+            lo = mid
+        else:
+            hi = mid
+    if lo >= 0:
+        return ladder[lo] * scale, True
+    err(0)
+    if not any(math.isfinite(e) for e in cache.values()):
+        # nothing converged within build.trust_max_iter: the smallest step once more
+        # with the optimizer's per-run budget (its error sizes the radius)
+        del cache[0]
+        err(0, spec.solver.max_iter if spec.solver is not None else None)
+    done = sorted(k for k, e in cache.items() if math.isfinite(e))
+    r = ladder[done[0]] * scale * tol / cache[done[0]] if done else math.inf
+    # the linear law is an estimate: re-solve at r and shrink while it fails (at most 3
+    # re-solves; measured on a nominal point: 0.021 > 0.02 at the law's cross-slope
+    # radius, which `tables verify` rejected)
+    for _ in range(3 if math.isfinite(r) else 0):
+        e_r = _prediction_error(spec, pb, sc, name, sgn * r, lam_x, lam_g, x, col, xsc)
+        if e_r <= tol:
+            break
+        r *= min(0.5, 0.9 * tol / e_r) if math.isfinite(e_r) else 0.5
+    return r, bool(done)
 
 
 def _prediction_error(spec: TableSpec, pb: Any, sc: Any, name: str, d: float, lam_x: NDArray[np.float64],
@@ -1946,12 +2017,17 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
                              "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
                              "(7.25); verified by a warm re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
-        "trust_radius_rule": (f"per point and parameter (field trust_radius): the largest step of the ladder "
-                              f"{list(spec.build.trust_search)} x the parameter scale, both signs, whose NLP re-solve "
-                              f"the first-order prediction matches within {spec.build.trust_tolerance} of the variable "
-                              "scales (bisection; below the ladder: d tol / e from the smallest re-solved step); where "
-                              "no re-solve succeeded, the fallback 'smallest ladder step' with trust_unverified = 1; "
-                              "this entry: the smallest over the feasible points"),
+        "trust_radius_rule": (f"per point and parameter (field trust_radius): a step, both signs, whose NLP re-solve "
+                              f"from the first-order prediction matches it within {spec.build.trust_tolerance} of the "
+                              "variable scales; predicted by the quadratic law from the error at the probe "
+                              f"{sorted(spec.build.trust_search)[(len(spec.build.trust_search) - 1) // 2]} x the "
+                              f"parameter scale (aiming at {TRUST_MARGIN} x the tolerance, at most "
+                              f"{max(spec.build.trust_search)} x the scale), verified by one re-solve per sign and "
+                              "shrunk while it fails; fall-back: bisection on the ladder "
+                              f"{list(spec.build.trust_search)} x the parameter scale (below the ladder: d tol / e "
+                              "from the smallest re-solved step); where no re-solve succeeded, the fallback "
+                              "'smallest ladder step' with trust_unverified = 1; this entry: the smallest over the "
+                              "feasible points"),
         "trust_unverified_points": {n: int(np.sum(arrays["trust_unverified"][feas][:, lay.index(n)] > 0))
                                     for n in _LIN_PARAMS} if feas.any() else {},
         "grid_points": spec.grid.size,

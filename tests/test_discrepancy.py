@@ -207,41 +207,30 @@ def test_sensor_offset_with_crosstalk_is_named_or_reported_with_its_look_alike(r
 
 
 # one noise seed here (seed 44 was the second; the benchmark runs seeds 2000-2002:
-# tests/bench/bench_discrepancy.py, results_discrepancy.md)
+# tests/bench/bench_discrepancy.py, results_discrepancy.md). This case also carries the recalibrated
+# file's checks: a second parameters-off truth (K x1.6 and friction angle +3 deg, seed 24) took the same
+# path (recalibration wins, report writes recalibrated.toml) and is in the benchmark (suite time)
 @pytest.mark.parametrize("seed", [24])
-def test_no_cohesion_and_a_doubled_shear_modulus_is_parameters_off(recording, params, seed):
+def test_no_cohesion_and_a_doubled_shear_modulus_is_parameters_off(recording, params, seed, tmp_path):
     """Told: recording and parameters. Not told: the truth is the same model with cohesion 0
     and the shear modulus K doubled (issue 24: "cohesion + a load offset" was answered). Must
     answer "parameters off" (recalibration wins whenever it explains as much), say that the
     explanation holds no new term, and the recalibrated cohesion and K be within 20 % of the
-    truth (cohesion: within 20 % of the believed value of 0)."""
+    truth (cohesion: within 20 % of the believed value of 0). The report writes recalibrated.toml
+    that loads, and the recalibrated model reproduces the noiseless truth to within the noise
+    (rms of (recalibrated - truth) / noise below 1) where the believed model is clearly off."""
     truth = replace(params, soil=replace(params.soil, cohesion=0.0, shear_modulus=2.0 * params.soil.shear_modulus))
     pred, ok = predict_recording(truth, ModelOptions(), recording)
     assert ok.all()
     v = diagnose(noisy(recording, pred, seed=seed), params)
     assert v.status == "parameters_off", v.summary()
-    assert all(k == "parameters" for k in v.chosen.kinds), v.summary()
+    assert v.parameters_off and all(k == "parameters" for k in v.chosen.kinds), v.summary()
     assert "holds no new term" in v.summary()
     val = dict(zip(v.chosen.names, v.chosen.values))
     if "K" in val:
         assert val["K"] == pytest.approx(2e3 * params.soil.shear_modulus, rel=0.2), v.summary()
     if "c" in val:
         assert val["c"] < 0.2 * params.soil.cohesion / 1e3, v.summary()
-
-
-def test_two_wrong_parameters_give_parameters_off_and_a_recalibrated_file(recording, params, tmp_path):
-    """Told: recording and parameters. Not told: the truth is the same model with the shear
-    modulus K x1.6 and the friction angle +3 deg (no missing term). Must answer "parameters
-    off", write recalibrated.toml that loads, and the recalibrated model must reproduce the
-    noiseless truth to within the noise (rms of (recalibrated - truth) / noise below 1)."""
-    truth = replace(params, soil=replace(params.soil, shear_modulus=params.soil.shear_modulus * 1.6,
-                                         friction_angle=params.soil.friction_angle + math.radians(3.0)))
-    pred, ok = predict_recording(truth, ModelOptions(), recording)
-    assert ok.all()
-    data = noisy(recording, pred, seed=24)
-    v = diagnose(data, params)
-    assert v.status == "parameters_off", v.summary()
-    assert v.parameters_off and all(k == "parameters" for k in v.chosen.kinds)
     out = write_report(v, tmp_path / "report")
     loaded = load_toml(out / "recalibrated.toml")["parameter_set"]
     assert loaded.soil != params.soil or loaded.tuning != params.tuning

@@ -16,12 +16,14 @@ front wheels need that long) against a library of eight candidates (the expected
 their confounders: IMU mounting tilt vs slope, a drawbar pull vs an anchored tether vs soil vs a
 worn wheel, the other front wheel's steering), without the soil recalibration. The anchored
 tether (five parameters: about 45 % of a diagnosis's re-simulations) is in the library where it
-is a confounder -- the tether case, and the terrain plane, whose in-plane gravity is a pull of
-fixed world direction like a far anchor's -- and left out of the steering, hub drag and
+is a confounder -- the tether case -- and left out of the terrain plane, steering, hub drag and
 undulation cases (``LIBRARY_NO_ANCHOR``): there the constant drawbar pull stays as the tether
-look-alike, and with or without it these three get the same verdict and the same values (checked
-when the split was made). The full library, 40 s drives, every case, two effects at once and
-20 negative seeds are in ``tests/bench/bench_drive_discrepancy.py``.
+look-alike, and with or without it these cases get the same verdict and the same values (checked
+when the split was made; for the plane, 2026-11-27: held-out chi2 34477 believed, 210.6
+terrain_slope, 34137 the anchored tether -- its pull of fixed world direction cannot tilt the
+IMU -- the same slope and cross slope to the printed digits, 136 -> 82 re-simulations). The full
+library, 40 s drives, every case, two effects at once and 20 negative seeds are in
+``tests/bench/bench_drive_discrepancy.py``.
 """
 
 from __future__ import annotations
@@ -174,7 +176,7 @@ def test_terrain_plane_is_named_terrain_slope(sc, tmp_path):
     candidate's own code.)"""
     eff = TerrainPlane(math.radians(3.5), math.radians(-80.0))
     f = record_concealed(tmp_path / "plane.mcap", sc, eff, seed=4, duration=DURATION)
-    v = _diagnose(f, sc, 1)
+    v = _diagnose(f, sc, 1, LIBRARY_NO_ANCHOR)
     assert v.missing_physics == ["terrain_slope"], v.summary()
     vals = dict(zip(v.chosen.names, v.chosen.values))
     want = eff.expect()["terrain_slope"]

@@ -98,12 +98,15 @@ def test_straight_drive_cannot_separate_a_tether_from_a_worn_wheel(sc, nominal, 
     without its steering offset): on a straight line both raise the drive torques and slow the
     rover, and a softer soil does too. The tool must not name one of them: verdict 'ambiguous',
     nothing in missing_physics, the explanations that fit equally listed, and the advice names
-    the manoeuvres the recording lacks (it has no turn, crab or reverse). No truth file written."""
+    the manoeuvres the recording lacks (it has no turn, crab or reverse). No truth file written.
+    Library: the three look-alikes (tether, soil, the worn wheel). The earlier six (with the RL radius
+    and the RR and FR steering offsets) gave the same verdict and the same two explanations
+    (tether + wheel_radius_RR, soil_stiffness + wheel_radius_RR) with 172 re-simulations instead of
+    87 (12.0 against 7.6 CPU-s, 2026-11-27)."""
     r = nominal.wheel_radius[0]
     tr = replace(nominal, wheel_radius=(r, r, 0.93 * r, r), tether_force=1.0)
     f = _straight_drive(tmp_path / "straight.mcap", sc, tr, 16.0, seed=5)
-    lib = [c for c in DRIVE_CANDIDATES if c.key in ("tether", "soil_stiffness", "wheel_radius_RR", "wheel_radius_RL",
-                                                   "steer_offset_RR", "steer_offset_FR")]
+    lib = [c for c in DRIVE_CANDIDATES if c.key in ("tether", "soil_stiffness", "wheel_radius_RR")]
     v = diagnose_drives([f], sc, candidates=lib, recalibrate=False, empirical=False, seed=5)
     assert v.status == "ambiguous", v.summary()
     assert v.missing_physics == [] and not v.parameters_off

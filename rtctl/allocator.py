@@ -261,18 +261,20 @@ class QpAllocator:
             raise AllocatorError("table point field 'hess_lag_xp' is not finite")
         s = self.settings
         sx, sg = self.sx, self.sg
-        H = self._sxx * f["hess_lag"]
-        H = 0.5 * (H + H.T)
         g = sx * f["grad_f"]
-        Hn = H if (hessian is None or not scale_by_hessian) else np.asarray(hessian, dtype=float)
+        if hessian is not None and scale_by_hessian:  # the table's Hessian is not used at all
+            Hn = np.asarray(hessian, dtype=float)
+        else:
+            H = self._sxx * f["hess_lag"]
+            Hn = H = 0.5 * (H + H.T)
         cf = max(float(np.abs(Hn).max()), float(np.abs(g).max()), 1e-12)
-        H /= cf
         g /= cf
         if hessian is not None:
             H = np.asarray(hessian, dtype=float) / cf
             if H.shape != (nx, nx) or not math.isfinite(float(H.sum())):
                 raise AllocatorError(f"prepare: hessian must be a finite ({nx}, {nx}) matrix, got shape {H.shape}")
         else:
+            H /= cf
             Hr = H.copy()
             Hr.flat[::nx + 1] += s.regularization
             try:  # convex (the usual case: (7.24) is a sum of squares): H + reg I is all we need
@@ -286,10 +288,10 @@ class QpAllocator:
         self._Hd = self._H + self._w_diag
         self._g = g
         self._cf = cf
-        self._Hxp = sx[:, None] * hxp / cf  # normalised, scaled x, physical p
-        self._J = f["jac_g_x"] * self._sx_over_sg
-        self._Jp = f["jac_g_p"] / sg[:, None]
-        self._g0 = f["g"] / sg
+        # the table's first-order model (Jacobians, value, cross derivative): built when a solve
+        # needs it (_table_model); a real-time iteration with the exact Jacobian never does
+        self._model_src = (f["jac_g_x"], f["jac_g_p"], f["g"], hxp)
+        self._model_ready = False
         self._lbg = f["lbg"] / sg
         self._ubg = f["ubg"] / sg
         x0_new = f["x"].copy()
@@ -310,14 +312,31 @@ class QpAllocator:
         self._ubx = f["ubx"]
         self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
         self._Px = self._p_values()
+        if self._solver is None:
+            self._table_model()
+            self._setup()
+        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
+            self._pending = {"Px": self._Px}
+        self._prepared = True
+
+    def _table_model(self) -> None:
+        """The prepared table point's first-order model in the QP's units: the scaled Jacobians
+        ``_J``, ``_Jp``, the value ``_g0``, the cross derivative ``_Hxp`` and OSQP's ``A`` values
+        from ``_J`` (pending for the next solve); once per :meth:`prepare`."""
+        if self._model_ready:
+            return
+        jx, jp, g0, hxp = self._model_src
+        sg = self.sg
+        self._Hxp = self.sx[:, None] * hxp / self._cf  # normalised, scaled x, physical p
+        self._J = jx * self._sx_over_sg
+        self._Jp = jp / sg[:, None]
+        self._g0 = g0 / sg
         Ax = self._a_data.copy()
         Ax[self._a_jac_pos_arr] = self._J.T.ravel()
         self._Ax = Ax
-        if self._solver is None:
-            self._setup()
-        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
-            self._pending = {"Px": self._Px, "Ax": Ax}
-        self._prepared = True
+        if self._solver is not None:
+            self._pending["Ax"] = Ax
+        self._model_ready = True
 
     def _p_values(self) -> NDArray[np.float64]:
         Hd = self._H + self._w_diag
@@ -411,6 +430,7 @@ class QpAllocator:
             raise AllocatorError("solve() before prepare(): load a table point first")
         s = self.settings
         sx = self.sx
+        self._table_model()
         dp = np.asarray(p, dtype=float) - self._p0
         shift = self._g0 + self._Jp @ dp
         lg = (self._lbg if lbg is None else np.asarray(lbg, dtype=float) / self.sg) - shift
@@ -505,6 +525,8 @@ class QpAllocator:
             finite = finite and J.shape == (self.ng, self.nx) and math.isfinite(float(J.sum()))
         if not (finite and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
             return self._refused("bad QP data (non-finite iterate, residual or Jacobian, or empty box)")
+        if jac_g_x is None:
+            self._table_model()
         Js = self._J
         if jac_g_x is not None:
             Js = J * self._sx_over_sg

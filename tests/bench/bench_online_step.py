@@ -3,7 +3,7 @@
 One command each; results go to ``tests/bench/results_online_step_<part>.md`` and ``.json``::
 
     python tests/bench/bench_online_step.py accuracy [--points 20] [--seed 0] [--tables a,b]
-    python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000]
+    python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000] [--tag main]
 
 ``accuracy``: on every shipped table with primitives, ``--points`` seeded operating points
 strictly inside cells whose corners all hold primitives (every axis between two grid values),
@@ -372,16 +372,18 @@ def main() -> None:
     t = sub.add_parser("timing", help="step time against a baseline commit, side by side")
     t.add_argument("--baseline", default="40a08e8")
     t.add_argument("--steps", type=int, default=3000)
+    t.add_argument("--tag", default="", help="suffix of the results file names (e.g. main for --baseline main)")
     args = ap.parse_args()
+    global _TAG
     if args.part == "accuracy":
         qp: dict[str, Any] = {}
         for item in (s for s in args.qp.split(",") if s):
             k, _, v = item.partition("=")
             qp[k] = v.lower() == "true" if v.lower() in ("true", "false") else float(v)
-        global _TAG
         _TAG = args.tag
         accuracy(args.points, args.seed, [s for s in args.tables.split(",") if s] or None, qp, args.ticks)
     else:
+        _TAG = args.tag
         timing(args.baseline, args.steps)
 
 

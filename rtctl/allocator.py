@@ -27,7 +27,8 @@ trust region) stays feasible and reports its slack; a feasible one has zero slac
 
 Two solvers answer the same QP. First the exact active-set solve (:mod:`rtctl.active_set`,
 ``QpSettings.active_set_iterations``): from the last tick's active set (at the start, the
-table's active-set hints) the QP with zero slack is one dense KKT system, solved to rounding;
+table's active-set hints; when that set does not settle, once more from the equality rows,
+``active_set_restart_iterations``) the QP with zero slack is one dense KKT system, solved to rounding;
 it is taken when every KKT condition holds and every row multiplier is below ``rho_1`` (then
 zero slack is optimal for the soft QP too, so it is the same QP's minimiser). Otherwise OSQP,
 whose answer also gives the next tick's active set: a tick whose balance needs slack (a rate
@@ -564,13 +565,22 @@ class QpAllocator:
                     ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64]
                     ) -> tuple[NDArray[np.float64], int] | None:
         """The QP of :meth:`solve_at` solved exactly on the last tick's active set
-        (:func:`rtctl.active_set.solve_active_set`), with zero slack: valid when every KKT
+        (:func:`rtctl.active_set.solve_active_set`; when it does not settle within
+        ``active_set_iterations``, again from the equality rows and fixed variables alone within
+        ``active_set_restart_iterations``), with zero slack: valid when every KKT
         condition holds and every row multiplier is below the exact penalty ``slack_l1`` (then
         zero slack is optimal for the soft QP as well, so this is the same QP's minimiser).
         Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
         s = self.settings
         r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, self._active, s.active_set_iterations)
-        self.last_active_set_iterations = r.iterations
+        n = r.iterations
+        if not r.ok and self._active is not None and s.active_set_restart_iterations > 0:
+            # the last tick's set did not settle (its bounds were rate and step limits that moved
+            # with the tick, and adding them all at once over-determined the system): once more
+            # from the equality rows and the fixed variables alone
+            r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, None, s.active_set_restart_iterations)
+            n += r.iterations
+        self.last_active_set_iterations = n
         if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):
             return None
         self._active = r.active
@@ -581,7 +591,7 @@ class QpAllocator:
         self._res_y = np.concatenate([r.y, r.nu, r.y - s.slack_l1, -s.slack_l1 - r.y])
         self.last_solution = np.concatenate([z, np.zeros(2 * ng)])
         self.last_solver = "active set"
-        return z, r.iterations
+        return z, n
 
     def _active_from_osqp(self, zlo: NDArray[np.float64], zhi: NDArray[np.float64]) -> ActiveSet:
         """The active set of OSQP's answer (the next tick's guess): bounds and rows whose

@@ -334,8 +334,22 @@ class QpSettings:
         Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
         OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
         rounding (OSQP's ADMM stops at ``eps``) and without OSQP's refactorisation; when the set
-        does not settle within the budget, or the balance needs slack, OSQP solves the tick. 0:
-        OSQP alone (the C flight path of :mod:`rtctl.codegen` is OSQP's).
+        does not settle within the budget (and the restart below neither), or the balance needs
+        slack, OSQP solves the tick. 0: OSQP alone (the C flight path of :mod:`rtctl.codegen` is
+        OSQP's).
+    active_set_restart_iterations : int
+        Budget of a second active-set solve, started from the equality rows and the fixed
+        variables alone, when the one from the last tick's set did not settle (0: none, OSQP
+        next). The last tick's set is the right start where a bound holds tick after tick (a
+        capped wheel at its cap: from the equality rows alone no solve of the section 7.3
+        recordings settled within 8 KKT systems, from the last set every one in 1); it is a bad
+        one where the active bounds are the rate and step limits that move with every tick:
+        adding them all at once over-determines the system (multipliers of 1e9) and the set
+        cycles. Measured on the 551 QPs of the closed loop of ``bench_online_step.py timing``
+        (one run, 600 ticks): from the last set with a budget of 5, 20 QPs went to OSQP (about
+        0.7 ms each, which set the step's p99); 2 from the last set then up to 6 from the
+        equality rows, none (at most 8 KKT systems, p99 6, mean 1.47), and every QP of the three
+        recordings' scenarios still settled from the last set (at most 2).
     gauss_newton : bool
         Structured Hessian (:meth:`rtctl.rti.RealTimeIteration._structured_hessian`): the exact
         Gauss-Newton part of the objective (7.24) from the wheel-torque rows of each iteration's
@@ -367,7 +381,8 @@ class QpSettings:
     step_limit: float = 2.0
     exact_jacobian: bool = True
     quasi_newton: bool = True
-    active_set_iterations: int = 5
+    active_set_iterations: int = 2
+    active_set_restart_iterations: int = 6
     gauss_newton: bool = True
     iterations_per_tick: int = 3
     extra_iteration_step: float = 0.05
@@ -382,7 +397,9 @@ class QpSettings:
                                         check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
             "extra_iteration_step": _key("extra_iteration_step", check=_pos),
             "active_set_iterations": _key("active_set_iterations",
-                                          check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0")}
+                                          check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0"),
+            "active_set_restart_iterations": _key("active_set_restart_iterations",
+                                                  check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0")}
 
 
 _SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
@@ -566,7 +583,8 @@ step_limit = 2.0            # variable scales: the tick's step in x (never the p
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
 gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature
-active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
+active_set_iterations = 2   # exact active-set solve first (0: OSQP alone, as the C flight path)
+active_set_restart_iterations = 6   # then once more from the equality rows alone (0: none)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales
 

@@ -224,6 +224,7 @@ class QpAllocator:
         self._last_x: NDArray[np.float64] | None = None
         self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
         self._active: ActiveSet | None = None  # the last tick's active set (the next guess)
+        self._last_box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # its physical box
         self.last_active_set_iterations = 0
         self.last_solver = ""
         """Which solver answered the last :meth:`solve_at`: ``"active set"`` or ``"osqp"``."""
@@ -542,7 +543,8 @@ class QpAllocator:
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
-        exact = self._exact_step(Js, q, lg, ug, zlo, zhi) if s.active_set_iterations > 0 else None
+        box_lo, box_hi = np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
+        exact = self._exact_step(Js, q, lg, ug, zlo, zhi, (box_lo, box_hi)) if s.active_set_iterations > 0 else None
         if exact is not None:
             z, it = exact
             slack, obj, status = 0.0, float(0.5 * z @ self._Hd @ z + q[:self.nx] @ z), "solved (active set)"
@@ -562,7 +564,8 @@ class QpAllocator:
                           slack, obj)
 
     def _exact_step(self, Js: NDArray[np.float64], q: NDArray[np.float64], lg: NDArray[np.float64],
-                    ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64]
+                    ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64],
+                    box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
                     ) -> tuple[NDArray[np.float64], int] | None:
         """The QP of :meth:`solve_at` solved exactly on the last tick's active set
         (:func:`rtctl.active_set.solve_active_set`; when it does not settle within
@@ -572,12 +575,23 @@ class QpAllocator:
         zero slack is optimal for the soft QP as well, so this is the same QP's minimiser).
         Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
         s = self.settings
-        r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, self._active, s.active_set_iterations)
+        guess = self._active
+        last = self._last_box
+        if guess is not None and box is not None and last is not None:
+            # a variable bound that moved since the last tick (a rate limit around the last
+            # command, the step limit around the iterate) is not guessed active again: its
+            # activity was the last tick's; bounds that stayed (a cap, a table or actuator bound)
+            # keep theirs
+            moved = ((guess.box < 0) & (box[0] != last[0])) | ((guess.box > 0) & (box[1] != last[1]))
+            if moved.any():
+                guess = ActiveSet(guess.rows, np.where(moved, np.int8(0), guess.box).astype(np.int8))
+        if box is not None:
+            self._last_box = box
+        r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, guess, s.active_set_iterations)
         n = r.iterations
         if not r.ok and self._active is not None and s.active_set_restart_iterations > 0:
-            # the last tick's set did not settle (its bounds were rate and step limits that moved
-            # with the tick, and adding them all at once over-determined the system): once more
-            # from the equality rows and the fixed variables alone
+            # the last tick's set did not settle (a cycle of the full update): once more from the
+            # equality rows and the fixed variables alone
             r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, None, s.active_set_restart_iterations)
             n += r.iterations
         self.last_active_set_iterations = n

@@ -342,14 +342,16 @@ class QpSettings:
         variables alone, when the one from the last tick's set did not settle (0: none, OSQP
         next). The last tick's set is the right start where a bound holds tick after tick (a
         capped wheel at its cap: from the equality rows alone no solve of the section 7.3
-        recordings settled within 8 KKT systems, from the last set every one in 1); it is a bad
-        one where the active bounds are the rate and step limits that move with every tick:
-        adding them all at once over-determines the system (multipliers of 1e9) and the set
-        cycles. Measured on the 551 QPs of the closed loop of ``bench_online_step.py timing``
-        (one run, 600 ticks): from the last set with a budget of 5, 20 QPs went to OSQP (about
-        0.7 ms each, which set the step's p99); 2 from the last set then up to 6 from the
-        equality rows, none (at most 8 KKT systems, p99 6, mean 1.47), and every QP of the three
-        recordings' scenarios still settled from the last set (at most 2).
+        recordings settled within 8 KKT systems, from the last set every one in 1); of its
+        variable bounds only those that did not move since the last tick are guessed active
+        again (:meth:`rtctl.allocator.QpAllocator.solve_at`): the rate limits around the last
+        command and the step limit around the iterate move every tick, and re-adding them all
+        at once over-determined the KKT system (multipliers of 1e9) so that the set cycled.
+        Measured on the closed loop of ``bench_online_step.py timing`` (one run, 551 QPs): with
+        the whole last set and a budget of 5, 20 QPs went to OSQP (about 0.7 ms each, which set
+        the step's p99); with the moved bounds dropped every QP settled from the last set
+        within 6 KKT systems (650 QPs of another run: 520 in 1, 78 in 2, at most 6). The
+        restart is the safety net for a set that still cycles.
     gauss_newton : bool
         Structured Hessian (:meth:`rtctl.rti.RealTimeIteration._structured_hessian`): the exact
         Gauss-Newton part of the objective (7.24) from the wheel-torque rows of each iteration's
@@ -381,7 +383,7 @@ class QpSettings:
     step_limit: float = 2.0
     exact_jacobian: bool = True
     quasi_newton: bool = True
-    active_set_iterations: int = 2
+    active_set_iterations: int = 5
     active_set_restart_iterations: int = 6
     gauss_newton: bool = True
     iterations_per_tick: int = 3
@@ -583,7 +585,7 @@ step_limit = 2.0            # variable scales: the tick's step in x (never the p
 exact_jacobian = true       # linearise at the iterate with the exact Jacobian (false: the table's)
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
 gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature
-active_set_iterations = 2   # exact active-set solve first (0: OSQP alone, as the C flight path)
+active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
 active_set_restart_iterations = 6   # then once more from the equality rows alone (0: none)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales

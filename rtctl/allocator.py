@@ -54,7 +54,7 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .active_set import ActiveSet, solve_active_set
+from .active_set import ActiveSet, solve_active_set, starts_alike
 from .config import QpSettings
 from .layout import NlpLayout
 
@@ -589,10 +589,13 @@ class QpAllocator:
             self._last_box = box
         r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, guess, s.active_set_iterations)
         n = r.iterations
-        if not r.ok and self._active is not None and s.active_set_restart_iterations > 0:
+        if not r.ok and s.active_set_restart_iterations > 0:
             # the last tick's set did not settle (a cycle of the full update): once more from the
-            # equality rows and the fixed variables alone
-            r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, None, s.active_set_restart_iterations)
+            # equality rows and the fixed variables alone; when that is where it started (the
+            # same iterations would follow), on from where it stopped
+            cold = guess is None or starts_alike(guess, None, lg, ug, zlo, zhi)
+            r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, r.active if cold else None,
+                                 s.active_set_restart_iterations)
             n += r.iterations
         self.last_active_set_iterations = n
         if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):

@@ -176,3 +176,19 @@ def test_a_last_set_that_does_not_settle_is_restarted_from_the_equality_rows():
     assert out[0][1] == "osqp" and out[6][1] == "active set"
     assert out[6][2] == 0.0 and 2 < out[6][3] <= 8
     assert np.max(np.abs(out[6][0] - out[0][0]) / xsc) < 1e-5
+
+
+def test_starts_alike_reads_the_start_the_solve_takes():
+    """A guess that only repeats the equality rows and the fixed variables starts where no
+    guess does (the allocator then goes on from where the first solve stopped instead of
+    repeating it); a guessed free bound or inequality row does not."""
+    from rtctl.active_set import starts_alike
+
+    lg = np.array([0.0, -1.0, -1e20])
+    ug = np.array([0.0, 1.0, 1e20])
+    zlo, zhi = np.array([-1.0, 0.5, -1.0]), np.array([1.0, 0.5, 1.0])  # the second variable fixed
+    same = ActiveSet(np.array([1, 0, 0], dtype=np.int8), np.array([0, -1, 0], dtype=np.int8))
+    assert starts_alike(same, None, lg, ug, zlo, zhi)
+    assert starts_alike(ActiveSet(np.array([0, 0, 1], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
+    assert not starts_alike(ActiveSet(np.array([1, -1, 0], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
+    assert not starts_alike(ActiveSet(np.zeros(3, dtype=np.int8), np.array([1, 0, 0], dtype=np.int8)), None, lg, ug, zlo, zhi)

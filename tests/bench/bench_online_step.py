@@ -324,8 +324,11 @@ def timing(baseline: str, steps: int) -> None:
                        capture_output=True)
         try:
             runs = {}
-            for label, tree, probe in (("baseline", wt, "0"), ("new", ROOT, "0"), ("baseline (again)", wt, "0"),
-                                       ("new (again)", ROOT, "0"), ("new, shares", ROOT, "1")):
+            order = [("baseline", wt, "0"), ("new", ROOT, "0"), ("baseline (again)", wt, "0"), ("new (again)", ROOT, "0"),
+                     ("new, shares", ROOT, "1")]
+            if (wt / "rtctl" / "rti.py").exists():  # a baseline with the same parts: its shares too, same clock
+                order.append(("baseline, shares", wt, "1"))
+            for label, tree, probe in order:
                 env = {**os.environ, "PYTHONPATH": str(tree)}
                 r = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(tree), str(steps), index, probe],
                                    capture_output=True, text=True, env=env, cwd=str(tree))
@@ -352,10 +355,21 @@ def timing(baseline: str, steps: int) -> None:
     lines += ["", f"p99 ratio new / baseline: **{n / b:.2f}** (target <= 0.5).", "",
               "Shares of the new step (mean per step, same clock; the probe's own overhead is in the mean):", "",
               "| part | ms | share |", "|---|---|---|"]
+    base_sh = runs.get("baseline, shares")
+    if base_sh is not None:
+        lines[-2:] = ["| part | new ms | new share | baseline ms | baseline share |", "|---|---|---|---|---|"]
     for k, v in sorted(sh.items(), key=lambda kv: -kv[1]):
-        lines.append(f"| {k} | {v:.3f} | {v / tot:.0%} |")
+        row = f"| {k} | {v:.3f} | {v / tot:.0%} |"
+        if base_sh is not None:
+            bv = base_sh["shares"].get(k, float("nan"))
+            row += f" {bv:.3f} | {bv / base_sh['mean']:.0%} |"
+        lines.append(row)
     rest = tot - sum(sh.values())
-    lines.append(f"| the rest (EKF, outer loop, bounds, checks) | {rest:.3f} | {rest / tot:.0%} |")
+    row = f"| the rest (structured Hessian, EKF, outer loop, bounds, checks) | {rest:.3f} | {rest / tot:.0%} |"
+    if base_sh is not None:
+        brest = base_sh["mean"] - sum(base_sh["shares"].values())
+        row += f" {brest:.3f} | {brest / base_sh['mean']:.0%} |"
+    lines.append(row)
     _write("timing", "\n".join(lines) + "\n", out)
 
 

@@ -364,7 +364,8 @@ class SteadyStateResidual:
         zero[2] = (speed * self._inv_rs)[:, None]  # omega = speed / r_s,
         zero[3] = zero[4]  # h = h0
         cat = np.concatenate([main.reshape(5, -1), zero.reshape(5, -1)], axis=1)  # (5, states), wheel-major
-        w, _ = wrench_core(NUMPY, *(c.reshape(-1, 1) for c in cat), self._params, self.model.options)
+        vx, vy, om, h, h0 = (c.reshape(-1, 1) for c in cat)
+        w, _ = wrench_core(NUMPY, vx, vy, om, h, h0, self._params, self.model.options)
         return np.hstack(w).T
 
     def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:

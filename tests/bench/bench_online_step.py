@@ -229,6 +229,8 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
 
     lines = ["# The online step against the NLP at the same point (issue 20)", "",
              f"`python tests/bench/bench_online_step.py accuracy --points {points} --seed {seed}"
+             + (f" --tables {','.join(only)}" if only else "") + (f" --ticks {ticks_n}" if ticks_n != 5 else "")
+             + (f" --tag {_TAG}" if _TAG else "")
              + (f" --qp {','.join(f'{k}={v}' for k, v in (qp or {}).items())}" if qp else "") + "`; "
              f"{_meta()['commit']}, {_meta()['date']}, {time.perf_counter() - t_start:.0f} s.", "",
              "Targets: after 1 tick the iterate's residual by the independent check <= 0.1 N force, 0.01 N m moment, "

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ActiveSet", "ActiveSetResult", "solve_active_set"]
+__all__ = ["ActiveSet", "ActiveSetResult", "solve_active_set", "starts_alike"]
 
 _BIG = 1e20  # a bound at or beyond this magnitude is absent
 
@@ -119,13 +119,7 @@ def solve_active_set(H: NDArray[np.float64], q: NDArray[np.float64], J: NDArray[
     """
     nx, ng = H.shape[0], J.shape[0]
     has_lo_g, has_hi_g = lg > -_BIG, ug < _BIG
-    eq = has_lo_g & has_hi_g & (ug - lg <= tol * (1.0 + np.abs(lg)))
-    fixed_var = zhi - zlo <= tol * (1.0 + np.abs(zlo))
-    act = ActiveSet.empty(nx, ng) if guess is None else guess.copy()
-    act.rows = np.where(eq, np.int8(1), act.rows).astype(np.int8)
-    act.rows[(act.rows < 0) & ~has_lo_g] = 0
-    act.rows[(act.rows > 0) & ~has_hi_g] = 0
-    act.box = np.where(fixed_var, np.int8(-1), act.box).astype(np.int8)
+    act, eq, fixed_var = _start(guess, lg, ug, zlo, zhi, tol, has_lo_g, has_hi_g)
     scale = max(float(np.abs(H).max()), float(np.abs(J).max()) if J.size else 0.0, 1e-300)
     delta = 1e-12 * scale
     z = np.zeros(nx)
@@ -190,6 +184,32 @@ def solve_active_set(H: NDArray[np.float64], q: NDArray[np.float64], J: NDArray[
         seen.add(key)
         act = new
     return ActiveSetResult(False, z, y, nu, act, max_iter, f"active set still changing after {max_iter} KKT systems")
+
+
+def _start(guess: ActiveSet | None, lg: NDArray[np.float64], ug: NDArray[np.float64], zlo: NDArray[np.float64],
+           zhi: NDArray[np.float64], tol: float, has_lo_g: NDArray[np.bool_], has_hi_g: NDArray[np.bool_]
+           ) -> tuple[ActiveSet, NDArray[np.bool_], NDArray[np.bool_]]:
+    """The set :func:`solve_active_set` starts from (``guess`` with every equality row active,
+    every fixed variable at its bound, no row active on a side without a bound), the equality
+    rows and the fixed variables."""
+    eq = has_lo_g & has_hi_g & (ug - lg <= tol * (1.0 + np.abs(lg)))
+    fixed_var = zhi - zlo <= tol * (1.0 + np.abs(zlo))
+    act = ActiveSet.empty(zlo.size, lg.size) if guess is None else guess.copy()
+    act.rows = np.where(eq, np.int8(1), act.rows).astype(np.int8)
+    act.rows[(act.rows < 0) & ~has_lo_g] = 0
+    act.rows[(act.rows > 0) & ~has_hi_g] = 0
+    act.box = np.where(fixed_var, np.int8(-1), act.box).astype(np.int8)
+    return act, eq, fixed_var
+
+
+def starts_alike(a: ActiveSet | None, b: ActiveSet | None, lg: NDArray[np.float64], ug: NDArray[np.float64],
+                 zlo: NDArray[np.float64], zhi: NDArray[np.float64], tol: float = 1e-9) -> bool:
+    """Whether :func:`solve_active_set` starts from the same set for the guesses ``a`` and
+    ``b`` on this QP's bounds (then the same iterations follow)."""
+    has_lo_g, has_hi_g = lg > -_BIG, ug < _BIG
+    sa = _start(a, lg, ug, zlo, zhi, tol, has_lo_g, has_hi_g)[0]
+    sb = _start(b, lg, ug, zlo, zhi, tol, has_lo_g, has_hi_g)[0]
+    return bool(np.array_equal(sa.rows, sb.rows) and np.array_equal(sa.box, sb.box))
 
 
 def _single_change(act: ActiveSet, z: NDArray[np.float64], y: NDArray[np.float64], nu: NDArray[np.float64],

@@ -27,7 +27,8 @@ trust region) stays feasible and reports its slack; a feasible one has zero slac
 
 Two solvers answer the same QP. First the exact active-set solve (:mod:`rtctl.active_set`,
 ``QpSettings.active_set_iterations``): from the last tick's active set (at the start, the
-table's active-set hints) the QP with zero slack is one dense KKT system, solved to rounding;
+table's active-set hints; when that set does not settle, once more from the equality rows,
+``active_set_restart_iterations``) the QP with zero slack is one dense KKT system, solved to rounding;
 it is taken when every KKT condition holds and every row multiplier is below ``rho_1`` (then
 zero slack is optimal for the soft QP too, so it is the same QP's minimiser). Otherwise OSQP,
 whose answer also gives the next tick's active set: a tick whose balance needs slack (a rate
@@ -53,7 +54,7 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .active_set import ActiveSet, solve_active_set
+from .active_set import ActiveSet, solve_active_set, starts_alike
 from .config import QpSettings
 from .layout import NlpLayout
 
@@ -223,6 +224,7 @@ class QpAllocator:
         self._last_x: NDArray[np.float64] | None = None
         self.last_solution: NDArray[np.float64] = np.full(self.n, np.nan)
         self._active: ActiveSet | None = None  # the last tick's active set (the next guess)
+        self._last_box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # its physical box
         self.last_active_set_iterations = 0
         self.last_solver = ""
         """Which solver answered the last :meth:`solve_at`: ``"active set"`` or ``"osqp"``."""
@@ -261,18 +263,20 @@ class QpAllocator:
             raise AllocatorError("table point field 'hess_lag_xp' is not finite")
         s = self.settings
         sx, sg = self.sx, self.sg
-        H = self._sxx * f["hess_lag"]
-        H = 0.5 * (H + H.T)
         g = sx * f["grad_f"]
-        Hn = H if (hessian is None or not scale_by_hessian) else np.asarray(hessian, dtype=float)
+        if hessian is not None and scale_by_hessian:  # the table's Hessian is not used at all
+            Hn = np.asarray(hessian, dtype=float)
+        else:
+            H = self._sxx * f["hess_lag"]
+            Hn = H = 0.5 * (H + H.T)
         cf = max(float(np.abs(Hn).max()), float(np.abs(g).max()), 1e-12)
-        H /= cf
         g /= cf
         if hessian is not None:
             H = np.asarray(hessian, dtype=float) / cf
             if H.shape != (nx, nx) or not math.isfinite(float(H.sum())):
                 raise AllocatorError(f"prepare: hessian must be a finite ({nx}, {nx}) matrix, got shape {H.shape}")
         else:
+            H /= cf
             Hr = H.copy()
             Hr.flat[::nx + 1] += s.regularization
             try:  # convex (the usual case: (7.24) is a sum of squares): H + reg I is all we need
@@ -286,10 +290,10 @@ class QpAllocator:
         self._Hd = self._H + self._w_diag
         self._g = g
         self._cf = cf
-        self._Hxp = sx[:, None] * hxp / cf  # normalised, scaled x, physical p
-        self._J = f["jac_g_x"] * self._sx_over_sg
-        self._Jp = f["jac_g_p"] / sg[:, None]
-        self._g0 = f["g"] / sg
+        # the table's first-order model (Jacobians, value, cross derivative): built when a solve
+        # needs it (_table_model); a real-time iteration with the exact Jacobian never does
+        self._model_src = (f["jac_g_x"], f["jac_g_p"], f["g"], hxp)
+        self._model_ready = False
         self._lbg = f["lbg"] / sg
         self._ubg = f["ubg"] / sg
         x0_new = f["x"].copy()
@@ -310,14 +314,31 @@ class QpAllocator:
         self._ubx = f["ubx"]
         self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
         self._Px = self._p_values()
+        if self._solver is None:
+            self._table_model()
+            self._setup()
+        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
+            self._pending = {"Px": self._Px}
+        self._prepared = True
+
+    def _table_model(self) -> None:
+        """The prepared table point's first-order model in the QP's units: the scaled Jacobians
+        ``_J``, ``_Jp``, the value ``_g0``, the cross derivative ``_Hxp`` and OSQP's ``A`` values
+        from ``_J`` (pending for the next solve); once per :meth:`prepare`."""
+        if self._model_ready:
+            return
+        jx, jp, g0, hxp = self._model_src
+        sg = self.sg
+        self._Hxp = self.sx[:, None] * hxp / self._cf  # normalised, scaled x, physical p
+        self._J = jx * self._sx_over_sg
+        self._Jp = jp / sg[:, None]
+        self._g0 = g0 / sg
         Ax = self._a_data.copy()
         Ax[self._a_jac_pos_arr] = self._J.T.ravel()
         self._Ax = Ax
-        if self._solver is None:
-            self._setup()
-        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
-            self._pending = {"Px": self._Px, "Ax": Ax}
-        self._prepared = True
+        if self._solver is not None:
+            self._pending["Ax"] = Ax
+        self._model_ready = True
 
     def _p_values(self) -> NDArray[np.float64]:
         Hd = self._H + self._w_diag
@@ -411,6 +432,7 @@ class QpAllocator:
             raise AllocatorError("solve() before prepare(): load a table point first")
         s = self.settings
         sx = self.sx
+        self._table_model()
         dp = np.asarray(p, dtype=float) - self._p0
         shift = self._g0 + self._Jp @ dp
         lg = (self._lbg if lbg is None else np.asarray(lbg, dtype=float) / self.sg) - shift
@@ -505,6 +527,8 @@ class QpAllocator:
             finite = finite and J.shape == (self.ng, self.nx) and math.isfinite(float(J.sum()))
         if not (finite and bool((zlo <= zhi).all()) and not (np.isnan(lg).any() or np.isnan(ug).any())):
             return self._refused("bad QP data (non-finite iterate, residual or Jacobian, or empty box)")
+        if jac_g_x is None:
+            self._table_model()
         Js = self._J
         if jac_g_x is not None:
             Js = J * self._sx_over_sg
@@ -519,7 +543,8 @@ class QpAllocator:
             q[:self.nx] -= 2.0 * self._w * zr
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
-        exact = self._exact_step(Js, q, lg, ug, zlo, zhi) if s.active_set_iterations > 0 else None
+        box_lo, box_hi = np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
+        exact = self._exact_step(Js, q, lg, ug, zlo, zhi, (box_lo, box_hi)) if s.active_set_iterations > 0 else None
         if exact is not None:
             z, it = exact
             slack, obj, status = 0.0, float(0.5 * z @ self._Hd @ z + q[:self.nx] @ z), "solved (active set)"
@@ -539,16 +564,40 @@ class QpAllocator:
                           slack, obj)
 
     def _exact_step(self, Js: NDArray[np.float64], q: NDArray[np.float64], lg: NDArray[np.float64],
-                    ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64]
+                    ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64],
+                    box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
                     ) -> tuple[NDArray[np.float64], int] | None:
         """The QP of :meth:`solve_at` solved exactly on the last tick's active set
-        (:func:`rtctl.active_set.solve_active_set`), with zero slack: valid when every KKT
+        (:func:`rtctl.active_set.solve_active_set`; when it does not settle within
+        ``active_set_iterations``, again from the equality rows and fixed variables alone within
+        ``active_set_restart_iterations``), with zero slack: valid when every KKT
         condition holds and every row multiplier is below the exact penalty ``slack_l1`` (then
         zero slack is optimal for the soft QP as well, so this is the same QP's minimiser).
         Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
         s = self.settings
-        r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, self._active, s.active_set_iterations)
-        self.last_active_set_iterations = r.iterations
+        guess = self._active
+        last = self._last_box
+        if guess is not None and box is not None and last is not None:
+            # a variable bound that moved since the last tick (a rate limit around the last
+            # command, the step limit around the iterate) is not guessed active again: its
+            # activity was the last tick's; bounds that stayed (a cap, a table or actuator bound)
+            # keep theirs
+            moved = ((guess.box < 0) & (box[0] != last[0])) | ((guess.box > 0) & (box[1] != last[1]))
+            if moved.any():
+                guess = ActiveSet(guess.rows, np.where(moved, np.int8(0), guess.box).astype(np.int8))
+        if box is not None:
+            self._last_box = box
+        r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, guess, s.active_set_iterations)
+        n = r.iterations
+        if not r.ok and s.active_set_restart_iterations > 0:
+            # the last tick's set did not settle (a cycle of the full update): once more from the
+            # equality rows and the fixed variables alone; when that is where it started (the
+            # same iterations would follow), on from where it stopped
+            cold = guess is None or starts_alike(guess, None, lg, ug, zlo, zhi)
+            r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, r.active if cold else None,
+                                 s.active_set_restart_iterations)
+            n += r.iterations
+        self.last_active_set_iterations = n
         if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):
             return None
         self._active = r.active
@@ -559,7 +608,7 @@ class QpAllocator:
         self._res_y = np.concatenate([r.y, r.nu, r.y - s.slack_l1, -s.slack_l1 - r.y])
         self.last_solution = np.concatenate([z, np.zeros(2 * ng)])
         self.last_solver = "active set"
-        return z, r.iterations
+        return z, n
 
     def _active_from_osqp(self, zlo: NDArray[np.float64], zhi: NDArray[np.float64]) -> ActiveSet:
         """The active set of OSQP's answer (the next tick's guess): bounds and rows whose

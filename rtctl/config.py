@@ -334,8 +334,24 @@ class QpSettings:
         Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
         OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
         rounding (OSQP's ADMM stops at ``eps``) and without OSQP's refactorisation; when the set
-        does not settle within the budget, or the balance needs slack, OSQP solves the tick. 0:
-        OSQP alone (the C flight path of :mod:`rtctl.codegen` is OSQP's).
+        does not settle within the budget (and the restart below neither), or the balance needs
+        slack, OSQP solves the tick. 0: OSQP alone (the C flight path of :mod:`rtctl.codegen` is
+        OSQP's).
+    active_set_restart_iterations : int
+        Budget of a second active-set solve, started from the equality rows and the fixed
+        variables alone, when the one from the last tick's set did not settle (0: none, OSQP
+        next). The last tick's set is the right start where a bound holds tick after tick (a
+        capped wheel at its cap: from the equality rows alone no solve of the section 7.3
+        recordings settled within 8 KKT systems, from the last set every one in 1); of its
+        variable bounds only those that did not move since the last tick are guessed active
+        again (:meth:`rtctl.allocator.QpAllocator.solve_at`): the rate limits around the last
+        command and the step limit around the iterate move every tick, and re-adding them all
+        at once over-determined the KKT system (multipliers of 1e9) so that the set cycled.
+        Measured on the closed loop of ``bench_online_step.py timing`` (one run, 551 QPs): with
+        the whole last set and a budget of 5, 20 QPs went to OSQP (about 0.7 ms each, which set
+        the step's p99); with the moved bounds dropped every QP settled from the last set
+        within 6 KKT systems (650 QPs of another run: 520 in 1, 78 in 2, at most 6). The
+        restart is the safety net for a set that still cycles.
     gauss_newton : bool
         Structured Hessian (:meth:`rtctl.rti.RealTimeIteration._structured_hessian`): the exact
         Gauss-Newton part of the objective (7.24) from the wheel-torque rows of each iteration's
@@ -368,6 +384,7 @@ class QpSettings:
     exact_jacobian: bool = True
     quasi_newton: bool = True
     active_set_iterations: int = 5
+    active_set_restart_iterations: int = 6
     gauss_newton: bool = True
     iterations_per_tick: int = 3
     extra_iteration_step: float = 0.05
@@ -382,7 +399,9 @@ class QpSettings:
                                         check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
             "extra_iteration_step": _key("extra_iteration_step", check=_pos),
             "active_set_iterations": _key("active_set_iterations",
-                                          check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0")}
+                                          check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0"),
+            "active_set_restart_iterations": _key("active_set_restart_iterations",
+                                                  check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0")}
 
 
 _SECTIONS: dict[str, type] = {"actuators": Actuators, "drive": Drive, "noise": Noise, "estimator": EstimatorSettings,
@@ -567,6 +586,7 @@ exact_jacobian = true       # linearise at the iterate with the exact Jacobian (
 quasi_newton = true         # damped BFGS updates of the table's Hessian from iteration to iteration
 gauss_newton = true         # structured Hessian: exact Gauss-Newton part of (7.24) + the table corners' curvature
 active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as the C flight path)
+active_set_restart_iterations = 6   # then once more from the equality rows alone (0: none)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales
 

@@ -499,6 +499,7 @@ class Controller:
         self._gap_flags = tuple(f"table {k} unavailable since start-up: {v}; failures it served are imposed on "
                                 "another table" for k, v in self.unavailable.items())
         self.signatures = {k: table_signature(t) for k, t in self.tables.items()}
+        self._choice_cache: dict[Any, tuple[str, tuple[str, ...], tuple[tuple[str, int], ...]]] = {}
         self._xy = {k: _wheel_xy(t) for k, t in self.tables.items()}  # rover-file wheel centres (None: mini rover)
         self._index = {k: _Index(t.layout) for k, t in self.tables.items()}
         self._no_primitive = frozenset(k for k, t in self.tables.items()
@@ -608,6 +609,26 @@ class Controller:
         return frozenset(self._failures) | frozenset(task)
 
     def _choose_table(self) -> tuple[str, list[str]]:
+        """The table to drive for the declared failures and task, and the preparation's flags
+        (:meth:`_choose_table_for`): memoised per declaration (the tables, their signatures and
+        the failure descriptions are fixed at construction), the counters it bumps replayed."""
+        task = self._task
+        key = (tuple(sorted(self._failures.items())), None if task is None else (task.kind, task.wheel, task.value))
+        hit = self._choice_cache.get(key)
+        if hit is None:
+            before = dict(self._counters)
+            name, flags = self._choose_table_for()
+            bumped = tuple((k, v - before.get(k, 0)) for k, v in self._counters.items() if v != before.get(k, 0))
+            if len(self._choice_cache) >= 64:  # a bounded memory: declarations change rarely
+                self._choice_cache.clear()
+            self._choice_cache[key] = (name, tuple(flags), bumped)
+            return name, flags
+        name, fl, bumped = hit
+        for k, n in bumped:
+            self._count(k, n)
+        return name, list(fl)
+
+    def _choose_table_for(self) -> tuple[str, list[str]]:
         declared = self._declared()
         flags: list[str] = []
         # a table without a single primitive (the optimizer's verdict at every grid point: e.g. a

@@ -121,6 +121,7 @@ class RealTimeIteration:
         self._corner_cache: dict[int, NDArray[np.float64]] = {}  # curvature part per grid point
         self._cell_cache: dict[bytes, tuple[NDArray[np.float64], NDArray[np.bool_]]] = {}  # per cell: stack, kept
         self._A_table: NDArray[np.float64] | None = None  # the prepared point's curvature part
+        self._convex = True  # the last structured Hessian needed no convexification (try a Cholesky factor first)
         self._torque_rows = np.array([table.layout.index(f"wheel torque {w}") for w in table.layout.wheels], dtype=int) \
             if self.residual is not None else np.zeros(0, dtype=int)
         self._point: Any = None
@@ -346,7 +347,10 @@ class RealTimeIteration:
 
         The matrix handed to the QP is convexified (eigenvalues floored at ``regularization``
         relative to the objective's normalisation, capped at 10 times it); ``A`` keeps the
-        unconvexified update, so the floor does not accumulate from tick to tick."""
+        unconvexified update, so the floor does not accumulate from tick to tick. Whether the
+        matrix needs it is proved by a Cholesky factor while the last one did not, else read off
+        the eigenvalues that the floor needs anyway (the matrix is indefinite at most points of
+        the shipped tables, where the failed factorisation cost a quarter of this method)."""
         G = self._gauss_newton(jac)
         A = self._A if self._A is not None else self._table_curvature(self._point)
         B = G + A
@@ -369,16 +373,21 @@ class RealTimeIteration:
         self._A = B - G
         cf = self.allocator.objective_scale
         floor = self.settings.regularization * cf
-        Bf = B.copy()
-        Bf.flat[::Bf.shape[0] + 1] -= floor
-        try:  # every eigenvalue above the floor (the usual case, a Cholesky factor proves it) ...
-            np.linalg.cholesky(Bf)
-            H = B if float(np.abs(B).max()) <= 10.0 * cf else None
-        except np.linalg.LinAlgError:
-            H = None
+        H: NDArray[np.float64] | None = None
+        if self._convex:
+            Bf = B.copy()
+            Bf.flat[::Bf.shape[0] + 1] -= floor
+            try:  # every eigenvalue above the floor (a Cholesky factor proves it) ...
+                np.linalg.cholesky(Bf)
+                H = B if float(np.abs(B).max()) <= 10.0 * cf else None
+            except np.linalg.LinAlgError:
+                self._convex = False
         if H is None:  # ... else floor (and cap) the eigenvalues
             w, V = np.linalg.eigh(B)
-            H = (V * np.clip(w, floor, 10.0 * cf)) @ V.T
+            if float(w[0]) > floor and float(np.abs(B).max()) <= 10.0 * cf:  # convex after all: as the factor says
+                H, self._convex = B, True
+            else:
+                H = (V * np.clip(w, floor, 10.0 * cf)) @ V.T
         self._H = 0.5 * (H + H.T)
         self.allocator.set_hessian(self._H)
 

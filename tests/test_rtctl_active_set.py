@@ -141,3 +141,54 @@ def test_allocator_exact_step_equals_osqp_on_a_built_table():
     assert out[8][1] == "active set" and out[0][1] == "osqp"
     assert out[8][2] == 0.0
     assert np.max(np.abs(out[8][0] - out[0][0]) / xsc) < 1e-5
+
+
+def test_a_last_set_that_does_not_settle_is_restarted_from_the_equality_rows():
+    """A stale guess (every bound active, as when the last tick's active bounds were rate and
+    step limits that moved) over-determines the KKT system and does not settle within
+    ``active_set_iterations``: without the restart OSQP takes the tick; with it the exact solve
+    from the equality rows does, with zero slack and OSQP's answer to OSQP's tolerance."""
+    from pathlib import Path
+
+    from rtctl.allocator import merge_bounds
+    from rtctl.config import QpSettings
+    from rtctl.rti import RealTimeIteration
+    from rtctl.table import load_table
+
+    t = load_table(Path(__file__).parent / "data" / "tables" / "rr_steer_stuck_50.npz")
+    lay = t.layout
+    xsc = np.asarray(lay.variable_scale)
+    feas = np.argwhere(t.feasible)
+    tp = t.at(**t.grid_point(tuple(int(i) for i in feas[len(feas) // 2])))
+    p = np.array(tp.p, dtype=float)
+    p[lay.index("slope")] += 0.01
+    out = {}
+    for restart in (0, 6):
+        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=2,
+                                           active_set_restart_iterations=restart, iterations_per_tick=1),
+                                [lay.index(f"wheel torque {w}") for w in lay.wheels])
+        rti.prepare(tp)
+        x = rti.iterate
+        rti.allocator._active = ActiveSet(np.zeros(lay.ng, dtype=np.int8), np.full(lay.nx, -1, dtype=np.int8))
+        res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 0.5 * xsc, x + 0.5 * xsc)))
+        assert res.ok
+        out[restart] = (res.x, rti.allocator.last_solver, res.slack, rti.allocator.last_active_set_iterations)
+    assert out[0][1] == "osqp" and out[6][1] == "active set"
+    assert out[6][2] == 0.0 and 2 < out[6][3] <= 8
+    assert np.max(np.abs(out[6][0] - out[0][0]) / xsc) < 1e-5
+
+
+def test_starts_alike_reads_the_start_the_solve_takes():
+    """A guess that only repeats the equality rows and the fixed variables starts where no
+    guess does (the allocator then goes on from where the first solve stopped instead of
+    repeating it); a guessed free bound or inequality row does not."""
+    from rtctl.active_set import starts_alike
+
+    lg = np.array([0.0, -1.0, -1e20])
+    ug = np.array([0.0, 1.0, 1e20])
+    zlo, zhi = np.array([-1.0, 0.5, -1.0]), np.array([1.0, 0.5, 1.0])  # the second variable fixed
+    same = ActiveSet(np.array([1, 0, 0], dtype=np.int8), np.array([0, -1, 0], dtype=np.int8))
+    assert starts_alike(same, None, lg, ug, zlo, zhi)
+    assert starts_alike(ActiveSet(np.array([0, 0, 1], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
+    assert not starts_alike(ActiveSet(np.array([1, -1, 0], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
+    assert not starts_alike(ActiveSet(np.zeros(3, dtype=np.int8), np.array([1, 0, 0], dtype=np.int8)), None, lg, ug, zlo, zhi)

@@ -150,9 +150,9 @@ class FourWheelRocker:
     def _centre(self, wheel: str, c: Any, s: Any) -> tuple[Any, Any, Any]:
         """:meth:`wheel_centre` from ``cos(phi)``, ``sin(phi)`` (shared by a rocker's two wheels)."""
         lr, hr, wr = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
-        sx = 1.0 if _FRONT[wheel] else -1.0
-        y = -wr / 2 if _SIDE[wheel] == "R" else wr / 2
-        return sx * c * lr / 2 + s * hr, y, sx * s * lr / 2 - c * hr
+        half = (lr if _FRONT[wheel] else -lr) / 2  # sx lr / 2: sign and halving are exact, so
+        y = -wr / 2 if _SIDE[wheel] == "R" else wr / 2  # c * half is sx c lr / 2 bit for bit
+        return c * half + s * hr, y, s * half - c * hr
 
     @staticmethod
     def to_rover_frame(ops: Backend, w: Sequence[Any], beta: Any) -> tuple[Any, ...]:

@@ -330,6 +330,7 @@ class SteadyStateResidual:
         self._jac_cols, self._jac_sel, self._jac_steps = columns(list(range(self.nx)))
         self._grad_cols, self._grad_sel, self._grad_steps = columns([self._var[(v, w)] for w in wheels for v in kinds])
         self._iv = {v: np.array([self._var[(v, w)] for w in wheels]) for v in WHEEL_VARIABLES}
+        self._iv4 = np.stack([self._iv[v] for v in ("omega", "beta", "h", "h0")])  # (4, nw)
         self._inv_rs = 1.0 / np.asarray(model.shearing_radius, dtype=float)
         nk = 1 + len(kinds)
         # a wheel's zero-slip state (speed / r_s, h0, h0) depends on its beta and h0 only: of the
@@ -356,18 +357,16 @@ class SteadyStateResidual:
         """Soil wrenches of every wheel at the ``nk`` rows of ``Xk`` and of its zero-slip state at
         the rows ``_zero_cols`` (the others repeat the base), in one :func:`wrench_core` call:
         an array ``(6, nw * (nk + nz))``, the main states wheel-major, then the zero-slip ones."""
-        OM, B, H, H0 = (Xk[:, self._iv[v]].T for v in ("omega", "beta", "h", "h0"))  # (nw, nk)
+        OM, B, H, H0 = Xk[:, self._iv4].transpose(1, 2, 0)  # one gather: each (nw, nk)
         VX, VY = self.model.statics.wheel_velocity(NUMPY, speed, B)
-        zc = self._zero_cols
-        OM0 = np.broadcast_to((speed * self._inv_rs)[:, None], (OM.shape[0], zc.size))
-        H0z = H0[:, zc]
-
-        def col(a: Any, b: Any) -> NDArray[np.float64]:
-            return np.concatenate([np.ravel(a), np.ravel(b)]).reshape(-1, 1)
-
-        w, _ = wrench_core(NUMPY, col(VX, VX[:, zc]), col(VY, VY[:, zc]), col(OM, OM0), col(H, H0z), col(H0, H0z),
-                           self._params, self.model.options)
-        return np.concatenate([np.asarray(q, dtype=float).reshape(1, -1) for q in w])
+        main = np.stack([VX, VY, OM, H, H0])  # (5, nw, nk): the states' vx, vy, omega, h, h0
+        zero = main[:, :, self._zero_cols]  # the zero-slip states: (vx, vy) of the column,
+        zero[2] = (speed * self._inv_rs)[:, None]  # omega = speed / r_s,
+        zero[3] = zero[4]  # h = h0
+        cat = np.concatenate([main.reshape(5, -1), zero.reshape(5, -1)], axis=1)  # (5, states), wheel-major
+        vx, vy, om, h, h0 = (c.reshape(-1, 1) for c in cat)
+        w, _ = wrench_core(NUMPY, vx, vy, om, h, h0, self._params, self.model.options)
+        return np.hstack(w).T
 
     def residual(self, x: NDArray[np.float64], p: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """``(g, f)`` at physical ``x`` (nx,) and parameters ``p`` (np,): every row's physical

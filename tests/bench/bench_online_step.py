@@ -3,7 +3,7 @@
 One command each; results go to ``tests/bench/results_online_step_<part>.md`` and ``.json``::
 
     python tests/bench/bench_online_step.py accuracy [--points 20] [--seed 0] [--tables a,b]
-    python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000]
+    python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000] [--tag main]
 
 ``accuracy``: on every shipped table with primitives, ``--points`` seeded operating points
 strictly inside cells whose corners all hold primitives (every axis between two grid values),
@@ -229,6 +229,8 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
 
     lines = ["# The online step against the NLP at the same point (issue 20)", "",
              f"`python tests/bench/bench_online_step.py accuracy --points {points} --seed {seed}"
+             + (f" --tables {','.join(only)}" if only else "") + (f" --ticks {ticks_n}" if ticks_n != 5 else "")
+             + (f" --tag {_TAG}" if _TAG else "")
              + (f" --qp {','.join(f'{k}={v}' for k, v in (qp or {}).items())}" if qp else "") + "`; "
              f"{_meta()['commit']}, {_meta()['date']}, {time.perf_counter() - t_start:.0f} s.", "",
              "Targets: after 1 tick the iterate's residual by the independent check <= 0.1 N force, 0.01 N m moment, "
@@ -324,8 +326,11 @@ def timing(baseline: str, steps: int) -> None:
                        capture_output=True)
         try:
             runs = {}
-            for label, tree, probe in (("baseline", wt, "0"), ("new", ROOT, "0"), ("baseline (again)", wt, "0"),
-                                       ("new (again)", ROOT, "0"), ("new, shares", ROOT, "1")):
+            order = [("baseline", wt, "0"), ("new", ROOT, "0"), ("baseline (again)", wt, "0"), ("new (again)", ROOT, "0"),
+                     ("new, shares", ROOT, "1")]
+            if (wt / "rtctl" / "rti.py").exists():  # a baseline with the same parts: its shares too, same clock
+                order.append(("baseline, shares", wt, "1"))
+            for label, tree, probe in order:
                 env = {**os.environ, "PYTHONPATH": str(tree)}
                 r = subprocess.run([sys.executable, "-c", _TIMING_SCRIPT, str(tree), str(steps), index, probe],
                                    capture_output=True, text=True, env=env, cwd=str(tree))
@@ -352,10 +357,21 @@ def timing(baseline: str, steps: int) -> None:
     lines += ["", f"p99 ratio new / baseline: **{n / b:.2f}** (target <= 0.5).", "",
               "Shares of the new step (mean per step, same clock; the probe's own overhead is in the mean):", "",
               "| part | ms | share |", "|---|---|---|"]
+    base_sh = runs.get("baseline, shares")
+    if base_sh is not None:
+        lines[-2:] = ["| part | new ms | new share | baseline ms | baseline share |", "|---|---|---|---|---|"]
     for k, v in sorted(sh.items(), key=lambda kv: -kv[1]):
-        lines.append(f"| {k} | {v:.3f} | {v / tot:.0%} |")
+        row = f"| {k} | {v:.3f} | {v / tot:.0%} |"
+        if base_sh is not None:
+            bv = base_sh["shares"].get(k, float("nan"))
+            row += f" {bv:.3f} | {bv / base_sh['mean']:.0%} |"
+        lines.append(row)
     rest = tot - sum(sh.values())
-    lines.append(f"| the rest (EKF, outer loop, bounds, checks) | {rest:.3f} | {rest / tot:.0%} |")
+    row = f"| the rest (structured Hessian, EKF, outer loop, bounds, checks) | {rest:.3f} | {rest / tot:.0%} |"
+    if base_sh is not None:
+        brest = base_sh["mean"] - sum(base_sh["shares"].values())
+        row += f" {brest:.3f} | {brest / base_sh['mean']:.0%} |"
+    lines.append(row)
     _write("timing", "\n".join(lines) + "\n", out)
 
 
@@ -372,16 +388,18 @@ def main() -> None:
     t = sub.add_parser("timing", help="step time against a baseline commit, side by side")
     t.add_argument("--baseline", default="40a08e8")
     t.add_argument("--steps", type=int, default=3000)
+    t.add_argument("--tag", default="", help="suffix of the results file names (e.g. main for --baseline main)")
     args = ap.parse_args()
+    global _TAG
     if args.part == "accuracy":
         qp: dict[str, Any] = {}
         for item in (s for s in args.qp.split(",") if s):
             k, _, v = item.partition("=")
             qp[k] = v.lower() == "true" if v.lower() in ("true", "false") else float(v)
-        global _TAG
         _TAG = args.tag
         accuracy(args.points, args.seed, [s for s in args.tables.split(",") if s] or None, qp, args.ticks)
     else:
+        _TAG = args.tag
         timing(args.baseline, args.steps)
 
 

@@ -35,7 +35,9 @@ PARTS = [("rtctl.controller", "Controller", "prepare"), ("rtctl.allocator", "QpA
          ("rtctl.controller", "Controller", "_crab_sensitivity"), ("rtctl.rti", "RealTimeIteration", "linearise"),
          ("rtctl.physics.steady_state", "SteadyStateResidual", "evaluate"),
          ("rtctl.physics.steady_state", None, "steady_state_rows"), ("rtctl.physics.terramechanics", None, "wrench_core"),
+         ("rtctl.rti", "RealTimeIteration", "_structured_hessian"),
          ("rtctl.allocator", "QpAllocator", "solve_at"), ("rtctl.active_set", None, "solve_active_set"),
+         ("rtctl.allocator", "QpAllocator", "_osqp"),
          ("rtctl.controller", "Controller", "_bounds"), ("rtctl.estimator", "SlipHeadingEKF", "predict"),
          ("rtctl.estimator", "SlipHeadingEKF", "update_pose"), ("rtctl.inputs", None, "read_measurements"),
          ("rtctl.controller", "Controller", "_diag"), ("rtctl.controller", "Controller", "_unreachable")]

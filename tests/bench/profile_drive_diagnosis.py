@@ -36,9 +36,11 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--log", action="store_true", help="print each progress message with the CPU seconds so far (stderr)")
     a = ap.parse_args(argv)
     import offline.discrepancy.drive.diagnosis as dd
     import offline.sim.plant as pl
+    from bench_drive_actuators import _record as _record_actuators
     from bench_drive_time import _record
     from offline.discrepancy.drive.candidates import RoverExtension, rover_terms
     from offline.rover.scenario import load_scenario
@@ -91,9 +93,12 @@ def main(argv: list[str]) -> int:
 
     def progress(m: str) -> None:
         stage[0] = m.split(" of ")[0].split(" on top")[0].split(":")[0][:48]
+        if a.log:
+            print(f"[{time.process_time():8.1f} CPU-s] {m}", file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory() as tmpd:
-        path, seed = _record(a.case, Path(tmpd))
+        rec = _record_actuators if a.case in ("shortfall_RL", "current_limited_RL", "rate_limited_RL") else _record
+        path, seed = rec(a.case, Path(tmpd))
         load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
         t0 = time.perf_counter()
         v = dd.diagnose_drives([path], sc, seed=seed, progress=progress)
@@ -115,6 +120,12 @@ def main(argv: list[str]) -> int:
         tot.update(g)
         md.append(f"| {k} | {secs[k]:.1f} | " + " | ".join(str(g[c]) for c in cols) + " |")
     md.append(f"| all | {sum(secs.values()):.1f} | " + " | ".join(str(tot[c]) for c in cols) + " |")
+    md += ["", f"Scores (chi2 of the model as given {v.chi2_base:.1f}; delta: held-out improvement, in: in-sample improvement of "
+           "the full-data fit; refit: held-out refit per fold):", "",
+           "| candidate | delta held-out | in-sample | refit | significant | p adjusted | values |", "|---|---|---|---|---|---|---|"]
+    for s in v.scores:
+        md.append(f"| {s.label} | {s.delta_cv:.1f} | {v.chi2_base - s.chi2_in:.1f} | {s.refit} | {s.significant} | "
+                  f"{s.p_adjusted:.3g} | {', '.join(f'{x:.4g}' for x in s.values)} |")
     text = "\n".join(md) + "\n"
     print(text)
     if a.out:

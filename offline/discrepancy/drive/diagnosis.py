@@ -1217,7 +1217,7 @@ def diagnose_drives(
     v = diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
-                 polish_nfev=0, workers=workers)
+                 polish_nfev=0, workers=workers, refit_in_turn=True)
     if empirical and v.status in ("unexplained", "ambiguous", "partly_explained") and scenario.rover_file is not None:
         if progress is not None:
             progress(f"no empirical search: its terms act through the simulator's disturbance hook, which the plant of "

@@ -120,11 +120,11 @@ def main(argv: list[str]) -> int:
         tot.update(g)
         md.append(f"| {k} | {secs[k]:.1f} | " + " | ".join(str(g[c]) for c in cols) + " |")
     md.append(f"| all | {sum(secs.values()):.1f} | " + " | ".join(str(tot[c]) for c in cols) + " |")
-    md += ["", f"Scores (chi2 of the model as given {v.chi2_base:.1f}; delta: held-out improvement, in: in-sample improvement of "
+    md += ["", f"Scores (chi2 of the model as given {v.chi2_cv_base:.1f}; delta: held-out improvement, in: in-sample improvement of "
            "the full-data fit; refit: held-out refit per fold):", "",
            "| candidate | delta held-out | in-sample | refit | significant | p adjusted | values |", "|---|---|---|---|---|---|---|"]
     for s in v.scores:
-        md.append(f"| {s.label} | {s.delta_cv:.1f} | {v.chi2_base - s.chi2_in:.1f} | {s.refit} | {s.significant} | "
+        md.append(f"| {s.label} | {s.delta_cv:.1f} | {v.chi2_cv_base - s.chi2_in:.1f} | {s.refit} | {s.significant} | "
                   f"{s.p_adjusted:.3g} | {', '.join(f'{x:.4g}' for x in s.values)} |")
     text = "\n".join(md) + "\n"
     print(text)

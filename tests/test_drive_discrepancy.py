@@ -205,8 +205,9 @@ def test_face_pressure_force_on_a_submerged_disk():
 def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     """Issue 24's per-wheel actuator terms act on the commands that wheel's servos follow:
     a fraction and a cap of the rim speed (sign kept), an extra first-order lag (exact
-    exponential per command period), a steering cap; other wheels and other keys untouched.
-    Every term is a rover key, every candidate has a table-builder line; all sixteen are in the
+    exponential per command period), a slew-rate limit after the cap, a steering cap; other
+    wheels and other keys untouched.
+    Every term is a rover key, every candidate has a table-builder line; all twenty are in the
     default library, screened (fitted only on the wheels the data implicate), and unscreened in
     DRIVE_CANDIDATES_WITH_ACTUATORS (--per-wheel-actuators)."""
     from offline.discrepancy.drive.candidates import (
@@ -234,10 +235,15 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     for k in range(6, n):
         assert r[k, 3] == pytest.approx(-0.045 + 0.09 * a ** (k - 5), rel=1e-12)
     assert r[:6, 3] == pytest.approx(rim[:6, 3]) and r[:, :3] == pytest.approx(rim[:, :3])
+    # a slew-rate limit of 0.25 m/s^2 moves the RL reference at most 0.05 m/s per command period
+    # toward its command (after the cap): the reversal of 0.09 m/s takes two periods
+    r, _ = actuator_commands({"rim_accel_max.RL": 0.25, "rim_speed_max.RL": 0.04}, rim, steer, period)
+    assert r[:6, 3] == pytest.approx(np.full(6, 0.04)) and r[6:, 3] == pytest.approx([-0.01, -0.04, -0.04, -0.04, -0.04, -0.04])
+    assert r[:, :3] == pytest.approx(rim[:, :3])
     assert set(PER_WHEEL_ACTUATOR_KEYS) <= set(ROVER_KEYS)
     RoverExtension(terms={k: 0.5 for k in PER_WHEEL_ACTUATOR_KEYS})  # accepted (no DriveCandidateError)
     keys = {c.key for c in ACTUATOR_CANDIDATES}
-    assert len(keys) == 16 and keys <= set(TABLE_BUILDER_TAKES)
+    assert len(keys) == 20 and keys <= set(TABLE_BUILDER_TAKES)
     assert {c.key for c in DRIVE_CANDIDATES if c.screened} == keys
     assert {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS} == {c.key for c in DRIVE_CANDIDATES}
     assert not any(c.screened for c in DRIVE_CANDIDATES_WITH_ACTUATORS)

@@ -291,7 +291,7 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     d = load_drives([f])[0]
     lost = [0]
 
-    def no_equilibrium_after_2s(sim, dt, depth=0):
+    def no_equilibrium_after_2s(sim, dt, depth=0, halvings=0):
         if sim.t >= 2.0:
             lost[0] += 1
             raise dd.SimulationError("no equilibrium (test)")
@@ -302,6 +302,32 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     _, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
     assert not ok
     assert lost[0] == len(d.t) // 2 + 1
+
+
+def test_a_failed_tick_is_not_halved_by_default():
+    """The simulator's own step already retries a failed step (exact Jacobian, 2-16 sub-steps, from
+    rest), so a tick whose step fails is lost at once (DriveModel.halvings = 0): one step, not the
+    four a halving down to dt / 8 took (each repeating every retry); with halvings = 3 it is tried
+    again in halves, from the same state."""
+    import types
+
+    import offline.discrepancy.drive.diagnosis as dd
+
+    class Stuck:
+        def __init__(self):
+            self.act = types.SimpleNamespace(steer=np.zeros(4), omega_servo=np.zeros(4))
+            self.z, self.dt, self.steps = np.zeros(3), 0.2, []
+
+        def step(self):
+            self.steps.append(self.dt)
+            raise dd.SimulationError("no equilibrium (test)")
+
+    assert DriveModel.halvings == 0
+    for halvings, tried in ((0, [0.2]), (3, [0.2, 0.1, 0.05, 0.025])):
+        sim = Stuck()
+        with pytest.raises(dd.SimulationError):
+            dd._step(sim, 0.2, halvings=halvings)
+        assert sim.steps == pytest.approx(tried)
 
 
 class _CountingModel:

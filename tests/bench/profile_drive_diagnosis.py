@@ -162,6 +162,7 @@ def main(argv: list[str]) -> int:
     for s in v.scores:
         md.append(f"| {s.label} | {s.delta_cv:.1f} | {v.chi2_cv_base - s.chi2_in:.1f} | {s.refit} | {s.significant} | "
                   f"{s.p_adjusted:.3g} | {', '.join(f'{x:.4g}' for x in s.values)} |")
+    md += ["", "Verdict summary:", "", "```", v.summary().rstrip(), "```"]
     text = "\n".join(md) + "\n"
     print(text)
     if a.out:

@@ -330,6 +330,30 @@ def test_a_failed_tick_is_not_halved_by_default():
         assert sim.steps == pytest.approx(tried)
 
 
+def test_the_forward_score_test_linearises_a_screened_term_at_its_screen_value():
+    """The forward step's score test (engine._conditional_rows) linearises a second term at its
+    believed value or start; a threshold term that does not act there (a slew limit above every
+    command step: zero Jacobian) looks useless. Given ``at`` (a screened term's screen value), it is
+    linearised where it acts and the held-out score sees the effect it models."""
+    from offline.discrepancy.engine import _conditional_rows
+    from offline.discrepancy.wheel.candidates import Candidate
+
+    t = np.linspace(0.0, 1.0, 40)
+    g = np.sin(6.0 * t)
+    e = 0.3 * g + 0.01 * np.cos(17.0 * t)  # the effect of the threshold term at 0.8 (0.3 = 0.8 - 0.5)
+    c1 = Candidate("first", "a term already fitted", (("a", "-", -1.0, 1.0, 0.0, 1.0),), lambda x, p: None, ("y",))
+    c2 = Candidate("ramp", "acts above 0.5 only", (("b", "-", 0.0, 1.0, 0.1, 1.0),), lambda x, p: None, ("y",), threshold=True)
+
+    def resid_fn(cands):
+        return lambda x: e - x[0] * t - (max(0.0, x[1] - 0.5) * g if len(x) > 1 else 0.0)
+
+    folds = np.arange(t.size) % 5
+    jac1 = -t[:, None]
+    at_start = _conditional_rows(resid_fn, [c1], np.zeros(1), jac1, c2, folds, 1)
+    at_screen = _conditional_rows(resid_fn, [c1], np.zeros(1), jac1, c2, folds, 1, at=np.array([0.8]))
+    assert at_screen.sum() < 0.05 * at_start.sum()
+
+
 class _CountingModel:
     """A model with the work protocol of :class:`DriveModel` (a cache of runs and their count)."""
 

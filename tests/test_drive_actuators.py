@@ -11,8 +11,8 @@ clipped command tick by tick); and a steering servo that stops at a mechanical e
 through its own slew (where the term clips the command). Budget: 12 s drives; two diagnoses (the
 per-wheel terms beside the RL wheel's radius, the base library's best attempt at the RL servo on
 main: -20 % at its bound; or beside the IMU tilt, no re-simulation), no recalibration, no empirical
-stage; the rest are free scores. 31.0 CPU-s for the file (31.3 before this branch, which had three
-diagnoses and one recording fewer; ``results_issue24_time.md``). The full library, 40 s drives and
+stage; the rest are free scores. 28.8 CPU-s for the file at load 8-9 (31.3 on main at load 9-10,
+with three diagnoses; ``tests/bench/results_issue24_time.md``). The full library, 40 s drives and
 20 noise-only drives are in ``tests/bench/bench_drive_actuators.py``.
 """
 

@@ -205,8 +205,9 @@ def test_face_pressure_force_on_a_submerged_disk():
 def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     """Issue 24's per-wheel actuator terms act on the commands that wheel's servos follow:
     a fraction and a cap of the rim speed (sign kept), an extra first-order lag (exact
-    exponential per command period), a steering cap; other wheels and other keys untouched.
-    Every term is a rover key, every candidate has a table-builder line; all sixteen are in the
+    exponential per command period), a slew-rate limit after the cap, a steering cap; other
+    wheels and other keys untouched.
+    Every term is a rover key, every candidate has a table-builder line; all twenty are in the
     default library, screened (fitted only on the wheels the data implicate), and unscreened in
     DRIVE_CANDIDATES_WITH_ACTUATORS (--per-wheel-actuators)."""
     from offline.discrepancy.drive.candidates import (
@@ -234,10 +235,15 @@ def test_per_wheel_actuator_terms_change_only_their_wheels_commands():
     for k in range(6, n):
         assert r[k, 3] == pytest.approx(-0.045 + 0.09 * a ** (k - 5), rel=1e-12)
     assert r[:6, 3] == pytest.approx(rim[:6, 3]) and r[:, :3] == pytest.approx(rim[:, :3])
+    # a slew-rate limit of 0.25 m/s^2 moves the RL reference at most 0.05 m/s per command period
+    # toward its command (after the cap): the reversal of 0.09 m/s takes two periods
+    r, _ = actuator_commands({"rim_accel_max.RL": 0.25, "rim_speed_max.RL": 0.04}, rim, steer, period)
+    assert r[:6, 3] == pytest.approx(np.full(6, 0.04)) and r[6:, 3] == pytest.approx([-0.01, -0.04, -0.04, -0.04, -0.04, -0.04])
+    assert r[:, :3] == pytest.approx(rim[:, :3])
     assert set(PER_WHEEL_ACTUATOR_KEYS) <= set(ROVER_KEYS)
     RoverExtension(terms={k: 0.5 for k in PER_WHEEL_ACTUATOR_KEYS})  # accepted (no DriveCandidateError)
     keys = {c.key for c in ACTUATOR_CANDIDATES}
-    assert len(keys) == 16 and keys <= set(TABLE_BUILDER_TAKES)
+    assert len(keys) == 20 and keys <= set(TABLE_BUILDER_TAKES)
     assert {c.key for c in DRIVE_CANDIDATES if c.screened} == keys
     assert {c.key for c in DRIVE_CANDIDATES_WITH_ACTUATORS} == {c.key for c in DRIVE_CANDIDATES}
     assert not any(c.screened for c in DRIVE_CANDIDATES_WITH_ACTUATORS)
@@ -285,7 +291,7 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     d = load_drives([f])[0]
     lost = [0]
 
-    def no_equilibrium_after_2s(sim, dt, depth=0):
+    def no_equilibrium_after_2s(sim, dt, depth=0, halvings=0):
         if sim.t >= 2.0:
             lost[0] += 1
             raise dd.SimulationError("no equilibrium (test)")
@@ -296,6 +302,56 @@ def test_a_lost_resimulation_stops_once_more_than_half_its_ticks_are_lost(sc, no
     _, _, ok = DriveModel(sc, nominal).simulate(d, None, 0.0)
     assert not ok
     assert lost[0] == len(d.t) // 2 + 1
+
+
+def test_a_failed_tick_is_not_halved_by_default():
+    """The simulator's own step already retries a failed step (exact Jacobian, 2-16 sub-steps, from
+    rest), so a tick whose step fails is lost at once (DriveModel.halvings = 0): one step, not the
+    four a halving down to dt / 8 took (each repeating every retry); with halvings = 3 it is tried
+    again in halves, from the same state."""
+    import types
+
+    import offline.discrepancy.drive.diagnosis as dd
+
+    class Stuck:
+        def __init__(self):
+            self.act = types.SimpleNamespace(steer=np.zeros(4), omega_servo=np.zeros(4))
+            self.z, self.dt, self.steps = np.zeros(3), 0.2, []
+
+        def step(self):
+            self.steps.append(self.dt)
+            raise dd.SimulationError("no equilibrium (test)")
+
+    assert DriveModel.halvings == 0
+    for halvings, tried in ((0, [0.2]), (3, [0.2, 0.1, 0.05, 0.025])):
+        sim = Stuck()
+        with pytest.raises(dd.SimulationError):
+            dd._step(sim, 0.2, halvings=halvings)
+        assert sim.steps == pytest.approx(tried)
+
+
+def test_the_forward_score_test_linearises_a_screened_term_at_its_screen_value():
+    """The forward step's score test (engine._conditional_rows) linearises a second term at its
+    believed value or start; a threshold term that does not act there (a slew limit above every
+    command step: zero Jacobian) looks useless. Given ``at`` (a screened term's screen value), it is
+    linearised where it acts and the held-out score sees the effect it models."""
+    from offline.discrepancy.engine import _conditional_rows
+    from offline.discrepancy.wheel.candidates import Candidate
+
+    t = np.linspace(0.0, 1.0, 40)
+    g = np.sin(6.0 * t)
+    e = 0.3 * g + 0.01 * np.cos(17.0 * t)  # the effect of the threshold term at 0.8 (0.3 = 0.8 - 0.5)
+    c1 = Candidate("first", "a term already fitted", (("a", "-", -1.0, 1.0, 0.0, 1.0),), lambda x, p: None, ("y",))
+    c2 = Candidate("ramp", "acts above 0.5 only", (("b", "-", 0.0, 1.0, 0.1, 1.0),), lambda x, p: None, ("y",), threshold=True)
+
+    def resid_fn(cands):
+        return lambda x: e - x[0] * t - (max(0.0, x[1] - 0.5) * g if len(x) > 1 else 0.0)
+
+    folds = np.arange(t.size) % 5
+    jac1 = -t[:, None]
+    at_start = _conditional_rows(resid_fn, [c1], np.zeros(1), jac1, c2, folds, 1)
+    at_screen = _conditional_rows(resid_fn, [c1], np.zeros(1), jac1, c2, folds, 1, at=np.array([0.8]))
+    assert at_screen.sum() < 0.05 * at_start.sum()
 
 
 class _CountingModel:

@@ -500,12 +500,15 @@ def _ext_of(cands: Sequence[Candidate], x: NDArray[np.float64], params: Any, emp
 
 def _conditional_rows(resid_fn: Callable[[Sequence[Candidate]], Callable[[NDArray[np.float64]], NDArray[np.float64]]],
                       first: Sequence[Candidate], x1: NDArray[np.float64], jac1: NDArray[np.float64], c: Candidate,
-                      folds: NDArray[np.int_], nc: int) -> NDArray[np.float64]:
+                      folds: NDArray[np.int_], nc: int, at: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Held-out chi-square per row of ``first`` (fitted at ``x1``, Jacobian ``jac1``) plus ``c`` at
-    its believed value (``c.null``, else its start), linearised in all parameters
-    (:func:`~offline.discrepancy.significance.linear_held_out`): ``1 + c.k`` model evaluations."""
+    its believed value (``c.null``, else its start; ``at`` when given: a screened term's screen
+    value), linearised in all parameters (:func:`~offline.discrepancy.significance.linear_held_out`):
+    ``1 + c.k`` model evaluations."""
     start = np.array([q[4] for q in c.params], dtype=float)
     xc = start if c.null is None else np.where(np.isfinite(np.array(c.null, dtype=float)), np.array(c.null, dtype=float), start)
+    if at is not None:
+        xc = np.clip(np.asarray(at, dtype=float), c.lower, c.upper)
     r = resid_fn([*first, c])
     z = r(np.concatenate([x1, xc]))
     jc = _fd_jac(lambda t: r(np.concatenate([x1, t])), xc, c.lower, c.upper, r0=z)
@@ -549,6 +552,7 @@ def diagnose(
     polish_nfev: int = 100,
     empirical: bool = True,
     workers: int = 1,
+    refit_in_turn: bool = False,
 ) -> Verdict:
     """Run the whole pipeline (module docstring) and return a :class:`Verdict`.
 
@@ -639,6 +643,14 @@ def diagnose(
         :func:`~offline.discrepancy.parallel.map_tasks`); the verdict is the same, bit for bit,
         for any number (1: this process; with more, ``progress`` is called from the workers).
 
+    refit_in_turn : bool
+        The threshold candidates chosen for the held-out refit are refitted one after the other
+        (by their bound) and one whose optimistic bound -- the larger of its screening score and its
+        full fit's in-sample improvement -- is at most ``1 - equal_fraction`` of a significant
+        held-out improvement already refitted is not refitted (it could be neither the best nor a
+        look-alike of it) and stays not significant. Drives pass True (a hub-contact refit per fold
+        costs a third of a diagnosis); False (default): every chosen candidate is refitted.
+
     Raises
     ------
     DiscrepancyError
@@ -685,6 +697,7 @@ def diagnose(
     empty = model.empty_extension() if hasattr(model, "empty_extension") else Extension()
     library = list(candidates)
     screening: list[tuple[str, bool, str]] = []
+    screen_at: dict[str, NDArray[np.float64]] = {}  # an admitted screened term's best value on the screen
     if any(c.screened for c in library) and hasattr(obs, "screen"):
         # screened candidates (drives: the per-wheel actuator terms) are fitted only where the
         # adapter's screen admits them: their wheel's channels hold a located region, or a free
@@ -693,6 +706,8 @@ def diagnose(
         say("screening the per-wheel terms")
         admitted = obs.screen([c for c in library if c.screened], regions, z0, scale, alpha, model)
         screening = [(c.key, bool(admitted[c.key][0]), str(admitted[c.key][1])) for c in library if c.screened]
+        screen_at = {c.key: np.array(admitted[c.key][2], dtype=float) for c in library
+                     if c.screened and admitted[c.key][0] and admitted[c.key][2]}
         # a term the screen scored over its whole box is fitted from the screen's best value and its
         # declared start (refits per fold: the full fit's values too), not from its declared starts
         library = [c if not c.screened else replace(c, starts=(tuple(admitted[c.key][2]),)) if admitted[c.key][2] else c
@@ -785,7 +800,34 @@ def diagnose(
 
     # every fold of every candidate refitted is one task (the cost of a fold's fit grows with the starts)
     tasks = [(i, fold) for i in refit for fold in fold_ids]
-    done_folds = map_tasks(refit_fold, tasks, workers, model, cost=[len(library[i].starts) for i, _ in tasks])
+    if refit_in_turn:
+        # in turn, by the bound: a candidate whose optimistic bound (the larger of its screening
+        # score and its full fit's in-sample improvement: a refit per fold scores rows it did not
+        # fit, so it gains no more than the full fit does on every row) cannot reach 1 -
+        # equal_fraction of a significant held-out improvement already in hand can be neither the
+        # best nor its look-alike: it is not refitted and stays not significant
+        done_folds, tasks = [], []
+        for i in refit:
+            optimistic = max(observed[i], chi2_base - singles[i].chi2_in)
+            if optimistic <= reach:
+                say(f"no held-out refit of {library[i].key}: its optimistic bound {optimistic:.4g} is below "
+                    f"{1.0 - equal_fraction:g} of a significant improvement ({reach / (1.0 - equal_fraction):.4g})")
+                continue
+            mine = [(i, fold) for fold in fold_ids]
+            got = map_tasks(refit_fold, mine, workers, model, cost=[len(library[i].starts)] * len(mine))
+            tasks += mine
+            done_folds += got
+            rows_i = np.empty(folds.size)
+            for (_, fold), (te_chi2, _) in zip(mine, got):
+                rows_i[folds == fold] = te_chi2
+            delta = chi2_base - float(rows_i.sum())
+            observed_i = observed.copy()
+            observed_i[i] = delta
+            if adjusted_p(observed_i, null)[1][i] < alpha and delta > 0:
+                reach = max(reach, (1.0 - equal_fraction) * delta)
+        refit = sorted({i for i, _ in tasks}, key=refit.index)
+    else:
+        done_folds = map_tasks(refit_fold, tasks, workers, model, cost=[len(library[i].starts) for i, _ in tasks])
     for i in refit:
         rows = np.empty(folds.size)
         nf = 0
@@ -842,8 +884,12 @@ def diagnose(
             # the pool was a chance to find one)
             say(f"screening {len(pool)} terms on top of {primary.label}")
             j1 = fits[by_key[primary.keys[0]][2]].jac
+            # a screened term (a threshold the screen searched over its box) is linearised at its
+            # screen value, not at its declared start, where it may not act at all (a slew limit
+            # above every command step)
             cond_rows = map_tasks(lambda s: _conditional_rows(resid_fn, first, np.array(primary.values), j1,
-                                                              by_key[s.keys[0]][0], folds, nc), pool, workers, model)
+                                                              by_key[s.keys[0]][0], folds, nc, at=screen_at.get(s.keys[0])),
+                                  pool, workers, model)
             cond = {s.keys[0]: rows for s, rows in zip(pool, cond_rows)}
             q_pool = float(np.quantile(null[[by_key[s.keys[0]][2] for s in pool]].max(axis=0), 1.0 - alpha)) if pool else math.inf
             # joint fits only for terms whose screening gain reaches half the threshold (budget)
@@ -862,6 +908,8 @@ def diagnose(
                 say(f"trying {primary.label} + {c2.key}")
                 x0 = np.array([*primary.values, *s2.values])
                 starts2 = [x0]
+                if c2.key in screen_at:  # a screened term also from its screen value (its own fit may have left it)
+                    starts2.append(np.array([*primary.values, *screen_at[c2.key]]))
                 if forward_extra:
                     # the first term's threshold searched for again from its own starts (the other
                     # parameters at their single fits): it may sit where it absorbed the second

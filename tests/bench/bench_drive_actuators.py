@@ -77,8 +77,14 @@ def run_one(path: str, seed: int, library: str) -> None:
         ru = resource.getrusage(resource.RUSAGE_CHILDREN)
         return ru.ru_utime + ru.ru_stime
 
+    stages: list[str] = []
+
+    def note(m: str) -> None:  # which held-out refits ran (the progress messages say)
+        if m.startswith(("held-out refits of", "no held-out refit of")):
+            stages.append(m)
+
     t0, c0, k0 = time.perf_counter(), time.process_time(), children()
-    v = dd.diagnose_drives([path], sc, seed=seed, **kw)
+    v = dd.diagnose_drives([path], sc, seed=seed, progress=note, **kw)
     secs, cpu = time.perf_counter() - t0, time.process_time() - c0 + children() - k0
     ch = v.chosen
     print(json.dumps({"code": str(top.parent), "seconds": secs, "cpu_seconds": cpu, "simulations": v.model.simulations,
@@ -86,7 +92,9 @@ def run_one(path: str, seed: int, library: str) -> None:
                       "chosen": None if ch is None else {"keys": list(ch.keys), "names": list(ch.names),
                                                          "values": list(ch.values), "units": list(ch.units)},
                       "screened": list(getattr(v, "screened", []) or []),
-                      "significant": [s.label for s in v.scores if s.significant],
+                      "significant": [s.label for s in v.scores if s.significant], "refits": stages,
+                      "scores": [{"label": s.label, "held_out": s.delta_cv, "in_sample": v.chi2_cv_base - s.chi2_in,
+                                  "refit": s.refit, "significant": s.significant} for s in v.scores],
                       "empirical": [t.law() for t in v.empirical.terms] if v.empirical is not None else None},
                      default=float))
 

@@ -36,9 +36,12 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--halvings", type=int, help="DriveModel.halvings (default: the library's)")
+    ap.add_argument("--log", action="store_true", help="print each progress message with the CPU seconds so far (stderr)")
     a = ap.parse_args(argv)
     import offline.discrepancy.drive.diagnosis as dd
     import offline.sim.plant as pl
+    from bench_drive_actuators import _record as _record_actuators
     from bench_drive_time import _record
     from offline.discrepancy.drive.candidates import RoverExtension, rover_terms
     from offline.rover.scenario import load_scenario
@@ -87,19 +90,57 @@ def main(argv: list[str]) -> int:
         secs[stage[0]] += dt
         return out
 
+    o_step = dd._step
+
+    def step(sim: Any, dt: float, depth: int = 0, halvings: int = 0) -> None:
+        """dd._step, counting the ticks whose full step fails and those its halving rescues."""
+        if depth:
+            return o_step(sim, dt, depth, halvings)
+        keep = sim.act.steer.copy(), sim.act.omega_servo.copy(), sim.z.copy()
+        sim.dt = dt
+        try:
+            sim.step()
+            return None
+        except pl.SimulationError:
+            cur["ticks whose full step failed"] += 1
+            if not halvings:
+                cur["ticks lost"] += 1
+                raise
+        sim.act.steer, sim.act.omega_servo, sim.z = keep
+        try:
+            o_step(sim, dt / 2, 1, halvings)
+            o_step(sim, dt / 2, 1, halvings)
+        except pl.SimulationError:
+            cur["ticks lost"] += 1
+            raise
+        cur["ticks rescued by halving"] += 1
+        return None
+
+    o_post = dd.DriveModel.__post_init__
+
+    def post_init(self: Any) -> None:
+        o_post(self)
+        if a.halvings is not None:
+            self.halvings = a.halvings
+
     pl.PlantModel._evaluate, pl.PlantModel.solve, dd.DriveModel._run = evaluate, solve, run  # type: ignore[method-assign]
+    dd._step = step  # type: ignore[assignment]
+    dd.DriveModel.__post_init__ = post_init  # type: ignore[method-assign]
 
     def progress(m: str) -> None:
         stage[0] = m.split(" of ")[0].split(" on top")[0].split(":")[0][:48]
+        if a.log:
+            print(f"[{time.process_time():8.1f} CPU-s] {m}", file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory() as tmpd:
-        path, seed = _record(a.case, Path(tmpd))
+        rec = _record_actuators if a.case in ("shortfall_RL", "current_limited_RL", "rate_limited_RL") else _record
+        path, seed = rec(a.case, Path(tmpd))
         load0 = " ".join(f"{x:.1f}" for x in os.getloadavg())
         t0 = time.perf_counter()
         v = dd.diagnose_drives([path], sc, seed=seed, progress=progress)
         total = time.perf_counter() - t0
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    cols = ["re-simulations", "same key simulated before", "slower than 0.4 s", "lost (not ok)", "solves",
+    cols = ["ticks whose full step failed", "ticks rescued by halving", "ticks lost", "re-simulations", "same key simulated before", "slower than 0.4 s", "lost (not ok)", "solves",
             "newton iterations (converged)", "failed solves", "evaluations in failed solves", "residual-only in failed solves",
             "evals", "residual-only evals"]
     md = [f"# Profile of one drive diagnosis: `{a.case}`", "",
@@ -115,6 +156,13 @@ def main(argv: list[str]) -> int:
         tot.update(g)
         md.append(f"| {k} | {secs[k]:.1f} | " + " | ".join(str(g[c]) for c in cols) + " |")
     md.append(f"| all | {sum(secs.values()):.1f} | " + " | ".join(str(tot[c]) for c in cols) + " |")
+    md += ["", f"Scores (chi2 of the model as given {v.chi2_cv_base:.1f}; delta: held-out improvement, in: in-sample improvement of "
+           "the full-data fit; refit: held-out refit per fold):", "",
+           "| candidate | delta held-out | in-sample | refit | significant | p adjusted | values |", "|---|---|---|---|---|---|---|"]
+    for s in v.scores:
+        md.append(f"| {s.label} | {s.delta_cv:.1f} | {v.chi2_cv_base - s.chi2_in:.1f} | {s.refit} | {s.significant} | "
+                  f"{s.p_adjusted:.3g} | {', '.join(f'{x:.4g}' for x in s.values)} |")
+    md += ["", "Verdict summary:", "", "```", v.summary().rstrip(), "```"]
     text = "\n".join(md) + "\n"
     print(text)
     if a.out:

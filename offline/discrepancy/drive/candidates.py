@@ -33,7 +33,9 @@ speed_saturation_<W> one wheel's speed servo capped at a rim speed         comma
 speed_shortfall_<W>  one wheel's speed servo reaches a fraction of its     (:func:`actuator_commands`;
                      command                                               per-wheel actuator terms,
 servo_lag_<W>        one wheel's speed servo lags more (extra 1st order)   screened: fitted only on the
-steer_saturation_<W> one wheel's steering servo capped at an angle         wheels the data implicate)
+speed_rate_limit_<W> one wheel's speed servo ramps at a bounded            wheels the data implicate)
+                     acceleration (a slew-rate limit)
+steer_saturation_<W> one wheel's steering servo capped at an angle
 soil_stiffness       soil stiffer / softer than believed (k)              ``soil_stiffness_scale``
 wheel_radius_all     every wheel's radius off (a parameter the model has) ``wheels.*.radius_mm``
 recalibration        k, n0, c, phi, K refitted ("parameters off")         ``params`` file
@@ -99,15 +101,17 @@ ROVER_KEYS = (
     "hub_clearance", "hub_face_width", "hub_arm", "anchor_tension", "anchor_bearing", "anchor_inverse_distance",
     "anchor_attach_x", "anchor_spring_rate",
     *(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fraction.{w}" for w in WHEELS), *(f"wheel_lag.{w}" for w in WHEELS),
-    *(f"steer_max.{w}" for w in WHEELS),
+    *(f"steer_max.{w}" for w in WHEELS), *(f"rim_accel_max.{w}" for w in WHEELS),
 )
 """Rover terms of :attr:`RoverExtension.terms` (SI: rad, N, s, N m, m, relative)."""
 
 PER_WHEEL_ACTUATOR_KEYS = (*(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fraction.{w}" for w in WHEELS),
-                           *(f"wheel_lag.{w}" for w in WHEELS), *(f"steer_max.{w}" for w in WHEELS))
+                           *(f"wheel_lag.{w}" for w in WHEELS), *(f"steer_max.{w}" for w in WHEELS),
+                           *(f"rim_accel_max.{w}" for w in WHEELS))
 """Per-wheel actuator terms (applied to the commands a wheel's servos receive, :func:`actuator_commands`)."""
 
-PER_WHEEL_TERMS = ("radius_scale", "steer_offset", "rim_speed_max", "speed_fraction", "wheel_lag", "steer_max")
+PER_WHEEL_TERMS = ("radius_scale", "steer_offset", "rim_speed_max", "speed_fraction", "wheel_lag", "steer_max",
+                   "rim_accel_max")
 """Rover terms of one wheel, ``<term>.<wheel>``: :data:`ROVER_KEYS` names the mini rover's wheels; a
 rover file's wheels (issue 23) take the same terms under their own names (:func:`is_rover_key`)."""
 
@@ -420,7 +424,10 @@ def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], 
 
     ``speed_fraction.<W>``: the wheel-speed servo reaches only this fraction of its command
     (``rim -> fraction rim``); ``rim_speed_max.<W>`` (m/s): the wheel-speed servo saturates,
-    ``|rim| <= max`` (sign kept; after the fraction);
+    ``|rim| <= max`` (sign kept; after the fraction); ``rim_accel_max.<W>`` (m/s^2): the
+    wheel-speed servo's reference ramps toward that (capped) command by at most ``a period``
+    per command period, ``y_k = y_(k-1) + clip(u_k - y_(k-1), -a period, a period)``, started
+    at the first command (a slew-rate limit: a motor controller's acceleration ramp);
     ``wheel_lag.<W>`` (s): an extra first-order lag of that wheel's speed servo, applied to its
     rim-speed command at the command period (the lagged reference at the end of each period,
     exact exponential per period: ``y_k = u_k + (y_(k-1) - u_k) exp(-period / tau)``, in series with the
@@ -457,6 +464,11 @@ def actuator_commands(terms: Mapping[str, float], rim_cmd: NDArray[np.float64], 
         cap = terms.get(f"rim_speed_max.{w}", math.inf)
         if math.isfinite(cap):
             rim[:, i] = np.clip(rim[:, i], -cap, cap)
+        acc = terms.get(f"rim_accel_max.{w}", math.inf)
+        if math.isfinite(acc):
+            step = acc * period
+            for k in range(1, rim.shape[0]):  # the ramped reference: rim[k - 1] is already y_(k-1)
+                rim[k, i] = rim[k - 1, i] + min(max(rim[k, i] - rim[k - 1, i], -step), step)
         lim = terms.get(f"steer_max.{w}", math.inf)
         if math.isfinite(lim):
             steer[:, i] = np.clip(steer[:, i], -lim, lim)
@@ -484,6 +496,13 @@ def _actuator_candidates() -> list[Candidate]:
             (("time_constant", "s", 0.0, 0.6, 0.2, 1.0),),
             _term_build(f"wheel_lag.{w}", 0.0), ch, starts=((0.5,),), family=f"speed_{w}", null=(0.0,)))
         out.append(Candidate(
+            f"speed_rate_limit_{w}", f"the {w} wheel-speed servo ramps at a bounded acceleration: its rim speed moves "
+            "toward its command by at most a limit rate (an acceleration ramp or current limit in that wheel's motor "
+            "controller); a family of its own, so it can join the wheel's speed cap or shortfall",
+            (("accel_max", "m/s^2", 0.02, 1.0, 0.1, 1.0),),
+            _term_build(f"rim_accel_max.{w}", 0.0), ch, starts=((0.05,), (0.2,), (0.5,)), threshold=True,
+            family=f"slew_{w}"))
+        out.append(Candidate(
             f"steer_saturation_{w}", f"the {w} steering servo saturates: the wheel cannot steer beyond a limit angle",
             (("steer_max", "deg", 1.0, 60.0, 20.0, _D),),
             _term_build(f"steer_max.{w}", 0.0), (f"torque_{w}", "yaw_rate", "dheading", "dy_body"),
@@ -493,14 +512,16 @@ def _actuator_candidates() -> list[Candidate]:
 
 ACTUATOR_CANDIDATES: tuple[Candidate, ...] = tuple(_actuator_candidates())
 """Per-wheel actuator terms (issue 24): wheel-speed saturation (an absolute cap, and a shortfall
-in proportion to the command), extra servo lag and steering saturation of each wheel; part of
-:data:`DRIVE_CANDIDATES`, *screened* (``Candidate.screened``): sixteen more fits on every drive
-would cost each diagnosis about as much again, so a term is fitted only on a wheel the data
-implicate -- a located region on that wheel's own channels, or a free score on its own encoders
-(the wheel-speed encoder's segment rows for the speed terms, the steering encoder's settled ticks
-for the steering cap) that reaches half of what an accepted term must gain
-(:meth:`offline.discrepancy.drive.diagnosis.DriveRecording.screen`). The family (``speed_<W>``,
-``steer_<W>``) names the wheel and which encoder screens it."""
+in proportion to the command), extra servo lag, a slew-rate limit (bounded acceleration) and
+steering saturation of each wheel; part of :data:`DRIVE_CANDIDATES`, *screened*
+(``Candidate.screened``): twenty more fits on every drive would cost each diagnosis about as much
+again, so a term is fitted only on a wheel the data implicate -- a located region on that wheel's
+own channels, or a free score on its own encoders (the wheel-speed encoder's segment rows for the
+speed terms and the slew, the steering encoder's ticks for the steering cap) that reaches half of
+what an accepted term must gain (:meth:`offline.discrepancy.drive.diagnosis.DriveRecording.screen`).
+The family (``speed_<W>``, ``slew_<W>``, ``steer_<W>``) names the wheel and which encoder screens
+it; the slew is a family of its own (it joins a wheel's cap in the forward step, as a rate limiter
+in series with a saturation does) and is screened on top of its wheel's best speed term."""
 
 
 def _wheel_candidates() -> list[Candidate]:
@@ -596,6 +617,7 @@ TABLE_BUILDER_TAKES: dict[str, str] = {
     **{f"speed_saturation_{w}": f"partly: a rim_speed_max failure on {w} in the scenario file caps its forward rim speed"
        for w in WHEELS},
     **{f"servo_lag_{w}": "no: a dynamic effect the steady-state tables have no place for" for w in WHEELS},
+    **{f"speed_rate_limit_{w}": "no: a dynamic effect the steady-state tables have no place for" for w in WHEELS},
     **{f"speed_shortfall_{w}": "no: the tables assume the commanded rim speed is reached" for w in WHEELS},
     **{f"steer_saturation_{w}": "no: the tables assume the full steering range (a steer_stuck failure is the nearest)"
        for w in WHEELS},

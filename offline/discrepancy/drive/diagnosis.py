@@ -261,20 +261,27 @@ class DriveData:
         return cls(name, t - t[0], period, rim, steer, rd, pose, (max(sxy, 1e-5), max(sh, 1e-5)), src, enc)
 
 
-def _step(sim: RoverSimulator, dt: float, depth: int = 0) -> None:
-    """One plant step of ``dt``; where Newton finds no equilibrium across a large command step,
-    the step is split in halves (at most three times, down to dt / 8) from the same state, as the
-    recording's own simulator would have taken smaller steps."""
+def _step(sim: RoverSimulator, dt: float, depth: int = 0, halvings: int = 0) -> None:
+    """One plant step of ``dt``; where Newton finds no equilibrium, the step is split in halves (at
+    most ``halvings`` times, down to ``dt / 2**halvings``) from the same state.
+
+    The simulator's own step already retries a failed step (:meth:`RoverSimulator.step`: the exact
+    rocker Jacobian, then 2, 4, 8 and 16 sub-steps continued from one another with the servos
+    moving linearly over them, then from rest), so :attr:`DriveModel.halvings` is 0: the halving
+    (three, before the simulator sub-stepped) repeated every one of those retries on each half;
+    measured, it rescued none of the ticks whose step failed in the two diagnoses of
+    ``tests/bench/results_issue24_time.md`` (2026-11-27), and it made each lost tick cost four
+    times the simulator's retries."""
     keep = sim.act.steer.copy(), sim.act.omega_servo.copy(), sim.z.copy()
     sim.dt = dt
     try:
         sim.step()
     except SimulationError:
-        if depth >= 3:
+        if depth >= halvings:
             raise
         sim.act.steer, sim.act.omega_servo, sim.z = keep
-        _step(sim, dt / 2, depth + 1)
-        _step(sim, dt / 2, depth + 1)
+        _step(sim, dt / 2, depth + 1, halvings)
+        _step(sim, dt / 2, depth + 1, halvings)
 
 
 def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -> Callable[[float, Any], Any]:
@@ -726,6 +733,10 @@ class DriveRecording:
              command over the shearing radius (the wheel follows its servo's reference: the
              believed lag, 0.05 s, is a quarter of a tick). A torque-limited wheel does not follow,
              so the score is optimistic there, the safe side of a screen;
+           - the slew-rate limit (family ``slew_W``): the same score of what the ramp adds on top
+             of the wheel's best speed term at its best value when that term passes the screen
+             (a rate limiter in series with a cap: the encoder minus the capped prediction
+             against the ramp's change of the capped command), on its own otherwise;
            - the steering cap: on every tick of the steering encoder, with its white noise from
              the first differences: the encoder minus the believed servo angle (the recorded
              commands through the simulator's own steering servo, :class:`~offline.sim.actuators.Actuators`:
@@ -750,36 +761,49 @@ class DriveRecording:
         params = model.params
         rs = params.wheel.shearing_radius
         believed = [model.servo_steer(d, d.rim_cmd, d.steer_cmd) for d in self.drives]
+
+        def speed_dz(i: int, w: str, terms: Mapping[str, float]) -> NDArray[np.float64]:
+            # the omega_W rows moved by the terms' change of wheel i's rim-speed command (test units)
+            ch = f"omega_{w}"
+            dz = np.zeros(len(self))
+            for k, (d, seg) in enumerate(zip(self.drives, self.segments)):
+                rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                dom = (rim[:, i] - d.rim_cmd[:, i]) / rs
+                dom = np.concatenate([dom[:1], dom[:-1]])  # tick j follows the command of tick j - 1
+                rows = np.flatnonzero(self.drive == k)
+                means = np.array([dom[a + 1:b + 1].mean() for a, b in seg.bounds])
+                dz[rows] = means[self.segment[rows]] / (self.noise[ch][rows] * scale[ch])
+            return dz
+
         out: dict[str, tuple[bool, str, tuple[float, ...] | None]] = {}
         scores: dict[str, tuple[str, float]] = {}
         chans = list(self.channels)
-        for c in candidates:
+        best_speed: dict[str, tuple[float, dict[str, float]]] = {}  # wheel: (free score, terms at its best value)
+        # the slew last: it is scored on top of its wheel's best speed term
+        for c in sorted(candidates, key=lambda c: c.family.startswith("slew_")):
             kind, _, w = c.family.partition("_")
-            if kind not in ("speed", "steer") or w not in WHEELS:
+            if kind not in ("speed", "slew", "steer") or w not in WHEELS:
                 out[c.key] = (True, "not a per-wheel actuator term: always fitted", None)
                 continue
             hit = [r.channel for r in regions if r.channel in (f"omega_{w}", f"torque_{w}")]
             where = f"; located regions on {', '.join(sorted(set(hit)))}" if hit else ""
-            if (f"omega_{w}" not in chans if kind == "speed" else any(d.steer_reading is None for d in self.drives)):
+            if (f"omega_{w}" not in chans if kind != "steer" else any(d.steer_reading is None for d in self.drives)):
                 out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")), None)
                 continue
             i = WHEELS.index(w)
             grid = np.unique(np.concatenate([np.linspace(c.lower[0], c.upper[0], SCREEN_GRID),
                                              [s[0] for s in c.starts], [c.params[0][4]]]))
             best, arg = -math.inf, float(grid[0])
+            on_top = best_speed.get(w, (-math.inf, {}))
+            base_terms = on_top[1] if kind == "slew" and on_top[0] >= need else {}
+            base_dz = speed_dz(i, w, base_terms) if kind == "slew" else None
             for th in grid:
                 terms = rover_terms(c.build(np.array([th]) * c.to_si, params))
-                if kind == "speed":
-                    ch = f"omega_{w}"
-                    z = z0[:, chans.index(ch)]
-                    dz = np.zeros(len(self))
-                    for k, (d, seg) in enumerate(zip(self.drives, self.segments)):
-                        rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
-                        dom = (rim[:, i] - d.rim_cmd[:, i]) / rs
-                        dom = np.concatenate([dom[:1], dom[:-1]])  # tick j follows the command of tick j - 1
-                        rows = np.flatnonzero(self.drive == k)
-                        means = np.array([dom[a + 1:b + 1].mean() for a, b in seg.bounds])
-                        dz[rows] = means[self.segment[rows]] / (self.noise[ch][rows] * scale[ch])
+                if kind != "steer":
+                    z = z0[:, chans.index(f"omega_{w}")]
+                    dz = speed_dz(i, w, {**base_terms, **terms})
+                    if base_dz is not None:  # the slew's gain beyond its wheel's best speed term
+                        z, dz = z - base_dz, dz - base_dz
                     ok = np.isfinite(z) & np.isfinite(dz)
                     g = float(np.sum(z[ok] ** 2 - (z[ok] - dz[ok]) ** 2))
                 else:
@@ -796,10 +820,14 @@ class DriveRecording:
                         g += float(np.sum(e[sel] ** 2 - (e[sel] - de[sel]) ** 2)) / sig**2
                 if g > best:
                     best, arg = g, float(th)
-            enc = "wheel-speed encoder" if kind == "speed" else "steering encoder"
+            enc = "steering encoder" if kind == "steer" else "wheel-speed encoder"
+            if base_terms:
+                enc += " on top of " + ", ".join(f"{k} = {x:.4g}" for k, x in base_terms.items())
             out[c.key] = (bool(best >= need), f"free score on the {enc} {best:.3g} at {c.params[0][0]} {arg:.3g} "
                                               f"{c.params[0][1]} {'>=' if best >= need else '<'} {need:.3g}{where}", (arg,))
             scores[c.key] = (c.family, best)
+            if kind == "speed" and best > best_speed.get(w, (-math.inf, {}))[0]:
+                best_speed[w] = (best, dict(rover_terms(c.build(np.array([arg]) * c.to_si, params))))
         for key, (fam, g) in scores.items():
             top = max(v for f, v in scores.values() if f == fam)
             if out[key][0] and g < SCREEN_FAMILY_FRACTION * top:
@@ -845,6 +873,9 @@ class DriveModel:
         change and while the servos move (steering slew, speed lag) it is solved at every tick.
         The actuators follow every tick's commands. At drive speeds the plant is quasi-static,
         so the interpolation error is that of a slowly turning gravity vector.
+    halvings : int
+        A tick whose plant step fails (the simulator's own retries included) is tried again in
+        halves at most this many times before it is lost (:func:`_step`; 0: not tried again).
     cache_size : int
         Re-simulated drives kept (keyed by the drive, heading offset and the extension's
         physics; a soil field at the believed value and a rover term at its neutral value,
@@ -861,6 +892,7 @@ class DriveModel:
     sensors: SensorConfig | None = None
     cache_size: int = 2048
     stride: int = 3
+    halvings: int = 0
     _cache: dict[Any, Any] = field(default_factory=dict, init=False, repr=False)
     _runs: list[tuple[Any, bool]] = field(default_factory=list, init=False, repr=False)
     simulations: int = field(default=0, init=False)
@@ -1059,7 +1091,7 @@ class DriveModel:
                 clock[0] = float(d.t[k])
                 steer_before = acts.steer.copy()
                 try:
-                    _step(sim, d.period)
+                    _step(sim, d.period, halvings=self.halvings)
                 except SimulationError:
                     # no equilibrium (e.g. a wheel speed through zero with a slow servo): this tick
                     # is lost and the plant restarts from the steady state of these commands
@@ -1217,7 +1249,7 @@ def diagnose_drives(
     v = diagnose(obs, model, candidates=candidates, recalibrate=recalibrate, k_folds=k_folds, alpha=alpha, n_boot=n_boot,
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
-                 polish_nfev=0, workers=workers)
+                 polish_nfev=0, workers=workers, refit_in_turn=True)
     if empirical and v.status in ("unexplained", "ambiguous", "partly_explained") and scenario.rover_file is not None:
         if progress is not None:
             progress(f"no empirical search: its terms act through the simulator's disturbance hook, which the plant of "

@@ -202,10 +202,11 @@ class WheelSetHubContact(HubContact):
     def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
         """The forces over the next step (contract C5), one per wheel of the rover file."""
         f = self.force(np.array(s.sinkage))
-        xs = np.array([w.position[0] for w in self.rover.wheels])
-        ys = np.array([w.position[1] for w in self.rover.wheels])
+        spec: Any = self.rover  # a RoverSpec here (HubContact's field is typed for the mini rover's Rover)
+        xs = np.array([w.position[0] for w in spec.wheels])
+        ys = np.array([w.position[1] for w in spec.wheels])
         if len(f) != len(xs):
-            raise DriveCandidateError(f"hub contact on {self.rover.name}: the state has {len(f)} wheels, the rover file "
+            raise DriveCandidateError(f"hub contact on {spec.name}: the state has {len(f)} wheels, the rover file "
                                       f"{len(xs)}")
         vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
         norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)

@@ -292,6 +292,15 @@ def _section(text: str, mark: str) -> list[str]:
     return [mark, *body.rstrip("\n").split("\n"), ""]
 
 
+def _run_part(cases, run, line) -> list[dict[str, object]]:
+    """Each case's row (``run(case)``), printed as it comes (``line(row)``)."""
+    rows = []
+    for case in cases:
+        rows.append(run(case))
+        print(line(rows[-1]), flush=True)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=20.0, help="drive length, s (default %(default)s)")
@@ -306,21 +315,16 @@ def main() -> int:
     bad = False
     with tempfile.TemporaryDirectory() as tmp:
         if args.part in ("open", "all"):
-            rows = []
-            for case in CASES:
-                r = run_case(case, args.duration, Path(tmp))
-                print(f"{r['case']} {r['duration']:g} s seed {r['seed']}: {r['verdict']} {r['named']} {r['fitted']} -> "
-                      f"{r['outcome']} ({r['cpu']:.1f} CPU-s)", flush=True)
-                rows.append(r)
+            rows = _run_part(CASES, lambda c: run_case(c, args.duration, Path(tmp)),
+                             lambda r: f"{r['case']} {r['duration']:g} s seed {r['seed']}: {r['verdict']} {r['named']} "
+                                       f"{r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} CPU-s)")
             open_lines = _open_section(rows, args.duration, commit, stamp)
             bad |= any(r["outcome"] in ("WRONG NAME", "FALSE ALARM") for r in rows)
         if args.part in ("closed", "all"):
-            rows = []
-            for cc in CLOSED_CASES:
-                r = run_closed_case(cc, args.duration, Path(tmp))
-                print(f"closed {r['case']} seed {r['seed']}: rtctl {r['heading']:.2f} deg {r['cross']:.2f} cm; {r['verdict']} "
-                      f"{r['named']} {r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} + {r['cpu_drive']:.1f} CPU-s)", flush=True)
-                rows.append(r)
+            rows = _run_part(CLOSED_CASES, lambda c: run_closed_case(c, args.duration, Path(tmp)),
+                             lambda r: f"closed {r['case']} seed {r['seed']}: rtctl {r['heading']:.2f} deg {r['cross']:.2f} "
+                                       f"cm; {r['verdict']} {r['named']} {r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} + "
+                                       f"{r['cpu_drive']:.1f} CPU-s)")
             closed_lines = _closed_section(rows, args.duration, commit, stamp)
             bad |= any(r["outcome"] in ("WRONG NAME", "FALSE ALARM") for r in rows)
     load1 = os.getloadavg()

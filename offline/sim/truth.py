@@ -19,7 +19,7 @@ File format (every key optional; units in the key names)
     yaw_inertia_kg_m2 = 0.06         # default: uniform plate over wheelbase x track (our estimate)
     wheel_inertia_kg_m2 = 3.3e-4     # spin inertia of each wheel; default: 0.1 kg ring at the rim (our estimate)
 
-    [wheels.RR]
+    [wheels.RR]                      # a wheel of the rover: FR, FL, RR, RL (mini rover) or a rover file's name
     radius_mm = 54.0                 # default: the parameter set's wheel radius
     steer_offset_deg = 2.0           # true steer = encoder steer + offset
 
@@ -42,6 +42,12 @@ File format (every key optional; units in the key names)
     lo_si = 0.12                     # edges / threshold in SI units of `where`
     hi_si = 0.30
     magnitude_si = 0.8               # N or N m (hinge: per unit of `where`)
+
+A rover file's truth (:func:`load_truth` given the scenario's ``rover_file``) names that file's
+wheels (``[wheels.LM]`` on the MER-class rover), has one radius and steering offset per wheel in
+its order, and takes its mass and inertias from the rover-file simulator's defaults; its hook
+sections are applied on its wheels by :func:`offline.discrepancy.drive.wheel_set.truth_disturbance`
+(an ``[[empirical_force]]`` there acts on the body only: ``drag.body``).
 
 The last three are disturbance hooks (contract C5): :attr:`Truth.anchor`, :attr:`Truth.hub` and
 :attr:`Truth.empirical` carry their parameters (SI); ``offnominal drive --truth`` applies them

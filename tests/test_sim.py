@@ -223,15 +223,13 @@ def test_a_rover_file_scenario_gets_its_own_wheels_and_plant(name, wheels, kind)
     """A rover-file scenario (six-wheel rocker-bogie, four-wheel skid-steer) is simulated on its
     own suspension's plant with the file's wheel set (issue 23; before, it was refused at
     construction, and before that it ran on the four-wheel rocker's plant and failed with "no
-    equilibrium"); a disturbance hook, modelled for the mini rover's plant only, is refused
-    with the reason. The closed loops are in tests/test_sim_any_rover.py."""
+    equilibrium"); it takes a disturbance hook (refused before the rover-file plant had one;
+    its physics: tests/test_sim_any_rover.py). The closed loops are in tests/test_sim_any_rover.py."""
     from pathlib import Path
-
-    from offline.sim.plant import SimulationError
 
     sc = load_scenario(Path(__file__).resolve().parents[1] / "offline" / "scenarios" / "rovers" / f"{name}.toml")
     sim = RoverSimulator(sc)
     assert sim.wheels == wheels and type(sim.plant).__name__ == kind and sim.z.shape == (3 + 3 * len(wheels),)
     assert sim.weight == pytest.approx(sc.rover_file.weight, rel=1e-12)
-    with pytest.raises(SimulationError, match=r"disturbance hook is modelled for the mini rover's plant only"):
-        RoverSimulator(sc, disturbance=lambda t, s: None)
+    hook = RoverSimulator(sc, disturbance=lambda t, s: None).disturbance  # a rover file's plant takes a hook (issue 23)
+    assert hook is not None and hook(0.0, None) is None

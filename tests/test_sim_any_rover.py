@@ -87,10 +87,20 @@ def test_plant_steady_state_is_the_table_primitive(table_name):
     assert checked == int(np.sum([t.status_at(i) == "optimal" for i in np.ndindex(*t.status.shape)])) >= 4
 
 
-def test_plant_jacobian_is_exact_off_the_steady_state():
+def _hook_vector(n):
+    """A disturbance vector on ``n`` wheels: body force and moment, a force at every wheel, a hub torque on two."""
+    fx, fy = 0.4 * np.cos(np.arange(n)), -0.3 * np.sin(1.0 + np.arange(n))
+    tq = np.zeros(n)
+    tq[2], tq[5 % n] = 0.7, -0.4
+    return np.concatenate([[-2.0, 1.5, 0.8], fx, fy, tq])
+
+
+@pytest.mark.parametrize("disturbed", [False, True])
+def test_plant_jacobian_is_exact_off_the_steady_state(disturbed):
     """The six-wheel plant's Jacobian (wheel Jacobians through the suspension rows' exact casadi
     Jacobian) against central differences at a point with yaw rate, lateral velocity, a step in
-    time (inertia terms) and a wheel in torque mode."""
+    time (inertia terms) and a wheel in torque mode; and with a disturbance hook's forces (body
+    force and moment, a force at every wheel, hub torques: the rows evaluated at the loaded wrenches)."""
     from offline.rover.table_verify import spec_from_table
     from offline.sim.simulator import suspension_plant_for
 
@@ -105,13 +115,17 @@ def test_plant_jacobian_is_exact_off_the_steady_state():
     q = q.copy()
     q[n + 9], q[n + 10], q[n + 14] = 0.05, 0.03, 0.5  # slope, cross slope, wheel inertia
     z = z + np.concatenate([[0.002, 0.004, 0.01], 0.02 * np.arange(1, n + 1), 0.03 * np.sin(np.arange(2 * n))])
-    res, J = plant.evaluate(z, a, q)[:2]
+    d = _hook_vector(n) if disturbed else None
+    res, J = plant.evaluate(z, a, q, d)[:2]
+    if disturbed:
+        assert np.max(np.abs(res - plant.evaluate(z, a, q)[0])) > 1e-3  # the hook's forces enter the rows
     eps = 1e-7
     fd = np.empty_like(J)
     for j in range(len(z)):
         dz = np.zeros(len(z))
         dz[j] = eps
-        fd[:, j] = (plant.evaluate(z + dz, a, q, jacobian=False)[0] - plant.evaluate(z - dz, a, q, jacobian=False)[0]) / (2 * eps)
+        fd[:, j] = (plant.evaluate(z + dz, a, q, d, jacobian=False)[0]
+                    - plant.evaluate(z - dz, a, q, d, jacobian=False)[0]) / (2 * eps)
     assert np.max(np.abs(fd - J)) <= TOL_JACOBIAN * np.max(np.abs(J)), np.unravel_index(np.argmax(np.abs(fd - J)), J.shape)
     assert np.max(np.abs(res)) > 1e-3  # away from a steady state: the inertia and yaw columns matter
 
@@ -346,3 +360,82 @@ def test_lateral_authority_only_the_skid_steer_lacks_it(path):
     t = load_table(path)
     tp = t.at(**{a: float(v[len(v) // 2]) for a, v in t.axes.items()})
     assert lateral_authority(tp, t.layout) is (path.stem != "skid_fr_unpowered")
+
+
+def test_hook_forces_on_the_six_wheel_plant_are_balanced_where_they_act():
+    """A disturbance hook on the MER-class plant (quasi-static root, RF unpowered, the others at their
+    servo speed): the soil's wrenches at the root balance the hook's forces as a free body does --
+    planar forces and the yaw moment about O summed independently of the plant's rows (each wheel's
+    soil force turned by its steering, plus the hook's force at that wheel's plan position, plus the
+    body force and moment) are zero; the unpowered wheel's soil axle moment equals the hub torque on it
+    (``M_y + T - tau = 0``, ``T = 0``); a zero vector is bit for bit no hook; and a body force
+    ``(-k, 0)`` is the truth's tether ``k`` (the same root to rounding)."""
+    from offline.rover.table_verify import spec_from_table
+    from offline.sim.simulator import suspension_plant_for
+
+    t = load_table(ROVER_TABLES / "mer_rf_steer_stuck_7.npz")
+    sc = spec_from_table(t).scenario
+    plant = suspension_plant_for(sc.params, sc.rover_file, sc.exit_angle)
+    a, q, z0, _, speed = _plant_inputs(plant, t, sc, next(np.ndindex(*t.status.shape)))
+    n, W = plant.n, plant.wheels
+    a = a.copy()
+    rf = W.index("RF")
+    a[n + rf] = 0.0  # RF unpowered: torque mode, zero motor torque
+    d = _hook_vector(n)
+    d[3 + 2 * n + rf] = 0.6  # hub torque on the unpowered wheel, N m
+    z, sol = plant.solve(plant.initial_guess(speed, q), a, q, d)
+    steer = a[3 * n:4 * n]
+    c, s_ = np.cos(steer), np.sin(steer)
+    Fx = c * sol.wrench[:, 0] - s_ * sol.wrench[:, 1] + d[3:3 + n]
+    Fy = s_ * sol.wrench[:, 0] + c * sol.wrench[:, 1] + d[3 + n:3 + 2 * n]
+    from offline.physics.backend import NUMPY
+
+    pos = plant.statics.positions(NUMPY, {k: sol.sinkage[i] for i, k in enumerate(W)})[0]  # wheel centres at these sinkages
+    xs, ys = np.array([pos[k][0] for k in W]), np.array([pos[k][1] for k in W])
+    weight, m = sc.rover_file.weight, q[n + 12]
+    assert q[n + 9] == 0.0 and q[n + 10] == 0.0  # flat ground: no weight in the planar rows
+    # steady turning: the centripetal terms m r v, m r u of the planar rows
+    assert abs(Fx.sum() + d[0] + m * sol.r * sol.v) <= 1e-7 * weight
+    assert abs(Fy.sum() + d[1] - m * sol.r * sol.u) <= 1e-7 * weight
+    mz = (sol.wrench[:, 5] + xs * Fy - ys * Fx).sum() + d[2]
+    assert abs(mz) <= 1e-7 * weight * plant.wheelbase, mz
+    assert sol.wrench[rf, 4] == pytest.approx(0.6, abs=1e-7 * weight * sc.params.wheel.shearing_radius)
+    assert abs(sol.r) > 1e-4  # the hook turns the rover: a real yaw balance, not a trivial one
+    # no hook, a zero hook, a tether
+    r0 = plant.evaluate(z0, a, q)
+    rz = plant.evaluate(z0, a, q, np.zeros(3 + 3 * n))
+    assert all(np.array_equal(x, y) for x, y in zip(r0, rz))
+    k = 3.0
+    qt = q.copy()
+    qt[n + 11] = k  # the truth's tether
+    _, s_t = plant.solve(plant.initial_guess(speed, q), a, qt)
+    _, s_h = plant.solve(plant.initial_guess(speed, q), a, q, np.array([-k, 0.0, 0.0] + [0.0] * (3 * n)))
+    assert np.allclose(s_t.wrench, s_h.wrench, rtol=0, atol=1e-9 * weight) and s_t.u == pytest.approx(s_h.u, rel=1e-9)
+    with pytest.raises(Exception, match=r"3 \+ 3 N = 21"):
+        plant.evaluate(z0, a, q, np.zeros(3 + 3 * 4))
+
+
+def test_a_six_wheel_drive_takes_a_hook_and_its_forces_per_wheel():
+    """The simulator of a rover file takes a disturbance hook (contract C5): a hub torque on the
+    unpowered RF wheel slows it against its free-rolling twin drive; the applied forces are in the truth
+    state with one entry per wheel; a hook giving the mini rover's four wheels a non-zero force is an
+    error naming the wheel count; a body-only hook (default per-wheel zeros) serves six wheels."""
+    from offline.rover.scenario import load_scenario
+    from offline.sim.simulator import DisturbanceError, DisturbanceForces, RoverSimulator
+    from rtctl.messages import Commands
+
+    sc = load_scenario(SCENARIOS / "mer_rf_unpowered.toml").with_(speed=0.03)
+    go = Commands(0.0, 0, (0.03,) * 6, (0.0,) * 6)
+    runs = {}
+    for name, hook in (("none", None), ("hub torque RF", lambda t, s: DisturbanceForces(wheel_torque=(2.0,) + (0.0,) * 5)),
+                       ("body", lambda t, s: DisturbanceForces(body_force=(-5.0, 0.0)))):
+        sim = RoverSimulator(sc, seed=1, disturbance=hook)
+        sim.start(go)
+        sim.advance(1.0)
+        runs[name] = sim.truth_state()
+    assert runs["hub torque RF"].omega[0] < 0.9 * runs["none"].omega[0]  # the unpowered wheel slowed by its hub
+    assert runs["hub torque RF"].disturbance.wheel_torque == (2.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert runs["body"].u < runs["none"].u and runs["body"].disturbance.vector(6)[0] == -5.0
+    sim = RoverSimulator(sc, seed=1, disturbance=lambda t, s: DisturbanceForces(wheel_torque=(1.0, 0.0, 0.0, 0.0)))
+    with pytest.raises(DisturbanceError, match="wheel_torque has 4 entries; the simulated rover has 6 wheels"):
+        sim.start(go)

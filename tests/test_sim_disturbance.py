@@ -12,7 +12,7 @@ import pytest
 from offline.rover.primitives import solve_primitive
 from offline.rover.scenario import example_scenarios, load_scenario
 from offline.sim import DisturbanceForces
-from offline.sim.plant import GRAVITY
+from offline.sim.plant import DISTURBANCE_NAMES, GRAVITY
 from offline.sim.sensors import SensorConfig
 from offline.sim.simulator import DisturbanceError, RoverSimulator
 from offline.sim.truth import Truth
@@ -161,11 +161,22 @@ def test_hub_drag_slows_an_unpowered_wheel():
 
 
 @pytest.mark.parametrize("kw", [dict(body_force=(math.nan, 0.0)), dict(body_force=(1.0,)),
-                                dict(wheel_force=((0.0, 0.0),) * 3), dict(wheel_torque=(0.0, 0.0, "a", 0.0)),
+                                dict(wheel_force=((0.0, 0.0, 0.0),) * 4), dict(wheel_force=()), dict(wheel_torque=()), dict(wheel_torque=(0.0, 0.0, "a", 0.0)),
                                 dict(body_moment_z=math.inf)])
 def test_bad_forces_are_clear_errors(kw):
     with pytest.raises(DisturbanceError, match="DisturbanceForces"):
         DisturbanceForces(**kw)
+
+
+def test_per_wheel_forces_fit_the_wheel_count():
+    """Per-wheel entries are one per wheel of the simulated rover (issue 23: a rover file's N); the
+    default zeros fit any rover; the mini rover's vector is the 15 entries of DISTURBANCE_NAMES."""
+    f = DisturbanceForces(body_force=(1.0, 2.0), wheel_force=((0.5, 0.0),) * 3)
+    with pytest.raises(DisturbanceError, match="wheel_force has 3 entries; the simulated rover has 4 wheels"):
+        f.vector()
+    assert f.vector(3).tolist() == [1.0, 2.0, 0.0, 0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert DisturbanceForces(body_force=(1.0, 0.0)).vector(6).tolist() == [1.0] + [0.0] * 20
+    assert len(DisturbanceForces().vector()) == len(DISTURBANCE_NAMES) == 15
 
 
 def test_hook_must_return_forces():

@@ -72,7 +72,7 @@ def run_recording(args: argparse.Namespace) -> int:
         sc = replace(sc, params=loaded["parameter_set"])
         params_file = Path(args.params).name
     try:
-        truth = (load_truth(args.believed_truth, sc.rover, sc.params) if args.believed_truth
+        truth = (load_truth(args.believed_truth, sc.rover_file or sc.rover, sc.params) if args.believed_truth
                  else None if sc.rover_file is not None else Truth.nominal(sc.params, sc.rover))  # a rover file: its own world
     except TruthError as exc:
         return fail(str(exc))

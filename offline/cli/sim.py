@@ -108,14 +108,18 @@ def _hil_drive(args: argparse.Namespace, sim: Any, ctl: Any, kind: str, meta: di
     return res
 
 
-def _truth_hooks(truth: Any, rover: Any) -> Any:
+def _truth_hooks(truth: Any, scenario: Any) -> Any:
     """The disturbance hook of a truth file's ``[tether_anchor]`` / ``[hub_contact]`` /
-    ``[[empirical_force]]`` (None without them)."""
+    ``[[empirical_force]]`` on the scenario's rover (the mini rover's or a rover file's wheels;
+    None without them)."""
     if truth.anchor is None and truth.hub is None and not truth.empirical:
         return None
     from ..discrepancy.drive.candidates import disturbance_from_truth
+    from ..discrepancy.drive.wheel_set import truth_disturbance
 
-    return disturbance_from_truth(truth, rover)
+    if not hasattr(scenario, "rover_file"):  # the mini rover's Rover itself (the earlier signature)
+        return disturbance_from_truth(truth, scenario)
+    return truth_disturbance(truth, scenario)
 
 
 def _cmd_drive(args: argparse.Namespace) -> int:
@@ -160,7 +164,7 @@ def _cmd_drive(args: argparse.Namespace) -> int:
         for label, truth_file, pose_period in variants:
             try:
                 sc = scenario_by_name(name)
-                truth = (load_truth(resolve_truth_path(truth_file), sc.rover, sc.params) if truth_file
+                truth = (load_truth(resolve_truth_path(truth_file), sc.rover_file or sc.rover, sc.params) if truth_file
                          else Truth.nominal(sc.params, sc.rover) if sc.rover_file is None
                          else None)  # a rover file's world: the simulator's rover_file_truth
             except (ExperimentError, TruthError) as exc:
@@ -176,7 +180,7 @@ def _cmd_drive(args: argparse.Namespace) -> int:
                 try:
                     ctl = build_controller(kind, sc, rtctl_factory=factory)
                     sim = RoverSimulator(sc, truth, sensors=sensors, dt=args.dt, seed=args.seed,
-                                         disturbance=None if truth is None else _truth_hooks(truth, sc.rover))
+                                         disturbance=None if truth is None else _truth_hooks(truth, sc))
                     meta = {"scenario": sc.name, "scenario_file": Path(sc.source).name, "controller": kind,
                             "seed": args.seed, "dt": args.dt, "truth": sim.truth.describe(), "truth_label": label,
                             "sensors": sensors.__dict__, "distance_m": args.distance}

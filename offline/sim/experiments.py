@@ -44,7 +44,7 @@ from .simulator import RoverStuck, RoverSimulator, TruthState, WheelLiftOff
 
 __all__ = [
     "ControllerLike", "PidGains", "PrimitiveController", "PidSteeringController", "DriveResult", "run_drive",
-    "drive_metrics", "build_controller", "BUILTIN_CONTROLLERS", "SECTION_7_3", "DISSERTATION_7_3", "plot_runs",
+    "drive_metrics", "record_run", "build_controller", "BUILTIN_CONTROLLERS", "SECTION_7_3", "DISSERTATION_7_3", "plot_runs",
     "ExperimentError", "wheel_tuple", "scenario_by_name", "declared_task", "with_task", "trench_metrics",
 ]
 
@@ -417,6 +417,28 @@ def run_drive(sim: RoverSimulator, controller: ControllerLike, distance: float =
     if res.ended:
         res.metrics["ended_at_s"] = float(sim.t)
     return res
+
+
+def record_run(path: str | Path, sim: RoverSimulator, controller: ControllerLike, distance: float,
+               metadata: Mapping[str, Any] | None = None, max_time: float | None = None, name: str = "") -> DriveResult:
+    """:func:`run_drive` written to an MCAP recording (:class:`rtctl.recording.Recorder`, the truth
+    channel included; a rover file's recording carries its wheel set), as ``offnominal drive`` records.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording to write.
+    sim, controller, distance, max_time, name
+        As :func:`run_drive`.
+    metadata : mapping, optional
+        The recording's metadata (scenario, seed, ...; never the truth's parameters when the
+        recording is to be diagnosed).
+    """
+    from rtctl.recording import Recorder, provenance
+
+    wheels = sim.wheels if sim.rover_file is not None else None  # the mini rover's: as every recording before
+    with Recorder(path, dict(metadata or {}), truth=True, provenance=provenance(controller), wheels=wheels) as rec:
+        return run_drive(sim, controller, distance=distance, max_time=max_time, recorder=rec, name=name)
 
 
 def _first_measurement(sim: RoverSimulator) -> Measurements:

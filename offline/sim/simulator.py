@@ -164,37 +164,64 @@ class DisturbanceForces:
         ``(-k, 0)`` is a drawbar pull ``k`` backwards).
     body_moment_z : float
         Yaw moment about the centre of mass, N m (positive turns left).
-    wheel_force : 4 x (fx, fy)
-        Extra force at each wheel (order FR, FL, RR, RL), N. It adds to that wheel's soil force:
-        it acts at the wheel's plan position (a yaw moment about the centre of mass) and enters
-        the roll and rocker-pitch balances where the soil force does; it exerts no torque on
-        the wheel's spin (use ``wheel_torque`` for that).
-    wheel_torque : 4 float
+    wheel_force : N x (fx, fy)
+        Extra force at each wheel, N, in the simulator's wheel order (the mini rover's FR, FL, RR,
+        RL; a rover file's wheels in its order, :attr:`RoverSimulator.wheels`). It adds to that
+        wheel's soil force: it acts at the wheel's plan position (a yaw moment about the centre of
+        mass) and enters the roll and pitch (rocker, bogie) balances where the soil force does; it
+        exerts no torque on the wheel's spin (use ``wheel_torque`` for that).
+    wheel_torque : N float
         Extra torque resisting each wheel's spin, N m (hub drag; positive opposes positive
         omega): a speed-servoed wheel's motor supplies it, a torque-mode wheel
         (unpowered or at its torque limit) is slowed by it.
+
+    The defaults are four zeros (the mini rover's wheels); all-zero per-wheel entries fit a rover
+    of any wheel count (a body-only hook such as an anchored tether serves every rover), while
+    non-zero ones must have one entry per wheel of the simulated rover (:meth:`vector`).
     """
 
     body_force: tuple[float, float] = (0.0, 0.0)
     body_moment_z: float = 0.0
     wheel_force: tuple[tuple[float, float], ...] = ((0.0, 0.0),) * 4
-    wheel_torque: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    wheel_torque: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "body_force", _floats("body_force", self.body_force, 2))
         object.__setattr__(self, "body_moment_z", _floats("body_moment_z", self.body_moment_z, None))
         wf = self.wheel_force
-        if isinstance(wf, (str, bytes)) or not hasattr(wf, "__len__") or len(wf) != 4:
-            raise DisturbanceError(f"DisturbanceForces.wheel_force must be 4 pairs (fx, fy) in the order FR, FL, RR, RL, "
-                                   f"got {wf!r}")
+        if isinstance(wf, (str, bytes)) or not hasattr(wf, "__len__") or len(wf) < 1:
+            raise DisturbanceError(f"DisturbanceForces.wheel_force must be one pair (fx, fy) per wheel (the mini rover: "
+                                   f"4, in the order FR, FL, RR, RL), got {wf!r}")
         object.__setattr__(self, "wheel_force", tuple(_floats(f"wheel_force[{i}]", w, 2) for i, w in enumerate(wf)))
-        object.__setattr__(self, "wheel_torque", _floats("wheel_torque", self.wheel_torque, 4))
+        wt = self.wheel_torque
+        if isinstance(wt, (str, bytes)) or not hasattr(wt, "__len__") or len(wt) < 1:
+            raise DisturbanceError(f"DisturbanceForces.wheel_torque must be one number per wheel (the mini rover: 4, in "
+                                   f"the order FR, FL, RR, RL), got {wt!r}")
+        object.__setattr__(self, "wheel_torque", _floats("wheel_torque", wt, len(wt)))
 
-    def vector(self) -> NDArray[np.float64]:
-        """The plant's disturbance vector (:data:`offline.sim.plant.DISTURBANCE_NAMES`)."""
-        wf = self.wheel_force
-        return np.array([*self.body_force, self.body_moment_z, *(f[0] for f in wf), *(f[1] for f in wf),
-                         *self.wheel_torque], dtype=float)
+    def vector(self, wheels: int = 4) -> NDArray[np.float64]:
+        """The plant's disturbance vector for a rover of ``wheels`` wheels: ``(F_x, F_y, M_z,
+        fx per wheel, fy per wheel, torque per wheel)`` (the mini rover's:
+        :data:`offline.sim.plant.DISTURBANCE_NAMES`; a rover file's plant takes the same layout
+        with its ``N``, :meth:`offline.sim.suspension_plant.SuspensionPlant.evaluate`).
+
+        Raises
+        ------
+        DisturbanceError
+            A per-wheel entry with non-zero values has another length than ``wheels``.
+        """
+        fx = self._per_wheel("wheel_force", tuple(f[0] for f in self.wheel_force), wheels)
+        fy = self._per_wheel("wheel_force", tuple(f[1] for f in self.wheel_force), wheels)
+        tq = self._per_wheel("wheel_torque", self.wheel_torque, wheels)
+        return np.array([*self.body_force, self.body_moment_z, *fx, *fy, *tq], dtype=float)
+
+    def _per_wheel(self, name: str, v: tuple[float, ...], wheels: int) -> tuple[float, ...]:
+        if len(v) == wheels:
+            return v
+        if not any(v):
+            return (0.0,) * wheels
+        raise DisturbanceError(f"DisturbanceForces.{name} has {len(v)} entries; the simulated rover has {wheels} wheels "
+                               f"(one entry per wheel, in the simulator's wheel order)")
 
 
 class Disturbance(Protocol):
@@ -269,8 +296,9 @@ class RoverSimulator:
     measurements, commands and truth (:attr:`wheels`). A backward drive (the scenario's rover
     file turned half round, :func:`rtctl.physics.rover_file.driving_backward`) is simulated in
     the travel frame; its sensors and commands are in the rover's body frame, as the rover's
-    would be (:meth:`measure`, :meth:`apply`). Not for rover files in this version: a
-    disturbance hook, raised wheels.
+    would be (:meth:`measure`, :meth:`apply`); a disturbance hook sees the true state and
+    gives its forces in that travel frame (the plant's). Not for rover files in this version:
+    raised wheels.
 
     Parameters
     ----------
@@ -317,9 +345,6 @@ class RoverSimulator:
             self.plant: PlantModel | SuspensionPlant = plant_for(self.truth.params, scenario.rover, scenario.exit_angle,
                                                                  compiled)
         else:  # a rover file: its suspension's plant (the optimizer's statics), in the travel frame
-            if disturbance is not None:
-                raise SimulationError(f"scenario {scenario.name}: a disturbance hook is modelled for the mini rover's "
-                                      f"plant only, not for the rover file of {rf.name} in this version")
             params = truth.params if truth is not None else scenario.params
             self.plant = suspension_plant_for(params, rf, scenario.exit_angle, compiled)
             self.truth = truth or rover_file_truth(scenario, self.plant)
@@ -414,7 +439,7 @@ class RoverSimulator:
         (``self.z`` still holds the previous step's unknowns)."""
         motor = -sol.wrench[:, 4]
         if self._d is not None:
-            motor = motor + self._d[11:15]
+            motor = motor + self._d[3 + 2 * self.n:3 + 3 * self.n]
         jw = self.truth.wheel_inertia
         if jw * inv_dt != 0.0:
             motor = motor + jw * inv_dt * (sol.omega - self.z[3:3 + self.n])
@@ -428,7 +453,7 @@ class RoverSimulator:
         if not isinstance(f, DisturbanceForces):
             raise DisturbanceError(f"t={self.t:.6g} s: the disturbance hook returned {type(f).__name__}, "
                                    "expected DisturbanceForces")
-        self.applied, self._d = f, f.vector()
+        self.applied, self._d = f, f.vector(self.n)
         return self._d
 
     def start(self, commands: Commands) -> None:

@@ -42,8 +42,14 @@ Scales: forces by ``W``, moments by ``W L`` (``L`` the wheelbase), the rigid fra
 compatibility rows by the shearing radius, the axle rows by ``W / N r_s`` and the nominal
 wheel speed.
 
-Not modelled here (the mini rover's plant has them): raised wheels, and the per-wheel forces
-of a disturbance hook (a body force and yaw moment are modelled).
+External forces of a disturbance hook (:class:`offline.sim.simulator.DisturbanceForces`) enter
+as in the mini rover's plant: a body force and yaw moment in the planar rows, a body-frame force
+per wheel added to that wheel's soil force (it acts wherever the soil force does: planar, roll,
+rocker and bogie rows), a torque per wheel resisting its spin in the axle rows. They are held
+over a step, so the Jacobian keeps its form (the suspension's rows evaluated at the loaded
+wrenches).
+
+Not modelled here (the mini rover's plant has them): raised wheels.
 """
 
 from __future__ import annotations
@@ -64,7 +70,8 @@ from ..physics.terramechanics import ModelOptions, WheelModel
 from .plant import (GRAVITY, WHEEL_MASS_ESTIMATE, PlantSolution, SimulationError, _DenseCall, _stiction, _twin_direction,
                     wheel_state_batch)
 
-__all__ = ["SuspensionPlant", "param_names", "input_names", "suspension_yaw_inertia", "rover_gravity"]
+__all__ = ["SuspensionPlant", "param_names", "input_names", "suspension_yaw_inertia", "rover_gravity",
+           "rover_file_wheel_inertia"]
 
 
 
@@ -127,6 +134,21 @@ def _gravity(spec: RoverSpec) -> float:
 
 
 rover_gravity = _gravity
+
+
+def rover_file_wheel_inertia(params: ParameterSet) -> float:
+    """Spin inertia of a rover file's wheel, kg m^2: :data:`offline.sim.plant.WHEEL_MASS_ESTIMATE`
+    scaled with the rim radius cubed from the mini rover's 0.1 kg ring (an estimate: a wheel's mass
+    grows roughly with its volume; about 1.2 kg for a 13 cm wheel), as a thin ring ``m r^2``.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        Its wheel's rim radius.
+    """
+    r = params.wheel.radius
+    m = WHEEL_MASS_ESTIMATE * (r / 0.0575) ** 3
+    return m * r * r
 
 
 @dataclass(frozen=True)
@@ -248,12 +270,8 @@ class SuspensionPlant:
                          mass, yaw_inertia, wheel_inertia], dtype=float)
 
     def default_wheel_inertia(self) -> float:
-        """Spin inertia of a wheel, kg m^2: :data:`offline.sim.plant.WHEEL_MASS_ESTIMATE` scaled with
-        the rim radius cubed from the mini rover's 0.1 kg ring (an estimate: a wheel's mass grows
-        roughly with its volume; about 1.2 kg for a 13 cm wheel), as a thin ring ``m r^2``."""
-        r = self.params.wheel.radius
-        m = WHEEL_MASS_ESTIMATE * (r / 0.0575) ** 3
-        return m * r * r
+        """Spin inertia of a wheel, kg m^2: :func:`rover_file_wheel_inertia` of the plant's wheel."""
+        return rover_file_wheel_inertia(self.params)
 
     # ------------------------------------------------------------------ residual
     def _context(self, a: NDArray[np.float64], q: NDArray[np.float64]) -> dict[str, Any]:
@@ -299,7 +317,15 @@ class SuspensionPlant:
         q : ndarray
             Parameters (:func:`param_names`).
         d : ndarray or None
-            ``(body F_x, body F_y, M_z)`` held over the step, N, N, N m (None: none).
+            External forces held over the step (a disturbance hook,
+            :meth:`offline.sim.simulator.DisturbanceForces.vector` with ``N`` wheels), SI: ``(F_x,
+            F_y, M_z)`` on the body (the planar rows, as the truth's tether), then per wheel in the
+            rover file's order a body-frame force ``f_x`` (N values) and ``f_y`` (N values), added to
+            that wheel's soil force where the suspension's rows take it (planar, roll and pitch
+            rows, about the wheel's own position), and a torque resisting its spin (N values; the
+            axle balance ``M_y + T - tau_d = 0``), as :meth:`offline.sim.plant.PlantModel.evaluate`.
+            Only the first three entries: the body's alone. None: none (the undisturbed equations bit
+            for bit).
         jacobian : bool
             False: the Jacobian is all NaN (residual only, a third of the cost).
         """
@@ -336,12 +362,25 @@ class SuspensionPlant:
         _stiction(W, JW, X, rs)
         wheel = W[:, :n]  # (6, n) wheel frame
         ext = np.array([-ctx["tether"], 0.0, 0.0])
+        loaded = wheel  # the wrenches the suspension carries: the soil's plus a hook's wheel forces
         if d is not None:
-            ext = ext + np.asarray(d[:3], dtype=float)
+            d = np.asarray(d, dtype=float)
+            if len(d) not in (3, 3 + 3 * n):
+                raise SimulationError(f"the disturbance vector has {len(d)} entries; the plant of {self.spec.name} "
+                                      f"takes 3 (body) or 3 + 3 N = {3 + 3 * n} (body, then per wheel f_x, f_y, torque)")
+            ext = ext + d[:3]
+        if d is not None and len(d) > 3:
+            # a body-frame force at a wheel, turned into that wheel's frame (the inverse of
+            # SuspensionStatics.to_rover_frame), added to the soil force it acts with
+            fx, fy = d[3:3 + n], d[3 + n:3 + 2 * n]
+            if np.any(fx) or np.any(fy):
+                loaded = wheel.copy()
+                loaded[0] += c * fx + s * fy
+                loaded[1] += -s * fx + c * fy
         if jacobian:
-            rows, Jb = (np.asarray(o, dtype=float) for o in self._balance(wheel, ctx["steer"], h, ctx["g_eff"], ext))
+            rows, Jb = (np.asarray(o, dtype=float) for o in self._balance(loaded, ctx["steer"], h, ctx["g_eff"], ext))
         else:
-            rows, Jb = np.asarray(self._balance_residual(wheel, ctx["steer"], h, ctx["g_eff"], ext), dtype=float), None
+            rows, Jb = np.asarray(self._balance_residual(loaded, ctx["steer"], h, ctx["g_eff"], ext), dtype=float), None
         rows = rows.ravel()
         rw = self._rows
         mass, inv_dt, weight, M = ctx["mass"], ctx["inv_dt"], ctx["weight"], ctx["M"]
@@ -360,6 +399,8 @@ class SuspensionPlant:
         mode, t_scale, om_scale = ctx["mode"], ctx["t_scale"], ctx["om_scale"]
         one_m = 1 - mode
         res[nb:nb + n] = mode * (omega - ctx["cmd"]) / om_scale + one_m * (wheel[4] + ctx["torque"]) / t_scale
+        if d is not None and len(d) > 3:  # a hook's torque resisting the spin: M_y + T - tau_d = 0 (the motor supplies it in speed mode)
+            res[nb:nb + n] -= one_m * d[3 + 2 * n:3 + 3 * n] / t_scale
         inertia = one_m * ctx["jw"] * inv_dt
         if ctx["spin"]:
             res[nb:nb + n] -= inertia * (omega - omega0) / t_scale

@@ -19,7 +19,7 @@ File format (every key optional; units in the key names)
     yaw_inertia_kg_m2 = 0.06         # default: uniform plate over wheelbase x track (our estimate)
     wheel_inertia_kg_m2 = 3.3e-4     # spin inertia of each wheel; default: 0.1 kg ring at the rim (our estimate)
 
-    [wheels.RR]
+    [wheels.RR]                      # a wheel of the rover: FR, FL, RR, RL (mini rover) or a rover file's name
     radius_mm = 54.0                 # default: the parameter set's wheel radius
     steer_offset_deg = 2.0           # true steer = encoder steer + offset
 
@@ -43,6 +43,12 @@ File format (every key optional; units in the key names)
     hi_si = 0.30
     magnitude_si = 0.8               # N or N m (hinge: per unit of `where`)
 
+A rover file's truth (:func:`load_truth` given the scenario's ``rover_file``) names that file's
+wheels (``[wheels.LM]`` on the MER-class rover), has one radius and steering offset per wheel in
+its order, and takes its mass and inertias from the rover-file simulator's defaults; its hook
+sections are applied on its wheels by :func:`offline.discrepancy.drive.wheel_set.truth_disturbance`
+(an ``[[empirical_force]]`` there acts on the body only: ``drag.body``).
+
 The last three are disturbance hooks (contract C5): :attr:`Truth.anchor`, :attr:`Truth.hub` and
 :attr:`Truth.empirical` carry their parameters (SI); ``offnominal drive --truth`` applies them
 through :func:`offline.discrepancy.drive.candidates.disturbance_from_truth` (an empirical term in ``time``
@@ -60,7 +66,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,6 +75,9 @@ from rtctl.physics.hub_drag import HUB_KEYS
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
 from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
+
+if TYPE_CHECKING:
+    from rtctl.physics.rover_file import RoverSpec
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path",
            "EMPIRICAL_FORCE_DIRECTIONS", "EMPIRICAL_FORCE_WHERE", "EMPIRICAL_FORCE_SHAPES"]
@@ -231,14 +240,37 @@ def _num(path: Path, where: str, key: str, v: Any, lo: float, hi: float) -> floa
     return float(v)
 
 
-def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | None = None) -> Truth:
+def load_truth(path: str | Path, rover: "Rover | RoverSpec", default_params: ParameterSet | None = None) -> Truth:
     """Read a truth file (format in the module notes).
+
+    Parameters
+    ----------
+    path : str or Path
+    rover : Rover or RoverSpec
+        The mini rover (:class:`offline.physics.params.Rover`: wheels FR, FL, RR, RL) or a rover
+        file (:class:`rtctl.physics.rover_file.RoverSpec`, a scenario's ``rover_file``): its wheel
+        names are the ``[wheels.<name>]`` sections the file may have, and the truth has one radius
+        and steering offset per wheel in its order. A rover file's defaults are the simulator's
+        (:func:`offline.sim.simulator.rover_file_truth`): mass its weight over its gravity, yaw
+        inertia :func:`~offline.sim.suspension_plant.suspension_yaw_inertia`, wheel spin inertia
+        :func:`~offline.sim.suspension_plant.rover_file_wheel_inertia`. On a rover file an
+        ``[[empirical_force]]`` term acts on the body only (``drag.body``): the per-wheel empirical
+        terms are written for the mini rover's wheels (:mod:`offline.discrepancy.drive.empirical`).
+    default_params : ParameterSet, optional
+        The parameter set when ``[truth] params`` is not given (default ``dissertation-ch7``).
 
     Raises
     ------
     TruthError
-        Unknown section or key, non-numeric or out-of-range value, unreadable parameter file.
+        Unknown section, wheel or key, non-numeric or out-of-range value, unreadable parameter file
+        (the message names the file, the section and the key).
     """
+    from rtctl.physics.rover_file import RoverSpec
+
+    from .suspension_plant import rover_file_wheel_inertia, rover_gravity, suspension_yaw_inertia
+
+    spec = rover if isinstance(rover, RoverSpec) else None
+    wheels = spec.wheel_names if spec is not None else WHEELS
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text())
@@ -248,8 +280,8 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         raise TruthError(f"{p}: not valid TOML ({exc})") from None
     bad = sorted(set(data) - {"truth", "wheels", "empirical_force", *_HOOKS})
     if bad:
-        raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth], [wheels.<FR|FL|RR|RL>], [tether_anchor], "
-                         "[hub_contact], [[empirical_force]]")
+        raise TruthError(f"{p}: unknown section(s) {bad}; expected [truth], [wheels.<{'|'.join(wheels)}>], "
+                         "[tether_anchor], [hub_contact], [[empirical_force]]")
     t = data.get("truth", {})
     bad = sorted(set(t) - set(_TRUTH_KEYS))
     if bad:
@@ -275,10 +307,10 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         soil: Soil = ps.soil
         ps = replace(ps, soil=replace(soil, k=soil.k * vals["soil_stiffness_scale"],
                                       name=f"{soil.name} x{vals['soil_stiffness_scale']:g} k"))
-    radius = [ps.wheel.radius] * 4
-    offset = [0.0] * 4
-    for name, tab in wheel_tables(p, data, _WHEEL_KEYS, TruthError):
-        i = WHEELS.index(name)
+    radius = [ps.wheel.radius] * len(wheels)
+    offset = [0.0] * len(wheels)
+    for name, tab in wheel_tables(p, data, _WHEEL_KEYS, TruthError, wheels):
+        i = wheels.index(name)
         if "radius_mm" in tab:
             radius[i] = 1e-3 * _num(p, f"wheels.{name}", "radius_mm", tab["radius_mm"], *_WHEEL_KEYS["radius_mm"])
             if radius[i] <= ps.wheel.grouser_height:
@@ -286,13 +318,24 @@ def load_truth(path: str | Path, rover: Rover, default_params: ParameterSet | No
         if "steer_offset_deg" in tab:
             offset[i] = math.radians(_num(p, f"wheels.{name}", "steer_offset_deg", tab["steer_offset_deg"],
                                           *_WHEEL_KEYS["steer_offset_deg"]))
+    empirical = _empirical(p, data)
+    if spec is None:
+        mass, yaw, spin = rover.weight / GRAVITY, default_yaw_inertia(rover), default_wheel_inertia(ps)  # type: ignore[arg-type]
+    else:
+        mass, yaw, spin = spec.weight / rover_gravity(spec), suspension_yaw_inertia(spec), rover_file_wheel_inertia(ps)
+        for i, e in enumerate(empirical):
+            if e["direction"] != "drag.body":
+                raise TruthError(f"{p}: [empirical_force #{i + 1}] direction = {e['direction']!r}: on the rover file "
+                                 f"{spec.name} (wheels {', '.join(wheels)}) an empirical term acts on the body only "
+                                 "(drag.body); the per-wheel empirical terms are the mini rover's (FR, FL, RR, RL) in this "
+                                 "version. A per-wheel drag or hub torque on a rover file: [hub_contact]")
     return Truth(
         params=ps, wheel_radius=tuple(radius), steer_offset=tuple(offset),  # type: ignore[arg-type]
         slope=math.radians(vals.get("slope_deg", 0.0)), cross_slope=math.radians(vals.get("cross_slope_deg", 0.0)),
-        tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", rover.weight / GRAVITY),
-        yaw_inertia=vals.get("yaw_inertia_kg_m2", default_yaw_inertia(rover)),
-        wheel_inertia=vals.get("wheel_inertia_kg_m2", default_wheel_inertia(ps)), source=str(p),
-        anchor=_hook(p, data, "tether_anchor"), hub=_hook(p, data, "hub_contact"), empirical=_empirical(p, data),
+        tether_force=vals.get("tether_force_N", 0.0), mass=vals.get("mass_kg", mass),
+        yaw_inertia=vals.get("yaw_inertia_kg_m2", yaw),
+        wheel_inertia=vals.get("wheel_inertia_kg_m2", spin), source=str(p),
+        anchor=_hook(p, data, "tether_anchor"), hub=_hook(p, data, "hub_contact"), empirical=empirical,
     )
 
 

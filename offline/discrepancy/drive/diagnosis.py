@@ -761,13 +761,14 @@ class DriveRecording:
         params = model.params
         rs = params.wheel.shearing_radius
         believed = [model.servo_steer(d, d.rim_cmd, d.steer_cmd) for d in self.drives]
+        wheels = model.wheels  # the believed rover's (the mini rover's FR, FL, RR, RL or a rover file's)
 
         def speed_dz(i: int, w: str, terms: Mapping[str, float]) -> NDArray[np.float64]:
             # the omega_W rows moved by the terms' change of wheel i's rim-speed command (test units)
             ch = f"omega_{w}"
             dz = np.zeros(len(self))
             for k, (d, seg) in enumerate(zip(self.drives, self.segments)):
-                rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                rim, _ = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period, wheels)
                 dom = (rim[:, i] - d.rim_cmd[:, i]) / rs
                 dom = np.concatenate([dom[:1], dom[:-1]])  # tick j follows the command of tick j - 1
                 rows = np.flatnonzero(self.drive == k)
@@ -782,7 +783,7 @@ class DriveRecording:
         # the slew last: it is scored on top of its wheel's best speed term
         for c in sorted(candidates, key=lambda c: c.family.startswith("slew_")):
             kind, _, w = c.family.partition("_")
-            if kind not in ("speed", "slew", "steer") or w not in WHEELS:
+            if kind not in ("speed", "slew", "steer") or w not in wheels:
                 out[c.key] = (True, "not a per-wheel actuator term: always fitted", None)
                 continue
             hit = [r.channel for r in regions if r.channel in (f"omega_{w}", f"torque_{w}")]
@@ -790,7 +791,7 @@ class DriveRecording:
             if (f"omega_{w}" not in chans if kind != "steer" else any(d.steer_reading is None for d in self.drives)):
                 out[c.key] = (bool(hit), ("no encoder to score it" + (where or "; no located region on the wheel's channels")), None)
                 continue
-            i = WHEELS.index(w)
+            i = wheels.index(w)
             grid = np.unique(np.concatenate([np.linspace(c.lower[0], c.upper[0], SCREEN_GRID),
                                              [s[0] for s in c.starts], [c.params[0][4]]]))
             best, arg = -math.inf, float(grid[0])
@@ -810,7 +811,7 @@ class DriveRecording:
                     g = 0.0
                     for d, b in zip(self.drives, believed):
                         assert d.steer_reading is not None
-                        rim, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period)
+                        rim, st = actuator_commands(terms, d.rim_cmd, d.steer_cmd, d.period, wheels)
                         e = d.steer_reading[:, i] - b[:, i]
                         de = model.servo_steer(d, rim, st)[:, i] - b[:, i]
                         sel = np.isfinite(e)
@@ -1003,15 +1004,15 @@ class DriveModel:
                 self._cache[key] = hit
 
     def servo_steer(self, d: DriveData, rim_cmd: NDArray[np.float64], steer_cmd: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The steering servos' angles at the ticks (n, 4; rad) for these per-tick commands: the
+        """The steering servos' angles at the ticks (n, wheels; rad) for these per-tick commands: the
         simulator's own servo (:class:`~offline.sim.actuators.Actuators`: rate limit, range, the
         scenario's failures) started settled at the first commands and moved one command period
         per tick by the previous tick's commands, as the re-simulation and the recording do. No
         plant solve."""
         assert self.actuators is not None
-        acts = Actuators(self.actuators, dict(self.scenario.failures), self.params.wheel.shearing_radius)
+        acts = Actuators(self.actuators, dict(self.scenario.failures), self.params.wheel.shearing_radius, wheels=self.wheels)
         acts.reset(tuple(rim_cmd[0]), tuple(steer_cmd[0]))
-        out = np.empty((len(d.t), 4))
+        out = np.empty((len(d.t), len(self.wheels)))
         out[0] = acts.steer
         for k in range(1, len(d.t)):
             acts.command(tuple(rim_cmd[k - 1]), tuple(steer_cmd[k - 1]))

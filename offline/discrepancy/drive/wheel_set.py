@@ -12,9 +12,13 @@ order); here the channels and the library follow it:
   rover file, each per-wheel candidate family of the library (its ``FR`` member is the
   template) is made for each of the file's wheels (steering terms only for steerable wheels),
   the terms acting through the simulator's disturbance hook (hub contact, an anchored tether)
-  are left out -- the rover-file plant takes no hook in this version
-  (:class:`offline.sim.simulator.RoverSimulator`) -- and the channels a term acts on (for the
-  report) are the file's.
+  are left out of the candidates -- the re-simulation's hooks
+  (:func:`offline.discrepancy.drive.candidates.disturbance_from_terms`) are the mini rover's
+  four wheels -- and the channels a term acts on (for the report) are the file's;
+* :func:`truth_disturbance`: the simulator's disturbance hook of a truth file's hook sections
+  (``[tether_anchor]``, ``[hub_contact]``, ``[[empirical_force]]``) on the scenario's wheel set,
+  so a world with hub contact, a tether or a body drag is simulated on a rover file's plant as on
+  the mini rover's (:class:`WheelSetHubContact`: the hub contact at the file's wheel positions).
 
 A per-wheel candidate is renamed, not rewritten: its ``build`` is the template's with the rover
 terms ``<term>.FR`` renamed ``<term>.<wheel>`` (:data:`~offline.discrepancy.drive.candidates.PER_WHEEL_TERMS`),
@@ -23,23 +27,30 @@ so the physics, bounds and starting points are the mini rover's, in SI.
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ...physics.params import ParameterSet
-from ...rover.scenario import Scenario
-from ...sim.truth import WHEELS
-from ..wheel.candidates import Candidate
-from .candidates import DriveCandidateError, RoverExtension
+from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING
 
-__all__ = ["tick_channels", "channel_unit", "library_for", "HOOK_CANDIDATES"]
+from ...rover.scenario import Scenario
+from ...sim.simulator import DisturbanceForces, TruthState
+from ...sim.truth import WHEELS, Truth
+from ..wheel.candidates import Candidate
+from .candidates import AnchoredTether, DriveCandidateError, HubContact, RoverExtension, disturbance_from_truth
+
+__all__ = ["tick_channels", "channel_unit", "library_for", "HOOK_CANDIDATES", "truth_disturbance",
+           "WheelSetHubContact", "WheelSetHooks"]
 
 HOOK_CANDIDATES = ("hub_contact", "tether_anchor")
-"""Candidates that act through the simulator's disturbance hook (contract C5): not for a rover
-file's plant in this version, so :func:`library_for` leaves them out of a rover file's library."""
+"""Candidates that act through the simulator's disturbance hook (contract C5): their re-simulation
+builds the mini rover's four-wheel hooks (:func:`~offline.discrepancy.drive.candidates.disturbance_from_terms`),
+so :func:`library_for` leaves them out of a rover file's library (the rover file's simulator takes
+a hook: :func:`truth_disturbance`)."""
 
 _TEMPLATE = "FR"
 """The mini rover's wheel whose per-wheel candidates are the templates of a rover file's."""
@@ -179,3 +190,89 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
                                channels=_channels(tpl.channels, wheels, _TEMPLATE, new),
                                family=tpl.family[:-len(_TEMPLATE)] + new if tpl.family.endswith(f"_{_TEMPLATE}") else tpl.family))
     return tuple(out)
+
+
+@dataclass(frozen=True)
+class WheelSetHubContact(HubContact):
+    """:class:`~offline.discrepancy.drive.candidates.HubContact` (the same passive-pressure drag and
+    hub torque per wheel, :meth:`HubContact.force`) at the wheels of a rover file: ``rover`` is a
+    :class:`rtctl.physics.rover_file.RoverSpec`, whose wheel positions (body frame of the plant:
+    the travel frame of a backward drive) and order the forces take."""
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The forces over the next step (contract C5), one per wheel of the rover file."""
+        f = self.force(np.array(s.sinkage))
+        spec: Any = self.rover  # a RoverSpec here (HubContact's field is typed for the mini rover's Rover)
+        xs = np.array([w.position[0] for w in spec.wheels])
+        ys = np.array([w.position[1] for w in spec.wheels])
+        if len(f) != len(xs):
+            raise DriveCandidateError(f"hub contact on {spec.name}: the state has {len(f)} wheels, the rover file "
+                                      f"{len(xs)}")
+        vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
+        norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
+        om = np.array(s.omega)
+        torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
+        return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
+                                 wheel_torque=tuple(float(x) for x in torque))
+
+
+@dataclass(frozen=True)
+class WheelSetHooks:
+    """Several disturbance hooks on a rover of ``wheels`` wheels acting together (their forces add;
+    the mini rover's :class:`~offline.discrepancy.drive.candidates.Hooks` for any wheel count)."""
+
+    hooks: tuple[Any, ...]
+    wheels: int
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The summed forces over the next step (contract C5)."""
+        n = self.wheels
+        v = sum(h(t, s).vector(n) for h in self.hooks)
+        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2],
+                                 wheel_force=tuple(zip(v[3:3 + n], v[3 + n:3 + 2 * n])), wheel_torque=tuple(v[3 + 2 * n:]))
+
+
+def truth_disturbance(truth: Truth, scenario: Scenario) -> Any:
+    """The simulator's disturbance hook of a truth's hook sections on the scenario's rover; None
+    without any.
+
+    The mini rover (no rover file): :func:`~offline.discrepancy.drive.candidates.disturbance_from_truth`,
+    as before. A rover file: ``[tether_anchor]`` an
+    :class:`~offline.discrepancy.drive.candidates.AnchoredTether` (a body force, any rover),
+    ``[hub_contact]`` a :class:`WheelSetHubContact` at the file's wheels (the believed soil of the
+    truth's parameter set), ``[[empirical_force]]`` the empirical family's hook of its body terms
+    (:func:`offline.sim.truth.load_truth` admits only ``drag.body`` on a rover file).
+
+    Parameters
+    ----------
+    truth : Truth
+        The simulated world (:func:`offline.sim.truth.load_truth` with the rover file).
+    scenario : Scenario
+
+    Raises
+    ------
+    DriveCandidateError
+        A per-wheel empirical term on a rover file (a truth not read with the rover file).
+    """
+    rf = getattr(scenario, "rover_file", None)
+    if rf is None:
+        return disturbance_from_truth(truth, scenario.rover)
+    hooks: list[Any] = []
+    if truth.anchor is not None:
+        a = truth.anchor
+        hooks.append(AnchoredTether(a["tension"], a.get("bearing", math.pi), a.get("inverse_distance", 0.0),
+                                    a.get("attach_x", 0.0), a.get("spring_rate", 0.0)))
+    if truth.hub is not None:
+        hooks.append(WheelSetHubContact(truth.hub["clearance"], truth.hub.get("face_width", 0.0), truth.hub.get("arm", 0.0),
+                                        truth.params.soil, rf))
+    if truth.empirical:
+        bad = [e["direction"] for e in truth.empirical if e["direction"] != "drag.body"]
+        if bad:
+            raise DriveCandidateError(f"empirical terms {bad} act on the mini rover's wheels; on the rover file {rf.name} "
+                                      "an empirical term acts on the body only (drag.body)")
+        from .empirical import EmpiricalTerms, terms_from_truth
+
+        hooks.append(EmpiricalTerms(terms_from_truth(truth.empirical), scenario.rover).hook())
+    if not hooks:
+        return None
+    return hooks[0] if len(hooks) == 1 else WheelSetHooks(tuple(hooks), len(scenario.wheels))

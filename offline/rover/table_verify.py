@@ -865,15 +865,15 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
         row["start"] = _online_metrics(lay, np.asarray(tp.x, dtype=float), xstar, rti.residual.residual(tp.x, p)[1], fstar)
         errs: list[float] = []
         x = np.asarray(tp.x, dtype=float)
-        for k in range(ticks):
+        for tick in range(ticks):
             xk = rti.iterate if rti.iterate is not None else rti.allocator.x0
             box = merge_bounds(tp.lbx, tp.ubx, (xk - s.step_limit * xsc, xk + s.step_limit * xsc))
             res = rti.step(p, box)
             if not res.ok:
-                row["why"] = f"tick {k + 1}: QP refused ({res.status})"
+                row["why"] = f"tick {tick + 1}: QP refused ({res.status})"
                 break
             x = np.asarray(res.x, dtype=float)
-            if k == 0:
+            if tick == 0:
                 row["tick1_balance"] = _balance(spec, sc, x, xsc)
             errs.append(float(np.max(np.abs(x - xstar) / xsc)))
         row["x_error_per_scale_by_tick"] = errs

@@ -260,7 +260,7 @@ ONLINE_FAILS = {
 cell centre by ``python tests/bench/bench_tables_online.py`` (``tests/bench/results_tables_online_i22.md``).
 These are failures of what rtctl commands between grid points, not of the check's reference (the best verified
 optimum found by every start and a continuation from each corner). Their raw interpolation distances (check 3,
-information since issue 22) are 0.9-2.3 scales (rim cap), 2.8 and 1.4 (unpowered), 2.8 and 4.1 (stuck steering).
+information since issue 22) are 0.87 and 1.43 scales (rim cap), 0.79 and 1.35 (unpowered), 2.76 and 4.07 (stuck steering).
 The nominal table passes (22 of 24 cells: at 18.75 deg, +-2.5 deg cross slope the steering is 0.37 deg off after
 5 ticks, converging)."""
 

@@ -423,10 +423,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--evidence", type=int, default=5, help="points without a primitive to list (default 5)")
     i.set_defaults(func=cmd_info)
 
-    v = ts.add_parser("verify", help="check Jacobians, linearisation and interpolation against the model",
-                      description="Three gated checks (Jacobians vs difference quotients, the first-order prediction at "
-                                  "each sampled point's trust radius vs a re-solve, interpolation at cell midpoints vs a "
-                                  "direct solve); PASSED only if every part passed. Tolerances and why: "
+    v = ts.add_parser("verify", help="check Jacobians, linearisation, interpolation and the online step against the model",
+                      description="Four checks (Jacobians vs difference quotients, the first-order prediction at each "
+                                  "sampled point's trust radius vs a re-solve, a primitive at sampled cell centres -- the "
+                                  "raw interpolation distance there is printed, not gated since issue 22 --, and rtctl's "
+                                  "online step from the interpolated primitive, 5 ticks at those centres, vs the optimum "
+                                  "there); PASSED only if every gated part passed. Tolerances and why: "
                                   "offline/rover/table_verify.py. Exit code 0 passed, 1 failed.")
     v.add_argument("file")
     v.add_argument("--points", type=int, default=3, help="sampled points per check (default 3)")

@@ -206,12 +206,13 @@ def test_cli_info_and_refusal_of_a_corrupted_table(nominal, tmp_path, capsys):
         load_table(bad)
 
 
-def test_cli_verify_reports_all_three_checks(nominal, capsys):
+def test_cli_verify_reports_all_four_checks(nominal, capsys):
     _, path, _ = nominal
     assert main(["tables", "verify", str(path), "--points", "1"]) == 0
     out = capsys.readouterr().out
-    for part in ("Jacobians vs difference quotients", "Linearisation", "Interpolation at cell midpoints",
-                 "verdicts: jacobians passed, linearisation passed, interpolation passed", "PASSED"):
+    for part in ("Jacobians vs difference quotients", "Linearisation", "Interpolation at cell centres",
+                 "Online step (gated)",
+                 "verdicts: jacobians passed, linearisation passed, interpolation passed, online step passed", "PASSED"):
         assert part in out
 
 

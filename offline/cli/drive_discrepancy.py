@@ -33,7 +33,7 @@ def add_recording_arguments(d: argparse.ArgumentParser) -> None:
     g.add_argument("--believed-truth", help="believed world as a truth TOML (slope, wheels, tether) if not flat and nominal")
     g.add_argument("--segment", type=int, default=5, help="ticks per row (time segment), default %(default)s")
     g.add_argument("--per-wheel-actuators", action="store_true",
-                   help="fit every per-wheel actuator term (wheel-speed saturation, shortfall and extra servo lag, "
+                   help="fit every per-wheel actuator term (wheel-speed saturation, shortfall, slew-rate limit and extra servo lag, "
                         "steering saturation of each wheel) on every drive; by default they are fitted only on the "
                         "wheels the located regions or their own encoders implicate (slower)")
     g.add_argument("--workers", type=int, default=None,

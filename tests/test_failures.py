@@ -102,35 +102,35 @@ def _busy(n: int) -> list[subprocess.Popen]:
 
 @pytest.fixture(scope="module")
 def fr_raised():
-    """The shipped fr_raised scenario and its primitive, solved once for this module: the raised-wheel
-    test's primitive and the load test's idle reference (8-10 CPU-s a solve)."""
+    """The shipped fr_raised scenario and its primitive, solved once for this module (8-10 CPU-s)."""
     sc = load_scenario(SHIPPED["fr_raised"])
     return sc, solve_primitive(sc)
 
 
-def test_same_verdict_and_iterations_idle_and_under_cpu_load(fr_raised):
-    """Two solves (calibrated -10 deg; fr_raised, whose search takes several IPOPT runs) again with
-    two busy-looping processes beside them: on 2 cores the solve then shares its core (with xdist's
-    other worker, 4 runnable processes on 2 cores), and the verdict, iteration counts and solution
-    are the same bit for bit. The idle fr_raised solve is the module's fixture."""
+def test_same_verdict_and_iterations_idle_and_under_cpu_load():
+    """A solve whose search takes several IPOPT runs (calibrated sand, -10 deg: three attempts, a
+    skid start among them) again with two busy-looping processes beside it: on 2 cores the solve
+    then shares its core (with xdist's other worker, 4 runnable processes on 2 cores), and the
+    verdict, iteration counts and solution are the same bit for bit. (The fr_raised search was the
+    second case here; its loaded re-solve cost about 20 CPU-s while the busy loops took the other
+    worker's core, and it exercises the same budget-in-iterations code path.)"""
     cal = load_toml(CALIBRATED)["parameter_set"]
-    scs = [replace(load_scenario(SHIPPED["nominal"]), params=cal, slope=math.radians(-10.0), name="calibrated -10 deg"),
-           fr_raised[0]]
-    idle = [solve_primitive(scs[0]), fr_raised[1]]
+    sc = replace(load_scenario(SHIPPED["nominal"]), params=cal, slope=math.radians(-10.0), name="calibrated -10 deg")
+    idle = solve_primitive(sc)
+    assert idle.stats["n_attempts"] > 1  # a search, not one IPOPT run
     # the nominal search is cached per problem and operating point (primitives._NOMINAL_CACHE): without
     # clearing it the loaded calibrated -10 deg solve, a nominal search, would be the idle one read back
     _NOMINAL_CACHE.clear()
     procs = _busy(2)
     try:
-        loaded = [solve_primitive(sc) for sc in scs]
+        loaded = solve_primitive(sc)
     finally:
         for p in procs:
             p.kill()
             p.wait()
-    for a, b in zip(idle, loaded):
-        assert a.status == b.status
-        assert a.stats["iterations"] == b.stats["iterations"] and a.stats["n_attempts"] == b.stats["n_attempts"]
-        np.testing.assert_array_equal(a.x, b.x)
+    assert idle.status == loaded.status
+    assert idle.stats["iterations"] == loaded.stats["iterations"] and idle.stats["n_attempts"] == loaded.stats["n_attempts"]
+    np.testing.assert_array_equal(idle.x, loaded.x)
 
 
 def test_calibrated_parameters_drive_down_a_10_degree_slope():

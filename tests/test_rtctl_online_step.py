@@ -126,7 +126,7 @@ def test_beyond_the_axis_the_parameter_enters_through_the_exact_residual(steer_t
 def test_slack_is_zero_only_when_the_linearised_step_meets_the_exact_residual(steer_table):
     t = steer_table
     lay = t.layout
-    tp, p, rti, _ = _iterate(t, BEYOND, 0, replace(QpSettings(), iterations_per_tick=1))  # one linearisation
+    tp, p, rti, _ = _iterate(t, BEYOND, 0, replace(QpSettings(), iterations_per_tick=1, restart_iterations=1))  # one linearisation
     x = rti.iterate
     g, _, jac = rti.linearise(x, p)
     res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 2 * np.asarray(lay.variable_scale), x + 2 * np.asarray(lay.variable_scale))))
@@ -191,5 +191,5 @@ def test_a_tick_iterates_again_only_after_a_jump(steer_table):
     x = rti.iterate
     rti.step(p3, merge_bounds(tp.lbx, tp.ubx, (x - xsc, x + xsc)))
     assert rti.sqp_iterations == 1
-    _, _, _, one = _iterate(t, BEYOND, 1, replace(QpSettings(), iterations_per_tick=1))
+    _, _, _, one = _iterate(t, BEYOND, 1, replace(QpSettings(), iterations_per_tick=1, restart_iterations=1))
     assert check(one[0])[0] > 0.1

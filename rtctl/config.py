@@ -610,7 +610,7 @@ active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as th
 active_set_restart_iterations = 6   # then once more from the equality rows alone (0: none)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales
-restart_iterations = 10     # SQP iterations on the first tick after a restart (new table, refused QP), while a step is longer than:
+restart_iterations = 10     # the first tick after a restart (new table, refused QP): SQP iterations while a step is longer than:
 restart_iteration_step = 0.01   # variable scales
 
 [timing]

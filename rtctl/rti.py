@@ -247,12 +247,20 @@ class RealTimeIteration:
         ``x`` itself would weigh its imbalance, which that iteration removes, above its
         objective, which tells the basin (measured at the 41 deg stuck-angle point of
         ``rr_steer_stuck``, merit at the candidate: 2.96 on the wrong branch, 3.65 on the
-        optimum's; the predicted merit picks the optimum's). Infinite when the QP fails."""
+        optimum's; the predicted merit picks the optimum's). Infinite when the residual, its
+        Jacobian or the objective is not finite there, or the QP fails (the candidate is then
+        never the start)."""
         g, grad, jac = self.linearise(x, p)
         f = self.last_objective
-        if jac is not None and self._structured():
-            self._structured_hessian(x, grad, jac, p)
-        res = self.allocator.solve_at(x, g, grad, jac, box)
+        if not (math.isfinite(float(f)) and math.isfinite(float(g.sum() + grad.sum()))
+                and (jac is None or math.isfinite(float(jac.sum())))):
+            return math.inf
+        try:
+            if jac is not None and self._structured():
+                self._structured_hessian(x, grad, jac, p)
+            res = self.allocator.solve_at(x, g, grad, jac, box)
+        except np.linalg.LinAlgError:
+            return math.inf
         phi = float(f) / self.allocator.objective_scale + float(res.objective)
         return phi if (res.ok and math.isfinite(phi)) else math.inf
 

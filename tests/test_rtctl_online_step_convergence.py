@@ -209,3 +209,23 @@ def test_the_first_tick_after_a_restart_iterates_until_balanced():
     # every row within 0.3 % of its scale (force rows: the rover's weight, 34 N: 0.1 N); measured
     # 2e-6 after 7 iterations, 0.22 after the jump budget's 3
     assert out["restart budget"][0] <= 3e-3 < out["jump budget"][0], out
+
+
+def test_a_candidate_start_with_a_non_finite_residual_is_never_chosen():
+    """A branch whose interpolated start gives a non-finite residual (the wheel model outside its
+    domain) is skipped, and the restart still succeeds: ``prepare`` never raises for it."""
+    t = load_table(TABLES / "rr_steer_stuck.npz")
+    lay = t.layout
+    tp = t.at(**TWO_BRANCHES)
+    rti = RealTimeIteration(t, QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
+    linearise = rti.linearise
+    rl = lay.var("beta", "RL")
+
+    def poisoned(x, p):  # the 6-corner branch (RL steered above -60 deg) evaluates to NaN
+        g, grad, jac = linearise(x, p)
+        return (g * np.nan, grad, jac * np.nan) if x[rl] > -60 * DEG else (g, grad, jac)
+
+    rti.linearise = poisoned  # type: ignore[method-assign]
+    rti.prepare(tp)
+    assert rti.start_status.startswith("branch of 2 of 8 corners"), rti.start_status  # the one finite branch
+    assert np.all(np.isfinite(rti.iterate))

@@ -186,7 +186,7 @@ class RealTimeIteration:
         across branches starts between two optima, in the basin of neither (measured on
         ``rr_steer_stuck`` at the stuck angle 41 deg: two of the eight corners, 52 % of the weight,
         steer RL at -89 deg, the others at -26 to -39 deg; from their mix the iterate was 4.2 N
-        out of balance after its first tick and its objective 2.2 times the optimum's after
+        out of balance after its first tick and its objective 3.2 times the optimum's after
         five). Then each branch's own interpolation (its corners' weights renormalised, the
         ``_MAX_BRANCHES`` heaviest, clipped into the point's bounds) and the whole cell's are
         candidates, and the start is the one whose first SQP iteration, at the table point's

@@ -330,6 +330,22 @@ class QpSettings:
         agreement as 0.02 (73/76 and 66/76 at five iterations) with fewer iterations in closed
         loop (ticks with more than one: 29 % at 0.02, 18 % at 0.05, kinematic rover of
         ``bench_online_step.py timing``).
+    restart_iterations : int
+        Most SQP iterations on the first tick after the iterate restarts (:meth:`rtctl.rti.RealTimeIteration.start`:
+        a new table, or a QP that failed), while the last step was longer than
+        ``restart_iteration_step``; at least ``iterations_per_tick``. A restart starts from the
+        table's interpolated primitive, which between grid points and across a kink of the
+        wheel model lies far from the optimum in the objective's flat directions, and the
+        steady ticks that follow take one iteration each (more on every tick cost 4.0 times
+        40a08e8's p99, see ``iterations_per_tick``); a restart happens once per table switch, so
+        its tick may take more. Measured (``bench_online_step.py accuracy``, 73 points, same
+        day, with the branch-consistent start): tick-1 / tick-5 within targets 69/66 at 3
+        iterations and 0.05 scales (the jump tick's), 73/68 at 8 and 0.05, 73/69 at 8 and 0.025,
+        73/72 at 8 and 0.01, 71/71 at 6 and 0.01, 73/73 at 10 and 0.01 (and at 12). A budget in
+        iterations: each costs one exact linearisation and one QP solve.
+    restart_iteration_step : float
+        Step length (largest change of a variable, in variable scales) above which the first
+        tick after a restart iterates again (``restart_iterations``).
     active_set_iterations : int
         Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
         OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
@@ -388,6 +404,8 @@ class QpSettings:
     gauss_newton: bool = True
     iterations_per_tick: int = 3
     extra_iteration_step: float = 0.05
+    restart_iterations: int = 10
+    restart_iteration_step: float = 0.01
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
@@ -398,6 +416,9 @@ class QpSettings:
             "iterations_per_tick": _key("iterations_per_tick",
                                         check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
             "extra_iteration_step": _key("extra_iteration_step", check=_pos),
+            "restart_iterations": _key("restart_iterations",
+                                       check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
+            "restart_iteration_step": _key("restart_iteration_step", check=_pos),
             "active_set_iterations": _key("active_set_iterations",
                                           check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0"),
             "active_set_restart_iterations": _key("active_set_restart_iterations",
@@ -589,6 +610,8 @@ active_set_iterations = 5   # exact active-set solve first (0: OSQP alone, as th
 active_set_restart_iterations = 6   # then once more from the equality rows alone (0: none)
 iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer than:
 extra_iteration_step = 0.05 # variable scales
+restart_iterations = 10     # the first tick after a restart (new table, refused QP): SQP iterations while a step is longer than:
+restart_iteration_step = 0.01   # variable scales
 
 [timing]
 period = 0.2

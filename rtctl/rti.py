@@ -13,7 +13,9 @@ actuator and rate limits and the declared failures; the benchmark
 A tick may take more than one iteration (``QpSettings.iterations_per_tick``): another while the
 last step was longer than ``extra_iteration_step`` variable scales, so that after a jump of the
 operating point (a new table, a cross slope beyond the axes) the commanded point is balanced at
-the first tick; in steady driving the steps are short and a tick is one iteration. With
+the first tick; in steady driving the steps are short and a tick is one iteration. A restart of
+the iterate (a new table, a refused QP) starts on one branch of the NLP's optima, not between two
+(:meth:`RealTimeIteration.start`), and its first tick may take up to ``restart_iterations``. With
 ``gauss_newton`` (the default) the QP's Hessian is structured: the exact Gauss-Newton part of
 the objective (7.24), from the wheel-torque rows of each iteration's exact Jacobian, plus the
 constraints' curvature from the table's cell corners (a corner on the wheel model's zero-slip
@@ -48,6 +50,13 @@ _CURVATURE_OUTLIER = 100.0
 
 _TILT_JUMP = math.radians(1.0)
 """A change of slope or cross slope between ticks (rad) beyond which a tick may iterate again."""
+
+_BRANCH_STEER = math.radians(30.0)
+"""Two cell corners whose primitives steer some wheel more than this apart (rad) lie on different
+branches of the NLP's optima (:meth:`RealTimeIteration.start`)."""
+
+_MAX_BRANCHES = 3
+"""Most branches of a cell tried as a start (the heaviest), besides the whole cell's interpolation."""
 
 
 def free_rows(lbg: NDArray[np.float64], ubg: NDArray[np.float64], keep: Sequence[int] = ()) -> NDArray[np.bool_]:
@@ -132,6 +141,12 @@ class RealTimeIteration:
         names = list(table.layout.parameter_names)
         self._i_speed = names.index("speed") if "speed" in names else -1
         self._i_tilt = np.array([names.index(k) for k in ("slope", "cross_slope") if k in names], dtype=int)
+        self._beta = np.array([table.layout.var("beta", w) for w in table.layout.wheels], dtype=int)
+        self.start_status = ""
+        """How the last restart chose its iterate (:meth:`start`; diagnostics)."""
+        self.last_objective = math.nan
+        """The objective (7.24) at the last :meth:`linearise` (NaN without a model)."""
+        self._restarted = False  # the iterate restarted (:meth:`start`) and no tick has run since
 
     def prepare(self, tp: Any) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
@@ -159,7 +174,95 @@ class RealTimeIteration:
             self.allocator.prepare(bounded, hessian=self._H)
         self._free = bounded.free_mask
         if self.iterate is None:
-            self.iterate = self.allocator.x0
+            self.iterate = self.start(tp)
+            self._restarted = True
+
+    def start(self, tp: Any) -> NDArray[np.float64]:
+        """The iterate a restart begins from: the table's interpolated primitive, unless the cell's
+        corners lie on different branches of the NLP's optima.
+
+        Corners whose primitives steer some wheel more than ``_BRANCH_STEER`` apart are on
+        different branches (single linkage over the corners that carry weight). Interpolating
+        across branches starts between two optima, in the basin of neither (measured on
+        ``rr_steer_stuck`` at the stuck angle 41 deg: two of the eight corners, 52 % of the weight,
+        steer RL at -89 deg, the others at -26 to -39 deg; from their mix the iterate was 4.2 N
+        out of balance after its first tick and its objective 3.2 times the optimum's after
+        five). Then each branch's own interpolation (its corners' weights renormalised, the
+        ``_MAX_BRANCHES`` heaviest, clipped into the point's bounds) and the whole cell's are
+        candidates, and the start is the one whose first SQP iteration, at the table point's
+        parameters, predicts the least merit (:meth:`_predicted_merit`): at most
+        ``_MAX_BRANCHES + 1`` linearisations and QP solves, on a restart only (a new table, a
+        refused QP), never in a tick's feedback phase. ``start_status`` says which."""
+        x_interp = self.allocator.x0
+        self.start_status = "interpolated primitive"
+        cell = getattr(tp, "cell", None)
+        table = getattr(tp, "_table", None)
+        if self.residual is None or cell is None or table is None or not hasattr(table, "point_field"):
+            return x_interp
+        idx, w = cell
+        use = np.asarray(w) > 0.0
+        idx, w = np.asarray(idx)[use], np.asarray(w, dtype=float)[use]
+        if idx.size < 2:
+            return x_interp
+        X = np.stack([np.asarray(table.point_field(int(c), "x"), dtype=float) for c in idx])
+        beta = X[:, self._beta]
+        near = np.abs(beta[:, None, :] - beta[None, :, :]).max(axis=2) <= _BRANCH_STEER
+        label = np.full(idx.size, -1)
+        for i in range(idx.size):  # single linkage: connected components of the "near" graph
+            if label[i] >= 0:
+                continue
+            label[i] = i
+            todo = [i]
+            while todo:
+                j = todo.pop()
+                for k in np.flatnonzero(near[j] & (label < 0)):
+                    label[k] = i
+                    todo.append(int(k))
+        branches = sorted(set(label.tolist()), key=lambda b: -float(w[label == b].sum()))
+        if len(branches) < 2:
+            return x_interp
+        lo, hi = np.asarray(tp.lbx, dtype=float), np.asarray(tp.ubx, dtype=float)
+        p = np.asarray(tp.p, dtype=float)
+        cands = [("interpolated primitive", x_interp)]
+        for b in branches[:_MAX_BRANCHES]:
+            m = label == b
+            xb = np.minimum(np.maximum((w[m] @ X[m]) / float(w[m].sum()), lo), hi)
+            cands.append((f"branch of {int(m.sum())} of {idx.size} corners ({float(w[m].sum()):.2f} of the weight)", xb))
+        best, best_phi = cands[0], math.inf
+        sl = self.settings.step_limit * self.allocator.sx
+        for c in cands:
+            phi = self._predicted_merit(c[1], p, (np.maximum(c[1] - sl, lo), np.minimum(c[1] + sl, hi)))
+            if phi < best_phi:
+                best, best_phi = c, phi
+        self.start_status = best[0]
+        return best[1].copy()
+
+    def _predicted_merit(self, x: NDArray[np.float64], p: NDArray[np.float64],
+                         box: tuple[NDArray[np.float64], NDArray[np.float64]]) -> float:
+        """The l1 exact-penalty merit that one SQP iteration from ``x`` predicts, in the QP's
+        normalised units (:meth:`rtctl.allocator.QpAllocator.solve_at`): the objective there,
+        ``f(x) / c_f``, plus the QP's optimal value (the model's change of the objective and
+        ``slack_l1`` times the linearised rows' l1 slack; Nocedal & Wright, 2nd ed., eq. (18.27)).
+        Where the first iteration leads by the model the iteration itself trusts: the merit at
+        ``x`` itself would weigh its imbalance, which that iteration removes, above its
+        objective, which tells the basin (measured at the 41 deg stuck-angle point of
+        ``rr_steer_stuck``, merit at the candidate: 2.96 on the wrong branch, 3.65 on the
+        optimum's; the predicted merit picks the optimum's). Infinite when the residual, its
+        Jacobian or the objective is not finite there, or the QP fails (the candidate is then
+        never the start)."""
+        g, grad, jac = self.linearise(x, p)
+        f = self.last_objective
+        if not (math.isfinite(float(f)) and math.isfinite(float(g.sum() + grad.sum()))
+                and (jac is None or math.isfinite(float(jac.sum())))):
+            return math.inf
+        try:
+            if jac is not None and self._structured():
+                self._structured_hessian(x, grad, jac, p)
+            res = self.allocator.solve_at(x, g, grad, jac, box)
+        except np.linalg.LinAlgError:
+            return math.inf
+        phi = float(f) / self.allocator.objective_scale + float(res.objective)
+        return phi if (res.ok and math.isfinite(phi)) else math.inf
 
     def linearise(self, x: NDArray[np.float64], p: NDArray[np.float64]
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
@@ -167,9 +270,10 @@ class RealTimeIteration:
         ``(x, p)``; rows without bounds zeroed. Without a model: the table point's first-order
         model (Jacobian None: the prepared table's)."""
         if self.residual is not None:
-            g, _, grad, jac = self.residual.evaluate(x, p, jacobian=self.settings.exact_jacobian)
+            g, self.last_objective, grad, jac = self.residual.evaluate(x, p, jacobian=self.settings.exact_jacobian)
         else:
             g, grad, jac = first_order_model(self._point, x, p)
+            self.last_objective = math.nan
         if self._free.any():
             g = np.where(self._free, 0.0, g)
             if jac is not None:
@@ -187,6 +291,10 @@ class RealTimeIteration:
         with zero slack and longer than ``extra_iteration_step`` variable scales, so that after a
         jump of the operating point the commanded point is balanced at once (a long step leaves
         a second-order residual; a short one, the steady case, none worth another linearisation).
+        The first tick after a restart (:meth:`start`) goes on up to ``restart_iterations``
+        while the step is longer than ``restart_iteration_step``: the start is the table's
+        interpolated primitive, far from the optimum in the objective's flat directions, where
+        the one iteration of each steady tick that follows converges slowly.
         The new iterate is carried when the QP succeeded, else the next preparation restarts
         from the table's primitive. The returned allocation's ``dx`` is the whole step of the
         tick and ``iterations`` the QP iterations of every SQP iteration."""
@@ -207,12 +315,14 @@ class RealTimeIteration:
         self._last_p = p.copy()
         res = self._one(x_start, p, box, lbg, ubg, x_ref)
         n, qp_it = 1, res.iterations
-        limit = s.iterations_per_tick if jumped else 1
+        limit = max(s.restart_iterations, s.iterations_per_tick) if self._restarted else (s.iterations_per_tick if jumped else 1)
+        thr = s.restart_iteration_step if self._restarted else s.extra_iteration_step
+        self._restarted = False
         # again only after an exact zero-slack step (the active-set solve): a step that needed
         # slack was held by the tick's box (rate limits, a pinned variable), and another
         # linearisation cannot reach further inside the same box
         while res.ok and n < limit and self.allocator.last_solver == "active set" and \
-                float(np.max(np.abs(res.dx) / self.allocator.sx)) > s.extra_iteration_step:
+                float(np.max(np.abs(res.dx) / self.allocator.sx)) > thr:
             more = self._one(res.x, p, box, lbg, ubg, x_ref)
             n += 1
             qp_it += more.iterations

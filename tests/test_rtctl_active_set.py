@@ -131,7 +131,8 @@ def test_allocator_exact_step_equals_osqp_on_a_built_table():
     p[lay.index("slope")] += 0.02
     out = {}
     for n in (0, 8):
-        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=n, iterations_per_tick=1),
+        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=n, iterations_per_tick=1,
+                                           restart_iterations=1),
                                 [lay.index(f"wheel torque {w}") for w in lay.wheels])
         rti.prepare(tp)
         x = rti.iterate
@@ -165,7 +166,7 @@ def test_a_last_set_that_does_not_settle_is_restarted_from_the_equality_rows():
     out = {}
     for restart in (0, 6):
         rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, active_set_iterations=2,
-                                           active_set_restart_iterations=restart, iterations_per_tick=1),
+                                           active_set_restart_iterations=restart, iterations_per_tick=1, restart_iterations=1),
                                 [lay.index(f"wheel torque {w}") for w in lay.wheels])
         rti.prepare(tp)
         x = rti.iterate

@@ -2,7 +2,8 @@
 
 One command each; results go to ``tests/bench/results_online_step_<part>.md`` and ``.json``::
 
-    python tests/bench/bench_online_step.py accuracy [--points 20] [--seed 0] [--tables a,b]
+    python tests/bench/bench_online_step.py accuracy [--points 20] [--seed 0] [--tables a,b] [--qp k=v,...]
+                                                     [--references refs.json]
     python tests/bench/bench_online_step.py timing   [--baseline 40a08e8] [--steps 3000] [--tag main]
 
 ``accuracy``: on every shipped table with primitives, ``--points`` seeded operating points
@@ -123,7 +124,7 @@ def _compare(lay: Any, x: np.ndarray, xstar: np.ndarray, f: float, fstar: float)
 
 
 def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] | None = None,
-             ticks_n: int = 5) -> None:
+             ticks_n: int = 5, references: str | None = None) -> None:
     sys.path.insert(0, str(ROOT))
     from offline.rover.primitives import check_solution, solve_primitive
     from offline.rover.table_builder import _problem, scenario_at
@@ -136,6 +137,12 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
     idx = load_index(ROOT / "tables" / "index.json")
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
+    # the NLP references per point (status, best optimum, the table branch's local optimum): read
+    # from and added to ``references`` when given, so that a sweep of the online step's settings
+    # needs the NLP solves once (they are most of this benchmark's time)
+    ref_path = Path(references) if references else None
+    cache: dict[str, Any] = json.loads(ref_path.read_text()) if (ref_path is not None and ref_path.exists()) else {}
+    cached = 0
     t_start = time.perf_counter()
     for name, info in sorted(idx.items()):
         if only and name not in only:
@@ -156,22 +163,30 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
         for kind, op in ops:
             sc = scenario_at(spec.scenario, spec.family, op)
             tp = t.at(**op)
+            key = f"{name} {json.dumps(op, sort_keys=True)}"
+            hit = cache.get(key)
             t0 = time.perf_counter()
-            r = solve_primitive(sc, spec.solver, x0=tp.x / xsc)
+            if hit is None:
+                r = solve_primitive(sc, spec.solver, x0=tp.x / xsc)
+                hit = {"status": r.status, "xstar": (np.asarray(r.x, dtype=float) * xsc).tolist() if r.status == "optimal" else None}
+                if r.status == "optimal":
+                    # the optimum of the table's own branch: one local IPOPT solve from the interpolated
+                    # primitive (the multi-start reference above may sit in another basin of this nonconvex NLP)
+                    loc = pb.solve(pb.bounds(sc), tp.x / xsc)
+                    ok_loc = bool(loc["success"]) and bool(check_solution(pb, sc, loc["x"])[1])
+                    hit["xloc"] = (np.asarray(loc["x"], dtype=float) * xsc).tolist() if ok_loc else None
+                cache[key] = hit
+            else:
+                cached += 1
             nlp_s = time.perf_counter() - t0
             row: dict[str, Any] = {"table": name, "kind": kind, "op": {k: round(v, 6) for k, v in op.items()},
-                                   "nlp_status": r.status, "nlp_seconds": round(nlp_s, 2)}
-            if r.status != "optimal":
+                                   "nlp_status": hit["status"], "nlp_seconds": round(nlp_s, 2)}
+            if hit["status"] != "optimal":
                 rows.append(row)
-                print(f"{name} {kind}: NLP {r.status}, point not used")
+                print(f"{name} {kind}: NLP {hit['status']}, point not used")
                 continue
-            xstar = np.asarray(r.x, dtype=float) * xsc
-            # the optimum of the table's own branch: one local IPOPT solve from the interpolated
-            # primitive (the multi-start reference above may sit in another basin of this nonconvex NLP)
-            loc = pb.solve(pb.bounds(sc), tp.x / xsc)
-            xloc = np.asarray(loc["x"], dtype=float) * xsc if loc["success"] else None
-            if xloc is not None and not check_solution(pb, sc, loc["x"])[1]:
-                xloc = None
+            xstar = np.asarray(hit["xstar"], dtype=float)
+            xloc = np.asarray(hit["xloc"], dtype=float) if hit.get("xloc") is not None else None
             settings = replace(QpSettings(), **(qp or {}))
             rti = RealTimeIteration(t, settings, [lay.index(f"wheel torque {w}") for w in lay.wheels])
             rti.prepare(tp)
@@ -231,8 +246,10 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
              f"`python tests/bench/bench_online_step.py accuracy --points {points} --seed {seed}"
              + (f" --tables {','.join(only)}" if only else "") + (f" --ticks {ticks_n}" if ticks_n != 5 else "")
              + (f" --tag {_TAG}" if _TAG else "")
-             + (f" --qp {','.join(f'{k}={v}' for k, v in (qp or {}).items())}" if qp else "") + "`; "
-             f"{_meta()['commit']}, {_meta()['date']}, {time.perf_counter() - t_start:.0f} s.", "",
+             + (f" --qp {','.join(f'{k}={v}' for k, v in (qp or {}).items())}" if qp else "")
+             + (f" --references {ref_path.name}" if ref_path is not None else "") + "`; "
+             f"{_meta()['commit']}, {_meta()['date']}, {time.perf_counter() - t_start:.0f} s"
+             + (f" (NLP references of {cached} points read from {ref_path.name})" if cached else "") + ".", "",
              "Targets: after 1 tick the iterate's residual by the independent check <= 0.1 N force, 0.01 N m moment, "
              "0.2 N load; after 5 ticks wheel speeds within 2 %, steering within 0.3 deg, objective within 0.5 % of "
              "the NLP optimum. Baseline: the table's interpolated primitive (the previous design's answer between "
@@ -263,6 +280,11 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
               f"baseline {sum(base_ok1(r) for r in used)}/{len(used)} and {sum(base_ok5(r) for r in used)}/{len(used)}.", ""]
     if refused:
         lines += ["Refused: " + "; ".join(f"{r['table']} {r['op']}: {r['rti_refused']}" for r in refused), ""]
+    if ref_path is not None and len(cache) > cached:
+        from offline.files import write_text
+
+        write_text(ref_path, json.dumps(cache, sort_keys=True) + "\n")
+        print(f"wrote the NLP references of {len(cache)} points to {ref_path}")
     _write("accuracy", "\n".join(lines), {"meta": _meta(), "rows": rows})
 
 
@@ -385,6 +407,8 @@ def main() -> None:
     a.add_argument("--qp", default="", help="QP settings to override, e.g. step_limit=1,regularization=1e-4")
     a.add_argument("--ticks", type=int, default=5, help="ticks per point (targets are judged at ticks 1 and 5)")
     a.add_argument("--tag", default="", help="suffix of the results file names")
+    a.add_argument("--references", default="", help="JSON file of the NLP references per point: read, and the "
+                   "missing ones added (a settings sweep solves the NLPs once)")
     t = sub.add_parser("timing", help="step time against a baseline commit, side by side")
     t.add_argument("--baseline", default="40a08e8")
     t.add_argument("--steps", type=int, default=3000)
@@ -395,9 +419,10 @@ def main() -> None:
         qp: dict[str, Any] = {}
         for item in (s for s in args.qp.split(",") if s):
             k, _, v = item.partition("=")
-            qp[k] = v.lower() == "true" if v.lower() in ("true", "false") else float(v)
+            qp[k] = v.lower() == "true" if v.lower() in ("true", "false") else (int(v) if v.lstrip("-").isdigit() else float(v))
         _TAG = args.tag
-        accuracy(args.points, args.seed, [s for s in args.tables.split(",") if s] or None, qp, args.ticks)
+        accuracy(args.points, args.seed, [s for s in args.tables.split(",") if s] or None, qp, args.ticks,
+                 args.references or None)
     else:
         _TAG = args.tag
         timing(args.baseline, args.steps)

@@ -14,9 +14,11 @@ when the iterate moved (and otherwise reusing the last one) can pay: the differe
 last two is all it can save, since the residual and gradient must stay exact every tick.
 Also the wheel-state batch of ``evaluate`` alone (:func:`rtctl.physics.terramechanics.wrench_core`
 on its first 8, 14 and all 32 states): an inexact Jacobian refreshed one wheel per tick
-(round-robin, residual and gradient still exact) would evaluate 14 states (the 8 of the residual
-and one wheel's 4 + 2 difference states) instead of 32, which bounds what it could save (the row
-assembly costs the same at 6 as at 21 columns: its cost is the operation count).
+(round-robin; the residual exact every tick, the objective gradient ``2 M_y dM_y/dx`` from the
+exact ``M_y`` and the last refreshed derivatives, so that both are exact at a fixed point) would
+evaluate 14 states (the 8 of the residual and one wheel's 4 + 2 difference states) instead of 32,
+which bounds what it could save (the row assembly costs the same at 6 as at 21 columns: its cost
+is the operation count).
 Results: ``tests/bench/results_online_step_linearisation_cost.md``.
 """
 
@@ -96,9 +98,11 @@ def main() -> None:
     lines += ["", "The cost is the number of numpy operations, not the number of wheel states: reusing the exact "
               "Jacobian between ticks (the residual and gradient exact every tick) saves at most the difference "
               "between the last two rows. A round-robin Jacobian (one wheel's block refreshed per tick, the residual "
-              f"and gradient exact) would evaluate 14 wheel states instead of 32: at most {b32 - b14:.0f} us "
+              f"exact; the gradient as this script's docstring says) would evaluate 14 wheel states instead of 32: at most {b32 - b14:.0f} us "
               f"({(b32 - b14) / full:.0%} of the linearisation) saved per tick, so it was not built.", ""]
-    (HERE / "results_online_step_linearisation_cost.md").write_text("\n".join(lines))
+    from offline.files import write_text
+
+    write_text(HERE / "results_online_step_linearisation_cost.md", "\n".join(lines))
     print("\n".join(lines))
 
 

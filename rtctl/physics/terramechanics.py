@@ -5,6 +5,8 @@ One implementation, two uses. :func:`wrench_core` is written against
 ground and on the rover, for each tick's exact residual), with the ground side's ``CASADI`` it
 builds an ``SX`` graph with exact derivatives. ``offline.physics.terramechanics.WheelModel``
 wraps both (validated batched evaluation, casadi functions with Jacobians, sinkage from load).
+:func:`normal_force` is :func:`wrench_core`'s ``F_z`` alone, bit for bit (the two share the contact
+stage), for the sinkage solve of eq. (5.34), which uses nothing else.
 
 Frame and signs (Fig. 5.1): x forward along the wheel heading, y out of the wheel face,
 z up; forces and moments are exerted by the soil on the wheel, moments about the wheel

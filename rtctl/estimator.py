@@ -129,6 +129,8 @@ FILTERPY_EKF_SOURCE: str
 STATE: tuple[str, ...] = ("x", "y", "heading", "slip", "crab", "gyro_bias")
 """Names of the EKF state entries, in order."""
 _IX, _IY, _IPSI, _IS, _IA, _IB = range(6)
+_EYE6 = np.eye(6)
+_EYE6.flags.writeable = False  # copied where a transition matrix starts from it
 _H = np.zeros((3, 6))
 _H[0, _IX] = _H[1, _IY] = _H[2, _IPSI] = 1.0
 _SLIP_LIMIT = 0.95  # |s| used in the motion model is clipped here (s -> 1 means no motion at all)
@@ -329,7 +331,7 @@ class SlipHeadingEKF:
         a_cmd = u.crab_cmd if math.isfinite(u.crab_cmd) else 0.0
         c = x[_IPSI] + x[_IA] + a_cmd
         cc, sc = math.cos(c), math.sin(c)
-        F = np.eye(6)
+        F = _EYE6.copy()
         F[_IX, _IPSI] = F[_IX, _IA] = -dt * v * sc
         F[_IY, _IPSI] = F[_IY, _IA] = dt * v * cc
         F[_IX, _IS] = -dt * v_odo * cc * ds_active
@@ -337,9 +339,9 @@ class SlipHeadingEKF:
         F[_IPSI, _IB] = -dt
         gv = np.zeros(6)
         gv[_IX], gv[_IY] = dt * (1 - s) * cc, dt * (1 - s) * sc
-        Q = np.outer(gv, gv) * var_v
-        ga = F[:, _IA] - np.eye(6)[:, _IA]  # d x+ / d crab_cmd (the same as d x+ / d crab)
-        Q += np.outer(ga, ga) * (n.crab_cmd_rel * a_cmd) ** 2
+        Q = (gv[:, None] * gv[None, :]) * var_v  # np.outer's own product, without its Python-level wrapper
+        ga = F[:, _IA] - _EYE6[:, _IA]  # d x+ / d crab_cmd (the same as d x+ / d crab)
+        Q += (ga[:, None] * ga[None, :]) * (n.crab_cmd_rel * a_cmd) ** 2
         Q[_IPSI, _IPSI] += dt * dt * var_r
         Q[_IX, _IX] += dt * n.position_walk ** 2
         Q[_IY, _IY] += dt * n.position_walk ** 2

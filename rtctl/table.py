@@ -362,6 +362,10 @@ class Table:
         # ``out`` first (numpy.take docs); the indices are in range by construction
         self._idx_buf = np.empty(len(offs), dtype=np.intp)
         self._corner_rows = np.empty((len(offs), flat.shape[1]))
+        # the cell (its first corner's flat index) whose rows _corner_rows holds: the controller reads
+        # the same cell tick after tick, so the gather is skipped while the cell stays the same
+        # (the same rows, so the same interpolated numbers; issue 20: the per-tick gather)
+        self._rows_base = -1
         # nearest feasible grid point of every grid point (axis-normalised distance)
         coords = np.stack(np.meshgrid(*[np.linspace(0, 1, len(v)) if len(v) > 1 else np.zeros(1) for v in self._ax],
                                       indexing="ij"), axis=-1).reshape(n, -1)
@@ -441,14 +445,14 @@ class Table:
         feas = self._feas_flat[idx]
         cell: tuple[NDArray[np.intp], NDArray[np.float64]] | None
         if feas.all():
-            row = w @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
+            row = w @ self._cell_rows(base, idx)
             corner = int(idx[int(np.argmax(w))])
             feasible, extrapolated, status = True, False, "interpolated"
             cell = (idx.copy(), w)
         elif (s := float((wf := w * feas).sum())) > 1e-12:
             extrapolated = float(w.sum()) - s > 1e-12
             wf = wf / s
-            row = wf @ np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
+            row = wf @ self._cell_rows(base, idx)
             corner = int(idx[int(np.argmax(wf))])
             feasible = not extrapolated
             status = "extrapolated" if extrapolated else "interpolated"
@@ -463,6 +467,14 @@ class Table:
             feasible, extrapolated, clamped, status = False, True, True, "nearest feasible grid point"
             cell = (np.array([corner], dtype=np.intp), np.ones(1))
         return TablePoint(self, row, corner, feasible, extrapolated, clamped, status, used, cell)
+
+    def _cell_rows(self, base: int, idx: NDArray[np.intp]) -> NDArray[np.float64]:
+        """The rows of the cell's corners ``idx`` (first corner ``base``), gathered into the
+        preallocated buffer unless it already holds that cell's."""
+        if base != self._rows_base:
+            np.take(self._flat, idx, axis=0, out=self._corner_rows, mode="clip")
+            self._rows_base = base
+        return self._corner_rows
 
     def point_field(self, flat_index: int, name: str) -> NDArray[np.float64]:
         """One field (as :class:`TablePoint`'s attribute of that name) at one grid point, by its

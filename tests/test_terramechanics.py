@@ -453,3 +453,22 @@ def test_second_derivatives_finite_at_the_zero_slip_switch():
     H, s = f([-0.0141577541, 0.00745151614], 0.03)
     assert abs(float(s)) < 1e-12
     assert np.isfinite(np.array(H)).all()
+
+
+@pytest.mark.parametrize("options", [ModelOptions(), ModelOptions(exit_angle="soil_flow"),
+                                     ModelOptions(bulldozing="ishigami", nodes_per_segment=5)], ids=["classic", "soil_flow", "ishigami"])
+def test_normal_force_is_the_wrench_normal_force_bit_for_bit(model, options):
+    """:func:`rtctl.physics.terramechanics.normal_force` (the sinkage solve's F_z) is the F_z of
+    :func:`wrench_core`, bit for bit, over slip, skid, a locked wheel and reverse travel."""
+    from rtctl.physics.terramechanics import normal_force, wrench_core
+
+    rng = np.random.default_rng(7)
+    n = 64
+    vx = rng.uniform(0.005, 0.05, (n, 1)) * np.where(np.arange(n)[:, None] % 4 == 3, -1.0, 1.0)
+    vy = rng.uniform(-0.03, 0.03, (n, 1))
+    om = vx / model.wheel.shearing_radius * rng.uniform(0.0, 2.0, (n, 1))
+    om[::9] = 0.0
+    h = rng.uniform(0.002, 0.03, (n, 1))
+    h0 = h * rng.uniform(0.6, 1.4, (n, 1))
+    (_, _, fz, _, _, _), _ = wrench_core(NUMPY, vx, vy, om, h, h0, model.params, options)
+    assert normal_force(NUMPY, vx, vy, om, h, h0, model.params, options).tobytes() == fz.tobytes()

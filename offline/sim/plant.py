@@ -303,20 +303,20 @@ class PlantModel:
             px[fr], pz[fr] = lr / 2 * cp + hr * sp, lr / 2 * sp - hr * cp
             px[re], pz[re] = -lr / 2 * cp + hr * sp, -lr / 2 * sp - hr * cp
         res = np.empty(N_UNKNOWNS)
-        res[0] = (F[:, 0].sum() + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
+        res[0] = (_add_reduce(F[:, 0]) + gx - tether - mass * ((u - u0) * inv_dt - r * v)) / weight
         if d is not None:
             res[0] += d[0] / weight
-        res[1] = (F[:, 1].sum() + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
+        res[1] = (_add_reduce(F[:, 1]) + gy - mass * ((v - v0) * inv_dt + r * u)) / weight
         if d is not None:
             res[1] += d[1] / weight
-        res[2] = ((F[:, 5] + xs * F[:, 1] - ys * F[:, 0]).sum() - iz * (r - r0) * inv_dt) / M
+        res[2] = (_add_reduce(F[:, 5] + xs * F[:, 1] - ys * F[:, 0]) - iz * (r - r0) * inv_dt) / M
         if d is not None:
             res[2] += d[2] / M
-        res[3] = (F[:, 2].sum() - normal) / weight
-        res[4] = (F[:, 3] + ys * F[:, 2] - pz * F[:, 1]).sum() / M
+        res[3] = (_add_reduce(F[:, 2]) - normal) / weight
+        res[4] = _add_reduce(F[:, 3] + ys * F[:, 2] - pz * F[:, 1]) / M
         # the rockers: wheels 0 and 2 (right), 1 and 3 (left)
-        res[5] = (F[0::2, 4] + pz[0::2] * F[0::2, 0] - px[0::2] * F[0::2, 2]).sum() / M
-        res[6] = (F[1::2, 4] + pz[1::2] * F[1::2, 0] - px[1::2] * F[1::2, 2]).sum() / M
+        res[5] = _add_reduce(F[0::2, 4] + pz[0::2] * F[0::2, 0] - px[0::2] * F[0::2, 2]) / M
+        res[6] = _add_reduce(F[1::2, 4] + pz[1::2] * F[1::2, 0] - px[1::2] * F[1::2, 2]) / M
         res[7:11] = mode * (omega - cmd) / om_scale + one_m * (wheel[:, 4] + torque) / t_scale
         if d is not None:
             res[7:11] -= one_m * d[11:15] / t_scale
@@ -334,20 +334,20 @@ class PlantModel:
                     res[7 + i] = (omega[i] - omega0[i]) / om_scale[i]
             return res, J, wheel, SL[0, :4].copy(), BE[0, :4].copy()
         J = np.zeros((N_UNKNOWNS, N_UNKNOWNS))
-        J[0] = dF[:, 0].sum(0) / weight
+        J[0] = _add_reduce(dF[:, 0], 0) / weight
         J[0, 0] -= mass * inv_dt / weight
         J[0, 1] += mass * r / weight
         J[0, 2] += mass * v / weight
-        J[1] = dF[:, 1].sum(0) / weight
+        J[1] = _add_reduce(dF[:, 1], 0) / weight
         J[1, 1] -= mass * inv_dt / weight
         J[1, 2] -= mass * u / weight
         J[1, 0] -= mass * r / weight
-        J[2] = (dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0]).sum(0) / M
+        J[2] = _add_reduce(dF[:, 5] + xs[:, None] * dF[:, 1] - ys[:, None] * dF[:, 0], 0) / M
         J[2, 2] -= iz * inv_dt / M
-        J[3] = dF[:, 2].sum(0) / weight
-        J[4] = (dF[:, 3] + ys[:, None] * dF[:, 2] - pz[:, None] * dF[:, 1]).sum(0) / M
-        J[5] = (dF[0::2, 4] + pz[0::2, None] * dF[0::2, 0] - px[0::2, None] * dF[0::2, 2]).sum(0) / M
-        J[6] = (dF[1::2, 4] + pz[1::2, None] * dF[1::2, 0] - px[1::2, None] * dF[1::2, 2]).sum(0) / M
+        J[3] = _add_reduce(dF[:, 2], 0) / weight
+        J[4] = _add_reduce(dF[:, 3] + ys[:, None] * dF[:, 2] - pz[:, None] * dF[:, 1], 0) / M
+        J[5] = _add_reduce(dF[0::2, 4] + pz[0::2, None] * dF[0::2, 0] - px[0::2, None] * dF[0::2, 2], 0) / M
+        J[6] = _add_reduce(dF[1::2, 4] + pz[1::2, None] * dF[1::2, 0] - px[1::2, None] * dF[1::2, 2], 0) / M
         if self.rocker_jacobian:  # the rocker angles' dependence on the sinkages (left out by default)
             for side, (fr, re) in enumerate(((0, 2), (1, 3))):
                 src = 1 - side if raised and raised[0] % 2 == side else side
@@ -571,6 +571,7 @@ class _DenseCall:
 
 
 _I4 = np.arange(4)
+_add_reduce = np.add.reduce  # what ndarray.sum calls, without its Python-level wrapper (the same sums)
 _DS_H = (_I4, 3, 7 + _I4)  # d h / d log h of each wheel in the driven states' d state / d z
 _DS_H0 = (_I4, 4, 11 + _I4)  # d h0 / d log h0 (driven states and zero-slip twins)
 _DS0_H0 = (_I4, 3, 11 + _I4)  # the twin's sinkage is h0
@@ -636,10 +637,14 @@ def _stiction(W: NDArray[np.float64], JW: NDArray[np.float64] | None, X: NDArray
         Shearing radius of each wheel, m.
     """
     n = len(rs)  # wheels (the zero-slip twins follow them)
-    vx, vy, om = X[0, :n], X[1, :n], X[2, :n]
     floor2 = (1e-3 * STICTION_SPEED) ** 2
-    v = np.sqrt(vx * vx + vy * vy + floor2)
     cut = _STICTION_CUTOFF * STICTION_SPEED
+    # the usual case, every wheel travelling, decided on Python floats (the same IEEE operations as
+    # the array expression below, so the same decision; NaN goes to the array path)
+    if all(math.sqrt(a * a + b * b + floor2) >= cut for a, b in zip(X[0, :n].tolist(), X[1, :n].tolist())):
+        return
+    vx, vy, om = X[0, :n], X[1, :n], X[2, :n]
+    v = np.sqrt(vx * vx + vy * vy + floor2)
     slow = np.flatnonzero(v < cut)
     if not slow.size:  # every wheel travels: nothing to scale (q >= v)
         return

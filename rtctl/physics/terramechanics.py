@@ -5,6 +5,8 @@ One implementation, two uses. :func:`wrench_core` is written against
 ground and on the rover, for each tick's exact residual), with the ground side's ``CASADI`` it
 builds an ``SX`` graph with exact derivatives. ``offline.physics.terramechanics.WheelModel``
 wraps both (validated batched evaluation, casadi functions with Jacobians, sinkage from load).
+:func:`normal_force` is :func:`wrench_core`'s ``F_z`` alone, bit for bit (the two share the contact
+stage), for the sinkage solve of eq. (5.34), which uses nothing else.
 
 Frame and signs (Fig. 5.1): x forward along the wheel heading, y out of the wheel face,
 z up; forces and moments are exerted by the soil on the wheel, moments about the wheel
@@ -46,7 +48,7 @@ from numpy.typing import NDArray
 from .backend import Backend, gauss_legendre, smooth_abs
 from .parameters import ParameterError, SoilLike, TuningLike, WheelLike
 
-__all__ = ["ModelOptions", "PhysParams", "wrench_core", "bulldozing_resistance", "shear_kinematics", "WRENCH_NAMES",
+__all__ = ["ModelOptions", "PhysParams", "wrench_core", "normal_force", "bulldozing_resistance", "shear_kinematics", "WRENCH_NAMES",
            "STATE_NAMES", "DIAG_NAMES", "OMEGA_FLOOR", "SPEED_FLOOR", "SHEAR_VELOCITY_REL_EPS"]
 
 WRENCH_NAMES = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
@@ -295,43 +297,35 @@ def shear_kinematics(
     return vjT, vjL, jt_w, jl_w
 
 
-def wrench_core(
-    ops: Backend,
-    vx: Any,
-    vy: Any,
-    omega: Any,
-    h: Any,
-    h_zero_slip: Any,
-    p: PhysParams,
-    options: ModelOptions,
-) -> tuple[tuple[Any, ...], dict[str, Any]]:
-    """Six-component soil wrench on a rigid wheel, eqs. (5.1)-(5.33), backend-generic.
+class _Contact(NamedTuple):
+    """What the integrals of :func:`wrench_core` need from the contact (numpy arrays or SX)."""
 
-    Parameters
-    ----------
-    ops : Backend
-        :data:`offline.physics.backend.NUMPY` (arguments of shape ``(B, 1)``) or ``CASADI``
-        (scalar ``SX``).
-    vx, vy : array or SX
-        Wheel-frame velocity of the wheel centre, m/s.
-    omega : array or SX
-        Wheel angular speed, rad/s (positive rolls the wheel toward +x).
-    h : array or SX
-        Sinkage at the shearing radius, m (theta_f = acos(1 - h / r_s)).
-    h_zero_slip : array or SX
-        Sinkage the wheel would have at zero slip under the same load; fixes
-        ``theta_f0`` and hence theta_m0 and theta_r0 in skid (eqs. 5.3-5.4).
-    p : PhysParams
-        Parameters (floats or casadi symbols).
-    options : ModelOptions
+    rs: Any
+    sgn: Any
+    sin_b: Any
+    beta: Any
+    s_raw: Any
+    n: Any
+    theta_f: Any
+    theta_m: Any
+    theta_r: Any
+    theta_0: Any
+    sin_f: Any
+    cos_f: Any
+    th: Any
+    wq: Any
+    ct: Any
+    st: Any
+    sigma: Any
+    tau_max: Any
+    tauT: Any
+    vjL: Any
 
-    Returns
-    -------
-    wrench : tuple
-        ``(Fx, Fy, Fz, Mx, My, Mz)`` in N and N m.
-    diagnostics : dict
-        ``slip``, ``beta``, ``theta_f``, ``theta_m``, ``theta_r``, ``theta_0``, ``n``.
-    """
+
+def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: Any, p: PhysParams,
+             options: ModelOptions) -> _Contact:
+    """Kinematics, contact angles, quadrature nodes and the rim stresses of :func:`wrench_core`
+    (eqs. (5.1)-(5.21)): the part :func:`wrench_core` and :func:`normal_force` share."""
     rs = p.r + p.hg
     # Travel toward -x is the x-mirror image of travel toward +x (F_x, M_y, M_z flip sign).
     sgn = ops.where(vx < 0, -1.0, 1.0)
@@ -414,6 +408,50 @@ def wrench_core(
     vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
     tau_max = (p.c + sigma * _parameter_terms(ops, p.phi)[1]) * shear_fraction / vj
     tauT = vjT * tau_max
+    return _Contact(rs, sgn, sin_b, beta, s_raw, n, theta_f, theta_m, theta_r, theta_0, sin_f, cos_f, th, wq, ct, st,
+                    sigma, tau_max, tauT, vjL)
+
+
+def wrench_core(
+    ops: Backend,
+    vx: Any,
+    vy: Any,
+    omega: Any,
+    h: Any,
+    h_zero_slip: Any,
+    p: PhysParams,
+    options: ModelOptions,
+) -> tuple[tuple[Any, ...], dict[str, Any]]:
+    """Six-component soil wrench on a rigid wheel, eqs. (5.1)-(5.33), backend-generic.
+
+    Parameters
+    ----------
+    ops : Backend
+        :data:`offline.physics.backend.NUMPY` (arguments of shape ``(B, 1)``) or ``CASADI``
+        (scalar ``SX``).
+    vx, vy : array or SX
+        Wheel-frame velocity of the wheel centre, m/s.
+    omega : array or SX
+        Wheel angular speed, rad/s (positive rolls the wheel toward +x).
+    h : array or SX
+        Sinkage at the shearing radius, m (theta_f = acos(1 - h / r_s)).
+    h_zero_slip : array or SX
+        Sinkage the wheel would have at zero slip under the same load; fixes
+        ``theta_f0`` and hence theta_m0 and theta_r0 in skid (eqs. 5.3-5.4).
+    p : PhysParams
+        Parameters (floats or casadi symbols).
+    options : ModelOptions
+
+    Returns
+    -------
+    wrench : tuple
+        ``(Fx, Fy, Fz, Mx, My, Mz)`` in N and N m.
+    diagnostics : dict
+        ``slip``, ``beta``, ``theta_f``, ``theta_m``, ``theta_r``, ``theta_0``, ``n``.
+    """
+    c = _contact(ops, vx, vy, omega, h, h_zero_slip, p, options)
+    rs, sgn, sin_b, beta, s_raw, n, theta_f, theta_m, theta_r, theta_0, sin_f, cos_f, th, wq, ct, st, sigma, tau_max, \
+        tauT, vjL = c
     tauL = vjL * tau_max
 
     # Sidewall bulldozing, eqs. (5.22)-(5.25).
@@ -452,6 +490,20 @@ def wrench_core(
     diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,
             "theta_0": theta_0, "n": n}
     return wrench, diag
+
+
+def normal_force(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: Any, p: PhysParams,
+                 options: ModelOptions) -> Any:
+    """The normal force ``F_z`` of eq. (5.28) alone: :func:`wrench_core`'s ``F_z`` (the same
+    operations on the same values, so the same number bit for bit) without the sidewall
+    bulldozing and the other five integrals, which ``F_z`` does not depend on. For the sinkage
+    that carries a load, eq. (5.34), where only ``F_z`` is used (about half the operations).
+
+    Parameters and shapes as :func:`wrench_core`; returns ``F_z`` in N.
+    """
+    c = _contact(ops, vx, vy, omega, h, h_zero_slip, p, options)
+    area = c.rs * p.b
+    return area * ops.qsum(c.wq * (c.sigma * c.ct + c.tauT * c.st))  # (5.28)
 
 
 class _WheelView:

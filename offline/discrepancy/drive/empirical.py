@@ -104,7 +104,7 @@ from ...sim.truth import WHEELS
 from ..significance import normalised
 
 __all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
-           "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth"]
+           "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth", "direction_text", "wheel_names"]
 
 DIRECTIONS: dict[str, tuple[str, str]] = {
     "drag.body": ("resisting force at the centre of mass against the rover's travel", "N"),
@@ -126,10 +126,41 @@ _SHAPES = ("constant", "box", "step", "hinge", "saturation")
 _STATE = ("sinkage", "slip", "slip_angle")
 
 
+_PER_WHEEL_KINDS = ("drag", "torque", "speed_loss")
+
+
 def _wheel_xy(rover: Any) -> NDArray[np.float64]:
-    """Body-frame contact positions (x forward, y left) of FR, FL, RR, RL, m."""
-    lr, wr = rover.rocker_length / 2, rover.track_width / 2
-    return np.array([[lr, -wr], [lr, wr], [-lr, -wr], [-lr, wr]])
+    """Body-frame contact positions (x forward, y left), m: FR, FL, RR, RL of the mini rover, or
+    a rover file's wheels in its order (:func:`~offline.discrepancy.drive.candidates.wheel_plan_positions`)."""
+    from .candidates import wheel_plan_positions
+
+    return wheel_plan_positions(rover)
+
+
+def wheel_names(rover: Any) -> tuple[str, ...]:
+    """The wheel names of ``rover``: the mini rover's (:data:`~offline.sim.truth.WHEELS`) or a
+    rover file's (:attr:`rtctl.physics.rover_file.RoverSpec.wheel_names`, issue 23)."""
+    return tuple(getattr(rover, "wheel_names", WHEELS))
+
+
+def direction_text(direction: str) -> tuple[str, str]:
+    """``(what acts, report unit)`` of a direction: :data:`DIRECTIONS`, or a per-wheel direction
+    (``drag``, ``torque``, ``speed_loss``) of a rover file's wheel (``drag.LM``), worded as the
+    mini rover's.
+
+    Raises
+    ------
+    ValueError
+        An unknown direction.
+    """
+    if direction in DIRECTIONS:
+        return DIRECTIONS[direction]
+    kind, dot, w = direction.partition(".")
+    if kind in _PER_WHEEL_KINDS and dot and w and "." not in w and w not in ("body", "each"):
+        what, unit = DIRECTIONS[f"{kind}.FR"]
+        return what.replace("FR", w), unit
+    raise ValueError(f"empirical term: unknown direction {direction!r}; known: {list(DIRECTIONS)} (per-wheel "
+                     f"directions {list(_PER_WHEEL_KINDS)} also for a rover file's wheels: <kind>.<wheel>)")
 
 
 @dataclass(frozen=True)
@@ -164,8 +195,7 @@ class EmpiricalTerm:
     magnitude: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.direction not in DIRECTIONS:
-            raise ValueError(f"empirical term: unknown direction {self.direction!r}; known: {list(DIRECTIONS)}")
+        direction_text(self.direction)  # raises on an unknown direction
         if self.where not in _WHERE_UNIT:
             raise ValueError(f"empirical term: unknown localisation {self.where!r}; known: {list(_WHERE_UNIT)}")
         if self.shape not in _SHAPES:
@@ -187,6 +217,11 @@ class EmpiricalTerm:
     def target(self) -> str:
         """``body``, a wheel name, ``each`` or a reading channel."""
         return self.direction.split(".", 1)[1]
+
+    @property
+    def on_wheel(self) -> bool:
+        """Whether the term acts on one named wheel (``drag.<W>``, ``torque.<W>``, ``speed_loss.<W>``)."""
+        return self.kind in _PER_WHEEL_KINDS and self.target not in ("body", "each")
 
     @property
     def n_params(self) -> int:
@@ -217,7 +252,7 @@ class EmpiricalTerm:
         name = {"time": "t", "x": "x", "y": "y", "sinkage": "sinkage", "slip": "slip", "slip_angle": "|slip angle|",
                 "command": "|command|"}.get(self.where, "")
         whose = (" of each wheel" if self.target == "each" else f" of the {self.target} wheel"
-                 if self.where in _STATE or (self.where in ("x", "y") and self.kind != "drag" or self.target in WHEELS)
+                 if self.where in _STATE or (self.where in ("x", "y") and self.kind != "drag" or self.on_wheel)
                  and self.where not in ("time",) else " of the centre of mass" if self.where in ("x", "y") else "")
         if self.shape == "constant":
             return "throughout the drive"
@@ -232,7 +267,7 @@ class EmpiricalTerm:
 
     def law(self) -> str:
         """The term as one report line (e.g. ``extra resisting force 0.4 N per wheel for x in [1.0, 1.6) m``)."""
-        what, unit = DIRECTIONS[self.direction]
+        what, unit = direction_text(self.direction)
         m = self.magnitude * _REPORT_SCALE.get(self.direction, 1.0)
         if self.kind == "speed_loss":
             w = self.target
@@ -287,8 +322,9 @@ class EmpiricalTerms:
     Parameters
     ----------
     terms : tuple of EmpiricalTerm
-    rover : Rover
-        Wheel positions (rocker length, track width).
+    rover : Rover or RoverSpec
+        Wheel names and positions: the mini rover (rocker length, track width; FR, FL, RR, RL) or
+        a rover file (its wheels, in its order; issue 23).
     logger : list, optional
         When given, the disturbance hook appends each truth state it sees (``(t, state)``)
         and the hook is installed even without a force term (forces zero).
@@ -318,6 +354,11 @@ class EmpiricalTerms:
         if not forces and self.logger is None:
             return None
         xy = _wheel_xy(self.rover)
+        names = wheel_names(self.rover)
+        nw = len(names)
+        from .candidates import backward_rover_file
+
+        back = backward_rover_file(self.rover)
         log = self.logger
 
         def hook(tt: float, s: Any) -> DisturbanceForces:
@@ -325,10 +366,12 @@ class EmpiricalTerms:
             if log is not None:
                 log.append((now, s))
             bf = np.zeros(2)
-            wf = np.zeros((4, 2))
-            wt = np.zeros(4)
+            wf = np.zeros((nw, 2))
+            wt = np.zeros(nw)
             if forces:
                 X, Y, H = (s.x, s.y, s.heading) if pose_of is None else pose_of(now)
+                if pose_of is not None and back:
+                    H += math.pi  # a recorded (body) heading; the plant and the wheel positions are in the travel frame
                 c, sn = math.cos(H), math.sin(H)
                 vx, vy = s.u - s.yaw_rate * xy[:, 1], s.v + s.yaw_rate * xy[:, 0]
                 state = {"sinkage": np.asarray(s.sinkage, float), "slip": np.asarray(s.slip, float),
@@ -340,7 +383,7 @@ class EmpiricalTerms:
                         sp = math.sqrt(s.u * s.u + s.v * s.v + SPEED_SMOOTHING ** 2)
                         bf += (-g * s.u / sp, -g * s.v / sp)
                         continue
-                    idx = range(4) if t.target == "each" else [WHEELS.index(t.target)]
+                    idx = range(nw) if t.target == "each" else [names.index(t.target)]
                     for i in idx:
                         if t.where == "time":
                             v = now
@@ -361,7 +404,7 @@ class EmpiricalTerms:
                             wt[i] += g * om / math.sqrt(om * om + SPIN_SMOOTHING ** 2)
             return DisturbanceForces(body_force=(float(bf[0]), float(bf[1])),
                                      wheel_force=tuple((float(a), float(b)) for a, b in wf),
-                                     wheel_torque=(float(wt[0]), float(wt[1]), float(wt[2]), float(wt[3])))
+                                     wheel_torque=tuple(float(x) for x in wt))
 
         return hook
 
@@ -372,7 +415,7 @@ class EmpiricalTerms:
         for term in self.terms:
             if term.kind != "speed_loss":
                 continue
-            i = WHEELS.index(term.target)
+            i = wheel_names(self.rover).index(term.target)
             v = {"time": t, "command": rim[:, i]}.get(term.where, np.zeros(len(t)))
             rim[:, i] = rim[:, i] * (1.0 - term.magnitude * term.weight(v))
         return rim, np.asarray(steer, dtype=float)
@@ -581,22 +624,45 @@ def _box_terms(direction: str, where: str, edges: NDArray[np.float64], min_span:
     return out
 
 
+def _rover_of(model: Any) -> Any:
+    """The rover the empirical terms act on: the believed scenario's rover file (its wheels, in the
+    plant's frame: a backward drive's file is turned) or the mini rover."""
+    sc = model.scenario
+    rf = getattr(sc, "rover_file", None)
+    return sc.rover if rf is None else rf
+
+
+def _unit_scales(model: Any) -> tuple[float, float]:
+    """Force and torque scales of the unit terms: 1 on the mini rover; on a rover file its weight
+    (and weight x wheel radius) over the mini rover's
+    (:func:`~offline.discrepancy.drive.wheel_set.rover_scales`), so a unit term moves a heavy
+    rover's readings as much as the mini rover's (the sensitivities are linear in the term; its
+    size keeps the re-simulation's change well above the plant solver's tolerance)."""
+    from .wheel_set import rover_scales
+
+    force, length = rover_scales(model.scenario)
+    return force, force * length
+
+
 class _Search:
     """The linearised family over one set of observations (module notes, steps 1-2)."""
 
     def __init__(self, obs: Any, model: Any, scale: dict[str, float], time_step: int = 2, n_position: int = 16,
                  n_state: int = 10) -> None:
         self.obs, self.model, self.scale = obs, model, scale
-        rover = model.scenario.rover
+        rover = _rover_of(model)
         self.rover = rover
+        self.wheels = names = wheel_names(rover)
         nd = len(obs.drives)
         chans = obs.channels
         self.values = len(obs) * len(chans)
         # step 1: the base re-simulation with a state logger and one per direction
         sims0 = model.simulations
         base, states, contrib = [], [], []
-        unit = {"drag.body": 0.5, **{f"drag.{w}": 0.3 for w in WHEELS}, **{f"torque.{w}": 0.02 for w in WHEELS},
-                **{f"speed_loss.{w}": 0.1 for w in WHEELS}}
+        # unit terms: the mini rover's sizes, forces and torques scaled by the rover's weight (x wheel radius)
+        f, m = _unit_scales(model)
+        unit = {"drag.body": 0.5 * f, **{f"drag.{w}": 0.3 * f for w in names}, **{f"torque.{w}": 0.02 * m for w in names},
+                **{f"speed_loss.{w}": 0.1 for w in names}}
         for k in range(nd):
             d = obs.drives[k]
             log: list[Any] = []
@@ -612,8 +678,8 @@ class _Search:
                 vals = np.array([np.asarray(getattr(s, name), float) for _, s in log])[order]
                 if name == "slip_angle":
                     vals = np.abs(vals)
-                st[name] = np.stack([np.interp(d.t, tt, vals[:, i]) for i in range(4)], axis=1) if tt.size else \
-                    np.full((len(d.t), 4), np.nan)
+                st[name] = np.stack([np.interp(d.t, tt, vals[:, i]) for i in range(len(names))], axis=1) if tt.size else \
+                    np.full((len(d.t), len(names)), np.nan)
             states.append(st)
             cd: dict[str, NDArray[np.float64]] = {}
             for direction, m0 in unit.items():
@@ -638,7 +704,7 @@ class _Search:
             X, Y, H = d.pose[:, 0], d.pose[:, 1], d.pose[:, 2]
             c, s = np.cos(H), np.sin(H)
             v = {"time": d.t, "x.body": X, "y.body": Y}
-            for i, w in enumerate(WHEELS):
+            for i, w in enumerate(names):
                 v[f"x.{w}"] = X + c * xy[i, 0] - s * xy[i, 1]
                 v[f"y.{w}"] = Y + s * xy[i, 0] + c * xy[i, 1]
                 for name in _STATE:
@@ -668,7 +734,7 @@ class _Search:
             groups.setdefault((t.direction, t.where), []).append(j)
         for (direction, where), idx in groups.items():
             kind, target = direction.split(".", 1)
-            parts = [direction] if target != "each" else [f"{kind}.{w}" for w in WHEELS]
+            parts = [direction] if target != "each" else [f"{kind}.{w}" for w in self.wheels]
             for k in range(len(self.obs.drives)):
                 rows = np.flatnonzero(self.obs.drive == k)
                 rows = rows[np.argsort(self.obs.segment[rows])]
@@ -698,13 +764,13 @@ class _Search:
         if self.has_pose:
             for direction in ("drag.body", "drag.each"):
                 for axis in ("x", "y"):
-                    keys = [f"{axis}.body"] if direction == "drag.body" else [f"{axis}.{w}" for w in WHEELS]
+                    keys = [f"{axis}.body"] if direction == "drag.body" else [f"{axis}.{w}" for w in self.wheels]
                     vals = np.concatenate([v[key] for v in self.var for key in keys])
                     terms += _box_terms(direction, axis, _edges(vals, self.n_position))
         q = np.linspace(0.05, 0.95, self.n_state)
         for name in _STATE:
-            for w in [*WHEELS, "each"]:
-                ws = WHEELS if w == "each" else [w]
+            for w in [*self.wheels, "each"]:
+                ws = self.wheels if w == "each" else [w]
                 vals = np.concatenate([v[f"{name}.{x}"] for v in self.var for x in ws])
                 vals = vals[np.isfinite(vals)]
                 if vals.size == 0:
@@ -713,7 +779,7 @@ class _Search:
                     for kind in ("drag", "torque"):
                         for shape in ("step", "hinge"):
                             terms.append(EmpiricalTerm(f"{kind}.{w}", name, shape, float(thr), math.inf, 1.0))
-        for w in WHEELS:
+        for w in self.wheels:
             cm = np.unique(np.round(np.abs(np.concatenate([v[f"command.{w}"] for v in self.var])), 6))
             thr = np.unique(np.concatenate([[0.0], 0.5 * (cm[1:] + cm[:-1]), cm[cm > 0] * 0.999]))
             terms += [EmpiricalTerm(f"speed_loss.{w}", "command", "saturation", float(c), math.inf, 1.0) for c in thr
@@ -787,7 +853,7 @@ def _fit_real(model: Any, obs: Any, scale: dict[str, float], done: Sequence[Empi
     fit replaces the linear column (a secant step), on ``rows`` (default all)."""
     if term.kind == "offset" or term.magnitude == 0.0:
         return term
-    rover = model.scenario.rover
+    rover = _rover_of(model)
     p0, _ = model.predict(obs, None, EmpiricalTerms(tuple(done), rover) if done else None)
     p1, _ = model.predict(obs, None, EmpiricalTerms((*done, term), rover))
     z0, z1 = normalised(obs, p0, scale), normalised(obs, p1, scale)
@@ -865,7 +931,7 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     folds = interleaved_folds(obs, k_folds)
     fold_of_value = np.repeat(folds, nc)
     rng = np.random.default_rng(seed + 24)
-    rover = model.scenario.rover
+    rover = _rover_of(model)
     pred0, _ = model.predict(obs, None)
     z_base = normalised(obs, pred0, scale)
     chi2_base = float((z_base ** 2).sum())

@@ -463,9 +463,9 @@ def disturbance_from_truth(truth: Truth, rover: Any) -> Any:
     hook = disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover) if terms else None
     if not truth.empirical:
         return hook
-    from .empirical import EmpiricalTerms, terms_from_truth
+    from .empirical import EmpiricalTerms, terms_from_truth, wheel_names
 
-    more = EmpiricalTerms(terms_from_truth(truth.empirical), rover).hook()
+    more = EmpiricalTerms(terms_from_truth(truth.empirical, wheel_names(rover)), rover).hook()
     return more if hook is None else Hooks((hook, more), _wheel_count(rover))
 
 

@@ -143,24 +143,26 @@ def wheel_names(rover: Any) -> tuple[str, ...]:
     return tuple(getattr(rover, "wheel_names", WHEELS))
 
 
-def direction_text(direction: str) -> tuple[str, str]:
-    """``(what acts, report unit)`` of a direction: :data:`DIRECTIONS`, or a per-wheel direction
-    (``drag``, ``torque``, ``speed_loss``) of a rover file's wheel (``drag.LM``), worded as the
-    mini rover's.
+def direction_text(direction: str, wheels: Sequence[str] = WHEELS) -> tuple[str, str]:
+    """``(what acts, report unit)`` of a direction on a wheel set: :data:`DIRECTIONS` (the mini
+    rover's wheels), or a per-wheel direction (``drag``, ``torque``, ``speed_loss``) of a rover
+    file's wheel (``drag.LM`` on the MER-class rover), worded as the mini rover's.
 
     Raises
     ------
     ValueError
-        An unknown direction.
+        An unknown direction, or a wheel not in ``wheels``.
     """
-    if direction in DIRECTIONS:
-        return DIRECTIONS[direction]
     kind, dot, w = direction.partition(".")
-    if kind in _PER_WHEEL_KINDS and dot and w and "." not in w and w not in ("body", "each"):
+    mini = tuple(wheels) == WHEELS
+    if direction in DIRECTIONS and (mini or not (kind in _PER_WHEEL_KINDS and w not in ("body", "each"))):
+        return DIRECTIONS[direction]
+    if kind in _PER_WHEEL_KINDS and w in wheels:
         what, unit = DIRECTIONS[f"{kind}.FR"]
         return what.replace("FR", w), unit
-    raise ValueError(f"empirical term: unknown direction {direction!r}; known: {list(DIRECTIONS)} (per-wheel "
-                     f"directions {list(_PER_WHEEL_KINDS)} also for a rover file's wheels: <kind>.<wheel>)")
+    raise ValueError(f"empirical term: unknown direction {direction!r} on the wheels {', '.join(wheels)}; known: "
+                     f"{[d for d in DIRECTIONS if d.partition('.')[0] not in _PER_WHEEL_KINDS or d.partition('.')[2] in ('body', 'each')]} "
+                     f"and {list(_PER_WHEEL_KINDS)} of a wheel: <kind>.<wheel>")
 
 
 @dataclass(frozen=True)
@@ -180,6 +182,9 @@ class EmpiricalTerm:
         Edges or threshold (SI: s, m, m, -, rad, m/s).
     magnitude : float
         SI (N, N m, fraction, rad/s, rad); for ``hinge`` per unit of the variable.
+    wheels : tuple of str
+        The wheel set a per-wheel direction names a wheel of (default the mini rover's; a rover
+        file's wheels, issue 23). Not compared.
 
     Raises
     ------
@@ -193,9 +198,10 @@ class EmpiricalTerm:
     lo: float = -math.inf
     hi: float = math.inf
     magnitude: float = 0.0
+    wheels: tuple[str, ...] = field(default=WHEELS, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        direction_text(self.direction)  # raises on an unknown direction
+        direction_text(self.direction, self.wheels)  # raises on an unknown direction
         if self.where not in _WHERE_UNIT:
             raise ValueError(f"empirical term: unknown localisation {self.where!r}; known: {list(_WHERE_UNIT)}")
         if self.shape not in _SHAPES:
@@ -267,7 +273,7 @@ class EmpiricalTerm:
 
     def law(self) -> str:
         """The term as one report line (e.g. ``extra resisting force 0.4 N per wheel for x in [1.0, 1.6) m``)."""
-        what, unit = direction_text(self.direction)
+        what, unit = direction_text(self.direction, self.wheels)
         m = self.magnitude * _REPORT_SCALE.get(self.direction, 1.0)
         if self.kind == "speed_loss":
             w = self.target
@@ -458,15 +464,17 @@ def truth_entries(terms: Sequence[EmpiricalTerm]) -> list[dict[str, Any]]:
     return out
 
 
-def terms_from_truth(entries: Sequence[dict[str, Any]]) -> tuple[EmpiricalTerm, ...]:
-    """The terms of :attr:`offline.sim.truth.Truth.empirical` (SI dicts).
+def terms_from_truth(entries: Sequence[dict[str, Any]], wheels: Sequence[str] = WHEELS) -> tuple[EmpiricalTerm, ...]:
+    """The terms of :attr:`offline.sim.truth.Truth.empirical` (SI dicts) on a wheel set (default the
+    mini rover's; a rover file's wheels, issue 23).
 
     Raises
     ------
     ValueError
         A combination the family does not have (e.g. a body drag localised in a wheel's sinkage).
     """
-    return tuple(EmpiricalTerm(e["direction"], e["where"], e["shape"], e["lo"], e["hi"], e["magnitude"]) for e in entries)
+    return tuple(EmpiricalTerm(e["direction"], e["where"], e["shape"], e["lo"], e["hi"], e["magnitude"], tuple(wheels))
+                 for e in entries)
 
 
 @dataclass
@@ -614,13 +622,14 @@ def _edges(v: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return e
 
 
-def _box_terms(direction: str, where: str, edges: NDArray[np.float64], min_span: int = 1) -> list[EmpiricalTerm]:
+def _box_terms(direction: str, where: str, edges: NDArray[np.float64], min_span: int = 1,
+               wheels: tuple[str, ...] = WHEELS) -> list[EmpiricalTerm]:
     out = []
     for i in range(len(edges)):
         for j in range(i + min_span, len(edges)):
             if i == 0 and j == len(edges) - 1:
                 continue  # the whole range: the constant term
-            out.append(EmpiricalTerm(direction, where, "box", float(edges[i]), float(edges[j]), 1.0))
+            out.append(EmpiricalTerm(direction, where, "box", float(edges[i]), float(edges[j]), 1.0, wheels))
     return out
 
 
@@ -683,7 +692,7 @@ class _Search:
             states.append(st)
             cd: dict[str, NDArray[np.float64]] = {}
             for direction, m0 in unit.items():
-                ext_terms = EmpiricalTerms((EmpiricalTerm(direction, magnitude=m0),), rover)
+                ext_terms = EmpiricalTerms((EmpiricalTerm(direction, magnitude=m0, wheels=names),), rover)
                 ticks1, body1, ok1 = model.simulate(d, None, obs.heading_offset, ext_terms)
                 if not ok1:
                     cd[direction] = np.zeros((len(d.t), len(chans)))
@@ -757,16 +766,16 @@ class _Search:
         seg_t = np.unique(np.concatenate([d.t[s.bounds[:, 0]] for d, s in zip(obs.drives, obs.segments)]))
         tedges = np.append(seg_t[::self.time_step], np.nextafter(t_all.max(), np.inf))
         for direction in dirs + ["drag.each", "torque.each"]:
-            terms.append(EmpiricalTerm(direction))
-            terms += _box_terms(direction, "time", tedges) if direction not in ("drag.each", "torque.each") else []
+            terms.append(EmpiricalTerm(direction, wheels=self.wheels))
+            terms += _box_terms(direction, "time", tedges, wheels=self.wheels) if direction not in ("drag.each", "torque.each") else []
             if direction not in ("drag.each", "torque.each"):
-                terms += [EmpiricalTerm(direction, "time", "step", float(e), math.inf, 1.0) for e in tedges[1:-1]]
+                terms += [EmpiricalTerm(direction, "time", "step", float(e), math.inf, 1.0, self.wheels) for e in tedges[1:-1]]
         if self.has_pose:
             for direction in ("drag.body", "drag.each"):
                 for axis in ("x", "y"):
                     keys = [f"{axis}.body"] if direction == "drag.body" else [f"{axis}.{w}" for w in self.wheels]
                     vals = np.concatenate([v[key] for v in self.var for key in keys])
-                    terms += _box_terms(direction, axis, _edges(vals, self.n_position))
+                    terms += _box_terms(direction, axis, _edges(vals, self.n_position), wheels=self.wheels)
         q = np.linspace(0.05, 0.95, self.n_state)
         for name in _STATE:
             for w in [*self.wheels, "each"]:
@@ -778,11 +787,11 @@ class _Search:
                 for thr in np.unique(np.quantile(vals, q)):
                     for kind in ("drag", "torque"):
                         for shape in ("step", "hinge"):
-                            terms.append(EmpiricalTerm(f"{kind}.{w}", name, shape, float(thr), math.inf, 1.0))
+                            terms.append(EmpiricalTerm(f"{kind}.{w}", name, shape, float(thr), math.inf, 1.0, self.wheels))
         for w in self.wheels:
             cm = np.unique(np.round(np.abs(np.concatenate([v[f"command.{w}"] for v in self.var])), 6))
             thr = np.unique(np.concatenate([[0.0], 0.5 * (cm[1:] + cm[:-1]), cm[cm > 0] * 0.999]))
-            terms += [EmpiricalTerm(f"speed_loss.{w}", "command", "saturation", float(c), math.inf, 1.0) for c in thr
+            terms += [EmpiricalTerm(f"speed_loss.{w}", "command", "saturation", float(c), math.inf, 1.0, self.wheels) for c in thr
                       if c < cm.max()]
         A = self.response(terms)
         norm = np.einsum("ij,ij->i", A, A)

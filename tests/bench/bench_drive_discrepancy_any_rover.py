@@ -306,22 +306,29 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="drive length, s (default %(default)s)")
     ap.add_argument("--part", choices=("open", "closed", "all"), default="all",
                     help="open-loop cases, closed-loop (rtctl) cases, or both (default %(default)s)")
+    ap.add_argument("--case", action="append", default=None,
+                    help="only the cases whose label contains this text (repeatable; default every case)")
+    ap.add_argument("--out", default=str(OUT), help="results file (default %(default)s)")
     args = ap.parse_args()
+    out = Path(args.out)
+
+    def chosen(cases):
+        return tuple(c for c in cases if args.case is None or any(k in c.label for k in args.case))
     load0, t_all = os.getloadavg(), time.process_time()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     stamp = f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"
-    old = OUT.read_text() if OUT.exists() else ""
+    old = out.read_text() if out.exists() else ""
     open_lines, closed_lines = _section(old, OPEN_MARK), _section(old, CLOSED_MARK)
     bad = False
     with tempfile.TemporaryDirectory() as tmp:
         if args.part in ("open", "all"):
-            rows = _run_part(CASES, lambda c: run_case(c, args.duration, Path(tmp)),
+            rows = _run_part(chosen(CASES), lambda c: run_case(c, args.duration, Path(tmp)),
                              lambda r: f"{r['case']} {r['duration']:g} s seed {r['seed']}: {r['verdict']} {r['named']} "
                                        f"{r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} CPU-s)")
             open_lines = _open_section(rows, args.duration, commit, stamp)
             bad |= any(r["outcome"] in ("WRONG NAME", "FALSE ALARM") for r in rows)
         if args.part in ("closed", "all"):
-            rows = _run_part(CLOSED_CASES, lambda c: run_closed_case(c, args.duration, Path(tmp)),
+            rows = _run_part(chosen(CLOSED_CASES), lambda c: run_closed_case(c, args.duration, Path(tmp)),
                              lambda r: f"closed {r['case']} seed {r['seed']}: rtctl {r['heading']:.2f} deg {r['cross']:.2f} "
                                        f"cm; {r['verdict']} {r['named']} {r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} + "
                                        f"{r['cpu_drive']:.1f} CPU-s)")
@@ -332,7 +339,7 @@ def main() -> int:
     lines = [
         "# Drive discrepancy on six-wheel recordings (issue 23)", "",
         f"Last run: `OPENBLAS_NUM_THREADS=1 nice python tests/bench/bench_drive_discrepancy_any_rover.py --part {args.part} "
-        f"--duration {args.duration:g}` at commit {commit}, {stamp}, Python {platform.python_version()}, "
+        f"--duration {args.duration:g}{''.join(f' --case {k!r}' for k in args.case or ())}` at commit {commit}, {stamp}, Python {platform.python_version()}, "
         f"{platform.machine()}; load average {load0[0]:.1f} at the start, {load1[0]:.1f} at the end (2 cores shared); "
         f"{time.process_time() - t_all:.0f} CPU-s in this process in all. One process (`workers=1`), one OpenBLAS thread. "
         "Each part's section says when it was made.", "",
@@ -340,8 +347,8 @@ def main() -> int:
     ]
     if len(reading) == 2:
         lines += ["## Reading (written by hand" + reading[1].rstrip("\n")]
-    write_text(OUT, "\n".join(lines) + "\n")
-    print(f"wrote {OUT}")
+    write_text(out, "\n".join(lines) + "\n")
+    print(f"wrote {out}")
     return 1 if bad else 0
 
 

@@ -3,6 +3,7 @@
 Run on demand from the repository root::
 
     OPENBLAS_NUM_THREADS=1 nice python tests/bench/bench_drive_discrepancy_any_rover.py [--duration 20] [--part open|closed|all]
+        [--case LABEL_TEXT ...] [--out PATH]
 
 Two parts, each its own section of the results file (a run of one part keeps the other's section):
 
@@ -239,8 +240,9 @@ def _open_section(rows: list[dict[str, object]], duration: float, commit: str, s
         "`REALISTIC_SENSORS` with the torque noise scaled by weight x wheel radius (0.86 N m). Diagnosis: "
         "`diagnose_drives(..., segment=5)` on the believed `mer_nominal` scenario with the default library made for the "
         "six wheels (`wheel_set.library_for`: every wheel's radius, the four steerable wheels' steering offsets, slope, "
-        "IMU tilt, drawbar pull, servo lag, torque saturation, gyro scale, soil stiffness, all radii; no hub contact or "
-        "anchored tether: their re-simulation hooks are the mini rover's) and the soil recalibration, level 0.001.", "",
+        "IMU tilt, drawbar pull, anchored tether, hub contact, servo lag, torque saturation, gyro scale, soil stiffness, "
+        "all radii, the per-wheel actuator terms screened; force and torque bounds scaled to the rover's weight) and "
+        "the soil recalibration, level 0.001.", "",
         "| case | drive [s] | seed | verdict | named | fitted | truth | outcome | CPU [s] | re-simulations | rows |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -306,7 +308,7 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="drive length, s (default %(default)s)")
     ap.add_argument("--part", choices=("open", "closed", "all"), default="all",
                     help="open-loop cases, closed-loop (rtctl) cases, or both (default %(default)s)")
-    ap.add_argument("--case", action="append", default=None,
+    ap.add_argument("--case", action="append", default=None,  # e.g. --case tether --case "hub drag"
                     help="only the cases whose label contains this text (repeatable; default every case)")
     ap.add_argument("--out", default=str(OUT), help="results file (default %(default)s)")
     args = ap.parse_args()

@@ -94,7 +94,7 @@ def params_reference(model: Any, folder: str | Path, params_file: str = "") -> s
     from ...physics.params import save_toml
 
     out = Path(folder)
-    tries = [(params_file, Path.cwd())] if params_file else []
+    tries: list[tuple[str, Path | None]] = [(params_file, Path.cwd())] if params_file else []
     tries.append(_scenario_params_ref(model.scenario))
     for ref, base in tries:
         ps, f = _load_ref(ref, base)

@@ -5,8 +5,8 @@ drive motor dead (declared; scenario ``offline/scenarios/rovers/mer_rf_unpowered
 ``tests/data/tables/rovers/mer_rf_unpowered.npz``) straight at 3 cm/s in the rover file's own
 simulator plant (:class:`offline.sim.suspension_plant.SuspensionPlant`), with sensor noise and pose
 fixes; the recording holds rtctl's commands, which change every tick as it compensates. The
-noise-only recordings: straight open-loop drives of ``mer_nominal`` (every wheel at the same rim
-speed, no steering), forward and backward. The worn wheel is concealed HERE, in the simulator's
+noise-only recording: a straight open-loop drive of ``mer_nominal_backward`` (every wheel at the
+same rim speed, no steering, the rover driving backward). The worn wheel is concealed HERE, in the simulator's
 world: the truth of the rover file (:func:`offline.sim.simulator.rover_file_truth`) with the
 left-middle wheel's rim radius 5 % smaller -- not through the tool's candidate formula
 (:func:`offline.discrepancy.drive.candidates.truth_from_terms`); it is still the plant input the
@@ -21,14 +21,14 @@ torque channels are as noisy relative to the torques as on the mini rover.
 
 Budget: the closed-loop drive 10 s (10 segments of 5 ticks: every tick re-simulated, rtctl's
 commands never repeat) with the worn wheel's look-alikes (every wheel's radius, all radii, slope,
-drawbar pull); the open-loop drives 12 s with a library of the six wheels' radii and their
+drawbar pull); the open-loop backward drive 10 s with a library of the six wheels' radii and their
 look-alikes (slope, IMU tilt, drawbar pull, soil stiffness, every wheel's radius, the front wheels'
-steering offsets); no soil recalibration: 41 CPU-s (37.9 user + 2.9 sys) for this file's five
-tests (measured, one process, ``-n 0``, the closed-loop test about 27 of them; the open-loop
-worn-wheel test it replaced cost about 8), with the six-wheel plant's compiled wheel batch
-cached (its one-off compile: about 16 CPU-s). The full library, 20 s drives, open and closed
-loop, another worn wheel, a tether and a hub drag through the plant's hook, and more noise seeds:
-``tests/bench/bench_drive_discrepancy_any_rover.py`` (``results_drive_discrepancy_any_rover.md``).
+steering offsets); no soil recalibration. The forward noise-only drive was cut (i23-rover, to pay
+for ``tests/test_any_rover_hooks.py``): a forward straight six-wheel drive re-simulates to the
+noise there, and the bench keeps the forward noise-only seeds. The full library, 20 s drives, open
+and closed loop, another worn wheel, a tether and a hub drag through the plant's hook, and more
+noise seeds: ``tests/bench/bench_drive_discrepancy_any_rover.py``
+(``results_drive_discrepancy_any_rover.md``).
 
 On the code before issue 23's drive-tool change the six-wheel recording is refused: "the believed
 simulator cannot re-simulate this drive (no equilibrium)" (the mini rover's four-wheel world and

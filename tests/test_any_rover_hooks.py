@@ -215,8 +215,9 @@ def test_the_accepted_truth_names_the_believed_parameter_set(tmp_path):
     """``params_reference`` names the set the diagnosis believed, so ``load_truth`` reads it back: a
     preset by name (the mini rover's ``dissertation-ch7``, a shipped file's ``calibrated-sand``), a
     rover file's wheel parameter file by its path from the report folder, and a set no file holds (a
-    scenario's grouser override) as a copy beside the truth file. (Before: ``dissertation-ch7``
-    whatever the believed set.)"""
+    scenario's grouser override) as a copy beside the truth file; a parameter file the command line
+    gave by its path. (Before: ``dissertation-ch7`` whatever the believed set; the command line's
+    file by its bare name.)"""
     from types import SimpleNamespace
 
     from offline.discrepancy.drive.report import BELIEVED_PARAMS, params_reference
@@ -242,3 +243,11 @@ def test_the_accepted_truth_names_the_believed_parameter_set(tmp_path):
             assert back.soil.k == pytest.approx(sc.params.soil.k, rel=1e-9)
         else:
             assert back == sc.params
+    # a parameter file given on the command line (offnominal discrepancy --params FILE): named by its path from the report
+    from offline.physics.params import load_toml
+
+    given = tmp_path / "my_wheel.toml"
+    given.write_text((ROOT / "rtctl" / "physics" / "rovers" / "mer_class_wheel.toml").read_text())
+    told = load_toml(given)["parameter_set"]
+    ref = params_reference(SimpleNamespace(params=told, scenario=MINI), out, str(given))
+    assert ref == "../my_wheel.toml"

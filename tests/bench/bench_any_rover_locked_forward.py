@@ -8,6 +8,8 @@ Solves ``mer_rf_locked`` forward at 3 cm/s on a copy of ``mer_class_rocker_bogie
 speed limit is raised from 0.385 to 1.0 rad/s and its torque limit from 30 to 300 N m, with the
 right-front steering free, then held straight. Prints one line per case (status, objective, IPOPT
 runs and iterations, CPU seconds) and, for an optimal one, each wheel's steering, load and slip.
+First, the shipped ``offline/scenarios/rovers/mer_rf_locked.toml`` as it is, with the search's
+evidence (the most violated constraint, how far the continuation from the nominal primitive got).
 Writes nothing. Measured in ``results_any_rover_audit.md`` (T1a).
 """
 
@@ -28,6 +30,16 @@ def main() -> int:
     text = (src / "mer_class_rocker_bogie.toml").read_text()
     if "drive_speed_max_rad_s = 0.385" not in text or "drive_torque_max_N_m = 30.0" not in text:
         raise RuntimeError("mer_class_rocker_bogie.toml: the actuator limits changed; update the bench")
+    sc = load_scenario(ROOT / "offline" / "scenarios" / "rovers" / "mer_rf_locked.toml")
+    c0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime
+    r = solve_primitive(sc)
+    print(f"mer_rf_locked as shipped: {r.status} (CPU {resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.1f})")
+    for k, v in r.evidence.items():
+        print(f"  {k}: {v}")
+    for w in sc.wheels:
+        d = r.wheels.get(w)
+        if d is not None:
+            print(f"  {w}: steer {d.steer * 57.29578:.2f} deg load {d.load:.1f} N slip {d.slip:.3f}")
     with tempfile.TemporaryDirectory() as folder:
         tmp = Path(folder)
         (tmp / "mer_class_wheel.toml").write_text((src / "mer_class_wheel.toml").read_text())

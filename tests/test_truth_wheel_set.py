@@ -6,7 +6,7 @@ their disturbance hooks simulated on that rover's plant.
 radius and steering offset per wheel in its order, and the defaults are the rover-file simulator's.
 Errors name the file, the section and the key. The discrepancy tool's accepted truth of a six-wheel
 diagnosis (``write_truth_toml`` with the rover's wheels) reads back. The hook sections of a truth
-(``[hub_contact]``, ``[tether_anchor]``, ``[[empirical_force]]`` on the body) become a disturbance
+(``[hub_contact]``, ``[tether_anchor]``, ``[[empirical_force]]``) become a disturbance
 hook on the rover's wheels (:func:`offline.discrepancy.drive.wheel_set.truth_disturbance`).
 
 About 2 CPU-s (one 1 s six-wheel drive).
@@ -61,11 +61,12 @@ def test_a_rover_file_truth_names_its_own_wheels(tmp_path):
     ("mer", "[wheels.LM]\nradius_mm = 5000.0\n", r"world.toml: \[wheels.LM\] radius_mm = 5000.0 outside \[10.0, 2000.0\]"),
     ("mer", "[wheel.LM]\nradius_mm = 120.0\n", r"world.toml: unknown section\(s\) \['wheel'\]; expected \[truth\], \[wheels.<RF\|LF\|RM\|LM\|RR\|LR>\]"),
     ("mer", '[[empirical_force]]\ndirection = "drag.FR"\nmagnitude_si = 1.0\n',
-     r"world.toml: \[empirical_force #1\] direction = 'drag.FR': on the rover file .* acts on the body only"),
+     r"world.toml: \[empirical_force #1\] direction = 'drag.FR'; expected one of \['drag.body', 'drag.RF', 'drag.LF', "
+     r"'drag.RM', 'drag.LM'"),
 ])
 def test_bad_wheel_sections_name_the_file_section_and_key(tmp_path, rover, text, match):
     """Unknown wheels (the other rover's names), keys, ranges and sections, and a per-wheel empirical
-    term on a rover file: a TruthError naming the file, the section and the key."""
+    term naming the other rover's wheel: a TruthError naming the file, the section and the key."""
     p = _write(tmp_path, text)
     with pytest.raises(TruthError, match=match):
         load_truth(p, MER.rover_file if rover == "mer" else MINI.rover)

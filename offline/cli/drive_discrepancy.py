@@ -70,7 +70,7 @@ def run_recording(args: argparse.Namespace) -> int:
         if "parameter_set" not in loaded:
             return fail(f"{args.params}: no [soil], [wheel] and [tuning] sections (a full parameter file is needed)")
         sc = replace(sc, params=loaded["parameter_set"])
-        params_file = Path(args.params).name
+        params_file = str(args.params)  # the path: the accepted truth names it relative to its own folder
     try:
         truth = (load_truth(args.believed_truth, sc.rover_file or sc.rover, sc.params) if args.believed_truth
                  else None if sc.rover_file is not None else Truth.nominal(sc.params, sc.rover))  # a rover file: its own world

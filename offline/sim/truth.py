@@ -10,7 +10,7 @@ File format (every key optional; units in the key names)
 .. code-block:: toml
 
     [truth]
-    params = "dissertation-ch7"      # preset or parameter TOML (soil, wheel, tuning), relative to this file
+    params = "dissertation-ch7"      # preset ("calibrated-sand" ...) or parameter TOML (soil, wheel, tuning), relative to this file
     soil_stiffness_scale = 0.7       # multiplies k (0.7: 30 % softer)
     slope_deg = 5.0                  # terrain rises along the initial heading (uphill positive)
     cross_slope_deg = 0.0            # terrain rises to the rover's initial left (left side up positive)
@@ -47,7 +47,7 @@ A rover file's truth (:func:`load_truth` given the scenario's ``rover_file``) na
 wheels (``[wheels.LM]`` on the MER-class rover), has one radius and steering offset per wheel in
 its order, and takes its mass and inertias from the rover-file simulator's defaults; its hook
 sections are applied on its wheels by :func:`offline.discrepancy.drive.wheel_set.truth_disturbance`
-(an ``[[empirical_force]]`` there acts on the body only: ``drag.body``).
+(an ``[[empirical_force]]`` there names the file's wheels: ``drag.LM``, ``torque.RF``).
 
 The last three are disturbance hooks (contract C5): :attr:`Truth.anchor`, :attr:`Truth.hub` and
 :attr:`Truth.empirical` carry their parameters (SI); ``offnominal drive --truth`` applies them
@@ -73,14 +73,14 @@ from numpy.typing import NDArray
 
 from rtctl.physics.hub_drag import HUB_KEYS
 from ..physics.params import ParameterError, ParameterSet, Rover, Soil, load_toml
-from ..rover.scenario import PARAM_PRESETS, section_table, wheel_tables
+from ..rover.scenario import PARAM_PRESETS, param_preset_file, section_table, wheel_tables
 from .plant import GRAVITY, PlantModel, default_wheel_inertia, default_yaw_inertia
 
 if TYPE_CHECKING:
     from rtctl.physics.rover_file import RoverSpec
 
 __all__ = ["TruthError", "Truth", "load_truth", "WHEELS", "shipped_truths", "resolve_truth_path",
-           "EMPIRICAL_FORCE_DIRECTIONS", "EMPIRICAL_FORCE_WHERE", "EMPIRICAL_FORCE_SHAPES"]
+           "EMPIRICAL_FORCE_DIRECTIONS", "EMPIRICAL_FORCE_WHERE", "EMPIRICAL_FORCE_SHAPES", "empirical_force_directions"]
 
 WHEELS = ("FR", "FL", "RR", "RL")
 
@@ -194,7 +194,7 @@ def _hook(path: Path, data: dict[str, Any], section: str) -> dict[str, float] | 
 
 
 EMPIRICAL_FORCE_DIRECTIONS = (*(f"drag.{w}" for w in ("body", *WHEELS, "each")),
-                              *(f"torque.{w}" for w in (*WHEELS, "each")))
+                              *(f"torque.{w}" for w in (*WHEELS, "each")))  # = empirical_force_directions(WHEELS)
 """Directions of ``[[empirical_force]]`` (the force and torque directions of
 :data:`offline.discrepancy.drive.empirical.DIRECTIONS`; a test keeps the two equal)."""
 EMPIRICAL_FORCE_WHERE = ("everywhere", "time", "x", "y", "sinkage", "slip", "slip_angle")
@@ -202,9 +202,16 @@ EMPIRICAL_FORCE_SHAPES = ("constant", "box", "step", "hinge")
 _EMPIRICAL_KEYS = {"direction", "where", "shape", "lo_si", "hi_si", "magnitude_si"}
 
 
-def _empirical(path: Path, data: dict[str, Any]) -> tuple[dict[str, Any], ...]:
+def empirical_force_directions(wheels: tuple[str, ...] = WHEELS) -> tuple[str, ...]:
+    """Directions of ``[[empirical_force]]`` on a wheel set (:data:`EMPIRICAL_FORCE_DIRECTIONS` for
+    the mini rover's; a rover file's wheels by their own names, issue 23)."""
+    return (*(f"drag.{w}" for w in ("body", *wheels, "each")), *(f"torque.{w}" for w in (*wheels, "each")))
+
+
+def _empirical(path: Path, data: dict[str, Any], wheels: tuple[str, ...] = WHEELS) -> tuple[dict[str, Any], ...]:
     """The ``[[empirical_force]]`` entries in SI (names and numbers checked here; the term's own
-    class checks the combination when the hook is built)."""
+    class checks the combination when the hook is built); ``wheels``: the wheel set the per-wheel
+    directions name."""
     if "empirical_force" not in data:
         return ()
     entries = data["empirical_force"]
@@ -216,7 +223,7 @@ def _empirical(path: Path, data: dict[str, Any]) -> tuple[dict[str, Any], ...]:
         bad = sorted(set(e) - _EMPIRICAL_KEYS)
         if bad:
             raise TruthError(f"{path}: [{where}] unknown key(s) {bad}; known: {sorted(_EMPIRICAL_KEYS)}")
-        for key, allowed, default in (("direction", EMPIRICAL_FORCE_DIRECTIONS, None),
+        for key, allowed, default in (("direction", empirical_force_directions(wheels), None),
                                       ("where", EMPIRICAL_FORCE_WHERE, "everywhere"),
                                       ("shape", EMPIRICAL_FORCE_SHAPES, "constant")):
             v = e.get(key, default)
@@ -254,8 +261,7 @@ def load_truth(path: str | Path, rover: "Rover | RoverSpec", default_params: Par
         (:func:`offline.sim.simulator.rover_file_truth`): mass its weight over its gravity, yaw
         inertia :func:`~offline.sim.suspension_plant.suspension_yaw_inertia`, wheel spin inertia
         :func:`~offline.sim.suspension_plant.rover_file_wheel_inertia`. On a rover file an
-        ``[[empirical_force]]`` term acts on the body only (``drag.body``): the per-wheel empirical
-        terms are written for the mini rover's wheels (:mod:`offline.discrepancy.drive.empirical`).
+        ``[[empirical_force]]`` term's per-wheel direction names one of its wheels (``drag.LM``).
     default_params : ParameterSet, optional
         The parameter set when ``[truth] params`` is not given (default ``dissertation-ch7``).
 
@@ -293,8 +299,8 @@ def load_truth(path: str | Path, rover: "Rover | RoverSpec", default_params: Par
         raise TruthError(f"{p}: [truth] params must be a preset name or a file path, got {ref!r}")
     elif ref in PARAM_PRESETS:
         ps = PARAM_PRESETS[ref]
-    else:
-        f = Path(ref) if Path(ref).is_absolute() else p.parent / ref
+    else:  # a shipped parameter file by name (as a scenario's params = "calibrated-sand") or a path
+        f = param_preset_file(ref) or (Path(ref) if Path(ref).is_absolute() else p.parent / ref)
         try:
             loaded = load_toml(f)
         except (ParameterError, OSError) as exc:
@@ -318,17 +324,11 @@ def load_truth(path: str | Path, rover: "Rover | RoverSpec", default_params: Par
         if "steer_offset_deg" in tab:
             offset[i] = math.radians(_num(p, f"wheels.{name}", "steer_offset_deg", tab["steer_offset_deg"],
                                           *_WHEEL_KEYS["steer_offset_deg"]))
-    empirical = _empirical(p, data)
+    empirical = _empirical(p, data, tuple(wheels))
     if spec is None:
         mass, yaw, spin = rover.weight / GRAVITY, default_yaw_inertia(rover), default_wheel_inertia(ps)  # type: ignore[arg-type]
     else:
         mass, yaw, spin = spec.weight / rover_gravity(spec), suspension_yaw_inertia(spec), rover_file_wheel_inertia(ps)
-        for i, e in enumerate(empirical):
-            if e["direction"] != "drag.body":
-                raise TruthError(f"{p}: [empirical_force #{i + 1}] direction = {e['direction']!r}: on the rover file "
-                                 f"{spec.name} (wheels {', '.join(wheels)}) an empirical term acts on the body only "
-                                 "(drag.body); the per-wheel empirical terms are the mini rover's (FR, FL, RR, RL) in this "
-                                 "version. A per-wheel drag or hub torque on a rover file: [hub_contact]")
     return Truth(
         params=ps, wheel_radius=tuple(radius), steer_offset=tuple(offset),  # type: ignore[arg-type]
         slope=math.radians(vals.get("slope_deg", 0.0)), cross_slope=math.radians(vals.get("cross_slope_deg", 0.0)),

@@ -3,6 +3,7 @@
 Run on demand from the repository root::
 
     OPENBLAS_NUM_THREADS=1 nice python tests/bench/bench_drive_discrepancy_any_rover.py [--duration 20] [--part open|closed|all]
+        [--case LABEL_TEXT ...] [--out PATH]
 
 Two parts, each its own section of the results file (a run of one part keeps the other's section):
 
@@ -239,8 +240,9 @@ def _open_section(rows: list[dict[str, object]], duration: float, commit: str, s
         "`REALISTIC_SENSORS` with the torque noise scaled by weight x wheel radius (0.86 N m). Diagnosis: "
         "`diagnose_drives(..., segment=5)` on the believed `mer_nominal` scenario with the default library made for the "
         "six wheels (`wheel_set.library_for`: every wheel's radius, the four steerable wheels' steering offsets, slope, "
-        "IMU tilt, drawbar pull, servo lag, torque saturation, gyro scale, soil stiffness, all radii; no hub contact or "
-        "anchored tether: their re-simulation hooks are the mini rover's) and the soil recalibration, level 0.001.", "",
+        "IMU tilt, drawbar pull, anchored tether, hub contact, servo lag, torque saturation, gyro scale, soil stiffness, "
+        "all radii, the per-wheel actuator terms screened; force and torque bounds scaled to the rover's weight) and "
+        "the soil recalibration, level 0.001.", "",
         "| case | drive [s] | seed | verdict | named | fitted | truth | outcome | CPU [s] | re-simulations | rows |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
@@ -306,22 +308,29 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="drive length, s (default %(default)s)")
     ap.add_argument("--part", choices=("open", "closed", "all"), default="all",
                     help="open-loop cases, closed-loop (rtctl) cases, or both (default %(default)s)")
+    ap.add_argument("--case", action="append", default=None,  # e.g. --case tether --case "hub drag"
+                    help="only the cases whose label contains this text (repeatable; default every case)")
+    ap.add_argument("--out", default=str(OUT), help="results file (default %(default)s)")
     args = ap.parse_args()
+    out = Path(args.out)
+
+    def chosen(cases):
+        return tuple(c for c in cases if args.case is None or any(k in c.label for k in args.case))
     load0, t_all = os.getloadavg(), time.process_time()
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     stamp = f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"
-    old = OUT.read_text() if OUT.exists() else ""
+    old = out.read_text() if out.exists() else ""
     open_lines, closed_lines = _section(old, OPEN_MARK), _section(old, CLOSED_MARK)
     bad = False
     with tempfile.TemporaryDirectory() as tmp:
         if args.part in ("open", "all"):
-            rows = _run_part(CASES, lambda c: run_case(c, args.duration, Path(tmp)),
+            rows = _run_part(chosen(CASES), lambda c: run_case(c, args.duration, Path(tmp)),
                              lambda r: f"{r['case']} {r['duration']:g} s seed {r['seed']}: {r['verdict']} {r['named']} "
                                        f"{r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} CPU-s)")
             open_lines = _open_section(rows, args.duration, commit, stamp)
             bad |= any(r["outcome"] in ("WRONG NAME", "FALSE ALARM") for r in rows)
         if args.part in ("closed", "all"):
-            rows = _run_part(CLOSED_CASES, lambda c: run_closed_case(c, args.duration, Path(tmp)),
+            rows = _run_part(chosen(CLOSED_CASES), lambda c: run_closed_case(c, args.duration, Path(tmp)),
                              lambda r: f"closed {r['case']} seed {r['seed']}: rtctl {r['heading']:.2f} deg {r['cross']:.2f} "
                                        f"cm; {r['verdict']} {r['named']} {r['fitted']} -> {r['outcome']} ({r['cpu']:.1f} + "
                                        f"{r['cpu_drive']:.1f} CPU-s)")
@@ -332,7 +341,7 @@ def main() -> int:
     lines = [
         "# Drive discrepancy on six-wheel recordings (issue 23)", "",
         f"Last run: `OPENBLAS_NUM_THREADS=1 nice python tests/bench/bench_drive_discrepancy_any_rover.py --part {args.part} "
-        f"--duration {args.duration:g}` at commit {commit}, {stamp}, Python {platform.python_version()}, "
+        f"--duration {args.duration:g}{''.join(f' --case {k!r}' for k in args.case or ())}` at commit {commit}, {stamp}, Python {platform.python_version()}, "
         f"{platform.machine()}; load average {load0[0]:.1f} at the start, {load1[0]:.1f} at the end (2 cores shared); "
         f"{time.process_time() - t_all:.0f} CPU-s in this process in all. One process (`workers=1`), one OpenBLAS thread. "
         "Each part's section says when it was made.", "",
@@ -340,8 +349,8 @@ def main() -> int:
     ]
     if len(reading) == 2:
         lines += ["## Reading (written by hand" + reading[1].rstrip("\n")]
-    write_text(OUT, "\n".join(lines) + "\n")
-    print(f"wrote {OUT}")
+    write_text(out, "\n".join(lines) + "\n")
+    print(f"wrote {out}")
     return 1 if bad else 0
 
 

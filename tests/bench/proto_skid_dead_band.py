@@ -19,7 +19,8 @@ False: only the skid-steer's among the shipped and test tables; every optimal gr
 mini rover table has lateral authority), so the mini rover's commands cannot change. The script
 drives the skid-steer 5 m (``bench_any_rover_drives.py``'s case, seeds 1-3) with rtctl as it is and
 with the copy, and replays the committed mini rover recordings (``tests/data/rec_*.mcap``) with the
-copy. Prints the rows; writes nothing.
+copy. Prints the rows; writes nothing. ``--trace SEED`` drives one seed with the prototype and
+prints where the slip estimate leaves the band (a diagnosis of seed 3, ``results_any_rover_drives.md``).
 """
 
 from __future__ import annotations
@@ -35,6 +36,46 @@ ROOT = Path(__file__).resolve().parents[1].parent
 OLD = "            factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])\n"
 NEW = OLD + ("            if not prev.lateral and abs(s_hat - prev.primitive_slip) < 2.0 * math.sqrt(P[3, 3]):\n"
              "                factor = 1.0  # prototype: dead band on a table without lateral authority\n")
+TRACE = NEW + ("            TRACE.append((float(x[3]), prev.primitive_slip, math.sqrt(P[3, 3]), factor))\n")
+"""The prototype with a trace of each tick's slip estimate, primitive slip, its sigma and the factor
+(``--trace SEED``: a diagnosis, module notes)."""
+
+TRACE_DRIVE = '''
+import sys, time
+import numpy as np
+sys.path.insert(0, str(ROOT / "tests" / "bench"))
+import rtctl.controller as rc
+rc.TRACE = []
+from bench_any_rover_drives import CASES, ROVERS, _controller
+from offline.rover.scenario import load_scenario
+from offline.sim.experiments import run_drive
+from offline.sim.simulator import RoverSimulator
+case = [c for c in CASES if c.scenario == "skid_fr_unpowered" and c.controller == "rtctl" and not c.noise_free][0]
+sc = load_scenario(ROVERS / f"{case.scenario}.toml").with_(speed=case.speed)
+ctl, _ = _controller(case, sc)
+res = run_drive(RoverSimulator(sc, seed=SEED), ctl, distance=5.0, max_time=15.0 / case.speed)
+tr = np.array(rc.TRACE)  # s_hat, primitive slip, sigma, factor (the ticks where the shift was considered)
+truth = res.truth
+t = np.array([s.t for s in truth]); head = np.degrees([s.heading for s in truth])
+slip_true = np.array([np.mean(s.slip) for s in truth])
+rim = np.array([c.rim_speed for c in res.commands])
+band = np.abs(tr[:, 0] - tr[:, 1]) < 2.0 * tr[:, 2]
+n = len(tr)
+print(f"seed {SEED}: {n} ticks with the shift considered; in the band {band.sum()} ({100 * band.mean():.1f} %)")
+for lo, hi in ((0, n // 4), (n // 4, n // 2), (n // 2, 3 * n // 4), (3 * n // 4, n)):
+    sl = slice(lo, hi)
+    print(f"  ticks {lo}-{hi}: in band {100 * band[sl].mean():5.1f} %, sigma median {np.median(tr[sl, 2]):.4f}, "
+          f"s_hat - s_prim median {np.median(tr[sl, 0] - tr[sl, 1]):+.4f} (abs p90 {np.quantile(np.abs(tr[sl, 0] - tr[sl, 1]), 0.9):.4f}), "
+          f"s_prim range {tr[sl, 1].min():+.4f}..{tr[sl, 1].max():+.4f}, factor range {tr[sl, 3].min():.3f}..{tr[sl, 3].max():.3f}")
+k = int(np.argmax(np.abs(head)))
+print(f"  max |heading| {abs(head[k]):.3f} deg at t = {t[k]:.1f} s of {t[-1]:.1f} s; true mean slip median {np.median(slip_true):+.4f}")
+d = np.abs(np.diff(rim, axis=0)).max(axis=1)
+out = ~band
+runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], out.astype(int), [0]]))))[::2] if out.any() else np.array([0])
+print(f"  out-of-band runs: {len(runs)}, longest {runs.max()} ticks; per-wheel max rim change p90 in band "
+      f"{1e3 * np.quantile(d[:n][band[:len(d)]], 0.9) if band.any() else float('nan'):.3f} mm/s, out of band "
+      f"{1e3 * np.quantile(d[:n][out[:len(d)]], 0.9) if out.any() else float('nan'):.3f} mm/s")
+'''
 
 DRIVES = '''
 import sys, time
@@ -83,6 +124,14 @@ def _run(code: str, first: Path | None, label: str) -> None:
 
 
 def main() -> int:
+    if len(sys.argv) == 3 and sys.argv[1] == "--trace":
+        with tempfile.TemporaryDirectory() as tmp:
+            copy = Path(tmp) / "rtctl"
+            shutil.copytree(ROOT / "rtctl", copy, ignore=shutil.ignore_patterns("__pycache__"))
+            src = (copy / "controller.py").read_text()
+            (copy / "controller.py").write_text(src.replace(OLD, TRACE).replace("\nimport math\n", "\nimport math\nTRACE: list = []\n", 1))
+            _run(f"SEED = {int(sys.argv[2])}\n" + TRACE_DRIVE, Path(tmp), "trace")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         copy = Path(tmp) / "rtctl"
         shutil.copytree(ROOT / "rtctl", copy, ignore=shutil.ignore_patterns("__pycache__"))

@@ -82,7 +82,7 @@ from numpy.typing import NDArray
 from ...files import write_text
 from ...physics.backend import NUMPY
 from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING, HubFace, passive_force
-from ...physics.params import ParameterError, ParameterSet, Rover, Soil
+from ...physics.params import ParameterError, ParameterSet, Soil
 from ...sim.simulator import DisturbanceForces, TruthState
 from ...sim.truth import WHEELS, Truth
 from ..wheel.candidates import Candidate
@@ -92,7 +92,7 @@ __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDI
            "PER_WHEEL_ACTUATOR_KEYS", "NEUTRAL_VALUES", "actuator_commands", "RoverTerms", "rover_terms", "recalibration_candidate",
            "truth_from_terms", "write_truth_toml", "DriveCandidateError", "HubContact", "disturbance_from_terms",
            "disturbance_from_truth",
-           "AnchoredTether", "Hooks", "PosePath",
+           "AnchoredTether", "Hooks", "PosePath", "wheel_plan_positions", "backward_rover_file",
            "TABLE_BUILDER_TAKES", "RoverExtension", "MEASUREMENT_KEYS"]
 
 ROVER_KEYS = (
@@ -225,6 +225,30 @@ def _opt(**kw: float) -> RoverExtension:
 _D = math.pi / 180.0
 
 
+def wheel_plan_positions(rover: Any) -> NDArray[np.float64]:
+    """Plan positions ``(x forward, y left)`` of the wheel centres in the body frame, m, one row per
+    wheel: the mini rover's (:class:`~offline.physics.params.Rover`: ``(+-l/2, -+w/2)``, order FR,
+    FL, RR, RL) or a rover file's (:class:`rtctl.physics.rover_file.RoverSpec`: its wheels in file
+    order; a backward drive's spec is already turned into the travel frame,
+    :func:`rtctl.physics.rover_file.driving_backward`)."""
+    wheels = getattr(rover, "wheels", None)
+    if wheels is not None:
+        return np.array([[float(w.position[0]), float(w.position[1])] for w in wheels])
+    lr, wr = rover.rocker_length / 2, rover.track_width / 2
+    return np.array([[lr, -wr], [lr, wr], [-lr, -wr], [-lr, wr]])
+
+
+def _wheel_count(rover: Any) -> int:
+    wheels = getattr(rover, "wheels", None)
+    return len(WHEELS) if wheels is None else len(wheels)
+
+
+def backward_rover_file(rover: Any) -> bool:
+    """Whether ``rover`` is a rover file turned for a backward drive (the simulator's own test,
+    :attr:`offline.sim.simulator.RoverSimulator.backward`)."""
+    return bool(getattr(rover, "wheels", None) is not None and str(getattr(rover, "name", "")).endswith(" (backward)"))
+
+
 @dataclass(frozen=True)
 class HubContact:
     """Hub or body contact with the soil: a face that bulldozes soil once a wheel sinks beyond a clearance.
@@ -245,15 +269,17 @@ class HubContact:
         The face's geometry, m: as :class:`rtctl.physics.hub_drag.HubFace` (the NLP's and the
         tables' term, :func:`rtctl.physics.hub_drag.hub_wrench`, with the same drag force).
     soil : Soil
-    rover : Rover
-        Wheel positions (rocker length, track width; order FR, FL, RR, RL).
+    rover : Rover or RoverSpec
+        Wheel positions: the mini rover's (rocker length, track width; order FR, FL, RR, RL) or a
+        rover file's (:class:`rtctl.physics.rover_file.RoverSpec`: its wheels' plan positions in
+        its order, the body frame of the plant -- the travel frame of a backward drive, issue 23).
     """
 
     clearance: float
     face_width: float
     arm: float
     soil: Soil
-    rover: Rover
+    rover: Any
 
     def __post_init__(self) -> None:
         try:
@@ -267,16 +293,19 @@ class HubContact:
         return np.asarray(passive_force(NUMPY, e, self.face_width, self.soil), dtype=float)
 
     def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
-        """The forces over the next step (contract C5)."""
+        """The forces over the next step (contract C5), one per wheel of :attr:`rover`."""
         f = self.force(np.array(s.sinkage))
-        lr, wr = self.rover.rocker_length, self.rover.track_width
-        xs, ys = np.array([lr, lr, -lr, -lr]) / 2, np.array([-wr, wr, -wr, wr]) / 2
+        xy = wheel_plan_positions(self.rover)
+        if len(f) != len(xy):
+            raise DriveCandidateError(f"hub contact on {getattr(self.rover, 'name', 'the rover')}: the state has {len(f)} "
+                                      f"wheels, the rover {len(xy)}")
+        xs, ys = xy[:, 0], xy[:, 1]
         vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
         norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
         om = np.array(s.omega)
         torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
         return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
-                                 wheel_torque=cast(tuple[float, float, float, float], tuple(float(x) for x in torque)))
+                                 wheel_torque=tuple(float(x) for x in torque))
 
 
 PosePath = Any
@@ -362,35 +391,64 @@ class AnchoredTether:
 
 @dataclass(frozen=True)
 class Hooks:
-    """Several disturbance hooks acting together (their forces add)."""
+    """Several disturbance hooks acting together on a rover of ``wheels`` wheels (their forces add)."""
 
     hooks: tuple[Any, ...]
+    wheels: int = 4
 
     def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
         """The summed forces over the next step (contract C5)."""
-        v = sum(h(t, s).vector() for h in self.hooks)
-        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2], wheel_force=tuple(zip(v[3:7], v[7:11])),
-                                 wheel_torque=tuple(v[11:15]))
+        n = self.wheels
+        v = sum(h(t, s).vector(n) for h in self.hooks)
+        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2], wheel_force=tuple(zip(v[3:3 + n], v[3 + n:3 + 2 * n])),
+                                 wheel_torque=tuple(v[3 + 2 * n:3 + 3 * n]))
 
 
-def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rover: Rover,
+def _travel_pose(pose_at: PosePath) -> PosePath:
+    """A recorded (body-frame) pose path in the travel frame of a backward drive: heading + pi."""
+    def turned(t: float) -> tuple[float, float, float]:
+        x, y, h = pose_at(t)
+        return x, y, h + math.pi
+    return turned
+
+
+def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rover: Any,
                            pose_at: PosePath = None) -> Any:
     """The simulator disturbance hook of an extension's hub-contact and anchored-tether terms (None
-    without them; :class:`Hooks` with both). ``pose_at``: :class:`AnchoredTether`."""
+    without them; :class:`Hooks` with both).
+
+    Parameters
+    ----------
+    ext : RoverExtension or None
+    params : ParameterSet
+        The believed set (the hub contact's soil, with ``ext``'s soil changes).
+    rover : Rover or RoverSpec
+        The mini rover or a rover file (a scenario's ``rover_file``, issue 23): the hub contact acts
+        at its wheels (:func:`wheel_plan_positions`). A backward drive's file (turned half round,
+        :func:`rtctl.physics.rover_file.driving_backward`) puts the plant in the travel frame: the
+        anchored tether's attachment ``attach_x`` (body frame of the rover as built) becomes
+        ``-attach_x`` there and a recorded ``pose_at`` heading (the body's) gains pi, so the cable
+        pulls the same way in the world.
+    pose_at : callable, optional
+        :class:`AnchoredTether`.
+    """
     t = rover_terms(ext)
     hooks: list[Any] = []
     if "hub_clearance" in t:
         soil = replace(params.soil, **dict[str, Any](ext.soil)) if ext is not None and ext.soil else params.soil
         hooks.append(HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover))
     if "anchor_tension" in t:
+        back = backward_rover_file(rover)
         hooks.append(AnchoredTether(t["anchor_tension"], t.get("anchor_bearing", math.pi), t.get("anchor_inverse_distance", 0.0),
-                                    t.get("anchor_attach_x", 0.0), t.get("anchor_spring_rate", 0.0), pose_at))
+                                    -t.get("anchor_attach_x", 0.0) if back else t.get("anchor_attach_x", 0.0),
+                                    t.get("anchor_spring_rate", 0.0),
+                                    _travel_pose(pose_at) if back and pose_at is not None else pose_at))
     if not hooks:
         return None
-    return hooks[0] if len(hooks) == 1 else Hooks(tuple(hooks))
+    return hooks[0] if len(hooks) == 1 else Hooks(tuple(hooks), _wheel_count(rover))
 
 
-def disturbance_from_truth(truth: Truth, rover: Rover) -> Any:
+def disturbance_from_truth(truth: Truth, rover: Any) -> Any:
     """The simulator's disturbance hook of a truth file's hook sections: ``[tether_anchor]``,
     ``[hub_contact]`` and ``[[empirical_force]]`` (:class:`~offline.discrepancy.drive.empirical.EmpiricalTerms`
     localised by the simulator's own time and pose); None without any.
@@ -405,10 +463,10 @@ def disturbance_from_truth(truth: Truth, rover: Rover) -> Any:
     hook = disturbance_from_terms(RoverExtension(terms=terms), truth.params, rover) if terms else None
     if not truth.empirical:
         return hook
-    from .empirical import EmpiricalTerms, terms_from_truth
+    from .empirical import EmpiricalTerms, terms_from_truth, wheel_names
 
-    more = EmpiricalTerms(terms_from_truth(truth.empirical), rover).hook()
-    return more if hook is None else Hooks((hook, more))
+    more = EmpiricalTerms(terms_from_truth(truth.empirical, wheel_names(rover)), rover).hook()
+    return more if hook is None else Hooks((hook, more), _wheel_count(rover))
 
 
 def _term_build(key: str, base: float) -> Callable[[NDArray[np.float64], ParameterSet], RoverExtension]:

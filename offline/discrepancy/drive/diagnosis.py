@@ -290,10 +290,10 @@ def _sum_hooks(a: Callable[[float, Any], Any], b: Callable[[float, Any], Any]) -
 
     def hook(t: float, s: Any) -> Any:
         f, g = a(t, s), b(t, s)
-        return DisturbanceForces(body_force=(f.body_force[0] + g.body_force[0], f.body_force[1] + g.body_force[1]),
-                                 body_moment_z=f.body_moment_z + g.body_moment_z,
-                                 wheel_force=tuple((p[0] + q[0], p[1] + q[1]) for p, q in zip(f.wheel_force, g.wheel_force)),
-                                 wheel_torque=tuple(p + q for p, q in zip(f.wheel_torque, g.wheel_torque)))
+        n = max(len(f.wheel_torque), len(g.wheel_torque))  # a body-only hook's zeros fit any wheel count
+        v = f.vector(n) + g.vector(n)
+        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2],
+                                 wheel_force=tuple(zip(v[3:3 + n], v[3 + n:3 + 2 * n])), wheel_torque=tuple(v[3 + 2 * n:]))
 
     return hook
 
@@ -1031,7 +1031,7 @@ class DriveModel:
             # pose-dependent hooks (an anchored tether) see the recorded pose of the tick being solved
             # (the simulator's own clock skips the ticks interpolated in steady stretches)
             path, clock = _recorded_pose(d), [0.0]
-            hook = disturbance_from_terms(ext, self.params, self.scenario.rover,
+            hook = disturbance_from_terms(ext, self.params, self.scenario.rover_file or self.scenario.rover,
                                           None if path is None else (lambda t: path(clock[0])))
             if extra is not None:
                 more = extra.hook(lambda: clock[0], lambda tt: (float(np.interp(tt, d.t, d.pose[:, 0])),
@@ -1221,10 +1221,8 @@ def diagnose_drives(
         When the library does not explain the drive (verdict ``unexplained``, ``ambiguous`` or
         ``partly_explained``), model what it lacks with the generic empirical family
         (:func:`offline.discrepancy.drive.empirical.search_empirical`, same seed and level); the result
-        is ``verdict.empirical`` and the library's verdict is kept. Not for a rover file's recording
-        in this version (the empirical terms act through the simulator's disturbance hook, which
-        the rover-file plant does not take): ``verdict.empirical`` stays None and ``progress``
-        says so.
+        is ``verdict.empirical`` and the library's verdict is kept (a rover file's recording: the
+        terms on its own wheels, issue 23).
     workers : int
         Processes the independent re-simulations run on (:func:`offline.discrepancy.engine.diagnose`);
         the verdict does not depend on it, bit for bit. 1 (default): this process; the command
@@ -1251,11 +1249,7 @@ def diagnose_drives(
                  n_points=n_points, max_nfev=max_nfev, max_tries=max_tries, seed=seed, progress=progress,
                  forward="always", fit_tol=fit_tol, alpha_after=max(alpha_after, alpha), forward_extra=False,
                  polish_nfev=0, workers=workers, refit_in_turn=True)
-    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained") and scenario.rover_file is not None:
-        if progress is not None:
-            progress(f"no empirical search: its terms act through the simulator's disturbance hook, which the plant of "
-                     f"the rover file {scenario.rover_file.name} does not take in this version")
-    elif empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
+    if empirical and v.status in ("unexplained", "ambiguous", "partly_explained"):
         from .empirical import search_empirical
 
         t0 = time.perf_counter()

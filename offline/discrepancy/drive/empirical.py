@@ -104,7 +104,7 @@ from ...sim.truth import WHEELS
 from ..significance import normalised
 
 __all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
-           "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth"]
+           "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth", "direction_text", "wheel_names"]
 
 DIRECTIONS: dict[str, tuple[str, str]] = {
     "drag.body": ("resisting force at the centre of mass against the rover's travel", "N"),
@@ -126,10 +126,43 @@ _SHAPES = ("constant", "box", "step", "hinge", "saturation")
 _STATE = ("sinkage", "slip", "slip_angle")
 
 
+_PER_WHEEL_KINDS = ("drag", "torque", "speed_loss")
+
+
 def _wheel_xy(rover: Any) -> NDArray[np.float64]:
-    """Body-frame contact positions (x forward, y left) of FR, FL, RR, RL, m."""
-    lr, wr = rover.rocker_length / 2, rover.track_width / 2
-    return np.array([[lr, -wr], [lr, wr], [-lr, -wr], [-lr, wr]])
+    """Body-frame contact positions (x forward, y left), m: FR, FL, RR, RL of the mini rover, or
+    a rover file's wheels in its order (:func:`~offline.discrepancy.drive.candidates.wheel_plan_positions`)."""
+    from .candidates import wheel_plan_positions
+
+    return wheel_plan_positions(rover)
+
+
+def wheel_names(rover: Any) -> tuple[str, ...]:
+    """The wheel names of ``rover``: the mini rover's (:data:`~offline.sim.truth.WHEELS`) or a
+    rover file's (:attr:`rtctl.physics.rover_file.RoverSpec.wheel_names`, issue 23)."""
+    return tuple(getattr(rover, "wheel_names", WHEELS))
+
+
+def direction_text(direction: str, wheels: Sequence[str] = WHEELS) -> tuple[str, str]:
+    """``(what acts, report unit)`` of a direction on a wheel set: :data:`DIRECTIONS` (the mini
+    rover's wheels), or a per-wheel direction (``drag``, ``torque``, ``speed_loss``) of a rover
+    file's wheel (``drag.LM`` on the MER-class rover), worded as the mini rover's.
+
+    Raises
+    ------
+    ValueError
+        An unknown direction, or a wheel not in ``wheels``.
+    """
+    kind, dot, w = direction.partition(".")
+    mini = tuple(wheels) == WHEELS
+    if direction in DIRECTIONS and (mini or not (kind in _PER_WHEEL_KINDS and w not in ("body", "each"))):
+        return DIRECTIONS[direction]
+    if kind in _PER_WHEEL_KINDS and w in wheels:
+        what, unit = DIRECTIONS[f"{kind}.FR"]
+        return what.replace("FR", w), unit
+    raise ValueError(f"empirical term: unknown direction {direction!r} on the wheels {', '.join(wheels)}; known: "
+                     f"{[d for d in DIRECTIONS if d.partition('.')[0] not in _PER_WHEEL_KINDS or d.partition('.')[2] in ('body', 'each')]} "
+                     f"and {list(_PER_WHEEL_KINDS)} of a wheel: <kind>.<wheel>")
 
 
 @dataclass(frozen=True)
@@ -149,6 +182,9 @@ class EmpiricalTerm:
         Edges or threshold (SI: s, m, m, -, rad, m/s).
     magnitude : float
         SI (N, N m, fraction, rad/s, rad); for ``hinge`` per unit of the variable.
+    wheels : tuple of str
+        The wheel set a per-wheel direction names a wheel of (default the mini rover's; a rover
+        file's wheels, issue 23). Not compared.
 
     Raises
     ------
@@ -162,10 +198,10 @@ class EmpiricalTerm:
     lo: float = -math.inf
     hi: float = math.inf
     magnitude: float = 0.0
+    wheels: tuple[str, ...] = field(default=WHEELS, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.direction not in DIRECTIONS:
-            raise ValueError(f"empirical term: unknown direction {self.direction!r}; known: {list(DIRECTIONS)}")
+        direction_text(self.direction, self.wheels)  # raises on an unknown direction
         if self.where not in _WHERE_UNIT:
             raise ValueError(f"empirical term: unknown localisation {self.where!r}; known: {list(_WHERE_UNIT)}")
         if self.shape not in _SHAPES:
@@ -187,6 +223,11 @@ class EmpiricalTerm:
     def target(self) -> str:
         """``body``, a wheel name, ``each`` or a reading channel."""
         return self.direction.split(".", 1)[1]
+
+    @property
+    def on_wheel(self) -> bool:
+        """Whether the term acts on one named wheel (``drag.<W>``, ``torque.<W>``, ``speed_loss.<W>``)."""
+        return self.kind in _PER_WHEEL_KINDS and self.target not in ("body", "each")
 
     @property
     def n_params(self) -> int:
@@ -217,7 +258,7 @@ class EmpiricalTerm:
         name = {"time": "t", "x": "x", "y": "y", "sinkage": "sinkage", "slip": "slip", "slip_angle": "|slip angle|",
                 "command": "|command|"}.get(self.where, "")
         whose = (" of each wheel" if self.target == "each" else f" of the {self.target} wheel"
-                 if self.where in _STATE or (self.where in ("x", "y") and self.kind != "drag" or self.target in WHEELS)
+                 if self.where in _STATE or (self.where in ("x", "y") and self.kind != "drag" or self.on_wheel)
                  and self.where not in ("time",) else " of the centre of mass" if self.where in ("x", "y") else "")
         if self.shape == "constant":
             return "throughout the drive"
@@ -232,7 +273,7 @@ class EmpiricalTerm:
 
     def law(self) -> str:
         """The term as one report line (e.g. ``extra resisting force 0.4 N per wheel for x in [1.0, 1.6) m``)."""
-        what, unit = DIRECTIONS[self.direction]
+        what, unit = direction_text(self.direction, self.wheels)
         m = self.magnitude * _REPORT_SCALE.get(self.direction, 1.0)
         if self.kind == "speed_loss":
             w = self.target
@@ -287,8 +328,9 @@ class EmpiricalTerms:
     Parameters
     ----------
     terms : tuple of EmpiricalTerm
-    rover : Rover
-        Wheel positions (rocker length, track width).
+    rover : Rover or RoverSpec
+        Wheel names and positions: the mini rover (rocker length, track width; FR, FL, RR, RL) or
+        a rover file (its wheels, in its order; issue 23).
     logger : list, optional
         When given, the disturbance hook appends each truth state it sees (``(t, state)``)
         and the hook is installed even without a force term (forces zero).
@@ -318,6 +360,11 @@ class EmpiricalTerms:
         if not forces and self.logger is None:
             return None
         xy = _wheel_xy(self.rover)
+        names = wheel_names(self.rover)
+        nw = len(names)
+        from .candidates import backward_rover_file
+
+        back = backward_rover_file(self.rover)
         log = self.logger
 
         def hook(tt: float, s: Any) -> DisturbanceForces:
@@ -325,10 +372,12 @@ class EmpiricalTerms:
             if log is not None:
                 log.append((now, s))
             bf = np.zeros(2)
-            wf = np.zeros((4, 2))
-            wt = np.zeros(4)
+            wf = np.zeros((nw, 2))
+            wt = np.zeros(nw)
             if forces:
                 X, Y, H = (s.x, s.y, s.heading) if pose_of is None else pose_of(now)
+                if pose_of is not None and back:
+                    H += math.pi  # a recorded (body) heading; the plant and the wheel positions are in the travel frame
                 c, sn = math.cos(H), math.sin(H)
                 vx, vy = s.u - s.yaw_rate * xy[:, 1], s.v + s.yaw_rate * xy[:, 0]
                 state = {"sinkage": np.asarray(s.sinkage, float), "slip": np.asarray(s.slip, float),
@@ -340,7 +389,7 @@ class EmpiricalTerms:
                         sp = math.sqrt(s.u * s.u + s.v * s.v + SPEED_SMOOTHING ** 2)
                         bf += (-g * s.u / sp, -g * s.v / sp)
                         continue
-                    idx = range(4) if t.target == "each" else [WHEELS.index(t.target)]
+                    idx = range(nw) if t.target == "each" else [names.index(t.target)]
                     for i in idx:
                         if t.where == "time":
                             v = now
@@ -361,7 +410,7 @@ class EmpiricalTerms:
                             wt[i] += g * om / math.sqrt(om * om + SPIN_SMOOTHING ** 2)
             return DisturbanceForces(body_force=(float(bf[0]), float(bf[1])),
                                      wheel_force=tuple((float(a), float(b)) for a, b in wf),
-                                     wheel_torque=(float(wt[0]), float(wt[1]), float(wt[2]), float(wt[3])))
+                                     wheel_torque=tuple(float(x) for x in wt))
 
         return hook
 
@@ -372,7 +421,7 @@ class EmpiricalTerms:
         for term in self.terms:
             if term.kind != "speed_loss":
                 continue
-            i = WHEELS.index(term.target)
+            i = wheel_names(self.rover).index(term.target)
             v = {"time": t, "command": rim[:, i]}.get(term.where, np.zeros(len(t)))
             rim[:, i] = rim[:, i] * (1.0 - term.magnitude * term.weight(v))
         return rim, np.asarray(steer, dtype=float)
@@ -415,15 +464,17 @@ def truth_entries(terms: Sequence[EmpiricalTerm]) -> list[dict[str, Any]]:
     return out
 
 
-def terms_from_truth(entries: Sequence[dict[str, Any]]) -> tuple[EmpiricalTerm, ...]:
-    """The terms of :attr:`offline.sim.truth.Truth.empirical` (SI dicts).
+def terms_from_truth(entries: Sequence[dict[str, Any]], wheels: Sequence[str] = WHEELS) -> tuple[EmpiricalTerm, ...]:
+    """The terms of :attr:`offline.sim.truth.Truth.empirical` (SI dicts) on a wheel set (default the
+    mini rover's; a rover file's wheels, issue 23).
 
     Raises
     ------
     ValueError
         A combination the family does not have (e.g. a body drag localised in a wheel's sinkage).
     """
-    return tuple(EmpiricalTerm(e["direction"], e["where"], e["shape"], e["lo"], e["hi"], e["magnitude"]) for e in entries)
+    return tuple(EmpiricalTerm(e["direction"], e["where"], e["shape"], e["lo"], e["hi"], e["magnitude"], tuple(wheels))
+                 for e in entries)
 
 
 @dataclass
@@ -571,14 +622,35 @@ def _edges(v: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return e
 
 
-def _box_terms(direction: str, where: str, edges: NDArray[np.float64], min_span: int = 1) -> list[EmpiricalTerm]:
+def _box_terms(direction: str, where: str, edges: NDArray[np.float64], min_span: int = 1,
+               wheels: tuple[str, ...] = WHEELS) -> list[EmpiricalTerm]:
     out = []
     for i in range(len(edges)):
         for j in range(i + min_span, len(edges)):
             if i == 0 and j == len(edges) - 1:
                 continue  # the whole range: the constant term
-            out.append(EmpiricalTerm(direction, where, "box", float(edges[i]), float(edges[j]), 1.0))
+            out.append(EmpiricalTerm(direction, where, "box", float(edges[i]), float(edges[j]), 1.0, wheels))
     return out
+
+
+def _rover_of(model: Any) -> Any:
+    """The rover the empirical terms act on: the believed scenario's rover file (its wheels, in the
+    plant's frame: a backward drive's file is turned) or the mini rover."""
+    sc = model.scenario
+    rf = getattr(sc, "rover_file", None)
+    return sc.rover if rf is None else rf
+
+
+def _unit_scales(model: Any) -> tuple[float, float]:
+    """Force and torque scales of the unit terms: 1 on the mini rover; on a rover file its weight
+    (and weight x wheel radius) over the mini rover's
+    (:func:`~offline.discrepancy.drive.wheel_set.rover_scales`), so a unit term moves a heavy
+    rover's readings as much as the mini rover's (the sensitivities are linear in the term; its
+    size keeps the re-simulation's change well above the plant solver's tolerance)."""
+    from .wheel_set import rover_scales
+
+    force, length = rover_scales(model.scenario)
+    return force, force * length
 
 
 class _Search:
@@ -587,16 +659,19 @@ class _Search:
     def __init__(self, obs: Any, model: Any, scale: dict[str, float], time_step: int = 2, n_position: int = 16,
                  n_state: int = 10) -> None:
         self.obs, self.model, self.scale = obs, model, scale
-        rover = model.scenario.rover
+        rover = _rover_of(model)
         self.rover = rover
+        self.wheels = names = wheel_names(rover)
         nd = len(obs.drives)
         chans = obs.channels
         self.values = len(obs) * len(chans)
         # step 1: the base re-simulation with a state logger and one per direction
         sims0 = model.simulations
         base, states, contrib = [], [], []
-        unit = {"drag.body": 0.5, **{f"drag.{w}": 0.3 for w in WHEELS}, **{f"torque.{w}": 0.02 for w in WHEELS},
-                **{f"speed_loss.{w}": 0.1 for w in WHEELS}}
+        # unit terms: the mini rover's sizes, forces and torques scaled by the rover's weight (x wheel radius)
+        f, m = _unit_scales(model)
+        unit = {"drag.body": 0.5 * f, **{f"drag.{w}": 0.3 * f for w in names}, **{f"torque.{w}": 0.02 * m for w in names},
+                **{f"speed_loss.{w}": 0.1 for w in names}}
         for k in range(nd):
             d = obs.drives[k]
             log: list[Any] = []
@@ -612,12 +687,12 @@ class _Search:
                 vals = np.array([np.asarray(getattr(s, name), float) for _, s in log])[order]
                 if name == "slip_angle":
                     vals = np.abs(vals)
-                st[name] = np.stack([np.interp(d.t, tt, vals[:, i]) for i in range(4)], axis=1) if tt.size else \
-                    np.full((len(d.t), 4), np.nan)
+                st[name] = np.stack([np.interp(d.t, tt, vals[:, i]) for i in range(len(names))], axis=1) if tt.size else \
+                    np.full((len(d.t), len(names)), np.nan)
             states.append(st)
             cd: dict[str, NDArray[np.float64]] = {}
             for direction, m0 in unit.items():
-                ext_terms = EmpiricalTerms((EmpiricalTerm(direction, magnitude=m0),), rover)
+                ext_terms = EmpiricalTerms((EmpiricalTerm(direction, magnitude=m0, wheels=names),), rover)
                 ticks1, body1, ok1 = model.simulate(d, None, obs.heading_offset, ext_terms)
                 if not ok1:
                     cd[direction] = np.zeros((len(d.t), len(chans)))
@@ -638,7 +713,7 @@ class _Search:
             X, Y, H = d.pose[:, 0], d.pose[:, 1], d.pose[:, 2]
             c, s = np.cos(H), np.sin(H)
             v = {"time": d.t, "x.body": X, "y.body": Y}
-            for i, w in enumerate(WHEELS):
+            for i, w in enumerate(names):
                 v[f"x.{w}"] = X + c * xy[i, 0] - s * xy[i, 1]
                 v[f"y.{w}"] = Y + s * xy[i, 0] + c * xy[i, 1]
                 for name in _STATE:
@@ -668,7 +743,7 @@ class _Search:
             groups.setdefault((t.direction, t.where), []).append(j)
         for (direction, where), idx in groups.items():
             kind, target = direction.split(".", 1)
-            parts = [direction] if target != "each" else [f"{kind}.{w}" for w in WHEELS]
+            parts = [direction] if target != "each" else [f"{kind}.{w}" for w in self.wheels]
             for k in range(len(self.obs.drives)):
                 rows = np.flatnonzero(self.obs.drive == k)
                 rows = rows[np.argsort(self.obs.segment[rows])]
@@ -691,20 +766,20 @@ class _Search:
         seg_t = np.unique(np.concatenate([d.t[s.bounds[:, 0]] for d, s in zip(obs.drives, obs.segments)]))
         tedges = np.append(seg_t[::self.time_step], np.nextafter(t_all.max(), np.inf))
         for direction in dirs + ["drag.each", "torque.each"]:
-            terms.append(EmpiricalTerm(direction))
-            terms += _box_terms(direction, "time", tedges) if direction not in ("drag.each", "torque.each") else []
+            terms.append(EmpiricalTerm(direction, wheels=self.wheels))
+            terms += _box_terms(direction, "time", tedges, wheels=self.wheels) if direction not in ("drag.each", "torque.each") else []
             if direction not in ("drag.each", "torque.each"):
-                terms += [EmpiricalTerm(direction, "time", "step", float(e), math.inf, 1.0) for e in tedges[1:-1]]
+                terms += [EmpiricalTerm(direction, "time", "step", float(e), math.inf, 1.0, self.wheels) for e in tedges[1:-1]]
         if self.has_pose:
             for direction in ("drag.body", "drag.each"):
                 for axis in ("x", "y"):
-                    keys = [f"{axis}.body"] if direction == "drag.body" else [f"{axis}.{w}" for w in WHEELS]
+                    keys = [f"{axis}.body"] if direction == "drag.body" else [f"{axis}.{w}" for w in self.wheels]
                     vals = np.concatenate([v[key] for v in self.var for key in keys])
-                    terms += _box_terms(direction, axis, _edges(vals, self.n_position))
+                    terms += _box_terms(direction, axis, _edges(vals, self.n_position), wheels=self.wheels)
         q = np.linspace(0.05, 0.95, self.n_state)
         for name in _STATE:
-            for w in [*WHEELS, "each"]:
-                ws = WHEELS if w == "each" else [w]
+            for w in [*self.wheels, "each"]:
+                ws = self.wheels if w == "each" else [w]
                 vals = np.concatenate([v[f"{name}.{x}"] for v in self.var for x in ws])
                 vals = vals[np.isfinite(vals)]
                 if vals.size == 0:
@@ -712,11 +787,11 @@ class _Search:
                 for thr in np.unique(np.quantile(vals, q)):
                     for kind in ("drag", "torque"):
                         for shape in ("step", "hinge"):
-                            terms.append(EmpiricalTerm(f"{kind}.{w}", name, shape, float(thr), math.inf, 1.0))
-        for w in WHEELS:
+                            terms.append(EmpiricalTerm(f"{kind}.{w}", name, shape, float(thr), math.inf, 1.0, self.wheels))
+        for w in self.wheels:
             cm = np.unique(np.round(np.abs(np.concatenate([v[f"command.{w}"] for v in self.var])), 6))
             thr = np.unique(np.concatenate([[0.0], 0.5 * (cm[1:] + cm[:-1]), cm[cm > 0] * 0.999]))
-            terms += [EmpiricalTerm(f"speed_loss.{w}", "command", "saturation", float(c), math.inf, 1.0) for c in thr
+            terms += [EmpiricalTerm(f"speed_loss.{w}", "command", "saturation", float(c), math.inf, 1.0, self.wheels) for c in thr
                       if c < cm.max()]
         A = self.response(terms)
         norm = np.einsum("ij,ij->i", A, A)
@@ -787,7 +862,7 @@ def _fit_real(model: Any, obs: Any, scale: dict[str, float], done: Sequence[Empi
     fit replaces the linear column (a secant step), on ``rows`` (default all)."""
     if term.kind == "offset" or term.magnitude == 0.0:
         return term
-    rover = model.scenario.rover
+    rover = _rover_of(model)
     p0, _ = model.predict(obs, None, EmpiricalTerms(tuple(done), rover) if done else None)
     p1, _ = model.predict(obs, None, EmpiricalTerms((*done, term), rover))
     z0, z1 = normalised(obs, p0, scale), normalised(obs, p1, scale)
@@ -865,7 +940,7 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     folds = interleaved_folds(obs, k_folds)
     fold_of_value = np.repeat(folds, nc)
     rng = np.random.default_rng(seed + 24)
-    rover = model.scenario.rover
+    rover = _rover_of(model)
     pred0, _ = model.predict(obs, None)
     z_base = normalised(obs, pred0, scale)
     chi2_base = float((z_base ** 2).sum())

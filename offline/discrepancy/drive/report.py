@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +23,98 @@ from .candidates import PER_WHEEL_ACTUATOR_KEYS, TABLE_BUILDER_TAKES, RoverExten
 from .diagnosis import DriveModel, DriveRecording, accepted_extension
 from .empirical import truth_entries
 
-__all__ = ["write_drive_report"]
+__all__ = ["write_drive_report", "params_reference"]
+
+BELIEVED_PARAMS = "believed_params.toml"
+"""The believed parameter set written beside ``accepted_truth.toml`` when no preset or file names it
+(:func:`params_reference`)."""
+
+
+def _scenario_params_ref(scenario: Any) -> tuple[str, Path | None]:
+    """The believed scenario's own parameter reference and the folder a file reference is relative to:
+    its ``[scenario] params``; else a rover file's wheels' one set (``params`` of its wheels, beside
+    the rover file); else the mini rover's default ``dissertation-ch7`` (:func:`offline.rover.scenario.load_scenario`)."""
+    src = Path(str(getattr(scenario, "source", "") or ""))
+    try:
+        vals = tomllib.loads(src.read_text()).get("scenario", {}) if src.is_file() else {}
+    except (OSError, tomllib.TOMLDecodeError):
+        vals = {}
+    if isinstance(vals.get("params"), str):
+        return vals["params"], src.parent
+    rf = getattr(scenario, "rover_file", None)
+    if rf is not None:
+        refs = {rf.wheel_params(w) for w in rf.wheel_names}
+        if len(refs) == 1:
+            return next(iter(refs)), Path(rf.path).parent if rf.path else None
+        return "", None
+    return "dissertation-ch7", None
+
+
+def _load_ref(ref: str, base: Path | None) -> tuple[Any, Path | None]:
+    """The parameter set a reference names and its file (None for a built-in preset); (None, None)
+    when it names none."""
+    from ...physics.params import ParameterError, load_toml
+    from ...rover.scenario import PARAM_PRESETS, param_preset_file
+
+    if not ref:
+        return None, None
+    if ref in PARAM_PRESETS:
+        return PARAM_PRESETS[ref], None
+    f = param_preset_file(ref) or (Path(ref) if Path(ref).is_absolute() or base is None else base / ref)
+    try:
+        loaded = load_toml(f)
+    except (ParameterError, OSError):
+        return None, None
+    return loaded.get("parameter_set"), f
+
+
+def params_reference(model: Any, folder: str | Path, params_file: str = "") -> str:
+    """The ``[truth] params`` of an accepted truth file written into ``folder``: the believed
+    parameter set (:attr:`DriveModel.params`), named so :func:`offline.sim.truth.load_truth` reads
+    it back.
+
+    Tried in turn, the first whose set equals the believed one is written: ``params_file`` (a
+    preset name or a file path, as given on the command line), then the believed scenario's own
+    reference (``[scenario] params``; for a rover file without it, its wheels' parameter file,
+    e.g. ``mer_class_wheel.toml`` beside the MER-class file; else ``dissertation-ch7``). A
+    built-in preset is written by name; a file as its path relative to ``folder`` (the truth
+    format resolves it from the truth file's folder). When none matches (a scenario's grouser
+    overrides, a parameter file not found), the believed set itself is written to
+    :data:`BELIEVED_PARAMS` in ``folder`` and named.
+
+    Parameters
+    ----------
+    model : DriveModel
+        The believed model (its ``params`` and ``scenario``).
+    folder : str or Path
+        Where the truth file goes.
+    params_file : str
+        The parameter file or preset the diagnosis was told (empty: none).
+    """
+    from ...physics.params import save_toml
+
+    out = Path(folder)
+    tries: list[tuple[str, Path | None]] = [(params_file, Path.cwd())] if params_file else []
+    tries.append(_scenario_params_ref(model.scenario))
+    for ref, base in tries:
+        ps, f = _load_ref(ref, base)
+        if ps is None or ps != model.params:
+            continue
+        if f is None:
+            return ref
+        from ...rover.scenario import param_preset_file
+
+        if param_preset_file(ref) is not None:
+            return ref  # a shipped parameter file by name (load_truth takes it as a scenario does)
+        try:
+            return Path(os.path.relpath(f.resolve(), out.resolve())).as_posix()
+        except ValueError:  # another drive (Windows): an absolute path
+            return f.resolve().as_posix()
+    ps = model.params
+    with atomic_path(out / BELIEVED_PARAMS) as tmp:
+        save_toml(tmp, {"written_by": "offline.discrepancy.drive.report (the believed parameter set of the diagnosis)"},
+                  soil=ps.soil, wheel=ps.wheel, tuning=ps.tuning)
+    return BELIEVED_PARAMS
 
 
 def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") -> Path:
@@ -30,7 +123,9 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
     per-channel residuals over time before and after the explanation, the accepted terms as a
     truth file (``accepted_truth.toml``) the simulator and the table builder take, and the
     empirical terms (``empirical_terms.json``). Every file is written atomically; the folder is
-    created. ``params_file`` is the parameter file's name recorded in the truth file."""
+    created. ``params_file``: the parameter file (or preset) the diagnosis was told, if any; the
+    truth file names the believed parameter set (:func:`params_reference`: a preset, a rover file's
+    wheel parameter file, or a copy beside it)."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     obs: DriveRecording = v.observations
@@ -61,7 +156,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         act = {**(act or {}), **{k: terms[k] for k in PER_WHEEL_ACTUATOR_KEYS if k in terms}} or None
         if entries:
             header["empirical_terms"] = "; ".join(t.law() for t in em.terms)
-        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", truth, model.truth,
+        truth_file = write_truth_toml(out / "accepted_truth.toml", params_reference(model, out, params_file), truth, model.truth,
                                       meas, act, header, dist, entries, wheels=model.wheels)
         extra += ["", "## Accepted terms as a simulator truth file", "",
                   f"`{truth_file.name}` (read by `offline.sim.truth.load_truth`; `offnominal drive --truth` takes it, "
@@ -74,7 +169,7 @@ def write_drive_report(v: Verdict, folder: str | Path, params_file: str = "") ->
         assert model.truth is not None and em is not None
         header = {"verdict": v.status, "empirical_terms": "; ".join(t.law() for t in em.terms),
                   "held_out_chi2": f"{em.chi2_cv_base:.1f} -> {em.chi2_cv_after:.1f}", "recordings": obs.source}
-        truth_file = write_truth_toml(out / "accepted_truth.toml", params_file or "dissertation-ch7", model.truth,
+        truth_file = write_truth_toml(out / "accepted_truth.toml", params_reference(model, out, params_file), model.truth,
                                       model.truth, {}, None, header, None, entries, wheels=model.wheels)
     if em is not None:
         extra += ["", "## Empirical model of what the library lacks", ""] + [f"    {line}" for line in em.summary_lines()]

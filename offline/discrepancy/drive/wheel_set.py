@@ -12,13 +12,23 @@ order); here the channels and the library follow it:
   rover file, each per-wheel candidate family of the library (its ``FR`` member is the
   template) is made for each of the file's wheels (steering terms only for steerable wheels),
   the terms acting through the simulator's disturbance hook (hub contact, an anchored tether)
-  are left out of the candidates -- the re-simulation's hooks
-  (:func:`offline.discrepancy.drive.candidates.disturbance_from_terms`) are the mini rover's
-  four wheels -- and the channels a term acts on (for the report) are the file's;
+  are kept -- their re-simulation builds the hook on the file's wheels
+  (:func:`offline.discrepancy.drive.candidates.disturbance_from_terms` with the scenario's
+  ``rover_file``: the hub drag at each of its wheels, the tether in the plant's frame) -- and the
+  channels a term acts on (for the report) are the file's;
 * :func:`truth_disturbance`: the simulator's disturbance hook of a truth file's hook sections
   (``[tether_anchor]``, ``[hub_contact]``, ``[[empirical_force]]``) on the scenario's wheel set,
-  so a world with hub contact, a tether or a body drag is simulated on a rover file's plant as on
-  the mini rover's (:class:`WheelSetHubContact`: the hub contact at the file's wheel positions).
+  so a world with hub contact, a tether or an empirical drag or torque is simulated on a rover
+  file's plant as on the mini rover's (the hub contact and the per-wheel empirical terms at the
+  file's wheel positions).
+
+The mini rover's bounds and starting points of a force are sized for its weight (a drawbar
+pull of +-10 N is a quarter of the mini rover's 34 N, under 2 % of the MER-class rover's 646 N):
+on a rover file they are scaled by :func:`rover_scales` -- forces (N) and spring rates (N/m) by
+the weight ratio, torques (N m) by the weight x wheel-radius ratio, the hub contact's face width
+and lever arm (mm) by the wheel-radius ratio (its clearance, a depth compared with the sinkage,
+is kept) -- so a candidate spans the same physical range relative to the
+rover. Other units (angles, fractions, speeds, time constants) are kept.
 
 A per-wheel candidate is renamed, not rewritten: its ``build`` is the template's with the rover
 terms ``<term>.FR`` renamed ``<term>.<wheel>`` (:data:`~offline.discrepancy.drive.candidates.PER_WHEEL_TERMS`),
@@ -27,30 +37,25 @@ so the physics, bounds and starting points are the mini rover's, in SI.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ...physics.params import ParameterSet
-from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING
-
 from ...rover.scenario import Scenario
-from ...sim.simulator import DisturbanceForces, TruthState
 from ...sim.truth import WHEELS, Truth
 from ..wheel.candidates import Candidate
-from .candidates import AnchoredTether, DriveCandidateError, HubContact, RoverExtension, disturbance_from_truth
+from .candidates import DriveCandidateError, Hooks, HubContact, RoverExtension, disturbance_from_truth
 
-__all__ = ["tick_channels", "channel_unit", "library_for", "HOOK_CANDIDATES", "truth_disturbance",
+__all__ = ["tick_channels", "channel_unit", "library_for", "HOOK_CANDIDATES", "truth_disturbance", "rover_scales",
            "WheelSetHubContact", "WheelSetHooks"]
 
 HOOK_CANDIDATES = ("hub_contact", "tether_anchor")
 """Candidates that act through the simulator's disturbance hook (contract C5): their re-simulation
-builds the mini rover's four-wheel hooks (:func:`~offline.discrepancy.drive.candidates.disturbance_from_terms`),
-so :func:`library_for` leaves them out of a rover file's library (the rover file's simulator takes
-a hook: :func:`truth_disturbance`)."""
+builds the hook on the believed rover's wheels (:func:`~offline.discrepancy.drive.candidates.disturbance_from_terms`
+with the scenario's ``rover_file``); :func:`library_for` keeps them, with the file's channels."""
 
 _TEMPLATE = "FR"
 """The mini rover's wheel whose per-wheel candidates are the templates of a rover file's."""
@@ -118,6 +123,36 @@ def _channels(channels: Sequence[str], wheels: Sequence[str], old: str | None = 
     return tuple(out)
 
 
+def rover_scales(scenario: Scenario) -> tuple[float, float]:
+    """``(force, length)`` scales of a scenario's rover against the mini rover of Table 7.2: its
+    weight over the mini rover's 34.3 N and its wheel radius over the ``dissertation-ch7`` set's
+    58 mm; ``(1, 1)`` for the mini rover (no rover file)."""
+    if getattr(scenario, "rover_file", None) is None:
+        return 1.0, 1.0
+    from ...physics.params import ROVER_MINI_T72
+    from ...rover.scenario import PARAM_PRESETS
+
+    return (scenario.rover.weight / ROVER_MINI_T72.weight,
+            scenario.params.wheel.radius / PARAM_PRESETS["dissertation-ch7"].wheel.radius)
+
+
+_SCALED_GEOMETRY = {"hub_contact": ("face_width", "arm")}
+"""Millimetre parameters that are the wheel's size (scaled by the wheel radius); the hub contact's
+clearance is a depth compared with the sinkage, which does not grow with the wheel: kept."""
+
+
+def _rescaled(c: Candidate, force: float, length: float) -> Candidate:
+    """``c`` with its force, spring-rate, torque (and hub geometry) bounds and starts scaled (module notes)."""
+    factors = [force if unit in ("N", "N/m") else force * length if unit == "N m"
+               else length if unit == "mm" and name in _SCALED_GEOMETRY.get(c.key, ()) else 1.0
+               for name, unit, *_ in c.params]
+    if all(f == 1.0 for f in factors):
+        return c
+    params = tuple((name, unit, lo * f, hi * f, start * f, si) for (name, unit, lo, hi, start, si), f in zip(c.params, factors))
+    starts = tuple(tuple(x * f for x, f in zip(st, factors)) for st in c.starts)
+    return replace(c, params=params, starts=starts)
+
+
 def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Candidate, ...]:
     """The candidate library for the rover of ``scenario`` (module notes).
 
@@ -136,7 +171,9 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
     Returns
     -------
     tuple of Candidate
-        ``candidates`` itself (as a tuple) for the mini rover; for a rover file, the library on its wheels.
+        ``candidates`` itself (as a tuple) for the mini rover; for a rover file, the library on its
+        wheels, a candidate whose parameters are still the mini rover library's with its force,
+        torque and hub-geometry bounds scaled to the rover (:func:`rover_scales`; module notes).
 
     Raises
     ------
@@ -151,6 +188,13 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
 
     wheels = tuple(scenario.wheels)
     names = (*WHEELS, *(w for w in wheels if w not in WHEELS))
+    force, length = rover_scales(scenario)
+    mini = {c.key: c.params for c in DRIVE_CANDIDATES_WITH_ACTUATORS}
+
+    def sized(c: Candidate, template: str) -> Candidate:
+        # only a candidate still at the mini rover's bounds (idempotent: one made for the rover is kept)
+        return _rescaled(c, force, length) if mini.get(template) == c.params else c
+
     steerable = {w.name for w in rf.wheels if w.steerable}
     templates = {c.key: c for c in DRIVE_CANDIDATES_WITH_ACTUATORS if _wheel_of(c.key) == _TEMPLATE}
     family: dict[str, list[tuple[Candidate, str]]] = {}
@@ -161,11 +205,9 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
     out: list[Candidate] = []
     done: set[str] = set()
     for c in candidates:
-        if c.key in HOOK_CANDIDATES:
-            continue
         w = _wheel_of(c.key, names)
         if w is None:
-            out.append(replace(c, channels=_channels(c.channels, wheels)))
+            out.append(replace(sized(c, c.key), channels=_channels(c.channels, wheels)))
             continue
         stem = c.key[:-len(w)]
         if stem in done:
@@ -173,12 +215,13 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
         done.add(stem)
         members = family[stem]
         if all(m in wheels for _, m in members):  # already the rover's own wheels
-            out += [m for m, _ in members]
+            out += [sized(m, stem + _TEMPLATE) for m, _ in members]
             continue
         tpl = next((m for m, x in members if x == _TEMPLATE), None) or templates.get(stem + _TEMPLATE)
         if tpl is None:
             raise DriveCandidateError(f"candidate {c.key}: no {stem}{_TEMPLATE} template to make it for the wheels of "
                                       f"{rf.name} ({', '.join(wheels)})")
+        tpl = sized(tpl, stem + _TEMPLATE)
         for new in wheels:
             if stem.startswith("steer_") and new not in steerable:
                 continue  # a wheel that does not steer has no steering offset or steering servo
@@ -192,56 +235,21 @@ def library_for(candidates: Sequence[Candidate], scenario: Scenario) -> tuple[Ca
     return tuple(out)
 
 
-@dataclass(frozen=True)
-class WheelSetHubContact(HubContact):
-    """:class:`~offline.discrepancy.drive.candidates.HubContact` (the same passive-pressure drag and
-    hub torque per wheel, :meth:`HubContact.force`) at the wheels of a rover file: ``rover`` is a
-    :class:`rtctl.physics.rover_file.RoverSpec`, whose wheel positions (body frame of the plant:
-    the travel frame of a backward drive) and order the forces take."""
+WheelSetHubContact = HubContact
+""":class:`~offline.discrepancy.drive.candidates.HubContact`, which takes a rover file
+(:class:`rtctl.physics.rover_file.RoverSpec`) as its ``rover``: the drag at the file's wheels."""
 
-    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
-        """The forces over the next step (contract C5), one per wheel of the rover file."""
-        f = self.force(np.array(s.sinkage))
-        spec: Any = self.rover  # a RoverSpec here (HubContact's field is typed for the mini rover's Rover)
-        xs = np.array([w.position[0] for w in spec.wheels])
-        ys = np.array([w.position[1] for w in spec.wheels])
-        if len(f) != len(xs):
-            raise DriveCandidateError(f"hub contact on {spec.name}: the state has {len(f)} wheels, the rover file "
-                                      f"{len(xs)}")
-        vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
-        norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
-        om = np.array(s.omega)
-        torque = f * self.arm * om / np.sqrt(om * om + SPIN_SMOOTHING ** 2)
-        return DisturbanceForces(wheel_force=tuple((float(-fi * a / n), float(-fi * b / n)) for fi, a, b, n in zip(f, vx, vy, norm)),
-                                 wheel_torque=tuple(float(x) for x in torque))
-
-
-@dataclass(frozen=True)
-class WheelSetHooks:
-    """Several disturbance hooks on a rover of ``wheels`` wheels acting together (their forces add;
-    the mini rover's :class:`~offline.discrepancy.drive.candidates.Hooks` for any wheel count)."""
-
-    hooks: tuple[Any, ...]
-    wheels: int
-
-    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
-        """The summed forces over the next step (contract C5)."""
-        n = self.wheels
-        v = sum(h(t, s).vector(n) for h in self.hooks)
-        return DisturbanceForces(body_force=(v[0], v[1]), body_moment_z=v[2],
-                                 wheel_force=tuple(zip(v[3:3 + n], v[3 + n:3 + 2 * n])), wheel_torque=tuple(v[3 + 2 * n:]))
+WheelSetHooks = Hooks
+""":class:`~offline.discrepancy.drive.candidates.Hooks` with its ``wheels`` count (a rover file's)."""
 
 
 def truth_disturbance(truth: Truth, scenario: Scenario) -> Any:
     """The simulator's disturbance hook of a truth's hook sections on the scenario's rover; None
     without any.
 
-    The mini rover (no rover file): :func:`~offline.discrepancy.drive.candidates.disturbance_from_truth`,
-    as before. A rover file: ``[tether_anchor]`` an
-    :class:`~offline.discrepancy.drive.candidates.AnchoredTether` (a body force, any rover),
-    ``[hub_contact]`` a :class:`WheelSetHubContact` at the file's wheels (the believed soil of the
-    truth's parameter set), ``[[empirical_force]]`` the empirical family's hook of its body terms
-    (:func:`offline.sim.truth.load_truth` admits only ``drag.body`` on a rover file).
+    :func:`~offline.discrepancy.drive.candidates.disturbance_from_truth` on the scenario's rover: the
+    mini rover's, or its rover file (``[hub_contact]`` and the per-wheel ``[[empirical_force]]``
+    terms at the file's wheels, in the plant's frame; ``[tether_anchor]`` a body force).
 
     Parameters
     ----------
@@ -251,28 +259,8 @@ def truth_disturbance(truth: Truth, scenario: Scenario) -> Any:
 
     Raises
     ------
-    DriveCandidateError
-        A per-wheel empirical term on a rover file (a truth not read with the rover file).
+    ValueError
+        An ``[[empirical_force]]`` combination the empirical family does not have.
     """
     rf = getattr(scenario, "rover_file", None)
-    if rf is None:
-        return disturbance_from_truth(truth, scenario.rover)
-    hooks: list[Any] = []
-    if truth.anchor is not None:
-        a = truth.anchor
-        hooks.append(AnchoredTether(a["tension"], a.get("bearing", math.pi), a.get("inverse_distance", 0.0),
-                                    a.get("attach_x", 0.0), a.get("spring_rate", 0.0)))
-    if truth.hub is not None:
-        hooks.append(WheelSetHubContact(truth.hub["clearance"], truth.hub.get("face_width", 0.0), truth.hub.get("arm", 0.0),
-                                        truth.params.soil, rf))
-    if truth.empirical:
-        bad = [e["direction"] for e in truth.empirical if e["direction"] != "drag.body"]
-        if bad:
-            raise DriveCandidateError(f"empirical terms {bad} act on the mini rover's wheels; on the rover file {rf.name} "
-                                      "an empirical term acts on the body only (drag.body)")
-        from .empirical import EmpiricalTerms, terms_from_truth
-
-        hooks.append(EmpiricalTerms(terms_from_truth(truth.empirical), scenario.rover).hook())
-    if not hooks:
-        return None
-    return hooks[0] if len(hooks) == 1 else WheelSetHooks(tuple(hooks), len(scenario.wheels))
+    return disturbance_from_truth(truth, scenario.rover if rf is None else rf)

@@ -6,7 +6,11 @@ Pipeline (:func:`diagnose`)
 1. **Residuals.** The model predicts every row of the observations; residuals
    ``measured - predicted`` are normalised by the measurement noise and by a per-channel
    dispersion ``s >= 1`` (:func:`~offline.discrepancy.significance.dispersion`). A run in which the
-   model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement.
+   model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement. A row
+   the model (as given or with a candidate) cannot predict -- a re-simulated drive that is lost
+   -- counts, per channel, the worst normalised residual of the model as given (at least
+   :data:`~offline.discrepancy.significance.FAIL_Z`; :func:`~offline.discrepancy.significance.fail_floor`),
+   so a candidate whose fit loses rows never scores better there than the model as given.
 2. **Locate.** Significant regions of the operating space per channel
    (:func:`~offline.discrepancy.significance.locate`, max-box statistic with a Monte-Carlo null).
 3. **Explain.** Every candidate of the library (:data:`~offline.discrepancy.wheel.candidates.CANDIDATES`:
@@ -79,6 +83,7 @@ from .significance import (
     Region,
     adjusted_p,
     dispersion,
+    fail_floor,
     fit,
     held_out,
     linear_held_out,
@@ -690,7 +695,10 @@ def diagnose(
         regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng,
                           **_locate_kw(obs, ch))
     folds = obs.folds(k_folds)
-    z0 = normalised(obs, pred0, scale)
+    # a failed (lost) prediction counts the worst the model as given does on the channel, never
+    # less (fail_floor): a candidate cannot gain by losing rows
+    lost = fail_floor(obs, pred0, scale)
+    z0 = normalised(obs, pred0, scale, lost)
     base_rows = (z0**2).sum(axis=1)
     chi2_base = float(base_rows.sum())
     ps = getattr(model, "params", None)
@@ -719,14 +727,14 @@ def diagnose(
     def resid_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64]) -> NDArray[np.float64]:
             pred, _ = model.predict(obs, _ext_of(cands, x, ps, empty))
-            return normalised(obs, pred, scale).ravel()
+            return normalised(obs, pred, scale, lost).ravel()
         return r
 
     def rows_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64], rows: NDArray[np.int_]) -> NDArray[np.float64]:
             sub = obs.subset(rows)
             pred, _ = model.predict(sub, _ext_of(cands, x, ps, empty))
-            return normalised(sub, pred, scale)
+            return normalised(sub, pred, scale, lost)
         return r
 
     def score(cands: Sequence[Candidate], starts: Sequence[NDArray[np.float64]]) -> tuple[CandidateScore, Any]:
@@ -1017,13 +1025,14 @@ def diagnose(
         hi = np.concatenate([c.upper for c in cands])
         say(f"polishing the fit of {chosen.label}")
         unit = {ch: 1.0 for ch in chans}
+        lost_noise = fail_floor(obs, pred0, unit)
 
         def r_noise(x: NDArray[np.float64]) -> NDArray[np.float64]:
             # in noise units (s = 1): the dispersion of the model as given (s = 23 when every row
             # is off) would make the budgeted fit look converged while the misfit test, in noise
             # units, still sees the rest
             pred, _ = model.predict(obs, _ext_of(cands, x, ps, empty))
-            return normalised(obs, pred, unit).ravel()
+            return normalised(obs, pred, unit, lost_noise).ravel()
 
         before = float((r_noise(np.array(chosen.values)) ** 2).sum())
         fp = fit(r_noise, lo, hi, [np.array(chosen.values)], nc, max_nfev=polish_nfev, tol=fit_tol)

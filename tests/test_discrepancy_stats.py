@@ -105,6 +105,11 @@ def test_vuong_statistic():
     assert vuong(a, a) == 0.0
     assert vuong(a, a + 2.0 + rng.normal(0, 0.5, 60)) > 10  # b is clearly worse
     assert vuong(a + 2.0 + rng.normal(0, 0.5, 60), a) < -10
+    # Schwarz's correction: a with p more parameters must beat b by more than p ln(rows) in chi-square
+    d = 0.2 + rng.normal(0, 0.5, 60)
+    plain, corrected = vuong(a, a + d), vuong(a, a + d, extra_parameters=4)
+    assert corrected == pytest.approx((d.sum() - 4 * math.log(60)) / (math.sqrt(60) * d.std(ddof=1)))
+    assert plain > 2.0 > corrected
 
 
 def test_tether_along_the_travel_direction_pushes_along_the_velocity(recording, params):

@@ -520,14 +520,22 @@ def adjusted_p(observed: NDArray[np.float64], null: NDArray[np.float64]) -> tupl
     return p, np.minimum(p_adj, 1.0)
 
 
-def vuong(rows_a: NDArray[np.float64], rows_b: NDArray[np.float64]) -> float:
+def vuong(rows_a: NDArray[np.float64], rows_b: NDArray[np.float64], extra_parameters: int = 0) -> float:
     """Vuong's statistic that explanation ``a`` predicts held-out rows better than ``b``.
 
     ``d_i = rows_b,i - rows_a,i`` (held-out chi-square of b minus a, per row);
-    ``V = sum(d) / (sqrt(n) sd(d))``, standard normal when the two are equally good.
+    ``V = (sum(d) - p ln n) / (sqrt(n) sd(d))``, standard normal when the two are equally good.
+    ``p = extra_parameters`` (``a``'s parameters minus ``b``'s, default 0): Schwarz's correction of
+    Vuong's adjusted statistic (1989; the chi-square as -2 log-likelihood), so that the more flexible
+    explanation must beat the other by more than its extra parameters buy.
+
+    References
+    ----------
+    Vuong, Q. H. (1989). Likelihood ratio tests for model selection and non-nested hypotheses.
+    Econometrica 57(2), 307-333.
     """
     d = rows_b - rows_a
     sd = float(d.std(ddof=1)) if d.size > 1 else 0.0
     if sd == 0.0:
         return 0.0
-    return float(d.sum() / (math.sqrt(d.size) * sd))
+    return float((d.sum() - extra_parameters * math.log(d.size)) / (math.sqrt(d.size) * sd))

@@ -132,13 +132,18 @@ def skid_drag(recording, params, per_unit_skid, seed):
 
 
 # ----------------------------------------------------------------- effect cases
-@pytest.mark.parametrize("seed", [21, 31, 32])
+# one noise seed here: "on every noise seed" is the benchmark's (tests/bench/bench_discrepancy.py,
+# seeds 2000-2002, results_discrepancy.md). Seeds 31 and 32 were here too until the suite's budget cut
+# (2026-11-27): with the fixed folds and the old screening (b341723, the parent of the screening fix)
+# all three named hub_drag (clearance 46.6, 47.6, 47.6 mm), so there they caught nothing seed 21 did
+# not; which seed the older folds failed on was not re-checked
+@pytest.mark.parametrize("seed", [21])
 def test_localised_deep_sinkage_drag_is_named_hub_drag(recording, params, seed):
     """Told: the recording (45 conditions) and the believed parameters. Not told: that a drag
     acts only where sinkage passes 45 mm (8 of 45 conditions, 6 above twice the noise), its 1.5-power form. Must
     name hub_drag with a clearance within 6 mm of 45 mm and explain > 60 % of the held-out
-    excess chi2 (the power-1.5 form is not the candidate's), on every noise seed (issue 24:
-    the old folds and screening named it on two seeds of three)."""
+    excess chi2 (the power-1.5 form is not the candidate's) (issue 24: the old folds and screening
+    named it on two seeds of three)."""
     data, n_rows = rut_edge_drag(recording, params, 0.045, 3.0e3, seed=seed)
     assert 3 <= n_rows <= 10
     v = diagnose(data, params)

@@ -105,6 +105,11 @@ def test_vuong_statistic():
     assert vuong(a, a) == 0.0
     assert vuong(a, a + 2.0 + rng.normal(0, 0.5, 60)) > 10  # b is clearly worse
     assert vuong(a + 2.0 + rng.normal(0, 0.5, 60), a) < -10
+    # Schwarz's correction: a with p more parameters must beat b by more than p ln(rows) in chi-square
+    d = 0.2 + rng.normal(0, 0.5, 60)
+    plain, corrected = vuong(a, a + d), vuong(a, a + d, extra_parameters=4)
+    assert corrected == pytest.approx((d.sum() - 4 * math.log(60)) / (math.sqrt(60) * d.std(ddof=1)))
+    assert plain > 2.0 > corrected
 
 
 def test_tether_along_the_travel_direction_pushes_along_the_velocity(recording, params):
@@ -220,3 +225,47 @@ def test_region_test_with_the_series_correlation_keeps_its_level_on_correlated_n
     # measured: 15 of 200 with independent draws (7.5 %), 0 of 200 with the correlated ones
     assert alarms["independent"] >= 8, alarms  # the check can fail: independent draws are too permissive here
     assert alarms["correlated"] <= 5, alarms  # 1 % of 200 is 2
+
+
+class _OffModel:
+    """A model ``off`` noise units above the data on every row and channel; with the extension's
+    ``tether_force`` (used here as a bare parameter ``a``) above 0.5 its prediction is lost on every
+    row (NaN), as a re-simulated drive the plant cannot carry is; below it, ``a`` only adds a
+    little noise-free wobble the data do not hold."""
+
+    def __init__(self, off: float) -> None:
+        self.off = off
+
+    def predict(self, obs, ext):
+        a = 0.0 if ext is None else ext.tether_force
+        pred = {ch: obs.measured[ch] + obs.noise[ch] * (self.off + 0.3 * a * np.cos(np.arange(len(obs))))
+                for ch in obs.channels}
+        if a > 0.5:
+            pred = {ch: np.full(len(obs), np.nan) for ch in obs.channels}
+        ok = np.isfinite(next(iter(pred.values())))
+        return pred, ok
+
+
+def test_a_lost_prediction_never_scores_better_than_the_model_as_given(recording):
+    """Issue 24's engine flaw: a candidate whose re-simulation is lost (every row NaN) counted
+    FAIL_Z = 10 per value and so beat a model as given that is 20 noise units off: its fit went to
+    the parameters that lose everything and it came out significant, a held-out 'improvement' of
+    300 per value. A lost row now counts the worst the model as given does (fail_floor): the
+    candidate that can only lose rows is not significant and nothing is named."""
+    from offline.discrepancy.significance import FAIL_Z, fail_floor, normalised
+    from offline.discrepancy.wheel.candidates import Candidate
+
+    lose = Candidate("lose_everything", "a parameter that loses the prediction above 0.5",
+                     (("a", "-", 0.0, 1.0, 0.1, 1.0),), lambda x, p: Extension(tether_force=float(x[0])),
+                     starts=((0.9,),), threshold=True)
+    model = _OffModel(20.0)
+    pred0, _ = model.predict(recording, None)
+    scale = {ch: 1.0 for ch in recording.channels}
+    lost = fail_floor(recording, pred0, scale)
+    assert all(v == pytest.approx(20.0) for v in lost.values()) and FAIL_Z < 20.0
+    nan = {ch: np.full(len(recording), np.nan) for ch in recording.channels}
+    assert (normalised(recording, nan, scale, lost) ** 2).sum() >= (normalised(recording, pred0, scale, lost) ** 2).sum()
+    v = diagnose(recording, model, candidates=[lose], recalibrate=False, n_boot=300, empirical=False, seed=0)
+    s = v.scores[0]
+    assert s.delta_cv <= 1e-6 * v.chi2_cv_base and not s.significant, v.summary()
+    assert v.missing_physics == [] and v.status == "unexplained", v.summary()

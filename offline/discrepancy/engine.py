@@ -6,7 +6,11 @@ Pipeline (:func:`diagnose`)
 1. **Residuals.** The model predicts every row of the observations; residuals
    ``measured - predicted`` are normalised by the measurement noise and by a per-channel
    dispersion ``s >= 1`` (:func:`~offline.discrepancy.significance.dispersion`). A run in which the
-   model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement.
+   model fails on most rows is an error (:class:`DiscrepancyError`), never an agreement. A row
+   the model (as given or with a candidate) cannot predict -- a re-simulated drive that is lost
+   -- counts, per channel, the worst normalised residual of the model as given (at least
+   :data:`~offline.discrepancy.significance.FAIL_Z`; :func:`~offline.discrepancy.significance.fail_floor`),
+   so a candidate whose fit loses rows never scores better there than the model as given.
 2. **Locate.** Significant regions of the operating space per channel
    (:func:`~offline.discrepancy.significance.locate`, max-box statistic with a Monte-Carlo null).
 3. **Explain.** Every candidate of the library (:data:`~offline.discrepancy.wheel.candidates.CANDIDATES`:
@@ -24,7 +28,18 @@ Pipeline (:func:`diagnose`)
      as **indistinguishable**,
      each with the probe experiment (e.g. vary the load) where their predictions differ most;
    * when a change of the model's own parameters is the best or indistinguishable from it,
-     the verdict is **parameters off** and the recalibrated parameter file is written;
+     the verdict is **parameters off** and the recalibrated parameter file is written -- on
+     single-wheel trials (recalibration wins whenever it explains as much: two wrong soil
+     parameters are "parameters off", not a parameter plus an invented term). For adapters
+     that withhold look-alikes (drives) a change of parameters is named only when it is the
+     *only* plausible explanation: when it is the best, a significant new term with fewer
+     parameters is its look-alike when it reaches ``1 - equal_fraction`` of its held-out
+     improvement and Vuong's statistic *with Schwarz's correction for the extra parameters*
+     (``V = (sum d - (k_best - k_term) ln rows) / (sqrt(rows) sd d)``) is below 2 (a
+     five-parameter soil recalibration also absorbs where a one-parameter term's form differs
+     from the truth's, so a better held-out fit by no more than its extra parameters buy is no
+     evidence for the soil: a drawbar pull on a straight drive); look-alikes that claim other
+     physics make the verdict **ambiguous** (step 6) with the experiments that separate them;
    * a second candidate is added on top if its extra held-out improvement passes its own
      null at ``alpha`` (Bonferroni over the tries).
 5. **Check what is left.** The final model's residuals are located again; if significant
@@ -79,6 +94,7 @@ from .significance import (
     Region,
     adjusted_p,
     dispersion,
+    fail_floor,
     fit,
     held_out,
     linear_held_out,
@@ -400,8 +416,15 @@ class Verdict:
             return []
         params = [k for k, kind in zip(c.keys, c.kinds) if kind == "parameters"]
         terms = [k for k, kind in zip(c.keys, c.kinds) if kind != "parameters"]
-        rule = ("(a change of the model's own parameters is preferred whenever it explains the held-out rows as well "
-                f"as the best new term: Vuong V < 2 and at least {100 * (1 - self.equal_fraction):.0f} % of its held-out improvement)")
+        keep = f"{100 * (1 - self.equal_fraction):.0f} %"
+        if getattr(self.observations, "withhold_lookalikes", False):
+            rule = ("(a change of the model's own parameters is named only when no new term claiming other physics fits the "
+                    f"held-out rows as well: Vuong V < 2 and at least {keep} of the best improvement; when the change of "
+                    "parameters is the best, V corrected for its extra parameters (Schwarz) for a term with fewer; otherwise "
+                    "the verdict is ambiguous)")
+        else:
+            rule = ("(a change of the model's own parameters is preferred whenever it explains the held-out rows as well "
+                    f"as the best new term: Vuong V < 2 and at least {keep} of its held-out improvement)")
         if params and not terms:
             out = [f"the explanation holds no new term: refitting the model's own parameters ({', '.join(params)}) explains "
                    f"the held-out rows as well as any new term {rule}"]
@@ -472,7 +495,10 @@ CRITERION = (
     "tangent spaces at {n_points} points of its parameter box; p-values are adjusted over the whole library "
     "(Westfall-Young min-P) and a candidate is significant at p_adj < {alpha}. Candidates not separable from the best on "
     "held-out rows (Vuong V < 2 and at least {keep:.0f} % of its improvement) are reported as indistinguishable; if one of them is a change of the model's own "
-    "parameters the verdict is 'parameters off'. If the first leaves regions (drives: always), every other term is screened "
+    "parameters the verdict is 'parameters off' (recordings whose adapter withholds look-alikes, drives: when a change of the model's "
+    "parameters is the best, a significant new term with fewer parameters reaching {keep:.0f} % of its improvement is a look-alike "
+    "when Vuong's statistic with Schwarz's correction for the extra parameters, V = (sum d - (k_best - k_term) ln rows) / "
+    "(sqrt(rows) sd d), is below 2; look-alikes claiming other physics make the verdict 'ambiguous'). If the first leaves regions (drives: always), every other term is screened "
     "on top of it by a linearised held-out score test, the best {tries} are fitted jointly with it, and a second term is "
     "added when its extra improvement exceeds the 1 - {alpha} quantile of the maximum of the screened terms' nulls. Remaining regions, or residuals still above the measurement noise "
     "(chi2 in noise units per channel; both at {alpha_after}/channels), make the verdict 'partly explained'; less than half of "
@@ -690,7 +716,10 @@ def diagnose(
         regions += locate(res0[ch] / obs.noise[ch], res0[ch] * obs.scale_out[ch], obs.features, ch, obs.units[ch], rng,
                           **_locate_kw(obs, ch))
     folds = obs.folds(k_folds)
-    z0 = normalised(obs, pred0, scale)
+    # a failed (lost) prediction counts the worst the model as given does on the channel, never
+    # less (fail_floor): a candidate cannot gain by losing rows
+    lost = fail_floor(obs, pred0, scale)
+    z0 = normalised(obs, pred0, scale, lost)
     base_rows = (z0**2).sum(axis=1)
     chi2_base = float(base_rows.sum())
     ps = getattr(model, "params", None)
@@ -719,14 +748,14 @@ def diagnose(
     def resid_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64]) -> NDArray[np.float64]:
             pred, _ = model.predict(obs, _ext_of(cands, x, ps, empty))
-            return normalised(obs, pred, scale).ravel()
+            return normalised(obs, pred, scale, lost).ravel()
         return r
 
     def rows_fn(cands: Sequence[Candidate]) -> Callable[[NDArray[np.float64], NDArray[np.int_]], NDArray[np.float64]]:
         def r(x: NDArray[np.float64], rows: NDArray[np.int_]) -> NDArray[np.float64]:
             sub = obs.subset(rows)
             pred, _ = model.predict(sub, _ext_of(cands, x, ps, empty))
-            return normalised(sub, pred, scale)
+            return normalised(sub, pred, scale, lost)
         return r
 
     def score(cands: Sequence[Candidate], starts: Sequence[NDArray[np.float64]]) -> tuple[CandidateScore, Any]:
@@ -851,6 +880,18 @@ def diagnose(
         best = sig[0]
         equivalent = [s for s in sig[1:] if vuong(best.rows_cv, s.rows_cv) < 2.0
                       and best.delta_cv - s.delta_cv <= equal_fraction * best.delta_cv]
+        if getattr(obs, "withhold_lookalikes", False) and "parameters" in best.kinds:
+            # a change of the model's own parameters is best: a new term with fewer parameters is
+            # compared with it by Vuong's statistic with Schwarz's correction for the extra
+            # parameters (vuong(extra_parameters=...)): the more flexible recalibration also absorbs
+            # where the term's form differs from the truth's (a pull at the wheels, not at the
+            # body), and that is no evidence for the soil (issue 24: a 2 N pull on a straight
+            # drive, tether 97.7 % of the recalibration's improvement at V = 2.9, corrected 1.9,
+            # was reported as the recalibration alone; a looser soil's gyro_scale look-alike, 85 %
+            # at V = 6.4, corrected 6.2, stays separated)
+            equivalent += [s for s in sig[1:] if s not in equivalent and "parameters" not in s.kinds and s.k < best.k
+                           and vuong(best.rows_cv, s.rows_cv, extra_parameters=best.k - s.k) < 2.0
+                           and best.delta_cv - s.delta_cv <= equal_fraction * best.delta_cv]
         group = [best] + equivalent
         params_kind = [s for s in group if "parameters" in s.kinds]
         # "parameters off" when a change of the model's own parameters is as good as any term;
@@ -1017,13 +1058,14 @@ def diagnose(
         hi = np.concatenate([c.upper for c in cands])
         say(f"polishing the fit of {chosen.label}")
         unit = {ch: 1.0 for ch in chans}
+        lost_noise = fail_floor(obs, pred0, unit)
 
         def r_noise(x: NDArray[np.float64]) -> NDArray[np.float64]:
             # in noise units (s = 1): the dispersion of the model as given (s = 23 when every row
             # is off) would make the budgeted fit look converged while the misfit test, in noise
             # units, still sees the rest
             pred, _ = model.predict(obs, _ext_of(cands, x, ps, empty))
-            return normalised(obs, pred, unit).ravel()
+            return normalised(obs, pred, unit, lost_noise).ravel()
 
         before = float((r_noise(np.array(chosen.values)) ** 2).sum())
         fp = fit(r_noise, lo, hi, [np.array(chosen.values)], nc, max_nfev=polish_nfev, tol=fit_tol)
@@ -1262,7 +1304,8 @@ def _ambiguity(chosen: CandidateScore, equivalent: Sequence[CandidateScore], by_
 
     alts = [s for s in equivalent if _signature(s.keys, s.kinds) != ref(s)]
     if alts:
-        reasons.append(f"{len(alts) + 1} explanations fit the held-out rows equally (Vuong V < 2): "
+        reasons.append(f"{len(alts) + 1} explanations fit the held-out rows equally (Vuong V < 2; against a change of "
+                       "the model's parameters with more parameters than a term, V corrected for them): "
                        + "; ".join(s.label for s in [chosen, *alts]))
     und = undetermined_terms(chosen, by_key)
     if und:

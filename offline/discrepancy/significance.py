@@ -46,6 +46,7 @@ __all__ = [
     "locate",
     "dispersion",
     "normalised",
+    "fail_floor",
     "FitResult",
     "fit",
     "held_out",
@@ -62,13 +63,39 @@ FAIL_Z = 10.0
 
 
 # ------------------------------------------------------------------------- residuals
-def normalised(obs: Any, pred: Mapping[str, NDArray[np.float64]], scale: Mapping[str, float]) -> NDArray[np.float64]:
-    """``(measured - predicted) / (noise s)``, rows x channels; a failed prediction counts :data:`FAIL_Z`."""
+def normalised(obs: Any, pred: Mapping[str, NDArray[np.float64]], scale: Mapping[str, float],
+               fail: Mapping[str, float] | None = None) -> NDArray[np.float64]:
+    """``(measured - predicted) / (noise s)``, rows x channels.
+
+    A failed prediction (NaN: the model cannot carry the load, a re-simulated drive is lost)
+    counts ``fail[channel]`` (default :data:`FAIL_Z` on every channel). The engine passes
+    :func:`fail_floor` of the model as given, so that a lost prediction never scores better
+    than the model as given does on any of its rows.
+    """
     cols = []
     for ch in obs.channels:
         zz = (obs.measured[ch] - pred[ch]) / (obs.noise[ch] * scale[ch])
-        cols.append(np.where(np.isfinite(zz), zz, FAIL_Z))
+        cols.append(np.where(np.isfinite(zz), zz, FAIL_Z if fail is None else fail[ch]))
     return np.stack(cols, axis=1)
+
+
+def fail_floor(obs: Any, pred: Mapping[str, NDArray[np.float64]], scale: Mapping[str, float]) -> dict[str, float]:
+    """What a failed prediction counts per channel: the worst the model as given does on it.
+
+    ``max(FAIL_Z, max_rows |z|)`` with ``z`` the finite normalised residuals of ``pred`` (the
+    model as given) on the channel. With a constant :data:`FAIL_Z` a candidate whose
+    re-simulation is lost (every row NaN) scored ``FAIL_Z**2`` per value, which beats a model
+    as given that misses by more than ``FAIL_Z`` noise units: the fit then sought parameters
+    that lose the drive (issue 24, a per-wheel slew limit and a hub contact fitted to a lost
+    drive, 110102 -> 54102). With this floor a lost row is never better than the model as given
+    on its worst row, so no held-out improvement can come from losing rows.
+    """
+    out = {}
+    for ch in obs.channels:
+        z = np.abs((obs.measured[ch] - pred[ch]) / (obs.noise[ch] * scale[ch]))
+        z = z[np.isfinite(z)]
+        out[ch] = max(FAIL_Z, float(z.max())) if z.size else FAIL_Z
+    return out
 
 
 def dispersion(obs: Any, pred: Mapping[str, NDArray[np.float64]]) -> dict[str, float]:
@@ -493,14 +520,22 @@ def adjusted_p(observed: NDArray[np.float64], null: NDArray[np.float64]) -> tupl
     return p, np.minimum(p_adj, 1.0)
 
 
-def vuong(rows_a: NDArray[np.float64], rows_b: NDArray[np.float64]) -> float:
+def vuong(rows_a: NDArray[np.float64], rows_b: NDArray[np.float64], extra_parameters: int = 0) -> float:
     """Vuong's statistic that explanation ``a`` predicts held-out rows better than ``b``.
 
     ``d_i = rows_b,i - rows_a,i`` (held-out chi-square of b minus a, per row);
-    ``V = sum(d) / (sqrt(n) sd(d))``, standard normal when the two are equally good.
+    ``V = (sum(d) - p ln n) / (sqrt(n) sd(d))``, standard normal when the two are equally good.
+    ``p = extra_parameters`` (``a``'s parameters minus ``b``'s, default 0): Schwarz's correction of
+    Vuong's adjusted statistic (1989; the chi-square as -2 log-likelihood), so that the more flexible
+    explanation must beat the other by more than its extra parameters buy.
+
+    References
+    ----------
+    Vuong, Q. H. (1989). Likelihood ratio tests for model selection and non-nested hypotheses.
+    Econometrica 57(2), 307-333.
     """
     d = rows_b - rows_a
     sd = float(d.std(ddof=1)) if d.size > 1 else 0.0
     if sd == 0.0:
         return 0.0
-    return float(d.sum() / (math.sqrt(d.size) * sd))
+    return float((d.sum() - extra_parameters * math.log(d.size)) / (math.sqrt(d.size) * sd))

@@ -1471,7 +1471,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
         rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs)
-        polished = _polish(spec, recs, ck, ex, bar)
+        polished = _polish(spec, recs, ck, ex, bar, twin_of)
         relaxed = 0
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
@@ -1883,20 +1883,32 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
 
 
 def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
-            bar: Any) -> int:
+            bar: Any, twin_of: Mapping[int, int | None] | None = None) -> int:
     """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
     uses the previous sweep's results only, so the outcome does not depend on the order in which
     workers finish; a later sweep visits only points next to one that changed). Returns the
-    number of points replaced."""
+    number of points replaced.
+
+    With speed twins (``twin_of``, :func:`speed_twin`; continuation schedule) only the first
+    speed of a group whose first-speed member is solved is swept: at another speed the same
+    neighbours' starts pose the same NLP up to the exact speed scaling (:func:`twin_resolve`),
+    so sweeping it repeats the search (on README's worked example half the pass's IPOPT runs).
+    What the sweeps found is then carried to the other speeds by :func:`_twin_pass` (each
+    carried optimum verified by its own re-solve and the independent check; a member keeps its
+    own optimum where the carry does not verify or is not strictly better)."""
     shape = spec.grid.shape
     changed = set(recs)
     polished_ever: set[int] = set()
     total = 0
+    by_twin = bool(twin_of) and spec.build.schedule == "continuation"
     for sweep in range(spec.build.polish_sweeps):
         tasks, got = [], {}
         for f in sorted(recs):
             if recs[f]["status"] != "optimal" or not any(nb in changed for nb in _neighbours(shape, f) + [f]):
                 continue
+            if by_twin and twin_of is not None and (t := twin_of.get(f)) is not None \
+                    and recs[t]["status"] == "optimal":
+                continue  # swept at the first speed, carried below
             c = ck.load(f"polish{sweep}", f)
             if c is not None:
                 got[f] = c[0] if c[0]["status"] != "none" else None
@@ -1925,6 +1937,10 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         total += len(changed)
         if not changed:
             break
+    if by_twin and twin_of is not None and polished_ever:
+        keys = {f if (t := twin_of.get(f)) is None else t for f in polished_ever}  # the groups a sweep changed
+        total += _twin_pass(spec, recs, {f: t for f, t in twin_of.items() if (f if t is None else t) in keys}, ck, ex,
+                            "twin_polish")
     return total
 
 

@@ -354,3 +354,47 @@ def test_a_run_already_made_from_a_neighbour_is_not_repeated(scenario_file, tmp_
     ev = load_table(path).header["evidence"]["0"]
     assert ev["verdict"] == "search (test)"
     assert any("neighbour 1 on the failure axis" in s for s in ev["continuation"]["continuation"])
+
+
+def test_a_verdict_whose_speed_twin_is_re_checked_is_not_re_solved_again(scenario_file, tmp_path, monkeypatch):
+    """Speed twins pose the same NLP up to the exact speed scaling: of two search verdicts that
+    differ only in speed, only the first speed's is re-solved from its neighbours; the other's
+    evidence names the twin's re-solves, and when the twin is solved it is carried over (a
+    verified twin re-solve, faked here). The former pass re-solved both (fails on it). No solve:
+    the re-solves and the carry are faked."""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2,4;steer_stuck=0,30", build=FAST)
+    g = spec.grid
+    at = {(round(p["speed"], 3), round(math.degrees(p["steer_stuck"]))): f for f in range(g.size) for p in [g.point(f)]}
+    twin_of = {f: TB.speed_twin(g, f) for f in range(g.size)}
+
+    def recs_now():
+        ok = {"status": "optimal", "x_scaled": np.zeros(3), "lam_x": np.zeros(3), "lam_g": np.zeros(2),
+              "data": {"objective": 1.0}}
+        bad = {"status": "infeasible", "iterations": 5, "evidence": {"verdict": "search (test)"}}
+        return {f: {"flat": f, **(ok if stuck == 0 else bad)} for (speed, stuck), f in at.items()}
+
+    tried: list[int] = []
+    monkeypatch.setattr(TB, "predicted_start", lambda spec_, rec, a, b: rec["x_scaled"])
+    monkeypatch.setattr(TB, "twin_resolve", lambda spec_, f, twin: {**twin, "flat": f, "speed_twin_of": twin["flat"]})
+    for solve in (False, True):
+        def fake_retry(spec_, flat, starts, solve=solve):
+            tried.append(flat)
+            if solve:
+                return {"flat": flat, "status": "optimal", "retried_from": starts[0][0], "x_scaled": np.ones(3),
+                        "lam_x": np.zeros(3), "lam_g": np.zeros(2), "data": {"objective": 1.0}}
+            return {"flat": flat, "status": "not_found", "iterations": 11, "evidence": {"retries": ["from 0: test"]}}
+
+        monkeypatch.setattr(TB, "retry_point", fake_retry)
+        tried.clear()
+        recs = recs_now()
+        counts = TB._recheck_infeasible(spec, recs, TB._Checkpoint(tmp_path / f".ck{solve}", spec.key()), None,
+                                        twin_of=twin_of)
+        first, other = at[(0.02, 30)], at[(0.04, 30)]
+        assert tried == [first], tried  # not the 4 cm/s twin
+        if not solve:
+            assert counts == {"re-solved": 0, "kept": 2} and recs[other]["status"] == "infeasible"
+            assert recs[other]["evidence"]["neighbour re-solves"] == [
+                f"at the speed twin {first} (the same NLP up to the exact speed scaling): from 0: test"]
+        else:
+            assert counts == {"re-solved": 2, "kept": 0}
+            assert recs[first]["status"] == "optimal" and recs[other]["speed_twin_of"] == first

@@ -1408,6 +1408,11 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             todo.append((TC.continuation_group,
                          (spec, g, seed, seed is None and spec.build.relaxation_evidence, pseeds), i))
         seeds = seeds + tuple(f"{p} (mirrored)" if m else p for p, m in fam_seeds)
+        # the groups that decide a relaxation first (one solve with the optimizer's default budgets,
+        # about 13 CPU s each on README's worked example, where the others take a few) are submitted
+        # first, so that no worker is left alone with one at the end of the phase; results are kept
+        # by group, so the order changes no number
+        todo.sort(key=lambda task: not task[1][3])
     else:
         kind = "chain"
         for i, c in enumerate(chains(spec.grid)):

@@ -135,6 +135,27 @@ def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(sce
     assert len(searched) >= 1 and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
 
 
+def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
+    """FL stuck at -30 deg on a 25 deg slope: the table's small-budget search gives up
+    (``not_found``); the nominal rover there is confirmed infeasible with the default budgets
+    (17.5 CPU s), so the point is ``infeasible`` with that evidence. Also pins the nominal-search
+    cache: it used to hand the small-budget search's result to the default-budget call. Moved here
+    from ``test_tables_verify.py`` and run at 2 instead of 3 cm/s: after the test above, the cache
+    already holds the default-budget verdict at this operating point (25 deg, 2 cm/s), so the two
+    tests share that 17.5 CPU s solve (a test file runs in one process, ``--dist loadfile``)."""
+    sc = tmp_path / "fl_steer_stuck.toml"
+    sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
+                  '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
+    grid = "slope=25;cross_slope=0;speed=2;steer_stuck=-30"
+    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains")), tmp_path / "on", progress=False)
+    assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
+    ev = load_table(path).header["evidence"]["0"]
+    assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
+    _, off = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains", relaxation_evidence=False)), tmp_path / "off",
+                         progress=False)
+    assert off["statuses"] == {"not_found": 1}
+
+
 def test_a_group_the_relaxation_decides_entirely_has_nothing_left_to_order(monkeypatch):
     """One speed and no failure axis (the shipped rr_locked grid): where the relaxation is
     infeasible it decides the group's only point, and no first-speed point is left to solve.

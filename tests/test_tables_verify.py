@@ -404,23 +404,3 @@ def test_relaxation_is_the_scenario_without_failures_when_that_is_a_relaxation()
     assert relaxation_of(replace(base, failures={"RR": WheelFailure(raised=True)})) is None
     trench = load_scenario(TABLES / "scenarios" / "rr_trench_clean.toml")
     assert relaxation_of(trench).params == trench.params  # the trench's zeta = 1 stays
-
-
-def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
-    """FL stuck at -30 deg on a 25 deg slope: the table's small-budget search gives up
-    (``not_found``); the nominal rover there is confirmed infeasible with the default budgets
-    (17.5 CPU s), so the point is ``infeasible`` with that evidence. Also pins the nominal-search
-    cache: it used to hand the small-budget search's result to the default-budget call."""
-    from offline.rover.table_builder import BuildOptions, build_table, table_spec
-
-    sc = tmp_path / "fl_steer_stuck.toml"
-    sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
-                  '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
-    grid = "slope=25;cross_slope=0;speed=3;steer_stuck=-30"
-    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains")), tmp_path / "on", progress=False)
-    assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
-    ev = load_table(path).header["evidence"]["0"]
-    assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
-    _, off = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains", relaxation_evidence=False)), tmp_path / "off",
-                         progress=False)
-    assert off["statuses"] == {"not_found": 1}

@@ -135,6 +135,27 @@ def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(sce
     assert len(searched) >= 1 and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
 
 
+def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
+    """FL stuck at -30 deg on a 25 deg slope: the table's small-budget search gives up
+    (``not_found``); the nominal rover there is confirmed infeasible with the default budgets
+    (17.5 CPU s), so the point is ``infeasible`` with that evidence. Also pins the nominal-search
+    cache: it used to hand the small-budget search's result to the default-budget call. Moved here
+    from ``test_tables_verify.py`` and run at 2 instead of 3 cm/s: after the test above, the cache
+    already holds the default-budget verdict at this operating point (25 deg, 2 cm/s), so the two
+    tests share that 17.5 CPU s solve (a test file runs in one process, ``--dist loadfile``)."""
+    sc = tmp_path / "fl_steer_stuck.toml"
+    sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
+                  '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
+    grid = "slope=25;cross_slope=0;speed=2;steer_stuck=-30"
+    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains")), tmp_path / "on", progress=False)
+    assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
+    ev = load_table(path).header["evidence"]["0"]
+    assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
+    _, off = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains", relaxation_evidence=False)), tmp_path / "off",
+                         progress=False)
+    assert off["statuses"] == {"not_found": 1}
+
+
 def test_a_group_the_relaxation_decides_entirely_has_nothing_left_to_order(monkeypatch):
     """One speed and no failure axis (the shipped rr_locked grid): where the relaxation is
     infeasible it decides the group's only point, and no first-speed point is left to solve.
@@ -354,3 +375,47 @@ def test_a_run_already_made_from_a_neighbour_is_not_repeated(scenario_file, tmp_
     ev = load_table(path).header["evidence"]["0"]
     assert ev["verdict"] == "search (test)"
     assert any("neighbour 1 on the failure axis" in s for s in ev["continuation"]["continuation"])
+
+
+def test_a_verdict_whose_speed_twin_is_re_checked_is_not_re_solved_again(scenario_file, tmp_path, monkeypatch):
+    """Speed twins pose the same NLP up to the exact speed scaling: of two search verdicts that
+    differ only in speed, only the first speed's is re-solved from its neighbours; the other's
+    evidence names the twin's re-solves, and when the twin is solved it is carried over (a
+    verified twin re-solve, faked here). The former pass re-solved both (fails on it). No solve:
+    the re-solves and the carry are faked."""
+    spec = table_spec(scenario_file, grid="slope=5;cross_slope=0;speed=2,4;steer_stuck=0,30", build=FAST)
+    g = spec.grid
+    at = {(round(p["speed"], 3), round(math.degrees(p["steer_stuck"]))): f for f in range(g.size) for p in [g.point(f)]}
+    twin_of = {f: TB.speed_twin(g, f) for f in range(g.size)}
+
+    def recs_now():
+        ok = {"status": "optimal", "x_scaled": np.zeros(3), "lam_x": np.zeros(3), "lam_g": np.zeros(2),
+              "data": {"objective": 1.0}}
+        bad = {"status": "infeasible", "iterations": 5, "evidence": {"verdict": "search (test)"}}
+        return {f: {"flat": f, **(ok if stuck == 0 else bad)} for (speed, stuck), f in at.items()}
+
+    tried: list[int] = []
+    monkeypatch.setattr(TB, "predicted_start", lambda spec_, rec, a, b: rec["x_scaled"])
+    monkeypatch.setattr(TB, "twin_resolve", lambda spec_, f, twin: {**twin, "flat": f, "speed_twin_of": twin["flat"]})
+    for solve in (False, True):
+        def fake_retry(spec_, flat, starts, solve=solve):
+            tried.append(flat)
+            if solve:
+                return {"flat": flat, "status": "optimal", "retried_from": starts[0][0], "x_scaled": np.ones(3),
+                        "lam_x": np.zeros(3), "lam_g": np.zeros(2), "data": {"objective": 1.0}}
+            return {"flat": flat, "status": "not_found", "iterations": 11, "evidence": {"retries": ["from 0: test"]}}
+
+        monkeypatch.setattr(TB, "retry_point", fake_retry)
+        tried.clear()
+        recs = recs_now()
+        counts = TB._recheck_infeasible(spec, recs, TB._Checkpoint(tmp_path / f".ck{solve}", spec.key()), None,
+                                        twin_of=twin_of)
+        first, other = at[(0.02, 30)], at[(0.04, 30)]
+        assert tried == [first], tried  # not the 4 cm/s twin
+        if not solve:
+            assert counts == {"re-solved": 0, "kept": 2} and recs[other]["status"] == "infeasible"
+            assert recs[other]["evidence"]["neighbour re-solves"] == [
+                f"at the speed twin {first} (the same NLP up to the exact speed scaling): from 0: test"]
+        else:
+            assert counts == {"re-solved": 2, "kept": 0}
+            assert recs[first]["status"] == "optimal" and recs[other]["speed_twin_of"] == first

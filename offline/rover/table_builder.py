@@ -1408,6 +1408,11 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             todo.append((TC.continuation_group,
                          (spec, g, seed, seed is None and spec.build.relaxation_evidence, pseeds), i))
         seeds = seeds + tuple(f"{p} (mirrored)" if m else p for p, m in fam_seeds)
+        # the groups that decide a relaxation first (one solve with the optimizer's default budgets,
+        # about 13 CPU s each on README's worked example, where the others take a few) are submitted
+        # first, so that no worker is left alone with one at the end of the phase; results are kept
+        # by group, so the order changes no number
+        todo.sort(key=lambda task: not task[1][3])
     else:
         kind = "chain"
         for i, c in enumerate(chains(spec.grid)):
@@ -1470,8 +1475,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
-        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs)
-        polished = _polish(spec, recs, ck, ex, bar)
+        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None)
+        polished = _polish(spec, recs, ck, ex, bar, twin_of)
         relaxed = 0
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
@@ -1623,7 +1628,8 @@ def search_verdict(rec: Mapping[str, Any]) -> bool:
 
 
 def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
-                        ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None) -> dict[str, int]:
+                        ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None,
+                        twin_of: Mapping[int, int | None] | None = None) -> dict[str, int]:
     """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
     its solved grid neighbours before accepting it.
 
@@ -1646,6 +1652,13 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     has the predicted start of its own primitive, so that run is not repeated; along slope,
     cross slope and speed the predicted start is another start and is tried.
 
+    ``twin_of`` (speed twins, :func:`speed_twin`): a verdict whose first-speed twin also rests on
+    a search is not re-solved at its own speed (its neighbours' starts pose the same NLPs as the
+    twin's up to the exact speed scaling; on README's worked example that halves the pass): the
+    twin's re-solves are its evidence, and a twin they solve is carried to it by
+    :func:`_twin_pass` (verified). Where that carry does not verify, or the twin had no solved
+    neighbour to be re-solved from, the point is re-checked from its own neighbours as before.
+
     Returns
     -------
     dict
@@ -1654,25 +1667,54 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     shape = spec.grid.shape
     tried: dict[int, list[str]] = {}
     done_pairs: set[tuple[int, int]] = set()
-    fresh = {f for f in recs if recs[f]["status"] == "optimal"}  # the starts new in this wave
     fam_axis = spec.grid.names.index(spec.family["axis"]) if spec.family is not None else None
     for f, nb in tried_pairs or ():
         a = np.flatnonzero(np.subtract(np.unravel_index(f, shape), np.unravel_index(nb, shape)))
         if fam_axis is not None and a.size == 1 and int(a[0]) == fam_axis:
             done_pairs.add((f, nb))
+    tw: dict[int, int] = {f: t for f, t in (twin_of or {}).items() if t is not None}
+    skip = {f for f, t in tw.items() if f in recs and search_verdict(recs[f]) and search_verdict(recs[t])}
+    solved = _recheck_waves(spec, recs, ck, ex, done_pairs, tried, skip, "recheck")
+    if skip and twin_of is not None:
+        keys = {tw[f] for f in skip if recs[tw[f]]["status"] == "optimal"}
+        if keys and ck is not None:
+            solved += _twin_pass(spec, recs, {f: t for f, t in twin_of.items() if (f if t is None else t) in keys},
+                                 ck, ex, "twin_recheck")
+        # a twin solved but not carried (its carry did not verify), or a twin with no re-solve (no
+        # solved neighbour of its own): this point's own neighbours after all
+        own = {f for f in skip if search_verdict(recs[f]) and (recs[tw[f]]["status"] == "optimal" or tw[f] not in tried)}
+        solved += _recheck_waves(spec, recs, ck, ex, done_pairs, tried, set(recs) - own, "recheck_own")
+        for f in sorted(skip - own):
+            if search_verdict(recs[f]):
+                tried.setdefault(f, []).append(f"at the speed twin {tw[f]} (the same NLP up to the exact speed "
+                                               "scaling): " + "; ".join(str(v) for v in tried[tw[f]]))
+    kept = 0
+    for f, t in sorted(tried.items()):
+        if recs[f]["status"] == "infeasible":
+            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), "neighbour re-solves": t}}
+            kept += 1
+    return {"re-solved": solved, "kept": kept}
+
+
+def _recheck_waves(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None, ex: cf.Executor | None,
+                   done_pairs: set[tuple[int, int]], tried: dict[int, list[str]], skip: set[int], kind: str) -> int:
+    """The waves of :func:`_recheck_infeasible` over the search verdicts not in ``skip`` (records,
+    ``done_pairs`` and ``tried`` updated in place). Returns the number of points made optimal."""
+    shape = spec.grid.shape
+    fresh = {f for f in recs if recs[f]["status"] == "optimal"}  # the starts new in this wave
     solved = 0
     for wave in range(RECHECK_WAVES):
         tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
         got: dict[int, dict[str, Any]] = {}
         for f in sorted(recs):
-            if not search_verdict(recs[f]):
+            if f in skip or not search_verdict(recs[f]):
                 continue
             nbs = [nb for nb in _neighbours(shape, f)
                    if nb in fresh and recs[nb]["status"] == "optimal" and (f, nb) not in done_pairs]
             if not nbs:
                 continue
             done_pairs.update((f, nb) for nb in nbs)
-            c = ck.load(f"recheck{wave}", f) if ck is not None else None
+            c = ck.load(f"{kind}{wave}", f) if ck is not None else None
             if c is not None:
                 got[f] = c[0]
                 continue
@@ -1683,7 +1725,7 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
 
         def done(f: int, rec: dict[str, Any], wave: int = wave) -> None:
             if ck is not None:
-                ck.save(f"recheck{wave}", f, [rec])
+                ck.save(f"{kind}{wave}", f, [rec])
             got[f] = rec
 
         _run(tasks, ex, done)
@@ -1699,12 +1741,7 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
                 tried.setdefault(f, []).extend((rec.get("evidence") or {}).get("retries", []))
         if not fresh:
             break
-    kept = 0
-    for f, t in sorted(tried.items()):
-        if recs[f]["status"] == "infeasible":
-            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), "neighbour re-solves": t}}
-            kept += 1
-    return {"re-solved": solved, "kept": kept}
+    return solved
 
 
 def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],
@@ -1883,20 +1920,32 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
 
 
 def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
-            bar: Any) -> int:
+            bar: Any, twin_of: Mapping[int, int | None] | None = None) -> int:
     """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
     uses the previous sweep's results only, so the outcome does not depend on the order in which
     workers finish; a later sweep visits only points next to one that changed). Returns the
-    number of points replaced."""
+    number of points replaced.
+
+    With speed twins (``twin_of``, :func:`speed_twin`; continuation schedule) only the first
+    speed of a group whose first-speed member is solved is swept: at another speed the same
+    neighbours' starts pose the same NLP up to the exact speed scaling (:func:`twin_resolve`),
+    so sweeping it repeats the search (on README's worked example half the pass's IPOPT runs).
+    What the sweeps found is then carried to the other speeds by :func:`_twin_pass` (each
+    carried optimum verified by its own re-solve and the independent check; a member keeps its
+    own optimum where the carry does not verify or is not strictly better)."""
     shape = spec.grid.shape
     changed = set(recs)
     polished_ever: set[int] = set()
     total = 0
+    by_twin = bool(twin_of) and spec.build.schedule == "continuation"
     for sweep in range(spec.build.polish_sweeps):
         tasks, got = [], {}
         for f in sorted(recs):
             if recs[f]["status"] != "optimal" or not any(nb in changed for nb in _neighbours(shape, f) + [f]):
                 continue
+            if by_twin and twin_of is not None and (t := twin_of.get(f)) is not None \
+                    and recs[t]["status"] == "optimal":
+                continue  # swept at the first speed, carried below
             c = ck.load(f"polish{sweep}", f)
             if c is not None:
                 got[f] = c[0] if c[0]["status"] != "none" else None
@@ -1925,6 +1974,10 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         total += len(changed)
         if not changed:
             break
+    if by_twin and twin_of is not None and polished_ever:
+        keys = {f if (t := twin_of.get(f)) is None else t for f in polished_ever}  # the groups a sweep changed
+        total += _twin_pass(spec, recs, {f: t for f, t in twin_of.items() if (f if t is None else t) in keys}, ck, ex,
+                            "twin_polish")
     return total
 
 

@@ -58,13 +58,14 @@ def test_model_from_header_is_the_suspension_statics(mer_table):
 
 @pytest.mark.parametrize("path, points, fixed, jacobian_points", [
     (MER_TABLE, 6, 3, 6),  # fixed: the locked omega RF, the middle wheels' steering (not steerable)
-    (SKID_TABLE, 4, 4, 2),  # fixed: every wheel's steering; at slope 5 deg the primitive puts FL at zero slip
+    (SKID_TABLE, 6, 4, 6),  # fixed: every wheel's steering; -1, 0, 1 deg: every wheel off the slip/skid switch
 ])
 def test_numpy_residual_equals_the_offline_nlp_at_the_grid_points(path, points, fixed, jacobian_points):
     """Values at every grid point; the Jacobian and gradient on the columns the bounds leave free,
     at the points where no wheel sits on the slip/skid switch (there the forward differences
-    straddle the wheel model's kink: measured up to 6 row scales per variable scale on the
-    skid-steer's FL at slope 5 deg, which the optimizer put at slip 0)."""
+    straddle the wheel model's kink: measured up to 6 row scales per variable scale on the former
+    skid-steer table's FL at slope 5 deg, which the optimizer put at slip 0; the table's slope axis
+    is now -1, 0, 1 deg, on the flat-ground branch, with every wheel off the switch)."""
     import casadi as ca
 
     from offline.rover.table_builder import _problem

@@ -291,6 +291,21 @@ def test_unsupported_rover_tables_stay_refused_with_their_reason(mer_table):
     assert any(f.startswith("table tracked unavailable since start-up") for f in d.flags)
 
 
+def test_skid_steer_table_holds_one_branch():
+    """Every grid point of the skid-steer table is on the flat-ground branch: all four wheels
+    rolling, none near its wheel-speed bound (at most half of it). The former table (slope 0 and
+    5 deg) had RL spinning at its 4.817 rad/s drive limit at 5 deg, a second branch of the
+    primitive, and rtctl's online step failed ``tables verify`` check 4 between the two
+    (``results_any_rover_audit.md``, T2); this fails on it (RL at 1.0 of its bound)."""
+    t = load_table(SKID_TABLE)
+    lay = t.layout
+    for k in np.argwhere(t.feasible):
+        tp = t.at(**t.grid_point(tuple(k)))
+        x, ub = np.asarray(tp.x, dtype=float), np.asarray(tp.ubx, dtype=float)
+        ratio = {w: x[lay.var("omega", w)] / ub[lay.var("omega", w)] for w in lay.wheels}
+        assert max(ratio.values()) < 0.5, (t.grid_point(tuple(k)), ratio)
+
+
 def test_controller_drives_the_skid_steer_table_open_loop_to_its_primitive():
     """The four-wheel skid-steer (rigid frame, no steering), front-right wheel unpowered, at the
     grid point slope 0, 2 cm/s: the QP every tick, steering 0, wheel speeds within the rover file's

@@ -21,6 +21,8 @@ Run on demand from the repository root::
    then has no lever arm about the pivots, so the load the rocker moves onto a dragged front wheel
    (forward) or off a dragged rear wheel (backward) is gone. Same wheel model, same zero-slip
    construct, same actuator limits.
+   With ``--sweep`` only: the forward case with the pivots 0.30, 0.20 and 0.10 m above the ground
+   contact (shipped 0.43 m, part 3 0), the bogie pivots and the centre of mass moved with them.
 4. (skipped with ``--skip-limits``) The shipped geometry with the drive speed limit raised from
    0.385 to 1.0 rad/s and the torque limit from 30 to 300 N m, RF steering free, then held
    straight.
@@ -95,20 +97,32 @@ def zero_slip_rows(sc: Scenario, r: PrimitiveResult) -> None:
               f"monotone {bool(np.all(np.diff(f) > 0))}")
 
 
-def low_pivots(tmp: Path) -> None:
-    """Part 3 (module docstring)."""
-    text = (SRC / "mer_class_rocker_bogie.toml").read_text()
-    low = (text.replace("-0.30]", "0.13]").replace("pivot_m = [-0.325, -0.6, -0.15]", "pivot_m = [-0.325, -0.6, 0.0]")
-           .replace("pivot_m = [-0.325, 0.6, -0.15]", "pivot_m = [-0.325, 0.6, 0.0]")
-           .replace("centre_of_mass_m = [0.0, 0.0, 0.10]", "centre_of_mass_m = [0.0, 0.0, 0.53]"))
-    if low.count("0.13]") != 6 or "[0.0, 0.0, 0.53]" not in low or low.count(", 0.0]\n") < 2:
+def _with_lever(text: str, lever: float) -> str:
+    """The rover file with the rocker pivots ``lever`` m above the wheels' ground contact (the
+    shipped file: 0.43 m, wheel centres 0.30 m below the pivots, radius 0.13 m), the bogie pivots
+    at the same fraction of it above the ground (shipped 0.28 / 0.43) and the centre of mass kept
+    0.53 m above the ground; nothing else changes."""
+    zw = 0.13 - lever  # wheel centres relative to the rocker pivot axis
+    zb = zw - 0.13 + lever * 0.28 / 0.43  # bogie pivots
+    out = (text.replace("-0.30]", f"{zw:.4f}]").replace("pivot_m = [-0.325, -0.6, -0.15]", f"pivot_m = [-0.325, -0.6, {zb:.4f}]")
+           .replace("pivot_m = [-0.325, 0.6, -0.15]", f"pivot_m = [-0.325, 0.6, {zb:.4f}]")
+           .replace("centre_of_mass_m = [0.0, 0.0, 0.10]", f"centre_of_mass_m = [0.0, 0.0, {0.53 - lever:.4f}]"))
+    if out.count(f"{zw:.4f}]") < 6 or out.count(f"{zb:.4f}]") < 2 or f"{0.53 - lever:.4f}]" not in out:
         raise RuntimeError("mer_class_rocker_bogie.toml: the geometry changed; update the bench's copy")
-    (tmp / "mer_low.toml").write_text(low)
-    for direction in ("forward", "backward"):
-        p = tmp / f"low_{direction}.toml"
-        p.write_text('[scenario]\nname = "mer_low_pivots_rf_locked"\nrover = "mer_low.toml"\nspeed_m_s = 0.03\n'
-                     + ('drive_direction = "backward"\n' if direction == "backward" else "") + '[wheels.RF]\nlocked = true\n')
-        _solve(f"pivots at the ground-contact height, RF locked, {direction}", load_scenario(p), evidence=True)
+    return out
+
+
+def low_pivots(tmp: Path, levers: tuple[float, ...] = (0.0,), directions: tuple[str, ...] = ("forward", "backward")) -> None:
+    """Part 3 (module docstring); ``levers`` other than 0: the sweep of ``--sweep``."""
+    text = (SRC / "mer_class_rocker_bogie.toml").read_text()
+    for lever in levers:
+        (tmp / "mer_low.toml").write_text(_with_lever(text, lever))
+        for direction in directions:
+            p = tmp / f"low_{direction}.toml"
+            p.write_text('[scenario]\nname = "mer_low_pivots_rf_locked"\nrover = "mer_low.toml"\nspeed_m_s = 0.03\n'
+                         + ('drive_direction = "backward"\n' if direction == "backward" else "") + '[wheels.RF]\nlocked = true\n')
+            _solve(f"rocker pivots {lever:.2f} m above the ground contact (shipped 0.43), RF locked, {direction}",
+                   load_scenario(p), evidence=True)
 
 
 def limits(tmp: Path) -> None:
@@ -131,7 +145,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run the parts (module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--skip-limits", action="store_true", help="skip part 4 (the raised actuator limits, about 100 CPU-s)")
+    ap.add_argument("--sweep", action="store_true",
+                    help="only the lever sweep: part 3 forward with the rocker pivots 0.30, 0.20, 0.10 m above the ground contact")
     args = ap.parse_args(argv)
+    if args.sweep:
+        with tempfile.TemporaryDirectory() as folder:
+            tmp = Path(folder)
+            (tmp / "mer_class_wheel.toml").write_text((SRC / "mer_class_wheel.toml").read_text())
+            low_pivots(tmp, (0.30, 0.20, 0.10), ("forward",))
+        return 0
     sc = load_scenario(ROOT / "offline" / "scenarios" / "rovers" / "mer_rf_locked.toml")
     r = _solve("mer_rf_locked as shipped", sc, evidence=True)
     zero_slip_rows(sc, r)

@@ -58,13 +58,14 @@ def test_model_from_header_is_the_suspension_statics(mer_table):
 
 @pytest.mark.parametrize("path, points, fixed, jacobian_points", [
     (MER_TABLE, 6, 3, 6),  # fixed: the locked omega RF, the middle wheels' steering (not steerable)
-    (SKID_TABLE, 4, 4, 2),  # fixed: every wheel's steering; at slope 5 deg the primitive puts FL at zero slip
+    (SKID_TABLE, 6, 4, 6),  # fixed: every wheel's steering; -1, 0, 1 deg: every wheel off the slip/skid switch
 ])
 def test_numpy_residual_equals_the_offline_nlp_at_the_grid_points(path, points, fixed, jacobian_points):
     """Values at every grid point; the Jacobian and gradient on the columns the bounds leave free,
     at the points where no wheel sits on the slip/skid switch (there the forward differences
-    straddle the wheel model's kink: measured up to 6 row scales per variable scale on the
-    skid-steer's FL at slope 5 deg, which the optimizer put at slip 0)."""
+    straddle the wheel model's kink: measured up to 6 row scales per variable scale on the former
+    skid-steer table's FL at slope 5 deg, which the optimizer put at slip 0; the table's slope axis
+    is now -1, 0, 1 deg, on the flat-ground branch, with every wheel off the switch)."""
     import casadi as ca
 
     from offline.rover.table_builder import _problem
@@ -288,6 +289,21 @@ def test_unsupported_rover_tables_stay_refused_with_their_reason(mer_table):
     assert c.wheels == ("RF", "LF", "RM", "LM", "RR", "LR")  # the refused table does not enter the wheel set
     _, d = c.step(__import__("rtctl.messages", fromlist=["Measurements"]).Measurements(0.0, 0, (-0.1,) * 6, (0.0,) * 6, 0.0))
     assert any(f.startswith("table tracked unavailable since start-up") for f in d.flags)
+
+
+def test_skid_steer_table_holds_one_branch():
+    """Every grid point of the skid-steer table is on the flat-ground branch: all four wheels
+    rolling, none near its wheel-speed bound (at most half of it). The former table (slope 0 and
+    5 deg) had RL spinning at its 4.817 rad/s drive limit at 5 deg, a second branch of the
+    primitive, and rtctl's online step failed ``tables verify`` check 4 between the two
+    (``results_any_rover_audit.md``, T2); this fails on it (RL at 1.0 of its bound)."""
+    t = load_table(SKID_TABLE)
+    lay = t.layout
+    for k in np.argwhere(t.feasible):
+        tp = t.at(**t.grid_point(tuple(k)))
+        x, ub = np.asarray(tp.x, dtype=float), np.asarray(tp.ubx, dtype=float)
+        ratio = {w: x[lay.var("omega", w)] / ub[lay.var("omega", w)] for w in lay.wheels}
+        assert max(ratio.values()) < 0.5, (t.grid_point(tuple(k)), ratio)
 
 
 def test_controller_drives_the_skid_steer_table_open_loop_to_its_primitive():

@@ -1,0 +1,82 @@
+"""The skid-steer's closed-loop drive on a given table, over seeds (issue 23, target T2).
+
+Run on demand from the repository root::
+
+    OPENBLAS_NUM_THREADS=1 nice python tests/bench/bench_any_rover_skid_seeds.py [--table T.npz] [--seeds 1 2 3]
+
+rtctl (default :class:`rtctl.config.ControllerConfig` at 3 cm/s) drives the four-wheel skid-steer
+with its front-right drive motor dead (``offline/scenarios/rovers/skid_fr_unpowered.toml``) 5 m
+along world X in the simulator (default sensors, the seed given), as
+``bench_any_rover_drives.py``'s ``skid-steer, FR unpowered`` rtctl case does for seed 1. The table
+defaults to the shipped test table ``tests/data/tables/rovers/skid_fr_unpowered.npz``. Prints one
+row per seed: the issue's targets (heading within 3 deg, cross-track within 5 cm), the mean speed,
+the mean per-tick change of the commanded rim speeds (the chatter of ``results_any_rover_audit.md``)
+and the CPU seconds of the drive. Writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path.insert(0, str(HERE))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Drive the seeds and print the rows."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--table", default=str(ROOT / "tests" / "data" / "tables" / "rovers" / "skid_fr_unpowered.npz"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--distance", type=float, default=5.0, help="m along world X (default 5)")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from dataclasses import replace
+
+    from bench_any_rover_drives import CROSSTRACK_CM, HEADING_DEG, ROVERS
+    from offline.rover.scenario import load_scenario
+    from offline.sim.experiments import run_drive
+    from offline.sim.simulator import RoverSimulator
+    from rtctl.config import ControllerConfig
+    from rtctl.controller import Controller
+    from rtctl.table import load_table
+
+    speed = 0.03
+    table = load_table(Path(args.table))
+    print(f"table {args.table}: axes {dict((a, [float(v) for v in vals]) for a, vals in table.axes.items())}")
+    print("| seed | distance [m] | max abs heading [deg] | max abs cross-track [cm] | mean speed [cm/s] | on the path "
+          f"({HEADING_DEG:g} deg, {CROSSTRACK_CM:g} cm) | mean rim change per tick [mm/s] | CPU [s] |\n|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        sc = load_scenario(ROVERS / "skid_fr_unpowered.toml").with_(speed=speed)
+        cfg = ControllerConfig()
+        ctl = Controller({"skid_fr_unpowered": table}, replace(cfg, drive=replace(cfg.drive, speed=speed)))
+        rims: list[tuple[float, ...]] = []
+        step = ctl.step
+
+        def logged(m, step=step):  # type: ignore[no-untyped-def]
+            cmd, d = step(m)
+            rims.append(tuple(cmd.rim_speed))
+            return cmd, d
+
+        ctl.step = logged  # type: ignore[method-assign]
+        c0 = time.process_time()
+        res = run_drive(RoverSimulator(sc, seed=seed), ctl, distance=args.distance, max_time=3.0 * args.distance / speed)
+        cpu = time.process_time() - c0
+        m = res.metrics
+        on = (m["max_abs_heading_deg"] <= HEADING_DEG and m["max_abs_cross_track_cm"] <= CROSSTRACK_CM
+              and m["distance_m"] >= args.distance - 1e-9 and not res.ended)
+        change = np.abs(np.diff(np.asarray(rims), axis=0))
+        print(f"| {seed} | {m['distance_m']:.2f} | {m['max_abs_heading_deg']:.2f} | {m['max_abs_cross_track_cm']:.2f} | "
+              f"{m['mean_speed_cm_s']:.2f} | {'yes' if on else 'NO'} | {1e3 * float(np.mean(change)):.3f} | {cpu:.1f} |",
+              flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -300,3 +300,37 @@ def test_pull_on_a_straight_drive_is_not_given_to_the_soil_alone(sc, tmp_path):
     listed = {k for s in v.explanations for k in s.keys}
     assert "tether" in listed and {"recalibration", "soil_stiffness"} & listed, v.summary()
     assert "turn" in v.ambiguity and "reverse" in v.ambiguity, v.ambiguity
+
+
+def test_drags_at_the_wheels_on_a_straight_drive_are_not_named_a_tether(sc, tmp_path):
+    """Issue 24, "never a confident wrong name": Rankine hub faces at all four wheels, written here
+    (passive pressure on a 30 mm face below a 2 mm clearance, a drag against each wheel's travel and a
+    torque F x 5 mm against its spin), on a straight 12 s drive. The library's hub_contact is left
+    out; its tether (one pull at the body) fits the drive as well as the drags do, and the engine
+    before the identifiability rule named it with confidence ('explained: tether'). On a straight
+    drive a pull at the body and drags at the wheels give the same body wrench: the verdict is
+    'ambiguous', the per-wheel drag probe listed beside the tether, with the reverse leg and the turn
+    that would separate them."""
+    soil = sc.params.soil
+    kp = math.tan(math.pi / 4 + soil.friction_angle / 2) ** 2
+    xy = [(0.5 * sc.rover.rocker_length * sx, 0.5 * sc.rover.track_width * sy) for sx, sy in ((1, -1), (1, 1), (-1, -1), (-1, 1))]
+
+    def faces(t, s):
+        wf, tq = [], []
+        for i, (x, y) in enumerate(xy):
+            e = max(s.sinkage[i] - 0.002, 0.0)
+            f = 0.03 * (soil.unit_weight * kp * e * e / 2 + 2 * soil.cohesion * math.sqrt(kp) * e)
+            vx, vy = s.u - s.yaw_rate * y, s.v + s.yaw_rate * x
+            n = math.sqrt(vx * vx + vy * vy + 1e-6)
+            wf.append((-f * vx / n, -f * vy / n))
+            tq.append(f * 0.005 * s.omega[i] / math.sqrt(s.omega[i] ** 2 + 1e-4))
+        return DisturbanceForces(wheel_force=tuple(wf), wheel_torque=tuple(tq))
+
+    straight = (DriveSegment(0.0, 70.0, (CALIBRATION_SPEED,) * 4, (0.0,) * 4, "straight"),)
+    f = record_drive(tmp_path / "faces.mcap", sc, seed=4, duration=12.0, disturbance=faces, segments=straight)
+    lib = [c for c in DRIVE_CANDIDATES if c.key in ("tether", "terrain_slope", "wheel_radius_all")]
+    v = diagnose_drives([f], sc, segment=6, candidates=lib, recalibrate=False, empirical=False, seed=1)
+    assert v.status == "ambiguous" and v.missing_physics == [], v.summary()
+    listed = {k for s in v.explanations for k in s.keys}
+    assert {"tether", "wheel_drag"} <= listed, v.summary()
+    assert "reverse" in v.ambiguity and "turn" in v.ambiguity, v.ambiguity

@@ -1152,12 +1152,12 @@ def diagnose(
         mtasks: list[tuple[int, Candidate]] = []
         for i, key in enumerate(chosen.keys):
             ci = claim(key)
-            for m in probes_w:
-                if ci is None or claim(m.key) in (None, ci) or m.key in chosen.keys:
+            for pc in probes_w:
+                if ci is None or claim(pc.key) in (None, ci) or pc.key in chosen.keys:
                     continue
-                if len(chosen.keys) == 1 and m.key in by_key:
+                if len(chosen.keys) == 1 and pc.key in by_key:
                     continue  # the library's own single fit of the probe was judged above
-                mtasks.append((i, m))
+                mtasks.append((i, pc))
 
         def try_probe(task: tuple[int, Candidate], chosen: CandidateScore = chosen) -> CandidateScore:
             i, m = task
@@ -1173,15 +1173,15 @@ def diagnose(
             return score(others + [m], starts)[0]
 
         pairs_w: list[str] = []
-        for (i, m), sm in zip(mtasks, map_tasks(try_probe, mtasks, workers, model)):
+        for (ip, probe), sm in zip(mtasks, map_tasks(try_probe, mtasks, workers, model)):
             scores.append(sm)
             if (vuong(chosen.rows_cv, sm.rows_cv) < 2.0
                     and chi2_base - sm.chi2_cv >= (1.0 - equal_fraction) * (chi2_base - chosen.chi2_cv)):
                 sm = _with(sm, significant=True)
                 equivalent.append(sm)
-                by_key.setdefault(m.key, (m, sm, -1))
-                a, b = claim(chosen.keys[i]) or "", claim(m.key) or ""
-                pairs_w.append(f"{chosen.keys[i]} ({a}) and {m.key} ({b}): {model.separating_manoeuvres(a, b)}")
+                by_key.setdefault(probe.key, (probe, sm, -1))
+                a, b = claim(chosen.keys[ip]) or "", claim(probe.key) or ""
+                pairs_w.append(f"{chosen.keys[ip]} ({a}) and {probe.key} ({b}): {model.separating_manoeuvres(a, b)}")
         if pairs_w:
             same_wrench = ("On this drive's manoeuvres these give the same body wrench, and the held-out rows cannot tell "
                            "them apart; what separates them: " + "; ".join(pairs_w))

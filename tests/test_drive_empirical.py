@@ -228,3 +228,34 @@ def test_truth_description_of_an_empirical_term_is_plain_json(scenario: Any, tmp
     assert d["empirical_force_SI"] == [{"direction": "torque.RR", "where": "everywhere", "shape": "constant", "lo": None,
                                         "hi": None, "magnitude": 0.03}]
     json.dumps(d, allow_nan=False)
+
+
+def test_a_lost_re_simulation_is_never_taken_for_a_better_fit(scenario: Any) -> None:
+    """The simulator's correction of a term's magnitude (``_fit_real``) scores a lost drive as the
+    engine does (``significance.fail_floor``: the worst row of the model as given), not a fixed 10
+    noise units. Here the model as given misses by 20 noise units everywhere, a unit drag removes
+    one, and the linear step (magnitude 20) loses the drive: with the fixed floor the lost drive
+    scored 10 per value, "better" than the model, and the step was taken."""
+    from offline.discrepancy.drive.empirical import _fit_real
+
+    class Obs:
+        channels = ("a", "b")
+        measured = {"a": np.full(6, 20.0), "b": np.full(6, -20.0)}
+        noise = {"a": np.ones(6), "b": np.ones(6)}
+
+        def __len__(self) -> int:
+            return 6
+
+    class Model:
+        def __init__(self) -> None:
+            self.scenario = scenario
+
+        def predict(self, obs: Any, ext: Any, extra: Any = None) -> tuple[dict[str, Any], Any]:
+            m = sum(t.magnitude for t in extra.terms) if extra is not None else 0.0
+            if m > 10.0:  # the drive is lost
+                return {ch: np.full(6, np.nan) for ch in obs.channels}, np.zeros(6, bool)
+            return {"a": np.full(6, m), "b": np.full(6, -m)}, np.ones(6, bool)
+
+    term = EmpiricalTerm("drag.body", magnitude=1.0)
+    got = _fit_real(Model(), Obs(), {"a": 1.0, "b": 1.0}, [], term)
+    assert got.magnitude == 1.0

@@ -98,7 +98,7 @@ __all__ = ["ROVER_KEYS", "DRIVE_CANDIDATES", "ACTUATOR_CANDIDATES", "DRIVE_CANDI
 ROVER_KEYS = (
     "slope", "cross_slope", "imu_roll", "imu_pitch", "tether", "wheel_lag", "torque_limit", "gyro_scale",
     "radius_scale_all", *(f"radius_scale.{w}" for w in WHEELS), *(f"steer_offset.{w}" for w in WHEELS),
-    "hub_clearance", "hub_face_width", "hub_arm", "anchor_tension", "anchor_bearing", "anchor_inverse_distance",
+    "hub_clearance", "hub_face_width", "hub_arm", "wheel_drag", "anchor_tension", "anchor_bearing", "anchor_inverse_distance",
     "anchor_attach_x", "anchor_spring_rate",
     *(f"rim_speed_max.{w}" for w in WHEELS), *(f"speed_fraction.{w}" for w in WHEELS), *(f"wheel_lag.{w}" for w in WHEELS),
     *(f"steer_max.{w}" for w in WHEELS), *(f"rim_accel_max.{w}" for w in WHEELS),
@@ -138,7 +138,7 @@ MEASUREMENT_KEYS = ("imu_roll", "imu_pitch", "gyro_scale")
 """Terms acting on the readings only (no re-simulation needed)."""
 
 NEUTRAL_VALUES: dict[str, float] = {
-    "slope": 0.0, "cross_slope": 0.0, "tether": 0.0, "radius_scale_all": 1.0,
+    "slope": 0.0, "cross_slope": 0.0, "tether": 0.0, "wheel_drag": 0.0, "radius_scale_all": 1.0,
     **{f"radius_scale.{w}": 1.0 for w in WHEELS}, **{f"steer_offset.{w}": 0.0 for w in WHEELS},
     **{f"speed_fraction.{w}": 1.0 for w in WHEELS}, **{f"wheel_lag.{w}": 0.0 for w in WHEELS},
 }
@@ -308,6 +308,36 @@ class HubContact:
                                  wheel_torque=tuple(float(x) for x in torque))
 
 
+@dataclass(frozen=True)
+class WheelDrag:
+    """The same resisting force at every wheel's contact, against that contact's travel (a
+    look-alike probe of the identifiability rule, :data:`WRENCH_LOOKALIKES`: per-wheel drags the
+    soil model lacks -- hub faces, rolling resistance -- whose sum on a straight drive is the body
+    wrench of a pull at the body). Direction smoothed over 1 mm/s as :class:`HubContact`'s; no
+    torque on the wheels' spin.
+
+    Parameters
+    ----------
+    force : float
+        Drag per wheel, N (positive: against the travel).
+    rover : Rover or RoverSpec
+        Wheel positions (:func:`wheel_plan_positions`).
+    """
+
+    force: float
+    rover: Any
+
+    def __call__(self, t: float, s: TruthState) -> DisturbanceForces:
+        """The forces over the next step (contract C5), one per wheel of :attr:`rover`."""
+        xy = wheel_plan_positions(self.rover)
+        xs, ys = xy[:, 0], xy[:, 1]
+        vx, vy = s.u - s.yaw_rate * ys, s.v + s.yaw_rate * xs
+        norm = np.sqrt(vx * vx + vy * vy + SPEED_SMOOTHING ** 2)
+        f = self.force
+        return DisturbanceForces(wheel_force=tuple((float(-f * a / n), float(-f * b / n)) for a, b, n in zip(vx, vy, norm)),
+                                 wheel_torque=(0.0,) * len(xs))
+
+
 PosePath = Any
 """``pose_at(t) -> (x, y, heading)`` in the frame of the drive's start pose (m, rad): where the
 rover was at time ``t`` (the recorded pose for a re-simulated drive)."""
@@ -437,6 +467,8 @@ def disturbance_from_terms(ext: RoverExtension | None, params: ParameterSet, rov
     if "hub_clearance" in t:
         soil = replace(params.soil, **dict[str, Any](ext.soil)) if ext is not None and ext.soil else params.soil
         hooks.append(HubContact(t["hub_clearance"], t.get("hub_face_width", 0.0), t.get("hub_arm", 0.0), soil, rover))
+    if t.get("wheel_drag", 0.0) != 0.0:
+        hooks.append(WheelDrag(t["wheel_drag"], rover))
     if "anchor_tension" in t:
         back = backward_rover_file(rover)
         hooks.append(AnchoredTether(t["anchor_tension"], t.get("anchor_bearing", math.pi), t.get("anchor_inverse_distance", 0.0),
@@ -664,6 +696,69 @@ DRIVE_CANDIDATES_WITH_ACTUATORS: tuple[Candidate, ...] = BASE_DRIVE_CANDIDATES +
 """The rover-level library with every per-wheel actuator term fitted on every drive, unscreened
 (``offnominal discrepancy --recording ... --per-wheel-actuators``: slower; what the screen is
 checked against on the benchmark)."""
+
+
+WHEEL_DRAG = Candidate(
+    "wheel_drag", "the same resisting force at every wheel's contact against its travel (hub or body faces, a rolling "
+    "resistance the soil model lacks)",
+    (("force", "N", -3.0, 3.0, 0.0, 1.0),), lambda t, p: _opt(wheel_drag=t[0]),
+    ("torque_FR", "torque_FL", "torque_RR", "torque_RL", "dx_body"), family="wheel_drag", null=(0.0,), starts=((0.5,),))
+"""A look-alike probe of the identifiability rule (:data:`WRENCH_LOOKALIKES`), not part of the library:
+:class:`WheelDrag`, one parameter (N per wheel)."""
+
+WRENCH_LOOKALIKES: dict[str, str] = {
+    "tether": "a pull at the body", "tether_anchor": "a pull at the body",
+    "hub_contact": "drags at the wheels", "wheel_drag": "drags at the wheels",
+    "soil_stiffness": "a softer or stiffer soil", "recalibration": "a softer or stiffer soil",
+}
+"""Candidates that can give the same body wrench on a drive -- a resisting force along the travel,
+paid for by every wheel's slip and torque -- keyed to what each claims (issue 24, "never a confident
+wrong name"): on a straight drive a pull at the body, per-wheel drags summing to the same force and
+a softer soil are look-alikes; a turn, a reverse leg or a change of slope separates them
+(:data:`SEPARATING_MANOEUVRES`). The engine's identifiability rule
+(:func:`offline.discrepancy.engine.diagnose`, step 6) refits one probe per other claim
+(:data:`LOOKALIKE_PROBES`) in place of an accepted term of this table."""
+
+LOOKALIKE_PROBES: tuple[str, ...] = ("tether", "wheel_drag", "soil_stiffness")
+"""One one-parameter probe per claim of :data:`WRENCH_LOOKALIKES`: a constant pull at the body along
+its -x axis, the same drag at every wheel's contact (:data:`WHEEL_DRAG`), the soil's Bekker k scaled."""
+
+SEPARATING_MANOEUVRES: dict[frozenset[str], str] = {
+    frozenset({"a pull at the body", "drags at the wheels"}): (
+        "a drive in the other direction (a pull keeps its direction on the rover or in the terrain and helps a reverse "
+        "leg; drags turn with each wheel's travel) or a turn (drags at the wheels resist the yaw, a pull at the centre "
+        "does not)"),
+    frozenset({"a pull at the body", "a softer or stiffer soil"}): (
+        "a drive in the other direction (a pull helps a reverse leg, a softer soil resists both ways) or a change of "
+        "slope (the wheel loads: a soil's resistance grows with the sinkage, a pull does not)"),
+    frozenset({"drags at the wheels", "a softer or stiffer soil"}): (
+        "a change of slope or of the load per wheel (a soil's resistance grows with the sinkage, a constant drag "
+        "does not) or a point turn (the soil's lateral resistance changes with the slip angle)"),
+}
+"""What separates each pair of claims of :data:`WRENCH_LOOKALIKES` (the manoeuvres named in an
+'ambiguous' verdict; the recording's own advice says which of them it lacks)."""
+
+
+def lookalike_probes(scenario: Any) -> tuple[Candidate, ...]:
+    """The probes of :data:`LOOKALIKE_PROBES` for the rover of ``scenario`` (force bounds scaled to
+    a rover file's weight as the library's are, :func:`offline.discrepancy.drive.wheel_set.library_for`)."""
+    from .wheel_set import _rescaled, rover_scales
+
+    lib = {c.key: c for c in (*BASE_DRIVE_CANDIDATES, WHEEL_DRAG)}
+    force, length = rover_scales(scenario)
+    out = []
+    for key in LOOKALIKE_PROBES:
+        c = lib[key]
+        c = _rescaled(c, force, length) if (force, length) != (1.0, 1.0) else c
+        if getattr(scenario, "rover_file", None) is not None:
+            from .wheel_set import _channels
+
+            c = replace(c, channels=_channels(c.channels, tuple(scenario.wheels)))
+        out.append(c)
+    return tuple(out)
+
+
+__all__ += ["WHEEL_DRAG", "WheelDrag", "WRENCH_LOOKALIKES", "LOOKALIKE_PROBES", "SEPARATING_MANOEUVRES", "lookalike_probes"]
 
 
 TABLE_BUILDER_TAKES: dict[str, str] = {

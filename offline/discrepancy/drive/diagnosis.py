@@ -936,6 +936,30 @@ class DriveModel:
         assert self.truth is not None
         return self.truth.params
 
+    def lookalike_probes(self) -> tuple[Any, ...]:
+        """Probes of the engine's identifiability rule (step 6 of :mod:`offline.discrepancy.engine`):
+        a pull at the body, the same drag at every wheel, a soil k scale, sized for this rover
+        (:func:`~offline.discrepancy.drive.candidates.lookalike_probes`)."""
+        from .candidates import lookalike_probes
+
+        return lookalike_probes(self.scenario)
+
+    @staticmethod
+    def wrench_claim(key: str) -> str | None:
+        """What a candidate that can give a drive's body wrench claims
+        (:data:`~offline.discrepancy.drive.candidates.WRENCH_LOOKALIKES`); None for any other."""
+        from .candidates import WRENCH_LOOKALIKES
+
+        return WRENCH_LOOKALIKES.get(key)
+
+    @staticmethod
+    def separating_manoeuvres(a: str, b: str) -> str:
+        """The manoeuvres that separate two claims of :meth:`wrench_claim`
+        (:data:`~offline.discrepancy.drive.candidates.SEPARATING_MANOEUVRES`)."""
+        from .candidates import SEPARATING_MANOEUVRES
+
+        return SEPARATING_MANOEUVRES.get(frozenset({a, b}), "a turn, a drive in the other direction or a change of slope")
+
     def simulate(self, d: DriveData, ext: RoverExtension | None, heading_offset: float, extra: Any = None
                  ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], bool]:
         """Re-simulate one drive (module notes): predicted tick readings, body velocities (n, 3), ok.

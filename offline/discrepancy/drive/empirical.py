@@ -101,7 +101,7 @@ from rtctl.physics.hub_drag import SPEED_SMOOTHING, SPIN_SMOOTHING
 
 from ...sim.simulator import DisturbanceForces
 from ...sim.truth import WHEELS
-from ..significance import normalised
+from ..significance import fail_floor, normalised
 
 __all__ = ["EmpiricalTerm", "EmpiricalTerms", "EmpiricalResult", "search_empirical", "search_drives", "interleaved_folds",
            "DIRECTIONS", "simulator_applies", "truth_entries", "terms_from_truth", "direction_text", "wheel_names"]
@@ -857,15 +857,21 @@ def _refine(search: _Search, term: EmpiricalTerm, r: NDArray[np.float64]) -> Emp
 
 
 def _fit_real(model: Any, obs: Any, scale: dict[str, float], done: Sequence[EmpiricalTerm], term: EmpiricalTerm,
-              rows: NDArray[np.bool_] | None = None) -> EmpiricalTerm:
+              rows: NDArray[np.bool_] | None = None, lost: dict[str, float] | None = None) -> EmpiricalTerm:
     """One simulator correction of the term's magnitude: the response re-simulated at the linear
-    fit replaces the linear column (a secant step), on ``rows`` (default all)."""
+    fit replaces the linear column (a secant step), on ``rows`` (default all). ``lost``: what a
+    lost (not simulated) row counts per channel, the engine's
+    :func:`~offline.discrepancy.significance.fail_floor` of the model as given (default: computed
+    here from the re-simulation without terms), so a step that loses the drive is never taken for
+    one that fits it better."""
     if term.kind == "offset" or term.magnitude == 0.0:
         return term
     rover = _rover_of(model)
+    if lost is None:
+        lost = fail_floor(obs, model.predict(obs, None)[0], scale)
     p0, _ = model.predict(obs, None, EmpiricalTerms(tuple(done), rover) if done else None)
     p1, _ = model.predict(obs, None, EmpiricalTerms((*done, term), rover))
-    z0, z1 = normalised(obs, p0, scale), normalised(obs, p1, scale)
+    z0, z1 = normalised(obs, p0, scale, lost), normalised(obs, p1, scale, lost)
     sel = np.ones(len(obs), bool) if rows is None else rows
     a = (z0 - z1)[sel].ravel() / term.magnitude
     r = z0[sel].ravel()
@@ -877,7 +883,7 @@ def _fit_real(model: Any, obs: Any, scale: dict[str, float], done: Sequence[Empi
     m = float(np.clip(m, -lim, lim))
     # the secant step is accepted only where it lowers the simulated chi-square
     p2, _ = model.predict(obs, None, EmpiricalTerms((*done, term.with_(magnitude=m)), rover))
-    z2 = normalised(obs, p2, scale)
+    z2 = normalised(obs, p2, scale, lost)
     return term.with_(magnitude=m) if float((z2[sel] ** 2).sum()) < float((z1[sel] ** 2).sum()) else term
 
 
@@ -942,7 +948,10 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
     rng = np.random.default_rng(seed + 24)
     rover = _rover_of(model)
     pred0, _ = model.predict(obs, None)
-    z_base = normalised(obs, pred0, scale)
+    # a lost row (a term whose re-simulation fails) counts the worst the model as given does on
+    # the channel, as in the engine (significance.fail_floor), not a fixed FAIL_Z
+    lost = fail_floor(obs, pred0, scale)
+    z_base = normalised(obs, pred0, scale, lost)
     chi2_base = float((z_base ** 2).sum())
     accepted: list[EmpiricalTerm] = []
     fold_terms: list[list[EmpiricalTerm]] = [[] for _ in range(k_folds)]
@@ -969,21 +978,22 @@ def search_empirical(v: Any, alpha: float | None = None, n_boot: int | None = No
         j = int(np.argmax(ar ** 2 / aa - 2.0 * fam.k))
         term = _refine(search, fam.terms[j], r)
         say(f"empirical terms: {term.law()}")
-        term = _fit_real(model, obs, scale, accepted, term)
+        term = _fit_real(model, obs, scale, accepted, term, lost=lost)
         # each fold's term (selected and fitted without the fold) for the simulator's held-out score
         for f in range(k_folds):
             tf = fam.terms[int(picks[f][0])].with_(magnitude=float(mags[f][0]))
-            fold_terms[f].append(_fit_real(model, obs, scale, fold_terms[f][:len(accepted)], tf, rows=folds != f))
+            fold_terms[f].append(_fit_real(model, obs, scale, fold_terms[f][:len(accepted)], tf, rows=folds != f,
+                                           lost=lost))
         accepted.append(term)
         pa, _ = model.predict(obs, None, EmpiricalTerms(tuple(accepted), rover))
-        r = normalised(obs, pa, scale).ravel()
+        r = normalised(obs, pa, scale, lost).ravel()
     cv_after = chi2_base
     misfit: list[tuple[str, float, int, float]] = []
     if accepted:
         rows_cv = np.zeros(len(obs))
         for f in range(k_folds):
             pf, _ = model.predict(obs, None, EmpiricalTerms(tuple(fold_terms[f]), rover))
-            zf = normalised(obs, pf, scale)
+            zf = normalised(obs, pf, scale, lost)
             rows_cv[folds == f] = (zf[folds == f] ** 2).sum(axis=1)
         cv_after = float(rows_cv.sum())
         pa, _ = model.predict(obs, None, EmpiricalTerms(tuple(accepted), rover))

@@ -519,14 +519,16 @@ def search_wheel_empirical(v: Any, alpha: float = 0.01, seed: int = 0, k_folds: 
     WheelEmpiricalResult
     """
     from ..engine import _lack_of_fit
-    from ..significance import normalised
+    from ..significance import fail_floor, normalised
 
     if not 0.0 < alpha < 0.5:
         raise ValueError(f"alpha = {alpha}: expected 0 < alpha < 0.5")
     obs = with_model_features(v.observations, v.pred_before)
     rng = np.random.default_rng(seed)
     n_null = int(math.ceil(2.0 / alpha))
-    Z = normalised(obs, v.pred_before, v.scale)
+    # a row the model as given cannot predict counts its worst row on the channel, as in the engine
+    # (significance.fail_floor), not a fixed FAIL_Z
+    Z = normalised(obs, v.pred_before, v.scale, fail_floor(obs, v.pred_before, v.scale))
     specs, A = term_columns(obs, v.scale, min_rows=min_rows)
     folds = obs.folds(k_folds)
     chi2_base = float((Z**2).sum())

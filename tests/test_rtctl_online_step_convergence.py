@@ -33,8 +33,13 @@ DEG = math.pi / 180
 RIM_CAP = {"cross_slope": -0.062711, "rim_speed_cap_fraction": 0.939809, "slope": 0.039165, "speed": 0.032534}
 UNPOWERED = {"cross_slope": -0.052187, "slope": 0.195404, "speed": 0.028582}
 
-PREVIOUS = replace(QpSettings(), gauss_newton=False, regularization=1e-5, command_weight=1e-5, restart_iterations=3,
-                   restart_iteration_step=0.05)
+NO_CONTINUATION = replace(QpSettings(), restart_continuation_stages=0)
+"""The restart without the parameter continuation from the cell's corners (issue 22): the tests of
+the structured Hessian, the branch start and the restart tick's budget are about the iteration from
+the table's own start."""
+
+PREVIOUS = replace(NO_CONTINUATION, gauss_newton=False, regularization=1e-5, command_weight=1e-5,
+                   restart_iterations=3, restart_iteration_step=0.05)
 """The settings before the structured Hessian (the table's interpolated Hessian, 1e-5 floors) and
 before the restart tick's own budget (a restart's first tick as a jump's: 3 iterations, 0.05 scales)."""
 
@@ -116,7 +121,7 @@ def test_the_kink_corner_is_left_out_of_the_curvature(rim_cap):
 def test_five_ticks_at_a_constant_point_reach_the_nlp_optimum(case, request):
     t, xstar = request.getfixturevalue(case)
     op = RIM_CAP if case == "rim_cap" else UNPOWERED
-    _, p, rti, xs, _ = _ticks(t, op, 5, QpSettings())
+    _, p, rti, xs, _ = _ticks(t, op, 5, NO_CONTINUATION)
     ds, db, df = _agreement(t, rti, p, xs[-1], xstar)
     # issue-20 targets: speeds 2 %, steering 0.3 deg, objective 0.5 % (measured: rim cap 0.02 %,
     # 0.003 deg; unpowered 0.1 %, 0.04 deg)
@@ -162,7 +167,7 @@ def test_a_restart_starts_on_one_branch_not_between_two():
     tp = t.at(**TWO_BRANCHES)
     out = {}
     for start in ("branch", "interpolated"):
-        rti = RealTimeIteration(t, QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
+        rti = RealTimeIteration(t, NO_CONTINUATION, [lay.index(f"wheel torque {w}") for w in lay.wheels])
         rti.prepare(tp)
         if start == "interpolated":
             rti.iterate = rti.allocator.x0
@@ -199,8 +204,8 @@ def test_the_first_tick_after_a_restart_iterates_until_balanced():
     independent check: 0.83 N force, 1.9 N load; target 0.1 N, 0.2 N)."""
     t = load_table(TABLES / "rr_rim_speed_cap.npz")
     out = {}
-    for name, settings in (("restart budget", QpSettings()),
-                           ("jump budget", replace(QpSettings(), restart_iterations=3, restart_iteration_step=0.05))):
+    for name, settings in (("restart budget", NO_CONTINUATION),
+                           ("jump budget", replace(NO_CONTINUATION, restart_iterations=3, restart_iteration_step=0.05))):
         tp, p, rti, xs, steps = _ticks(t, RIM_CAP_FAR, 1, settings)
         g, _ = rti.residual.residual(xs[0], p)
         viol = np.maximum(tp.lbg - g, 0.0) + np.maximum(g - tp.ubg, 0.0)
@@ -217,7 +222,7 @@ def test_a_candidate_start_with_a_non_finite_residual_is_never_chosen():
     t = load_table(TABLES / "rr_steer_stuck.npz")
     lay = t.layout
     tp = t.at(**TWO_BRANCHES)
-    rti = RealTimeIteration(t, QpSettings(), [lay.index(f"wheel torque {w}") for w in lay.wheels])
+    rti = RealTimeIteration(t, NO_CONTINUATION, [lay.index(f"wheel torque {w}") for w in lay.wheels])
     linearise = rti.linearise
     rl = lay.var("beta", "RL")
 

@@ -422,9 +422,9 @@ class QpSettings:
     extra_iteration_step: float = 0.05
     restart_iterations: int = 10
     restart_iteration_step: float = 0.01
-    restart_continuation_stages: int = 4
+    restart_continuation_stages: int = 2
     restart_continuation_iterations: int = 2
-    restart_continuation_polish: int = 3
+    restart_continuation_polish: int = 2
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),

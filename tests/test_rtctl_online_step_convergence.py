@@ -234,3 +234,33 @@ def test_a_candidate_start_with_a_non_finite_residual_is_never_chosen():
     rti.prepare(tp)
     assert rti.start_status.startswith("branch of 2 of 8 corners"), rti.start_status  # the one finite branch
     assert np.all(np.isfinite(rti.iterate))
+
+
+# the centre of rr_rim_speed_cap's cell (0, 0, 0, 2) (tables verify's check 4,
+# tests/bench/bench_tables_online.py): cap 0.75-1, the capped wheel near its zero-slip kink
+CYCLE_CENTRE = {"slope": 2.5 * DEG, "cross_slope": -5.0 * DEG, "speed": 0.03, "rim_speed_cap_fraction": 0.875}
+
+
+def test_a_restart_by_continuation_from_the_corners_converges_where_the_table_start_cycles():
+    """From the table's start (the interpolated primitive, no continuation: the step before issue
+    22's check 4) the iteration cycles with period 2 (measured 0.8, 1.2, 0.76, 1.2, 0.75 variable
+    scales from the optimum; first command 3.1 N out of balance by the independent check). The
+    restart by parameter continuation from the cell's corners starts balanced and converges to
+    the best verified optimum there (objective 0.614301: ``table_verify.check_interpolation``'s
+    best of every start and a continuation from each corner; the other optimum found is 0.617469)."""
+    t = load_table(TABLES / "rr_rim_speed_cap.npz")
+    out = {}
+    for name, settings in (("continuation", QpSettings()), ("table start", NO_CONTINUATION)):
+        tp, p, rti, xs, steps = _ticks(t, CYCLE_CENTRE, 5, settings)
+        sx = np.asarray(t.layout.variable_scale)
+        g, f = rti.residual.residual(xs[0], p)
+        viol = np.maximum(tp.lbg - g, 0.0) + np.maximum(g - tp.ubg, 0.0)
+        last = float(np.max(np.abs(xs[-1] - xs[-2]) / sx))
+        out[name] = (float(np.max(viol / rti.allocator.sg)), last, rti.residual.residual(xs[-1], p)[1], steps[0])
+    s0 = QpSettings()
+    assert out["continuation"][3] <= max(s0.restart_iterations, s0.iterations_per_tick), out  # bounded
+    # balanced at tick 1 (every row within 0.3 % of its scale), settled at tick 5, at the best optimum
+    assert out["continuation"][0] <= 3e-3 and out["continuation"][1] < 1e-3, out
+    assert out["continuation"][2] == pytest.approx(0.614301, rel=1e-3), out
+    # the table's start: still moving by more than 0.3 scales a tick after five (the cycle)
+    assert out["table start"][1] > 0.3, out

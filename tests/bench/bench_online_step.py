@@ -214,6 +214,14 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
                     tick["local"] = _compare(lay, res.x, xloc, f, floc)
                 ticks.append(tick)
             row["ticks"] = ticks
+            if len(ticks) >= 5:
+                # the online step's own tick-5 command, where it passes the independent check at a
+                # lower objective than the NLP's reference: a better verified optimum (the reference
+                # is the best of several IPOPT starts, not a global one)
+                x5 = np.asarray(res.x, dtype=float)
+                f5 = rti.residual.residual(x5, p)[1]
+                if f5 < fstar * (1.0 - 1e-6) and bool(check_solution(pb, sc, x5 / xsc)[1]):
+                    row["online_better_objective_rel"] = float((f5 - fstar) / fstar)
             row["local_reference"] = xloc is not None
             row["local_is_best"] = bool(xloc is not None and floc <= fstar * (1 + 1e-6))
             rows.append(row)
@@ -231,6 +239,9 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
 
     def ok5(r: dict[str, Any]) -> bool:
         return len(r["ticks"]) >= 5 and all(r["ticks"][4][k] <= v for k, v in lim5.items())
+
+    def ok5_best(r: dict[str, Any]) -> bool:
+        return ok5(r) or "online_better_objective_rel" in r
 
     def ok5_local(r: dict[str, Any]) -> bool:
         return (len(r["ticks"]) >= 5 and "local" in r["ticks"][4]
@@ -277,7 +288,13 @@ def accuracy(points: int, seed: int, only: list[str] | None, qp: dict[str, Any] 
               f"(against the local optimum of the table's branch {sum(ok5_local(r) for r in used)}/"
               f"{sum(bool(r.get('local_reference')) for r in used)}; the local optimum is the best found at "
               f"{sum(bool(r.get('local_is_best')) for r in used)} points); "
-              f"baseline {sum(base_ok1(r) for r in used)}/{len(used)} and {sum(base_ok5(r) for r in used)}/{len(used)}.", ""]
+              f"baseline {sum(base_ok1(r) for r in used)}/{len(used)} and {sum(base_ok5(r) for r in used)}/{len(used)}.", "",
+              f"Against the best verified optimum (the NLP reference, or the online step's own tick-5 command where it "
+              f"passes the independent check at a lower objective): tick-5 {sum(ok5_best(r) for r in used)}/{len(used)}"
+              + ("; the online step's command better than the reference at " + "; ".join(
+                  f"{r['table']} {r['op']} (objective {r['online_better_objective_rel']:+.2%})"
+                  for r in used if "online_better_objective_rel" in r) if any("online_better_objective_rel" in r for r in used)
+                 else "") + ".", ""]
     if refused:
         lines += ["Refused: " + "; ".join(f"{r['table']} {r['op']}: {r['rti_refused']}" for r in refused), ""]
     if ref_path is not None and len(cache) > cached:

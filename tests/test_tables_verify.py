@@ -255,31 +255,20 @@ def test_verify_prints_passed_only_when_every_gated_check_passed(monkeypatch):
 
 # ------------------------------------------------------------------------------ every shipped table
 ONLINE_FAILS = {
-    "rr_unpowered": "check 4, 3 of 5 cells pass (tests/bench/results_tables_online_i22.md): at (12.5, -5) deg, drawn "
-                    "by the quick sample, the online step converges to another local optimum (objective 0.22 % above "
-                    "the best, steering 7.4 deg away; from a start 10 % of the way it reaches the best one); at (7.5, "
-                    "5) deg it wanders 0.03-0.47 variable scales, also from a start 2 % of the way, with the table's "
-                    "curvature (with the exact curvature at the centre it converges): the cell's corners straddle a "
-                    "wheel's motor-limit kink. A kink-aware grid (slope 7.5 and 12.5, cross slope +-5 deg inserted, 80 "
-                    "points, 160 CPU s) passes 13 of 15 cells, not all; not shipped",
-    "rr_steer_stuck": "check 4, 25 of 27 cells pass: the quick sample draws (2.5 deg slope, 82.5 deg stuck), where "
-                      "the online step stays 3.2 variable scales from the optimum (the start is 2.8 off; the stuck "
-                      "wheel's speed is strongly non-linear near 90 deg); the other failing cell, (2.5, 37.5) deg, "
-                      "diverges from a start 2.6 scales off and converges from one 25 % of the way. A grid with 37.5 "
-                      "and 82.5 deg inserted (150 points, 179 CPU s) passes 28 of 30 cells but lost the primitive at "
-                      "0 deg slope, 45 deg stuck (infeasible, one not_found); not shipped",
-    "rr_rim_speed_cap": "check 4, 0 of 4 cells pass: the first tick's command unbalanced at cap 0.625 (0.025 N m) and "
-                        "at 0.875, +5 deg (0.14 N); at (2.5 deg, -5 deg, cap 0.875) the online step cycles with period "
-                        "2 (0.69 / 1.31 variable scales; from a start 25 % of the way it converges); at (7.5, -5, "
-                        "0.875) still 0.42 scales off after 5 ticks (steering 5.7 deg)",
+    "rr_unpowered": "check 4, 4 of 5 cells pass (tests/bench/results_tables_online_i22.md, 2026-11-28): at (12.5, "
+                    "-5) deg, drawn by the quick sample, the online step converges, balanced (1e-6 N at tick 1), to "
+                    "the second of two local optima the check's reference search finds there, objective 0.22 % "
+                    "above the best (1.427431 against 1.424275), steering 7.4 deg away, wheel speeds 0.9 %; the "
+                    "best one is reached by none of the corners' continuations (SQP or IPOPT: check 3 found it "
+                    "from the upper speed layer's corner start alone). Targets missed: steering 0.3 deg only",
 }
 """Shipped tables whose quick verify fails, on check 4 (the online step) alone, and why: measured at every
 cell centre by ``python tests/bench/bench_tables_online.py`` (``tests/bench/results_tables_online_i22.md``).
 These are failures of what rtctl commands between grid points, not of the check's reference (the best verified
-optimum found by every start and a continuation from each corner). Their raw interpolation distances (check 3,
-information since issue 22) are 0.87 and 1.43 scales (rim cap), 0.79 and 1.35 (unpowered), 2.76 and 4.07 (stuck steering).
-The nominal table passes (22 of 24 cells: at 18.75 deg, +-2.5 deg cross slope the steering is 0.37 deg off after
-5 ticks, converging)."""
+optimum found by every start and a continuation from each corner). Since the restart by parameter continuation
+from the cell's corners (``rtctl.rti.RealTimeIteration.start``, issue 22) rr_rim_speed_cap (4 of 4 cells, 2
+before: a period-2 cycle and a slow start) and rr_steer_stuck (27 of 27, 26 before: a start 2.8 scales off near
+90 deg) pass; the nominal table passes 24 of 24."""
 
 
 @pytest.fixture(scope="module")

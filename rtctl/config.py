@@ -356,8 +356,12 @@ class QpSettings:
         move to the point's in this many equal stages; 0: no continuation (the interpolated or
         branch start, as before issue 22's online gate). Measured at every cell centre of the
         shipped rr_rim_speed_cap, rr_unpowered and rr_steer_stuck tables (36, check 4 of
-        ``tables verify``): 4 stages of 2 iterations and 3 at the point pass 35, against 31
-        without the continuation (``tests/bench/results_tables_online_i22.md``).
+        ``tables verify``; ``tests/bench/results_tables_online_i22.md``): 2 stages of 2
+        iterations and 3 at the point pass 35, against 31 without the continuation; 2 + 2 + 2
+        also 35 but it failed the worked example's (2.5, -5, -75 deg) centre of
+        fl_steer_stuck, which 2 + 2 + 3 passes; 2 + 2 + 5 and 3 + 2 + 2 34. A restart's first
+        tick then costs a median 52 ms of thread CPU over the 36 centres (at most 109; 9 and 16
+        without), once per table switch or refused QP.
     restart_continuation_iterations : int
         SQP iterations per continuation stage.
     restart_continuation_polish : int
@@ -424,7 +428,7 @@ class QpSettings:
     restart_iteration_step: float = 0.01
     restart_continuation_stages: int = 2
     restart_continuation_iterations: int = 2
-    restart_continuation_polish: int = 2
+    restart_continuation_polish: int = 3
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),

@@ -43,6 +43,10 @@ def _nonneg(v: float) -> str | None:
     return None if (math.isfinite(v) and v >= 0) else "must be finite and >= 0"
 
 
+def _count(v: float) -> str | None:
+    return None if (v >= 0 and v == int(v)) else "must be an integer >= 0"
+
+
 def _any_finite(v: float) -> str | None:
     return None if math.isfinite(v) else "must be finite"
 
@@ -346,6 +350,22 @@ class QpSettings:
     restart_iteration_step : float
         Step length (largest change of a variable, in variable scales) above which the first
         tick after a restart iterates again (``restart_iterations``).
+    restart_continuation_stages : int
+        Stages of the parameter continuation a restart runs from each corner of the table's cell
+        (:meth:`rtctl.rti.RealTimeIteration._continued_start`): the corner's parameters and bounds
+        move to the point's in this many equal stages; 0: no continuation (the interpolated or
+        branch start, as before issue 22's online gate). Measured at every cell centre of the
+        shipped rr_rim_speed_cap, rr_unpowered and rr_steer_stuck tables (36, check 4 of
+        ``tables verify``; ``tests/bench/results_tables_online_i22.md``): 2 stages of 2
+        iterations and 3 at the point pass 35, against 31 without the continuation; 2 + 2 + 2
+        also 35 but it failed the worked example's (2.5, -5, -75 deg) centre of
+        fl_steer_stuck, which 2 + 2 + 3 passes; 2 + 2 + 5 and 3 + 2 + 2 34. A restart's first
+        tick then costs a median 52 ms of thread CPU over the 36 centres (at most 109; 9 and 16
+        without), once per table switch or refused QP.
+    restart_continuation_iterations : int
+        SQP iterations per continuation stage.
+    restart_continuation_polish : int
+        SQP iterations at the point itself after the last stage, before the ends are compared.
     active_set_iterations : int
         Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
         OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
@@ -406,6 +426,9 @@ class QpSettings:
     extra_iteration_step: float = 0.05
     restart_iterations: int = 10
     restart_iteration_step: float = 0.01
+    restart_continuation_stages: int = 2
+    restart_continuation_iterations: int = 2
+    restart_continuation_polish: int = 3
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
@@ -419,6 +442,9 @@ class QpSettings:
             "restart_iterations": _key("restart_iterations",
                                        check=lambda v: None if (v >= 1 and v == int(v)) else "must be an integer >= 1"),
             "restart_iteration_step": _key("restart_iteration_step", check=_pos),
+            "restart_continuation_stages": _key("restart_continuation_stages", check=_count),
+            "restart_continuation_iterations": _key("restart_continuation_iterations", check=_count),
+            "restart_continuation_polish": _key("restart_continuation_polish", check=_count),
             "active_set_iterations": _key("active_set_iterations",
                                           check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0"),
             "active_set_restart_iterations": _key("active_set_restart_iterations",

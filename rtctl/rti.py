@@ -37,7 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .allocator import Allocation, QpAllocator
+from .allocator import Allocation, QpAllocator, merge_bounds
 from .config import QpSettings
 from .physics.parameters import ParameterError
 from .physics.steady_state import SteadyStateModel, SteadyStateResidual
@@ -54,6 +54,13 @@ _TILT_JUMP = math.radians(1.0)
 _BRANCH_STEER = math.radians(30.0)
 """Two cell corners whose primitives steer some wheel more than this apart (rad) lie on different
 branches of the NLP's optima (:meth:`RealTimeIteration.start`)."""
+
+_CONVERGED_STEP = 1e-4
+"""Largest last step (variable scales) of the restart's former start iterated at the point for it to
+count as converged (:meth:`RealTimeIteration._continued_start`: no continuation then)."""
+
+_CONVERGED_VIOLATION = 1e-6
+"""Largest l1 violation of the row bounds (scaled rows) for the same."""
 
 _MAX_BRANCHES = 3
 """Most branches of a cell tried as a start (the heaviest), besides the whole cell's interpolation."""
@@ -147,6 +154,7 @@ class RealTimeIteration:
         self.last_objective = math.nan
         """The objective (7.24) at the last :meth:`linearise` (NaN without a model)."""
         self._restarted = False  # the iterate restarted (:meth:`start`) and no tick has run since
+        self.last_continuation_step = math.inf  # the last step of the last continuation (scales)
 
     def prepare(self, tp: Any) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
@@ -178,8 +186,16 @@ class RealTimeIteration:
             self._restarted = True
 
     def start(self, tp: Any) -> NDArray[np.float64]:
-        """The iterate a restart begins from: the table's interpolated primitive, unless the cell's
-        corners lie on different branches of the NLP's optima.
+        """The iterate a restart begins from: of the ends of a parameter continuation from each
+        of the cell's corners and of the table's interpolated primitive or one branch's
+        (:meth:`_branch_start`) iterated at the point, the one of least exact merit
+        (:meth:`_continued_start`). ``start_status`` says which."""
+        x = self._branch_start(tp)
+        return self._continued_start(tp, x)
+
+    def _branch_start(self, tp: Any) -> NDArray[np.float64]:
+        """The table's interpolated primitive, unless the cell's corners lie on different branches
+        of the NLP's optima.
 
         Corners whose primitives steer some wheel more than ``_BRANCH_STEER`` apart are on
         different branches (single linkage over the corners that carry weight). Interpolating
@@ -236,6 +252,151 @@ class RealTimeIteration:
                 best, best_phi = c, phi
         self.start_status = best[0]
         return best[1].copy()
+
+    def _continued_start(self, tp: Any, x_fallback: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A restart by parameter continuation from the cell's corners (the table point ``tp``).
+
+        Each grid point of the table is an exact optimum of the NLP at its own parameters
+        (speed, slope, cross slope) and its own failure's bounds (a stuck angle, a rim-speed cap:
+        the table's ``lbx`` / ``ubx`` there); interpolated between corners, the primitive is not,
+        and across a kink of the wheel model (the zero-slip kink, a motor limit) it can start
+        outside the basin of the SQP iteration, or in another optimum's (measured at the failing
+        cell centres of the shipped tables, ``tests/bench/bench_tables_online.py``: a period-2
+        cycle of 0.8 / 1.2 scales on rr_rim_speed_cap, a start 2.8 scales off near a 90 deg
+        stuck angle that the iteration only brought to 2.1 in 5 ticks). From each corner of the
+        cell with weight (one speed layer: the nearest to the point's speed, the lower one on a
+        tie; the other layer's primitives are the same ones scaled, the builder's speed twins),
+        the parameters, the variable bounds and the row bounds move linearly to the point's in
+        ``restart_continuation_stages`` stages of ``restart_continuation_iterations`` SQP
+        iterations each, then ``restart_continuation_polish`` more at the point (a path-following
+        homotopy, Allgower & Georg, "Introduction to Numerical Continuation Methods", ch. 10: one
+        SQP iteration at the next stage's parameters from the last stage's iterate is the
+        predictor-corrector step to first order). The QP's curvature part on the way is the
+        corner's own (:meth:`_corner_curvature`, exact at the corner), except for a corner the
+        cell's curvature leaves out (on the zero-slip kink, :meth:`_table_curvature`), which
+        follows its path with the cell's. ``x_fallback`` (:meth:`_branch_start`) is iterated as
+        many times at the point itself, with the cell's curvature.
+
+        The start is the end of least exact l1 merit at the point, ``f + 2 sum_j |y_j| v_j``
+        (``v`` the violation of each row's bounds by the exact residual, ``y`` the end's last QP
+        multipliers; Nocedal & Wright, 2nd ed., eq. (18.27) with a penalty per row above its
+        multiplier): at a converged end it is the objective (7.24), so of two balanced ends the
+        better local optimum wins, and an end not yet balanced pays at least what its imbalance
+        saves in the objective (measured on rr_rim_speed_cap at cap 0.94: an end 0.47 scales from
+        the optimum, violating the rows by 7e-5 scaled, had an objective 1.8 % below the
+        optimum's; the bare objective among ends within a violation threshold picked it). A
+        fixed count of iterations: at most (corners of one speed layer + 1) x (stages x
+        iterations + polish), on a restart only (a new table, a refused QP), never in a steady
+        tick. The former start goes first, and when it has converged at the point (its last step
+        within ``_CONVERGED_STEP`` scales, its rows within ``_CONVERGED_VIOLATION``) the corners
+        are not followed (measured on the trench table: a restart's first tick 29-31 ms of thread
+        CPU instead of 51-122 at three of four points; the same verdicts at the 36 centres of the
+        failure tables and the 73 accuracy points, where the former start had not converged)."""
+        s = self.settings
+        per = s.restart_continuation_stages * s.restart_continuation_iterations + s.restart_continuation_polish
+        cell = getattr(tp, "cell", None)
+        table = getattr(tp, "_table", None)
+        if (self.residual is None or s.restart_continuation_stages <= 0 or cell is None or table is None
+                or not hasattr(table, "point_field")):
+            return x_fallback
+        all_idx = np.asarray(cell[0])[np.asarray(cell[1], dtype=float) > 0.0]
+        idx = all_idx
+        p1 = np.asarray(tp.p, dtype=float)
+        if self._i_speed >= 0 and idx.size > 1:
+            sp = np.array([float(table.point_field(int(c), "p")[self._i_speed]) for c in idx])
+            d = np.abs(sp - p1[self._i_speed])
+            near = d <= float(d.min()) + 1e-12 * max(1.0, float(np.abs(sp).max()))
+            idx = idx[near & (sp <= float(sp[near].min()))]
+        hit = self._cell_cache.get(all_idx.tobytes())
+        outlier = {int(c) for c, k in zip(all_idx, hit[1]) if not k} if hit is not None else set()
+        xb = (np.asarray(tp.lbx, dtype=float), np.asarray(tp.ubx, dtype=float))
+        gb = (np.asarray(tp.lbg, dtype=float), np.asarray(tp.ubg, dtype=float))
+        sl = s.step_limit * self.allocator.sx
+        best_x, best_phi, best_c = x_fallback, math.inf, -1
+        for c in [-1, *[int(c) for c in idx]]:
+            try:
+                if c < 0:  # the fallback, at the point throughout, with the cell's curvature
+                    x0, p0, b0, A = x_fallback, p1, [*xb, *gb], self._A_table
+                else:
+                    x0 = np.asarray(table.point_field(c, "x"), dtype=float)
+                    p0 = np.asarray(table.point_field(c, "p"), dtype=float)
+                    b0 = [np.asarray(table.point_field(c, k), dtype=float) for k in ("lbx", "ubx", "lbg", "ubg")]
+                    A = self._A_table if c in outlier else self._corner_curvature_at(table, c)
+                end = self._continue_from(x0, p0, b0, A, p1, [*xb, *gb], sl, per)
+                if end is None:
+                    continue
+                phi = self._merit(end[0], end[1], p1, gb)
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+                continue
+            if phi < best_phi:
+                best_x, best_phi, best_c = end[0], phi, c
+            if c < 0 and self.last_continuation_step <= _CONVERGED_STEP:
+                g, _ = self.residual.residual(end[0], p1)
+                v = np.maximum(gb[0] - g, 0.0) + np.maximum(g - gb[1], 0.0)
+                if float(np.sum(np.where(self._free | ~np.isfinite(v), 0.0, v) / self.allocator.sg)) <= _CONVERGED_VIOLATION:
+                    break
+        # the iteration goes on at the point with the cell's curvature (the last corner's and what
+        # BFGS learnt on the way belong to other parameters)
+        self._A, self._H, self._prev, self.hessian_updates = self._A_table, None, None, 0
+        if best_c >= 0:
+            self.start_status = f"continuation from grid point {best_c} (else {self.start_status})"
+        return best_x.copy()
+
+    def _corner_curvature_at(self, table: Any, c: int) -> NDArray[np.float64]:
+        """:meth:`_corner_curvature` of grid point ``c`` (flat index), cached."""
+        A = self._corner_cache.get(c)
+        if A is None:
+            A = self._corner_cache[c] = self._corner_curvature(table.point_field(c, "hess_lag"),
+                                                               table.point_field(c, "jac_g_x"))
+        return A
+
+    def _continue_from(self, x: NDArray[np.float64], p0: NDArray[np.float64], b0: Sequence[NDArray[np.float64]],
+                       A: NDArray[np.float64] | None, p1: NDArray[np.float64], b1: Sequence[NDArray[np.float64]],
+                       sl: NDArray[np.float64], total: int
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The continuation of :meth:`_continued_start` from ``x`` at parameters ``p0`` and bounds
+        ``b0`` (lbx, ubx, lbg, ubg) to ``p1``, ``b1``, with the curvature part ``A``: ``total``
+        SQP iterations, the last ``restart_continuation_polish`` (all, when ``p0`` and ``b0`` are
+        the point's) at the point. Returns the end and its last QP's row multipliers; None when
+        a QP failed or the shapes or values are not usable."""
+        s = self.settings
+        x = np.array(x, dtype=float)
+        if not (p0.shape == p1.shape and all(a.shape == b.shape for a, b in zip(b0, b1))
+                and math.isfinite(float(x.sum() + p0.sum()))):
+            return None
+        if self._structured() and A is not None:
+            self._A = A
+        self._H, self._prev = None, None
+        n = s.restart_continuation_stages
+        same = np.array_equal(p0, p1) and all(np.array_equal(a, b) for a, b in zip(b0, b1))
+        y: NDArray[np.float64] | None = None
+        for i in range(total):
+            k = i // max(s.restart_continuation_iterations, 1) + 1
+            t = 1.0 if (same or k > n) else k / n
+            # bounds move linearly where the two ends differ (an infinite bound stays)
+            lo, hi, lg, ug = (np.where(a == b, b, a + t * (b - a)) for a, b in zip(b0, b1))
+            res = self._one(x, p0 + t * (p1 - p0), merge_bounds(lo, hi, (x - sl, x + sl)), lg, ug, None)
+            if not (math.isfinite(res.slack) and bool(np.all(np.isfinite(res.x)))):
+                return None
+            x_new = np.minimum(np.maximum(res.x, b1[0]), b1[1]) if t >= 1.0 else res.x.copy()
+            self.last_continuation_step = float(np.max(np.abs(x_new - x) / self.allocator.sx))
+            x = x_new
+            y = self.allocator.row_duals
+        if y is None:
+            return None
+        return x, np.array(y, dtype=float)
+
+    def _merit(self, x: NDArray[np.float64], y: NDArray[np.float64], p: NDArray[np.float64],
+               gb: Sequence[NDArray[np.float64]]) -> float:
+        """The exact l1 merit ``f + 2 sum_j |y_j| v_j`` at ``(x, p)`` (:meth:`_continued_start`):
+        ``v`` the violation of the row bounds ``gb`` by the exact residual (rows without bounds
+        excluded), ``y`` multipliers in physical units (:attr:`rtctl.allocator.QpAllocator.row_duals`)."""
+        assert self.residual is not None
+        g, f = self.residual.residual(x, p)
+        v = np.maximum(gb[0] - g, 0.0) + np.maximum(g - gb[1], 0.0)
+        v = np.where(self._free | ~np.isfinite(v), 0.0, v)
+        phi = float(f) + 2.0 * float(np.abs(y) @ v)
+        return phi if math.isfinite(phi) else math.inf
 
     def _predicted_merit(self, x: NDArray[np.float64], p: NDArray[np.float64],
                          box: tuple[NDArray[np.float64], NDArray[np.float64]]) -> float:

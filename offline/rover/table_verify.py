@@ -105,8 +105,9 @@ what the controller commands between grid points instead (why: under check 3).
    branch the corners do not share (reported per midpoint: ``optima``).
 4. **Online step** (gated; issue 22): at the same centres, :data:`ONLINE_TICKS` ticks of rtctl's
    own real-time iteration (:class:`rtctl.rti.RealTimeIteration`, the class the controller
-   runs, with the default :class:`rtctl.config.QpSettings`) from the interpolated primitive at
-   the constant operating point, against check 3's reference (the best verified optimum there,
+   runs, with the default :class:`rtctl.config.QpSettings`) from its restart (since issue 22 a
+   parameter continuation from the cell's corners, :meth:`rtctl.rti.RealTimeIteration.start`;
+   before, the interpolated primitive) at the constant operating point, against check 3's reference (the best verified optimum there,
    every start and continuation run). Gates, issue 20's targets (``bench_online_step.py``): the
    first tick's command balanced by the optimizer's independent check
    (:data:`ONLINE_TICK1_TARGETS`, set for the mini rover; another rover's scaled by its weight and
@@ -115,8 +116,9 @@ what the controller commands between grid points instead (why: under check 3).
    local optimum than the reference fails too, however close its objective (the builder's rule is
    the best optimum). This is what a table is for since issue 20: its start must lie where the
    iteration converges in a few ticks, and its Hessian, bounds and active sets must lead there;
-   a corrupted primitive, a wrong steering branch or wrong bounds fail it
-   (``tests/test_tables_verify.py``). Not included: the drive's outer-loop offsets and actuator
+   corrupted wheel speeds or wrong bounds fail it (``tests/test_tables_verify.py``; a wrong
+   steering branch at every grid point no longer does since the continuation, which recovers the
+   optimum from it: such a table fails check 1). Not included: the drive's outer-loop offsets and actuator
    rate limits, which are not the table's.
 """
 
@@ -259,7 +261,7 @@ class VerifyReport:
                              f"objective {m['objective']:.6g}, optima found {m['optima']}")
         if self.online:
             on = self.online
-            lines.append(f"4. Online step (gated): rtctl's real-time iteration from the interpolated primitive, "
+            lines.append(f"4. Online step (gated): rtctl's real-time iteration from its restart (continuation from the corners), "
                          f"{on['ticks']} ticks at each centre of check 3, against that optimum; targets (issue 20) "
                          f"tick 1 balance {on['tick1_targets']}, tick {on['ticks']} {on['targets']}:")
             for r in on["per_centre"]:
@@ -818,8 +820,10 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
     Since issue 20 the table is not the command between grid points: each 5 Hz tick is one SQP
     real-time iteration on the exact residual of (7.12)-(7.23) at the measured parameters
     (:class:`rtctl.rti.RealTimeIteration`, the controller's own class, called through its public
-    ``prepare`` / ``step``), started from the table's interpolated primitive and carrying its
-    iterate; the table supplies that start, the Lagrangian Hessian's constraint curvature, the bounds
+    ``prepare`` / ``step``), started as a restart of the controller starts (the corners' optima
+    followed to the centre by a parameter continuation, or the interpolated primitive, whichever
+    ends at the least exact merit: :meth:`rtctl.rti.RealTimeIteration.start`) and carrying its
+    iterate; the table supplies those starts, the Lagrangian Hessian's constraint curvature, the bounds
     and the active-set hints. At each centre whose reference optimum check 3 verified
     (``references``: the midpoint and the best optimum found there, physical), the operating point
     is held constant and ``ticks`` ticks are run as the controller's QP runs them (the table's

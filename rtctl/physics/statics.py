@@ -61,7 +61,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping, Protocol, Sequence
 
-from .backend import Backend
+import numpy as np
+
+from .backend import NUMPY, Backend
 from .parameters import RoverLike
 
 __all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES"]
@@ -176,6 +178,8 @@ class FourWheelRocker:
         centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
         pitch moments of each rocker about its pivot axis.
         """
+        if ops.name == "numpy":
+            return self._balance_stacked(wrench, beta, h, load, slope, fy_offset, mz_offset, cross_slope, contact, external)
         W = self.rover.weight
         F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
         phi_r, phi_l = self.rocker_angles(ops, h, contact)
@@ -203,6 +207,66 @@ class FourWheelRocker:
             res["Fy"] = res["Fy"] + external[1]
             res["Mz"] = res["Mz"] + external[2]
         return {n: res[n] for n in BALANCE_NAMES}
+
+    def _balance_stacked(
+        self, wrench: Mapping[str, Sequence[Any]], beta: Mapping[str, Any], h: Mapping[str, Any],
+        load: Mapping[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any,
+        contact: Mapping[str, Any] | None, external: tuple[float, float, float] | None,
+    ) -> dict[str, Any]:
+        """:meth:`balance` with numpy, the wheels stacked on a leading axis: the same equations
+        (the per-wheel terms of (7.12)-(7.18) summed over the wheels) in about a third of the
+        array operations (the cost of the rover's numpy residual is its operation count); equal
+        to the per-wheel form to rounding (``tests/test_statics.py`` checks 1e-12 of each row's
+        scale)."""
+        ks = self.wheels
+        n = len(ks)
+        W = self.rover.weight
+        parts = [q for k in ks for q in wrench[k]] + [beta[k] for k in ks] + [load[k] for k in ks]
+        A = None
+        try:  # the usual case, every value a column (B, 1): one concatenation, then a view (parts, B, 1)
+            cat = np.concatenate(parts, axis=1)
+            if cat.shape[1] == len(parts):
+                A = cat.T[..., None]
+        except ValueError:  # numbers or mixed shapes
+            pass
+        if A is None:
+            A = np.stack(np.broadcast_arrays(*parts))
+        wr = A[:6 * n].reshape((n, 6) + A.shape[1:])
+        b = A[6 * n:7 * n]
+        c, s = np.cos(b), np.sin(b)
+        fx, fy, fz, mx, my, mz = (wr[:, j] for j in range(6))
+        Fx = c * fx - s * fy  # to_rover_frame: rotation by the steer angle about z
+        Fy = s * fx + c * fy
+        Mx = c * mx - s * my
+        phi_r, phi_l = self.rocker_angles(NUMPY, h, contact)
+        side = np.array([0 if _SIDE[k] == "R" else 1 for k in ks])
+        phi = np.stack(np.broadcast_arrays(phi_r, phi_l))[side]
+        cp, sp = np.cos(phi), np.sin(phi)
+        lr, hr, wr_ = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
+        extra = (1,) * (Fx.ndim - 1)
+        half = np.array([(lr if _FRONT[k] else -lr) / 2 for k in ks]).reshape((n,) + extra)
+        ry = np.array([-wr_ / 2 if _SIDE[k] == "R" else wr_ / 2 for k in ks]).reshape((n,) + extra)
+        rx = cp * half + sp * hr  # _centre, every wheel at once
+        rz = sp * half - cp * hr
+        add = np.add.reduce
+        res: dict[str, Any] = {
+            "Fx": add(Fx) - W * np.sin(slope),
+            "Fy": add(Fy) - W * np.cos(slope) * np.sin(cross_slope) - fy_offset,
+            "Fz": add(A[7 * n:]) - W * np.cos(slope) * np.cos(cross_slope),
+            "Mx": add(Mx + ry * fz - rz * Fy),
+            "Mz": add(mz + rx * Fy - ry * Fx) - mz_offset,
+        }
+        pitch = rz * Fx - rx * fz
+        if self.pitch_includes_wheel_torque:
+            pitch = pitch + (s * mx + c * my)
+        right = side == 0
+        res["My_right"] = add(pitch[right])
+        res["My_left"] = add(pitch[~right])
+        if external is not None:
+            res["Fx"] = res["Fx"] + external[0]
+            res["Fy"] = res["Fy"] + external[1]
+            res["Mz"] = res["Mz"] + external[2]
+        return {k: res[k] for k in BALANCE_NAMES}
 
     @staticmethod
     def pivot_rows(res: Mapping[str, Any], pivot_locked: Any) -> tuple[Any, Any]:

@@ -332,15 +332,18 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     sgn = ops.where(vx < 0, -1.0, 1.0)
     vxp = sgn * vx
     wp = sgn * omega
-    v = ops.sqrt(vxp * vxp + vy * vy + SPEED_FLOOR**2)
-    beta = ops.arctan2(-vy, vxp)  # eq. (5.1)
-    sin_b = -vy / v
+    vy2 = vy * vy  # shared sub-expressions (the same values, fewer array operations)
+    nvy = -vy
+    v = ops.sqrt(vxp * vxp + vy2 + SPEED_FLOOR**2)
+    beta = ops.arctan2(nvy, vxp)  # eq. (5.1)
+    sin_b = nvy / v
     abs_b = smooth_abs(ops, beta, options.beta_smoothing)
 
     # Slip ratio, eq. (5.2) (denominator r_s w in slip, see module notes).
     rw = rs * wp
     skid = rw < v
-    s_raw = ops.where(skid, (rw - v) / v, (rw - v) / ops.fmax(rw, SPEED_FLOOR))
+    rw_v = rw - v
+    s_raw = ops.where(skid, rw_v / v, rw_v / ops.fmax(rw, SPEED_FLOOR))
     s = ops.fmax(s_raw, -1.0)
 
     # Sinkage exponent, eq. (5.6).
@@ -365,7 +368,8 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     theta_r = ops.fmin(theta_r, 0.0)
     # Keep theta_r < theta_m < theta_f (a tuning can push theta_m0 past a shallower skid theta_f).
     span = theta_f - theta_r
-    theta_m = ops.fmin(ops.fmax(theta_m, theta_r + 1e-6 * span), theta_f - 1e-6 * span)
+    margin = 1e-6 * span
+    theta_m = ops.fmin(ops.fmax(theta_m, theta_r + margin), theta_f - margin)
 
     # Skid transition angle, eq. (5.15): theta_0 = theta_f (1 + (w r_s - v) / (2 v)).
     theta_0 = ops.where(skid, theta_f * (1.0 + 0.5 * s), theta_f)
@@ -411,7 +415,7 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     # eq. (5.10): 1 - exp(-j / K) with j = (w j) / |w|; the per-state factor -1 / (|w| K) first
     shear_fraction = 1.0 - ops.exp(j_w * (-1.0 / (w_abs * p.K)))
     eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
-    vj = ops.sqrt(vjT * vjT + (vjL * vjL + eps_v * eps_v))  # v_jL is per state: its terms first
+    vj = ops.sqrt(vjT * vjT + (vy2 + eps_v * eps_v))  # v_jL = -v_y is per state: its terms first
     tau_max = (p.c + sigma * _parameter_terms(ops, p.phi)[1]) * shear_fraction / vj
     tauT = vjT * tau_max
     return _Contact(rs, sgn, sin_b, beta, s_raw, n, theta_f, theta_m, theta_r, theta_0, sin_f, cos_f, th, wq, ct, st,

@@ -66,14 +66,6 @@ class Backend:
         """Clip ``x`` to ``[lo, hi]`` (kinks at the bounds)."""
         return self.fmin(self.fmax(x, lo), hi)
 
-    def power(self, x: Any, n: Any) -> Any:
-        """``x ** n`` for ``x > 0``: numpy's ``power`` (one array operation), or ``exp(n log x)``
-        in the casadi graph (its derivatives in both arguments as the physics always had them).
-        The two agree to rounding (about 1e-15 relative where ``|n log x|`` is of order 10)."""
-        if self.name == "numpy":
-            return np.power(x, n)
-        return self.exp(n * self.log(x))
-
     def integrals(self, lefts: list[Any], rights: list[Any], pairs: list[tuple[int, int]]) -> list[Any]:
         """Quadrature sums ``qsum(lefts[i] * rights[j])`` for each ``(i, j)`` of ``pairs``.
 
@@ -90,10 +82,10 @@ class Backend:
             L = np.empty((B, len(lefts), N))
             for i, q in enumerate(lefts):
                 L[:, i, :] = q
-            R = np.empty((B, N, len(rights)))
+            R = np.empty((B, len(rights), N))  # filled contiguously; BLAS reads it transposed
             for j, q in enumerate(rights):
-                R[:, :, j] = q
-            M = np.matmul(L, R)
+                R[:, j, :] = q
+            M = np.matmul(L, R.transpose(0, 2, 1))
             return [M[:, i, j, None] for i, j in pairs]
         return [self.qsum(lefts[i] * rights[j]) for i, j in pairs]
 

@@ -178,7 +178,7 @@ class FourWheelRocker:
         centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
         pitch moments of each rocker about its pivot axis.
         """
-        if ops.name == "numpy":
+        if ops.name == "numpy" and self.wheels == WHEELS:
             return self._balance_stacked(wrench, beta, h, load, slope, fy_offset, mz_offset, cross_slope, contact, external)
         W = self.rover.weight
         F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
@@ -213,16 +213,15 @@ class FourWheelRocker:
         load: Mapping[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any,
         contact: Mapping[str, Any] | None, external: tuple[float, float, float] | None,
     ) -> dict[str, Any]:
-        """:meth:`balance` with numpy, the wheels stacked on a leading axis: the same equations
-        (the per-wheel terms of (7.12)-(7.18) summed over the wheels) in about a third of the
-        array operations (the cost of the rover's numpy residual is its operation count); equal
-        to the per-wheel form to rounding (``tests/test_statics.py`` checks 1e-12 of each row's
-        scale)."""
-        ks = self.wheels
-        n = len(ks)
+        """:meth:`balance` with numpy and the wheels in :data:`WHEELS` order (FR, FL, RR, RL),
+        stacked as (front / rear, right / left): the same equations (the per-wheel terms of
+        (7.12)-(7.18) summed over the wheels) in about half the array operations (the cost of the
+        rover's numpy residual is its operation count); equal to the per-wheel form to rounding
+        (``tests/test_statics.py`` checks 1e-12 of each row's scale)."""
         W = self.rover.weight
+        ks = WHEELS
         parts = [q for k in ks for q in wrench[k]] + [beta[k] for k in ks] + [load[k] for k in ks]
-        A = None
+        A: Any = None
         try:  # the usual case, every value a column (B, 1): one concatenation, then a view (parts, B, 1)
             cat = np.concatenate(parts, axis=1)
             if cat.shape[1] == len(parts):
@@ -231,37 +230,35 @@ class FourWheelRocker:
             pass
         if A is None:
             A = np.stack(np.broadcast_arrays(*parts))
-        wr = A[:6 * n].reshape((n, 6) + A.shape[1:])
-        b = A[6 * n:7 * n]
+        rest = A.shape[1:]
+        wr = A[:24].reshape((2, 2, 6) + rest)  # (front, rear) x (right, left) x component
+        b = A[24:28].reshape((2, 2) + rest)
         c, s = np.cos(b), np.sin(b)
-        fx, fy, fz, mx, my, mz = (wr[:, j] for j in range(6))
+        fx, fy, fz, mx, my, mz = (wr[:, :, j] for j in range(6))
         Fx = c * fx - s * fy  # to_rover_frame: rotation by the steer angle about z
         Fy = s * fx + c * fy
-        Mx = c * mx - s * my
-        phi_r, phi_l = self.rocker_angles(NUMPY, h, contact)
-        side = np.array([0 if _SIDE[k] == "R" else 1 for k in ks])
-        phi = np.stack(np.broadcast_arrays(phi_r, phi_l))[side]
+        phi = np.stack(np.broadcast_arrays(*self.rocker_angles(NUMPY, h, contact)))  # (right, left)
         cp, sp = np.cos(phi), np.sin(phi)
         lr, hr, wr_ = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
-        extra = (1,) * (Fx.ndim - 1)
-        half = np.array([(lr if _FRONT[k] else -lr) / 2 for k in ks]).reshape((n,) + extra)
-        ry = np.array([-wr_ / 2 if _SIDE[k] == "R" else wr_ / 2 for k in ks]).reshape((n,) + extra)
+        ones = (1,) * len(rest)
+        half = np.array([lr / 2, -lr / 2]).reshape((2, 1) + ones)  # front, rear (as _centre: sx lr / 2)
+        ry = np.array([-wr_ / 2, wr_ / 2]).reshape((2,) + ones)  # right, left
         rx = cp * half + sp * hr  # _centre, every wheel at once
         rz = sp * half - cp * hr
         add = np.add.reduce
-        res: dict[str, Any] = {
-            "Fx": add(Fx) - W * np.sin(slope),
-            "Fy": add(Fy) - W * np.cos(slope) * np.sin(cross_slope) - fy_offset,
-            "Fz": add(A[7 * n:]) - W * np.cos(slope) * np.cos(cross_slope),
-            "Mx": add(Mx + ry * fz - rz * Fy),
-            "Mz": add(mz + rx * Fy - ry * Fx) - mz_offset,
-        }
         pitch = rz * Fx - rx * fz
         if self.pitch_includes_wheel_torque:
             pitch = pitch + (s * mx + c * my)
-        right = side == 0
-        res["My_right"] = add(pitch[right])
-        res["My_left"] = add(pitch[~right])
+        pitch_side = add(pitch)  # (right, left): each rocker's front and rear wheel
+        res: dict[str, Any] = {
+            "Fx": add(add(Fx)) - W * np.sin(slope),
+            "Fy": add(add(Fy)) - W * np.cos(slope) * np.sin(cross_slope) - fy_offset,
+            "Fz": add(A[28:]) - W * np.cos(slope) * np.cos(cross_slope),
+            "Mx": add(add((c * mx - s * my) + ry * fz - rz * Fy)),
+            "My_right": pitch_side[0],
+            "My_left": pitch_side[1],
+            "Mz": add(add(mz + rx * Fy - ry * Fx)) - mz_offset,
+        }
         if external is not None:
             res["Fx"] = res["Fx"] + external[0]
             res["Fy"] = res["Fy"] + external[1]

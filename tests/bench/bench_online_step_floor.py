@@ -263,6 +263,17 @@ def _baseline(baseline: str, steps: int) -> dict[str, Any]:
     return min(runs, key=lambda r: r["p99"])
 
 
+def append_section(name: str, title: str, md: str, data: dict[str, Any]) -> None:
+    """Add ``md`` as a new section of ``tests/bench/<name>.md`` (titled ``title`` when new; the
+    sections of earlier runs are kept) and write ``data`` to ``<name>.json`` (this run's)."""
+    from offline.files import write_text
+
+    path = HERE / f"{name}.md"
+    before = path.read_text().rstrip("\n") + "\n\n" if path.exists() else f"# {title}\n\n"
+    write_text(path, before + md + "\n")
+    write_text(HERE / f"{name}.json", json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--baseline", default="40a08e8")
@@ -294,14 +305,8 @@ def main() -> None:
               "preparation (table read, structured Hessian), the bounds, the outer loop, the checks and the "
               "messages.", ""]
     md = "\n".join(lines)
-    path = HERE / "results_online_step_floor.md"
-    head = "# The floor of the online step's time at this problem size (issue 20)\n\n"
-    from offline.files import write_text
-
-    before = path.read_text().rstrip("\n") + "\n\n" if path.exists() else head
-    write_text(path, before + md + "\n")
-    write_text(HERE / "results_online_step_floor.json",
-               json.dumps({"meta": meta, "baseline": base, "parts": stats, "sizes": sizes}, indent=1, sort_keys=True) + "\n")
+    append_section("results_online_step_floor", "The floor of the online step's time at this problem size (issue 20)", md,
+                   {"meta": meta, "baseline": base, "parts": stats, "sizes": sizes})
     print(md)
 
 

@@ -19,7 +19,6 @@ per-step instructions changed most against the first baseline. Results:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import subprocess
@@ -33,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(HERE))
 
 from bench_online_step import _TIMING_SCRIPT, _meta  # noqa: E402
+from bench_online_step_floor import append_section  # noqa: E402
 
 
 def _callgrind(tree: Path, steps: int, out: Path) -> tuple[int, dict[str, int]]:
@@ -103,14 +103,9 @@ def main() -> None:
             lines.append(f"| `{k}` | {fb.get(k, 0.0) / 1e3:.0f} | {fn.get(k, 0.0) / 1e3:.0f} | "
                          f"{(fn.get(k, 0.0) - fb.get(k, 0.0)) / 1e3:+.0f} |")
     md = "\n".join(lines)
-    from offline.files import write_text
-
-    path = HERE / "results_online_step_instructions.md"
-    head = "# Instructions per online step (issue 20): a measure of the work that the machine's load does not move\n\n"
-    before = path.read_text().rstrip("\n") + "\n\n" if path.exists() else head
-    write_text(path, before + md + "\n")
-    write_text(HERE / "results_online_step_instructions.json",
-               json.dumps({"meta": meta, "steps": steps, "per_step": {k: v for k, (v, _) in rows.items()}}, indent=1) + "\n")
+    append_section("results_online_step_instructions",
+                   "Instructions per online step (issue 20): a measure of the work that the machine's load does not move",
+                   md, {"meta": meta, "steps": steps, "per_step": {k: v for k, (v, _) in rows.items()}})
     print(md)
 
 

@@ -123,37 +123,3 @@ def test_casadi_and_numpy_balances_agree_and_mirror():
     full = st.balance(NUMPY, wr, beta, h, load, 0.1, 0.2, 0.3, -0.15)
     assert m["Fy"] == pytest.approx(-full["Fy"]) and m["Mx"] == pytest.approx(-full["Mx"])
     assert m["Mz"] == pytest.approx(-full["Mz"]) and m["My_right"] == pytest.approx(full["My_left"])
-
-
-@pytest.mark.parametrize("pitch_torque", [True, False])
-def test_stacked_numpy_balance_equals_the_per_wheel_form(pitch_torque):
-    """The numpy balance (wheels stacked on one axis, fewer array operations) equals the per-wheel
-    form of the same equations (the casadi graph's code, run with numpy) to 1e-12 of each row's
-    scale, for columns of states, numbers, a raised wheel, a cross slope and an external pull."""
-    from dataclasses import replace
-
-    from conftest import RTOL_REFACTOR
-
-    per_wheel = replace(NUMPY, name="numpy, per wheel")  # any other name takes the generic code
-    st = FourWheelRocker(ROVER_MINI_T72, pitch_includes_wheel_torque=pitch_torque)
-    rng = np.random.default_rng(7)
-    B = 21
-    wr = {k: tuple(rng.normal(0, s, (B, 1)) for s in (3, 3, 9, 0.3, 0.3, 0.3)) for k in WHEELS}
-    beta = {k: rng.uniform(-1.2, 1.2, (B, 1)) for k in WHEELS}
-    h = {k: rng.uniform(0.002, 0.03, (B, 1)) for k in WHEELS}
-    load = {k: rng.uniform(5, 12, (B, 1)) for k in WHEELS}
-    contact = {k: 1.0 for k in WHEELS}
-    raised = dict(contact, RL=0.0)
-    cases = [(wr, beta, h, load, None, None), (wr, beta, h, load, contact, None), (wr, beta, h, load, raised, (1.0, -0.5, 0.2)),
-             ({k: tuple(float(q[0, 0]) for q in v) for k, v in wr.items()}, {k: float(v[0, 0]) for k, v in beta.items()},
-              {k: float(v[0, 0]) for k, v in h.items()}, {k: float(v[0, 0]) for k, v in load.items()}, None, None),
-             (wr, {k: float(v[0, 0]) for k, v in beta.items()}, h, load, None, None)]  # mixed shapes
-    for w_, b_, h_, l_, c_, ext in cases:
-        got = st.balance(NUMPY, w_, b_, h_, l_, 0.1, 0.3, -0.05, 0.07, c_, ext)
-        ref = st.balance(per_wheel, w_, b_, h_, l_, 0.1, 0.3, -0.05, 0.07, c_, ext)
-        assert list(got) == list(ref)
-        for name in ref:
-            r, g = np.asarray(ref[name], dtype=float), np.asarray(got[name], dtype=float)
-            assert g.shape == r.shape, name
-            scale = float(np.max(np.abs(r)))
-            assert float(np.max(np.abs(g - r))) <= RTOL_REFACTOR * scale, name

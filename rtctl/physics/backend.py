@@ -66,29 +66,6 @@ class Backend:
         """Clip ``x`` to ``[lo, hi]`` (kinks at the bounds)."""
         return self.fmin(self.fmax(x, lo), hi)
 
-    def integrals(self, lefts: list[Any], rights: list[Any], pairs: list[tuple[int, int]]) -> list[Any]:
-        """Quadrature sums ``qsum(lefts[i] * rights[j])`` for each ``(i, j)`` of ``pairs``.
-
-        With numpy (node arrays of shape ``(B, n)``) every product of the two lists comes from
-        one batched matrix product ``(B, len(lefts), n) @ (B, n, len(rights))`` instead of a
-        multiplication and a reduction per pair (the cost of the rover's numpy physics is its
-        operation count); each sum is returned with shape ``(B, 1)``. The summation order
-        differs from :meth:`qsum`'s, so the sums agree with it to rounding, not bit for bit.
-        With casadi: ``qsum`` of each requested product.
-        """
-        if self.name == "numpy":
-            shape = np.broadcast_shapes(*(np.shape(q) for q in (*lefts, *rights)))
-            B, N = shape[0], shape[-1]
-            L = np.empty((B, len(lefts), N))
-            for i, q in enumerate(lefts):
-                L[:, i, :] = q
-            R = np.empty((B, len(rights), N))  # filled contiguously; BLAS reads it transposed
-            for j, q in enumerate(rights):
-                R[:, j, :] = q
-            M = np.matmul(L, R.transpose(0, 2, 1))
-            return [M[:, i, j, None] for i, j in pairs]
-        return [self.qsum(lefts[i] * rights[j]) for i, j in pairs]
-
     def segment_nodes(self, lo: Any, hi: Any, breaks: list[Any], x: np.ndarray, w: np.ndarray) -> tuple[Any, Any]:
         """Quadrature nodes and weights on the segments between ``lo``, the ``breaks`` clamped
         into ``[lo, hi]`` and sorted, and ``hi``: on each segment ``[a, b]`` the nodes

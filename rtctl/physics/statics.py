@@ -61,9 +61,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping, Protocol, Sequence
 
-import numpy as np
-
-from .backend import NUMPY, Backend
+from .backend import Backend
 from .parameters import RoverLike
 
 __all__ = ["WHEELS", "RoverStatics", "FourWheelRocker", "BALANCE_NAMES"]
@@ -178,8 +176,6 @@ class FourWheelRocker:
         centre); it is rotated into the rover frame here. ``My_right`` / ``My_left`` are the
         pitch moments of each rocker about its pivot axis.
         """
-        if ops.name == "numpy" and self.wheels == WHEELS:
-            return self._balance_stacked(wrench, beta, h, load, slope, fy_offset, mz_offset, cross_slope, contact, external)
         W = self.rover.weight
         F = {k: self.to_rover_frame(ops, wrench[k], beta[k]) for k in self.wheels}
         phi_r, phi_l = self.rocker_angles(ops, h, contact)
@@ -207,63 +203,6 @@ class FourWheelRocker:
             res["Fy"] = res["Fy"] + external[1]
             res["Mz"] = res["Mz"] + external[2]
         return {n: res[n] for n in BALANCE_NAMES}
-
-    def _balance_stacked(
-        self, wrench: Mapping[str, Sequence[Any]], beta: Mapping[str, Any], h: Mapping[str, Any],
-        load: Mapping[str, Any], slope: Any, fy_offset: Any, mz_offset: Any, cross_slope: Any,
-        contact: Mapping[str, Any] | None, external: tuple[float, float, float] | None,
-    ) -> dict[str, Any]:
-        """:meth:`balance` with numpy and the wheels in :data:`WHEELS` order (FR, FL, RR, RL),
-        stacked as (front / rear, right / left): the same equations (the per-wheel terms of
-        (7.12)-(7.18) summed over the wheels) in about half the array operations (the cost of the
-        rover's numpy residual is its operation count); equal to the per-wheel form to rounding
-        (``tests/test_statics.py`` checks 1e-12 of each row's scale)."""
-        W = self.rover.weight
-        ks = WHEELS
-        parts = [q for k in ks for q in wrench[k]] + [beta[k] for k in ks] + [load[k] for k in ks]
-        A: Any = None
-        try:  # the usual case, every value a column (B, 1): one concatenation, then a view (parts, B, 1)
-            cat = np.concatenate(parts, axis=1)
-            if cat.shape[1] == len(parts):
-                A = cat.T[..., None]
-        except ValueError:  # numbers or mixed shapes
-            pass
-        if A is None:
-            A = np.stack(np.broadcast_arrays(*parts))
-        rest = A.shape[1:]
-        wr = A[:24].reshape((2, 2, 6) + rest)  # (front, rear) x (right, left) x component
-        b = A[24:28].reshape((2, 2) + rest)
-        c, s = np.cos(b), np.sin(b)
-        fx, fy, fz, mx, my, mz = (wr[:, :, j] for j in range(6))
-        Fx = c * fx - s * fy  # to_rover_frame: rotation by the steer angle about z
-        Fy = s * fx + c * fy
-        phi = np.stack(np.broadcast_arrays(*self.rocker_angles(NUMPY, h, contact)))  # (right, left)
-        cp, sp = np.cos(phi), np.sin(phi)
-        lr, hr, wr_ = self.rover.rocker_length, self.rover.pivot_height, self.rover.track_width
-        ones = (1,) * len(rest)
-        half = np.array([lr / 2, -lr / 2]).reshape((2, 1) + ones)  # front, rear (as _centre: sx lr / 2)
-        ry = np.array([-wr_ / 2, wr_ / 2]).reshape((2,) + ones)  # right, left
-        rx = cp * half + sp * hr  # _centre, every wheel at once
-        rz = sp * half - cp * hr
-        add = np.add.reduce
-        pitch = rz * Fx - rx * fz
-        if self.pitch_includes_wheel_torque:
-            pitch = pitch + (s * mx + c * my)
-        pitch_side = add(pitch)  # (right, left): each rocker's front and rear wheel
-        res: dict[str, Any] = {
-            "Fx": add(add(Fx)) - W * np.sin(slope),
-            "Fy": add(add(Fy)) - W * np.cos(slope) * np.sin(cross_slope) - fy_offset,
-            "Fz": add(A[28:]) - W * np.cos(slope) * np.cos(cross_slope),
-            "Mx": add(add((c * mx - s * my) + ry * fz - rz * Fy)),
-            "My_right": pitch_side[0],
-            "My_left": pitch_side[1],
-            "Mz": add(add(mz + rx * Fy - ry * Fx)) - mz_offset,
-        }
-        if external is not None:
-            res["Fx"] = res["Fx"] + external[0]
-            res["Fy"] = res["Fy"] + external[1]
-            res["Mz"] = res["Mz"] + external[2]
-        return {k: res[k] for k in BALANCE_NAMES}
 
     @staticmethod
     def pivot_rows(res: Mapping[str, Any], pivot_locked: Any) -> tuple[Any, Any]:

@@ -465,11 +465,16 @@ def wrench_core(
     form = "pavlov" if options.bulldozing == "none" else options.bulldozing
     scale = 0.0 if options.bulldozing == "none" else options.bulldozing_scale
     area = rs * p.b
-    wct = wq * ct  # quadrature weights times the rim trigonometry, shared by every integral
+    wct = wq * ct  # quadrature weights times the rim trigonometry, shared by the integrals
     wst = wq * st
-    lefts = [sigma, tauT, tau_max]
-    rights = [wct, wst, wq]
-    pairs = [(1, 0), (0, 1), (1, 2), (2, 2), (2, 0), (2, 1)]
+    qsum = ops.qsum
+    Fx = area * (qsum(tauT * wct) - qsum(sigma * wst))  # (5.26)
+    Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28), as normal_force writes it (bit for bit)
+    My = -rs * area * qsum(wq * tauT)  # (5.31)
+    shear = area * vjL  # tau_L = v_jL tau_max, v_jL per state: taken out of the integrals
+    Fy = shear * qsum(wq * tau_max)  # (5.27) / (5.29)
+    Mx = rs * shear * qsum(tau_max * wct)  # r x F, cf. (5.30)
+    Mz = rs * shear * qsum(tau_max * wst)  # r x F, cf. (5.32)
     if scale != 0.0:
         # Sidewall bulldozing, eqs. (5.22)-(5.25) and (5.27)/(5.29): per unit theta the force
         # r_s R_b(h_b) f(theta) m (f = cos theta and m = |sin b| sin b (printed) or sin b
@@ -497,22 +502,11 @@ def wrench_core(
         a_p, c_p = _pressure_coefficients(ops, p.rho, p.c, p.phi, form)
         r_b = (h_b * (scale * 0.5 * a_p) + scale * c_p) * h_b
         lever = r_b * rs_ct - (h_b * h_b) * (h_b * (scale * a_p / 6.0) + scale * 0.5 * c_p)
-        g = r_b * fac
-        lefts += [g, g * st, lever * fac]
-        pairs += [(3, 2), (4, 2), (5, 2)]
-    q = ops.integrals(lefts, rights, pairs)
-    Fx = area * (q[0] - q[1])  # (5.26)
-    Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28), as normal_force writes it (bit for bit)
-    My = -rs * area * q[2]  # (5.31)
-    shear = area * vjL  # tau_L = v_jL tau_max, v_jL per state
-    Fy = shear * q[3]  # (5.27) / (5.29)
-    Mx = rs * shear * q[4]  # r x F, cf. (5.30)
-    Mz = rs * shear * q[5]  # r x F, cf. (5.32)
-    if scale != 0.0:
+        wg = wq * (r_b * fac)
         side = rs * proj
-        Fy = Fy + side * q[6]
-        Mx = Mx + side * q[8]
-        Mz = Mz + (rs * side) * q[7]
+        Fy = Fy + side * qsum(wg)
+        Mx = Mx + side * qsum(wq * (lever * fac))
+        Mz = Mz + (rs * side) * qsum(wg * st)
 
     wrench = (sgn * Fx, Fy, Fz, Mx, sgn * My, sgn * Mz)
     diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,

@@ -214,7 +214,12 @@ class QpAllocator:
         self._p_slack = np.full(len(self._p_rows), 2.0 * settings.slack_l2)
         self._l_tail, self._u_tail = np.zeros(2 * ng), np.full(2 * ng, _INF)
         self._solver: Any = None
-        self._pending: dict[str, NDArray[np.float64]] = {}  # matrix values for OSQP's next update
+        # OSQP's matrix values are built only when OSQP solves (a fallback tick, a recording's
+        # problem()): from their sources, the dense Hessian with the command weights (P) and the
+        # scaled Jacobian (A); which of the two changed since OSQP's last update is pending
+        self._pending: set[str] = set()
+        self._px_src: NDArray[np.float64] = np.zeros((nx, nx))
+        self._ax_src: NDArray[np.float64] = np.zeros((ng, nx))
         self._res_y: NDArray[np.float64] | None = None
         self._prepared = False
         self._x0 = np.zeros(nx)
@@ -313,12 +318,12 @@ class QpAllocator:
         self._lbx = f["lbx"]
         self._ubx = f["ubx"]
         self._q_base = np.concatenate([g, np.full(2 * ng, s.slack_l1)])
-        self._Px = self._p_values()
+        self._px_src = self._Hd
         if self._solver is None:
             self._table_model()
             self._setup()
-        else:  # handed to OSQP with the next solve's vectors: one refactorisation per tick
-            self._pending = {"Px": self._Px}
+        else:  # handed to OSQP with the next solve's vectors (if OSQP solves): one refactorisation
+            self._pending.add("Px")
         self._prepared = True
 
     def _table_model(self) -> None:
@@ -333,23 +338,28 @@ class QpAllocator:
         self._J = jx * self._sx_over_sg
         self._Jp = jp / sg[:, None]
         self._g0 = g0 / sg
-        Ax = self._a_data.copy()
-        Ax[self._a_jac_pos_arr] = self._J.T.ravel()
-        self._Ax = Ax
+        self._ax_src = self._J
         if self._solver is not None:
-            self._pending["Ax"] = Ax
+            self._pending.add("Ax")
         self._model_ready = True
 
-    def _p_values(self) -> NDArray[np.float64]:
-        Hd = self._H + self._w_diag
+    def _p_values(self, Hd: NDArray[np.float64]) -> NDArray[np.float64]:
+        """OSQP's ``P`` values (upper triangle, column-major, then the slacks' diagonal) of the
+        dense Hessian with the command weights ``Hd``."""
         vals = self._p_slack.copy()
         vals[:self._p_k] = Hd[self._p_rows_h, self._p_cols_h]
         return vals
 
+    def _a_values(self, Js: NDArray[np.float64]) -> NDArray[np.float64]:
+        """OSQP's ``A`` values with the scaled Jacobian ``Js`` in the model rows."""
+        Ax = self._a_data.copy()
+        Ax[self._a_jac_pos_arr] = Js.T.ravel()
+        return Ax
+
     def _setup(self) -> None:
         s = self.settings
-        P = sp.csc_matrix((self._Px, self._p_rows, self._p_indptr), shape=(self.n, self.n))
-        A = sp.csc_matrix((self._Ax, self._a_rows, self._a_indptr), shape=(self.m, self.n))
+        P = sp.csc_matrix((self._p_values(self._px_src), self._p_rows, self._p_indptr), shape=(self.n, self.n))
+        A = sp.csc_matrix((self._a_values(self._ax_src), self._a_rows, self._a_indptr), shape=(self.m, self.n))
         q = np.concatenate([self._g, np.full(2 * self.ng, s.slack_l1)])
         l = np.concatenate([self._lbg, -np.ones(self.nx), np.zeros(2 * self.ng)])
         u = np.concatenate([self._ubg, np.ones(self.nx), np.full(2 * self.ng, _INF)])
@@ -392,8 +402,8 @@ class QpAllocator:
             raise AllocatorError(f"set_hessian: expected a finite ({self.nx}, {self.nx}) matrix, got shape {H.shape}")
         self._H = 0.5 * (H + H.T) / self._cf
         self._Hd = self._H + self._w_diag
-        self._Px = self._p_values()
-        self._pending["Px"] = self._Px
+        self._px_src = self._Hd
+        self._pending.add("Px")
 
     @property
     def row_duals(self) -> NDArray[np.float64] | None:
@@ -468,8 +478,13 @@ class QpAllocator:
         the box, largest model-row slack, objective)``."""
         np.clip(l, -_INF, _INF, out=l)
         np.clip(u, -_INF, _INF, out=u)
-        self._solver.update(q=q, l=l, u=u, **self._pending)  # one refactorisation for the tick's matrices
-        self._pending = {}
+        matrices = {}
+        if "Px" in self._pending:
+            matrices["Px"] = self._p_values(self._px_src)
+        if "Ax" in self._pending:
+            matrices["Ax"] = self._a_values(self._ax_src)
+        self._solver.update(q=q, l=l, u=u, **matrices)  # one refactorisation for the tick's matrices
+        self._pending = set()
         if z_warm is not None:
             self._solver.warm_start(x=np.concatenate([z_warm, np.zeros(2 * self.ng)]), y=self._last_y)
         self._q, self._l, self._u = q, l, u
@@ -532,10 +547,8 @@ class QpAllocator:
         Js = self._J
         if jac_g_x is not None:
             Js = J * self._sx_over_sg
-            Ax = self._a_data.copy()
-            Ax[self._a_jac_pos_arr] = Js.T.ravel()
-            self._Ax = Ax
-            self._pending["Ax"] = Ax
+            self._ax_src = Js
+            self._pending.add("Ax")
         q = self._q_base.copy()
         q[:self.nx] = sx * grad / self._cf
         if x_ref is not None:
@@ -628,14 +641,14 @@ class QpAllocator:
     def snapshot(self) -> tuple[Any, ...]:
         """References to the data of the last :meth:`solve` and OSQP's raw answer (cheap: the
         arrays are replaced, never changed in place, by later calls); see :meth:`problem`."""
-        return (self._Px, self._Ax, self._q, self._l, self._u, self.last_solution)
+        return (self._px_src, self._ax_src, self._q, self._l, self._u, self.last_solution)
 
     def problem(self, snapshot: tuple[Any, ...] | None = None) -> QpProblem:
         """The QP of the last :meth:`solve` (or of a :meth:`snapshot`), for recording and
         cross-checks; OSQP's raw answer to it is :attr:`last_solution` (scaled step, slacks)."""
-        Px, Ax, q, l, u = (snapshot or self.snapshot())[:5]
-        P = sp.csc_matrix((Px.copy(), self._p_rows, self._p_indptr), shape=(self.n, self.n))
-        A = sp.csc_matrix((Ax.copy(), self._a_rows, self._a_indptr), shape=(self.m, self.n))
+        Hd, Js, q, l, u = (snapshot or self.snapshot())[:5]
+        P = sp.csc_matrix((self._p_values(Hd), self._p_rows, self._p_indptr), shape=(self.n, self.n))
+        A = sp.csc_matrix((self._a_values(Js), self._a_rows, self._a_indptr), shape=(self.m, self.n))
         return QpProblem(P, q.copy(), A, l.copy(), u.copy())
 
 

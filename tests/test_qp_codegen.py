@@ -105,7 +105,7 @@ def test_setup_reloads_a_new_table_like_a_fresh_osqp_setup(libraries):
         q = np.concatenate([a._g, np.full(2 * a.ng, a.settings.slack_l1)])
         l = np.concatenate([a._lbg - a._g0, -np.ones(a.nx), np.zeros(2 * a.ng)])
         u = np.concatenate([a._ubg - a._g0, np.ones(a.nx), np.full(2 * a.ng, 1e30)])
-        pr = a.problem((a._Px, a._Ax, q, l, u, None))
+        pr = a.problem((a._px_src, a._ax_src, q, l, u, None))  # the snapshot layout: the matrices' sources
         py = osqp.OSQP()
         s = a.settings
         py.setup(pr.P, pr.q, pr.A, pr.l, pr.u, verbose=False, eps_abs=s.eps, eps_rel=s.eps, max_iter=s.max_iter,

@@ -233,22 +233,20 @@ def bulldozing_resistance(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, fo
     raise ValueError(f"unknown bulldozing form {form!r}")
 
 
-def _centre_of_pressure_depth(ops: Backend, h_b: Any, rho: Any, c: Any, phi: Any, form: str) -> Any:
-    """Depth below the soil surface of the centre of bulldozing pressure, m.
-
-    First moment of the linear pressure ``sigma_b(z) = A z + C`` over ``0 <= z <= h_b``:
-    ``(A h^2 / 3 + C h / 2) / (A h / 2 + C)``; ``A``, ``C`` match the chosen R_b form so
-    that the moment is consistent with the force. (5.33) as printed uses ``C / 2``.
-    """
+def _pressure_coefficients(ops: Backend, rho: Any, c: Any, phi: Any, form: str) -> tuple[Any, Any]:
+    """``(A, C)`` of the linear bulldozing pressure ``sigma_b(z) = A z + C`` at depth ``z`` below
+    the soil surface whose integral over the blade depth is the chosen R_b form,
+    ``R_b = A h_b^2 / 2 + C h_b`` (section 5.2.4, eqs. (5.22)-(5.25); ``C = 2 c cot X_c``)."""
     cot_x, tphi = _parameter_terms(ops, phi)
     if form == "pavlov":
         a = rho * cot_x**2 * (1.0 + 0.5 * cot_x * tphi)
     elif form == "hegedus":
         a = rho * cot_x**2 * (1.0 + cot_x * tphi)
-    else:
+    elif form == "ishigami":
         a = 2.0 * rho * cot_x**2 * (1.0 + cot_x * tphi)
-    cc = 2.0 * c * cot_x
-    return (a * h_b**2 / 3.0 + cc * h_b / 2.0) / (a * h_b / 2.0 + cc + 1e-30)
+    else:
+        raise ValueError(f"unknown bulldozing form {form!r}")
+    return a, 2.0 * c * cot_x
 
 
 @functools.lru_cache(maxsize=8)
@@ -290,9 +288,12 @@ def shear_kinematics(
     vct = vx * ct  # shared node arrays (fewer temporaries on the numpy path)
     vst = vx * st
     dth = theta_f - th
-    vjT = ops.where(front, vx * S - vct, rw - vct)
+    vxs = vx * S  # per state
+    # each region's last operation (- vct, + vst) taken out of the select: the same values, bit
+    # for bit, with one node-array operation less in each
+    vjT = ops.where(front, vxs, rw) - vct
     vjL = -vy  # per state; broadcasts against the nodes
-    jt_w = ops.where(front, (vx * S) * dth - vx * sin_f + vst, rw * (theta_0 - th) - vx * sin_0 + vst)
+    jt_w = ops.where(front, vxs * dth - vx * sin_f, rw * (theta_0 - th) - vx * sin_0) + vst
     jl_w = dth * vy
     return vjT, vjL, jt_w, jl_w
 
@@ -331,15 +332,18 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     sgn = ops.where(vx < 0, -1.0, 1.0)
     vxp = sgn * vx
     wp = sgn * omega
-    v = ops.sqrt(vxp * vxp + vy * vy + SPEED_FLOOR**2)
-    beta = ops.arctan2(-vy, vxp)  # eq. (5.1)
-    sin_b = -vy / v
+    vy2 = vy * vy  # shared sub-expressions (the same values, fewer array operations)
+    nvy = -vy
+    v = ops.sqrt(vxp * vxp + vy2 + SPEED_FLOOR**2)
+    beta = ops.arctan2(nvy, vxp)  # eq. (5.1)
+    sin_b = nvy / v
     abs_b = smooth_abs(ops, beta, options.beta_smoothing)
 
     # Slip ratio, eq. (5.2) (denominator r_s w in slip, see module notes).
     rw = rs * wp
     skid = rw < v
-    s_raw = ops.where(skid, (rw - v) / v, (rw - v) / ops.fmax(rw, SPEED_FLOOR))
+    rw_v = rw - v
+    s_raw = ops.where(skid, rw_v / v, rw_v / ops.fmax(rw, SPEED_FLOOR))
     s = ops.fmax(s_raw, -1.0)
 
     # Sinkage exponent, eq. (5.6).
@@ -364,7 +368,8 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     theta_r = ops.fmin(theta_r, 0.0)
     # Keep theta_r < theta_m < theta_f (a tuning can push theta_m0 past a shallower skid theta_f).
     span = theta_f - theta_r
-    theta_m = ops.fmin(ops.fmax(theta_m, theta_r + 1e-6 * span), theta_f - 1e-6 * span)
+    margin = 1e-6 * span
+    theta_m = ops.fmin(ops.fmax(theta_m, theta_r + margin), theta_f - margin)
 
     # Skid transition angle, eq. (5.15): theta_0 = theta_f (1 + (w r_s - v) / (2 v)).
     theta_0 = ops.where(skid, theta_f * (1.0 + 0.5 * s), theta_f)
@@ -390,22 +395,27 @@ def _contact(ops: Backend, vx: Any, vy: Any, omega: Any, h: Any, h_zero_slip: An
     ct = ops.cos(th)
     st = ops.sin(th)
 
-    # Normal stress, eqs. (5.7)-(5.9).
-    theta_e = ops.where(th >= theta_m, th, theta_f - (th - theta_r) / (theta_m - theta_r) * (theta_f - theta_m))
+    # Normal stress, eqs. (5.7)-(5.9). The rear region's equivalent angle (5.9) is linear in
+    # theta with the slope k_e fixed per state: theta_e = (theta_f + k_e theta_r) - k_e theta
+    # (per-state terms first: two node-array operations instead of four; the same function,
+    # rounding apart).
+    k_e = (theta_f - theta_m) / (theta_m - theta_r)
+    theta_e = ops.where(th >= theta_m, th, (theta_f + k_e * theta_r) - th * k_e)
     # floors keep second derivatives finite at quadrature nodes that coincide with theta_f
     # (zero-length segments): 1e-300 made log''/sqrt'' overflow to inf, and 0 * inf = NaN in
     # IPOPT's Hessian. sigma ~ base^n, so the 1e-12 floor changes stresses by < 1e-15 Pa.
     base = ops.fmax(ops.cos(theta_e) - cos_f, 1e-12)
     radial = p.mu * ops.exp(n * _log_of(ops, rs)) + (1.0 - p.mu) * ops.exp(n * _log_of(ops, p.r))
-    sigma = p.k * radial * ops.exp(n * ops.log(base))
+    sigma = (p.k * radial) * ops.exp(n * ops.log(base))  # base^n (exp and log: fewer instructions than pow)
 
     # Shear velocities (5.13)-(5.19) and deformations (5.20)-(5.21), both multiplied by w.
     vjT, vjL, jt_w, jl_w = shear_kinematics(ops, th, ct, st, theta_f, theta_0, sin_f, sin_0, S, skid, vxp, rw, vy)
     j_w = ops.sqrt(jt_w * jt_w + jl_w * jl_w + 1e-24)  # floor 1e-12 m/s (w j), see above
     w_abs = ops.sqrt(wp * wp + OMEGA_FLOOR**2)
-    shear_fraction = 1.0 - ops.exp(-j_w / (w_abs * p.K))
+    # eq. (5.10): 1 - exp(-j / K) with j = (w j) / |w|; the per-state factor -1 / (|w| K) first
+    shear_fraction = 1.0 - ops.exp(j_w * (-1.0 / (w_abs * p.K)))
     eps_v = options.shear_direction_smoothing * (v + ops.fabs(rw))
-    vj = ops.sqrt(vjT * vjT + vjL * vjL + eps_v * eps_v)
+    vj = ops.sqrt(vjT * vjT + (vy2 + eps_v * eps_v))  # v_jL = -v_y is per state: its terms first
     tau_max = (p.c + sigma * _parameter_terms(ops, p.phi)[1]) * shear_fraction / vj
     tauT = vjT * tau_max
     return _Contact(rs, sgn, sin_b, beta, s_raw, n, theta_f, theta_m, theta_r, theta_0, sin_f, cos_f, th, wq, ct, st,
@@ -452,39 +462,51 @@ def wrench_core(
     c = _contact(ops, vx, vy, omega, h, h_zero_slip, p, options)
     rs, sgn, sin_b, beta, s_raw, n, theta_f, theta_m, theta_r, theta_0, sin_f, cos_f, th, wq, ct, st, sigma, tau_max, \
         tauT, vjL = c
-    tauL = vjL * tau_max
-
-    # Sidewall bulldozing, eqs. (5.22)-(5.25).
-    sin_r = ops.sin(theta_r)
-    cos_r = ops.cos(theta_r)
-    h_b = (st - sin_r) / (sin_f - sin_r + 1e-15) * (cos_r - cos_f) * rs - (cos_r - ct) * rs
-    h_b = ops.fmax(h_b, 0.0)
     form = "pavlov" if options.bulldozing == "none" else options.bulldozing
     scale = 0.0 if options.bulldozing == "none" else options.bulldozing_scale
-    if form == "ishigami":
-        # eq. (5.29) with Ishigami 2007's blade depth: the local sinkage below the entry
-        # height, h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
-        h_b = ops.fmax(rs * (ct - cos_f), 0.0)
-        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
-        dfy_bull = (1.0 - h_b * ct / rs) * r_b * sin_b  # per unit theta, times r_s below
-    else:
-        r_b = _scaled(scale, bulldozing_resistance(ops, h_b, p.rho, p.c, p.phi, form))
-        # eq. (5.27) with R_b of (5.24) including its |sin beta| ("printed"), or the face
-        # normal's single sin(beta) ("single")
-        proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b
-        dfy_bull = r_b * proj * ct
-    h_cop = _centre_of_pressure_depth(ops, h_b, p.rho, p.c, p.phi, form)
-    arm_x = rs * ct - h_b + h_cop  # depth of the centre of pressure below the axle
-
     area = rs * p.b
-    Fx = area * ops.qsum(wq * (-sigma * st + tauT * ct))  # (5.26)
-    Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28)
-    wtl = wq * tauL  # shared weighted integrands (the same products as written out in each row)
-    wdb = wq * dfy_bull
-    Fy = area * ops.qsum(wtl) + rs * ops.qsum(wdb)  # (5.27) / (5.29)
-    My = -rs * area * ops.qsum(wq * tauT)  # (5.31)
-    Mx = rs * area * ops.qsum(wtl * ct) + rs * ops.qsum(wdb * arm_x)  # r x F, cf. (5.30)
-    Mz = rs * area * ops.qsum(wtl * st) + rs * ops.qsum(wdb * rs * st)  # r x F, cf. (5.32)
+    wct = wq * ct  # quadrature weights times the rim trigonometry, shared by the integrals
+    wst = wq * st
+    qsum = ops.qsum
+    Fx = area * (qsum(tauT * wct) - qsum(sigma * wst))  # (5.26)
+    Fz = area * ops.qsum(wq * (sigma * ct + tauT * st))  # (5.28), as normal_force writes it (bit for bit)
+    My = -rs * area * qsum(wq * tauT)  # (5.31)
+    shear = area * vjL  # tau_L = v_jL tau_max, v_jL per state: taken out of the integrals
+    Fy = shear * qsum(wq * tau_max)  # (5.27) / (5.29)
+    Mx = rs * shear * qsum(tau_max * wct)  # r x F, cf. (5.30)
+    Mz = rs * shear * qsum(tau_max * wst)  # r x F, cf. (5.32)
+    if scale != 0.0:
+        # Sidewall bulldozing, eqs. (5.22)-(5.25) and (5.27)/(5.29): per unit theta the force
+        # r_s R_b(h_b) f(theta) m (f = cos theta and m = |sin b| sin b (printed) or sin b
+        # (single) for (5.27); f = 1 - h_b cos(theta) / r_s and m = sin b for Ishigami's (5.29)),
+        # at the centre of pressure, depth r_s cos(theta) - h_b + h_COP below the axle. With the
+        # linear pressure A z + C of the form (_pressure_coefficients), R_b = A h^2 / 2 + C h and
+        # R_b h_COP = A h^3 / 3 + C h^2 / 2 (the first moment), so R_b (r_s cos - h_b + h_COP)
+        # = R_b r_s cos - h_b^2 (A h_b / 6 + C / 2): no division by the resultant.
+        sin_r = ops.sin(theta_r)
+        cos_r = ops.cos(theta_r)
+        rs_ct = rs * ct
+        if form == "ishigami":
+            # Ishigami 2007's blade depth: the local sinkage below the entry height,
+            # h(theta) = r_s (cos(theta) - cos(theta_f)), used for R_b too.
+            h_b = ops.fmax(rs_ct - rs * cos_f, 0.0)
+            fac = 1.0 - h_b * ct / rs
+            proj = sin_b
+        else:
+            # blade depth (5.22)-(5.23): the chord from the exit point to the entry point
+            # minus the rim, (sin th - sin r) / (sin f - sin r) (cos r - cos f) r_s - (cos r - cos th) r_s
+            chord = (cos_r - cos_f) / (sin_f - sin_r + 1e-15) * rs
+            h_b = ops.fmax((st - sin_r) * chord + (rs_ct - rs * cos_r), 0.0)
+            fac = ct
+            proj = ops.fabs(sin_b) * sin_b if options.sidewall_projection == "printed" else sin_b
+        a_p, c_p = _pressure_coefficients(ops, p.rho, p.c, p.phi, form)
+        r_b = (h_b * (scale * 0.5 * a_p) + scale * c_p) * h_b
+        lever = r_b * rs_ct - (h_b * h_b) * (h_b * (scale * a_p / 6.0) + scale * 0.5 * c_p)
+        wg = wq * (r_b * fac)
+        side = rs * proj
+        Fy = Fy + side * qsum(wg)
+        Mx = Mx + side * qsum(wq * (lever * fac))
+        Mz = Mz + (rs * side) * qsum(wg * st)
 
     wrench = (sgn * Fx, Fy, Fz, Mx, sgn * My, sgn * Mz)
     diag = {"slip": s_raw, "beta": beta, "theta_f": theta_f, "theta_m": theta_m, "theta_r": theta_r,

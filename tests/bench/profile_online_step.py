@@ -35,6 +35,7 @@ PARTS = [("rtctl.controller", "Controller", "prepare"), ("rtctl.allocator", "QpA
          ("rtctl.controller", "Controller", "_crab_sensitivity"), ("rtctl.rti", "RealTimeIteration", "linearise"),
          ("rtctl.physics.steady_state", "SteadyStateResidual", "evaluate"),
          ("rtctl.physics.steady_state", None, "steady_state_rows"), ("rtctl.physics.terramechanics", None, "wrench_core"),
+         ("rtctl.physics.statics", "FourWheelRocker", "balance"),
          ("rtctl.rti", "RealTimeIteration", "_structured_hessian"),
          ("rtctl.allocator", "QpAllocator", "solve_at"), ("rtctl.active_set", None, "solve_active_set"),
          ("rtctl.allocator", "QpAllocator", "_osqp"),
@@ -83,6 +84,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--before", default="98a77ab")
     ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--rounds", type=int, default=2, help="alternating runs of each tree (the best kept)")
     a = ap.parse_args()
     script = "PARTS = " + repr(PARTS) + "\n" + _PRELUDE + B._TIMING_SCRIPT.replace("print(json.dumps", "_ = (") + _POSTLUDE
     runs: dict[str, list[dict]] = {}
@@ -90,7 +92,7 @@ def main() -> None:
         wt = Path(tmp) / "before"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(wt), a.before], check=True, capture_output=True)
         try:
-            for label, tree in [("before", wt), ("after", ROOT)] * 2:
+            for label, tree in [("before", wt), ("after", ROOT)] * a.rounds:
                 env = {**os.environ, "PYTHONPATH": str(tree)}
                 r = subprocess.run([sys.executable, "-c", script, str(tree), str(a.steps), str(ROOT / "tables" / "index.json"), "0"],
                                    capture_output=True, text=True, env=env, cwd=str(tree))
@@ -106,9 +108,9 @@ def main() -> None:
 
     meta = B._meta()
     lines = ["# The online step, function by function, before and after the step-time work (issue 20)", "",
-             f"`python tests/bench/profile_online_step.py --before {a.before} --steps {a.steps}`; {meta['commit']}, "
+             f"`python tests/bench/profile_online_step.py --before {a.before} --steps {a.steps} --rounds {a.rounds}`; {meta['commit']}, "
              f"{meta['date']}, {meta['machine']}, {meta['cpus']} cpus (shared with other jobs: compare the columns).", "",
-             "Thread CPU per step (mean, ms, the better of two alternating runs), every listed method wrapped; nested "
+             f"Thread CPU per step (mean, ms, the best of {a.rounds} alternating runs), every listed method wrapped; nested "
              "methods are inside their callers (module docstring).", "",
              "| method | before | after | after / before |", "|---|---|---|---|"]
     for m, c, n in PARTS:
@@ -121,7 +123,13 @@ def main() -> None:
               f"One `SteadyStateResidual.evaluate(jacobian=True)` alone (median of 400 calls): before {eb:.0f} us, after "
               f"{ea:.0f} us ({ea / eb:.2f}x)."]
     out = HERE / "results_online_step_profile.md"
-    out.write_text("\n".join(lines) + "\n")
+    old = out.read_text() if out.exists() else ""
+    if old:  # earlier runs are kept below the new one
+        body = old.split("\n", 2)[2] if old.startswith("# ") else old
+        lines += ["", "## Earlier runs (kept)", "", body.strip("\n")]
+    from offline.files import write_text
+
+    write_text(out, "\n".join(lines) + "\n")
     print(f"wrote {out.relative_to(ROOT)}")
 
 

@@ -107,16 +107,20 @@ def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(sce
     failure) is decided first: confirmed infeasible (the optimizer's verdict, default budgets),
     it makes every covered point ``infeasible`` at both speeds without any table search; the
     +90 deg stuck angle lies outside the nominal problem's +-89 deg and is not covered: it is
-    searched, and if left ``not_found`` its evidence says why (no relaxation applies)."""
+    searched, and left ``not_found`` its evidence says why (no relaxation applies). The table
+    search is scripted to give up (it used to run for real at +90 deg, where either verdict
+    passed; with this and the next test's second build gone, the three relaxation tests
+    selected by ``-k "relaxation_decides or relaxation_pass_proves"`` took 39.7 instead of 46.5
+    CPU s, side by side): what is tested is the schedule's bookkeeping around the relaxation's
+    real verdict."""
     spec = table_spec(scenario_file, grid="slope=25;cross_slope=0;speed=2,4;steer_stuck=0,90", build=FAST)
     searched: list[int] = []
-    real = TB._solve_point
 
-    def counting(spec_, flat, *a, **k):
+    def gives_up(spec_, flat, *a, **k):
         searched.append(flat)
-        return real(spec_, flat, *a, **k)
+        return {"flat": flat, "status": "not_found", "iterations": 900, "evidence": {"verdict": "budget spent (test)"}}
 
-    monkeypatch.setattr(TB, "_solve_point", counting)
+    monkeypatch.setattr(TB, "_solve_point", gives_up)
     path, summary = build_table(spec, tmp_path, progress=False)
     t = load_table(path)
     ev = t.header["evidence"]
@@ -128,32 +132,37 @@ def test_relaxation_decides_a_steep_slope_without_a_search_and_holes_say_why(sce
             assert ev[str(f)]["relaxation"] == TC.RELAXED_EVIDENCE
             assert ev[str(f)]["relaxation evidence"]["verdict"].startswith("no primitive")
             assert f not in searched
-        else:  # +90 deg: searched once (first speed), the verdict carried by the twin rule or the hole explained
-            assert t.status_at(idx) in ("infeasible", "not_found"), f
-            if t.status_at(idx) == "not_found":
-                assert ev[str(f)]["undecided"].startswith("no relaxation applies")
-    assert len(searched) >= 1 and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
+        else:  # +90 deg: searched (scripted to give up), the hole explained at both speeds
+            assert t.status_at(idx) == "not_found", f
+            assert ev[str(f)]["undecided"].startswith("no relaxation applies")
+    assert searched and all(np.unravel_index(f, t.shape)[stuck] == 1 for f in searched)
 
 
 def test_relaxation_pass_proves_a_hole_infeasible(tmp_path):
     """FL stuck at -30 deg on a 25 deg slope: the table's small-budget search gives up
-    (``not_found``); the nominal rover there is confirmed infeasible with the default budgets
-    (17.5 CPU s), so the point is ``infeasible`` with that evidence. Also pins the nominal-search
-    cache: it used to hand the small-budget search's result to the default-budget call. Moved here
-    from ``test_tables_verify.py`` and run at 2 instead of 3 cm/s: after the test above, the cache
+    (``not_found``, kept as the point's "table search" evidence); the nominal rover there is
+    confirmed infeasible with the default budgets (17.5 CPU s), so the relaxation pass makes the
+    point ``infeasible`` with that evidence (``relaxed`` counts the points it changed: it only
+    touches ``not_found`` ones). Also pins the nominal-search cache: it used to hand the
+    small-budget search's result to the default-budget call. Moved here from
+    ``test_tables_verify.py`` and run at 2 instead of 3 cm/s: after the test above, the cache
     already holds the default-budget verdict at this operating point (25 deg, 2 cm/s), so the two
-    tests share that 17.5 CPU s solve (a test file runs in one process, ``--dist loadfile``)."""
+    tests share that 17.5 CPU s solve (a test file runs in one process, ``--dist loadfile``). The
+    second build without the pass (``not_found``) is gone: the record's "table search" evidence
+    says the same without a second search."""
     sc = tmp_path / "fl_steer_stuck.toml"
     sc.write_text('[scenario]\nname = "fl"\nparams = "calibrated-sand"\nrover = "mini-rover-t72"\n'
                   '[wheels.FL]\nsteer_stuck_deg = -30.0\n')
     grid = "slope=25;cross_slope=0;speed=2;steer_stuck=-30"
-    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains")), tmp_path / "on", progress=False)
+    # a table search of 60 IPOPT iterations (the table's budget is 300): it gives up sooner, and its
+    # search budgets still differ from the relaxation's default ones (the cache's key)
+    small = P.SolverOptions(**{**TB.TABLE_SOLVER_BUDGETS, "max_iterations": 60})
+    path, summ = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains"), solver=small), tmp_path / "on",
+                             progress=False)
     assert summ["statuses"] == {"infeasible": 1} and summ["relaxed"] == 1
     ev = load_table(path).header["evidence"]["0"]
     assert "relaxation" in ev and ev["relaxation evidence"]["verdict"].startswith("no primitive")
-    _, off = build_table(table_spec(sc, grid, build=BuildOptions(schedule="chains", relaxation_evidence=False)), tmp_path / "off",
-                         progress=False)
-    assert off["statuses"] == {"not_found": 1}
+    assert ev["table search"] and "relaxation" not in ev["table search"]
 
 
 def test_a_group_the_relaxation_decides_entirely_has_nothing_left_to_order(monkeypatch):

@@ -201,7 +201,8 @@ def test_a_row_no_free_variable_moves_is_left_to_its_slack_on_the_skid_steer():
     lateral weight. The step is the whole soft QP's minimiser (clarabel on the recorded QP, slacks
     included): the active set solves it without that row in one KKT system and the row's slack is
     its violation. Before, the active set's multiplier there was violation / 1e-12 (refused) and
-    OSQP took every such tick (50-4000 iterations in closed loop)."""
+    OSQP took every such tick (50-4000 iterations in closed loop). OSQP alone (the C flight path's
+    solver) is handed the row at the value it cannot leave: the same step and slack."""
     from pathlib import Path
 
     from rtctl.allocator import merge_bounds, solve_with_qpsolvers
@@ -216,13 +217,16 @@ def test_a_row_no_free_variable_moves_is_left_to_its_slack_on_the_skid_steer():
     p = np.array(tp.p, dtype=float)
     p[lay.index("cross_slope")] += 5e-4
     iy = list(lay.constraint_names).index("balance Fy")
-    rti = RealTimeIteration(t, replace(QpSettings(), iterations_per_tick=1, restart_iterations=1),
-                            [lay.index(f"wheel torque {w}") for w in lay.wheels])
-    rti.prepare(tp)
-    x = rti.iterate
+    out = {}
+    for n in (0, 5):
+        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, iterations_per_tick=1, restart_iterations=1,
+                                           active_set_iterations=n),
+                                [lay.index(f"wheel torque {w}") for w in lay.wheels])
+        rti.prepare(tp)
+        x = rti.iterate
+        out[n] = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 0.5 * xsc, x + 0.5 * xsc)))
     g = rti.linearise(x, p)[0]
-    res = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 0.5 * xsc, x + 0.5 * xsc)))
-    a = rti.allocator
+    res, a = out[5], rti.allocator
     assert res.ok and a.last_solver == "active set" and a.last_active_set_iterations == 1, res.status
     violation = abs(g[iy]) / gsc[iy]
     assert violation > 1e-4 and res.slack == pytest.approx(violation, rel=1e-9)
@@ -232,3 +236,5 @@ def test_a_row_no_free_variable_moves_is_left_to_its_slack_on_the_skid_steer():
     assert np.max(np.abs(ref[:nx] - (res.x - x) / xsc)) < 1e-6
     assert ref[nx + iy] + ref[nx + ng + iy] == pytest.approx(violation, rel=1e-5)
     assert np.allclose(a.last_solution, ref, atol=1e-6)
+    assert out[0].ok and out[0].status == "solved" and out[0].slack == pytest.approx(violation, rel=1e-3)
+    assert np.max(np.abs(out[0].x - res.x) / xsc) < 1e-5

@@ -22,8 +22,10 @@ Diagnoses of the command chatter (not rtctl's behaviour; each patches the contro
 process only): ``--diagnose no-speed-shift`` holds the slip correction's speed factor (a) at 1;
 ``--diagnose table-primitive-slip`` takes the factor's model slip from the table point's primitive
 instead of the real-time iteration's iterate (what rtctl did before the real-time iteration; its
-module notes say why it changed); ``--command-weight W`` sets ``[qp] command_weight`` (the QP's
-pull toward the previous command).
+module notes say why it changed); ``--diagnose balanced-slip`` keeps the last tick's model slip
+whenever the last QP was not the exact active set's (a tick held by a rate limit: its iterate is
+not a model solution); ``--command-weight W`` sets ``[qp] command_weight`` (the QP's pull toward
+the previous command).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", default=str(ROOT / "tests" / "data" / "tables" / "rovers" / "skid_fr_unpowered.npz"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--distance", type=float, default=5.0, help="m along world X (default 5)")
-    ap.add_argument("--diagnose", choices=("none", "no-speed-shift", "table-primitive-slip"), default="none")
+    ap.add_argument("--diagnose", choices=("none", "no-speed-shift", "table-primitive-slip", "balanced-slip"), default="none")
     ap.add_argument("--command-weight", type=float, default=None, help="[qp] command_weight (default: rtctl's)")
     args = ap.parse_args(argv)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -70,6 +72,16 @@ def main(argv: list[str] | None = None) -> int:
         own = rc.Controller._primitive_slip
         rc.Controller._primitive_slip = (  # type: ignore[method-assign]
             lambda self, x, tp, ix, carried=False: own(self, np.asarray(tp.x, dtype=float), tp, ix, False))
+    elif args.diagnose == "balanced-slip":
+        own_b = rc.Controller._primitive_slip
+
+        def balanced(self, x, tp, ix, carried=False):  # type: ignore[no-untyped-def]
+            prev = self._prep
+            if carried and prev is not None and prev.rti.allocator.last_solver != "active set":
+                return prev.primitive_slip
+            return own_b(self, x, tp, ix, carried)
+
+        rc.Controller._primitive_slip = balanced  # type: ignore[method-assign]
     speed = 0.03
     print(f"rtctl from {Path(rtctl.__file__).parent}; diagnosis {args.diagnose}; command_weight "
           f"{args.command_weight if args.command_weight is not None else 'default'}")

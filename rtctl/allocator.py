@@ -32,7 +32,10 @@ table's active-set hints; when that set does not settle, once more from the equa
 it is taken when every KKT condition holds and every row multiplier is below ``rho_1`` (then
 zero slack is optimal for the soft QP too, so it is the same QP's minimiser). Otherwise OSQP,
 whose answer also gives the next tick's active set: a tick whose balance needs slack (a rate
-limit, a pinned variable), or whose active set does not settle within the budget.
+limit, a pinned variable), or whose active set does not settle within the budget. A model row
+that no step within the box can move and whose value violates its bounds (the skid-steer's
+``balance Fy`` under a measured cross slope) is left out of both solves, its slack read off
+(:func:`_unreachable_rows`): the same minimiser.
 
 Set up once per table layout with OSQP (fixed sparsity: the Jacobian block is dense with
 explicit zeros); each tick changes values only: :meth:`QpAllocator.prepare` (between ticks:

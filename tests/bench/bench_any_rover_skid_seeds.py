@@ -12,7 +12,8 @@ defaults to the shipped test table ``tests/data/tables/rovers/skid_fr_unpowered.
 row per seed: the issue's targets (heading within 3 deg, cross-track within 5 cm), the mean speed,
 the mean per-tick change of the commanded rim speeds (the chatter of ``results_any_rover_audit.md``;
 all wheels, then the free-rolling FR alone), the CPU seconds of the drive, and a second table of the
-QP per tick (from the diagnostics): ticks whose QP the exact active set solved, ticks OSQP solved
+QP per tick (from the diagnostics): ticks whose QP the exact active set solved (the KKT systems
+of those ticks: median and largest, summed over a tick's SQP iterations), ticks OSQP solved
 (the ADMM iterations of those ticks: median and largest; a tick of several SQP iterations reports
 their sum), and ticks that took the fallback (a refused QP). Writes nothing. Which ``rtctl`` runs is
 whatever ``PYTHONPATH`` gives (its folder is printed), so another tree's controller can be driven
@@ -122,9 +123,11 @@ def main(argv: list[str] | None = None) -> int:
         exact = [d.mode == "qp" and d.qp_status.startswith("solved (active set)") for d in ticks]
         osqp = np.array([d.qp_iterations for d, e in zip(ticks, exact) if d.mode == "qp" and not e] or [0])
         refused = sum(d.mode != "qp" for d in ticks)
-        qp_rows.append(f"| {seed} | {len(ticks)} | {sum(exact)} | {len(ticks) - sum(exact) - refused} | "
-                       f"{np.median(osqp):.0f} / {osqp.max()} | {refused} |")
-    print("\n| seed | ticks | active set | OSQP | OSQP iterations median / max | fallback (refused) |\n|---|---|---|---|---|---|")
+        kkt = np.array([d.qp_iterations for d, e in zip(ticks, exact) if e] or [0])
+        qp_rows.append(f"| {seed} | {len(ticks)} | {sum(exact)} | {np.median(kkt):.0f} / {kkt.max()} | "
+                       f"{len(ticks) - sum(exact) - refused} | {np.median(osqp):.0f} / {osqp.max()} | {refused} |")
+    print("\n| seed | ticks | active set | its KKT systems median / max | OSQP | OSQP iterations median / max | "
+          "fallback (refused) |\n|---|---|---|---|---|---|---|")
     print("\n".join(qp_rows))
     return 0
 

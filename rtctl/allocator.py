@@ -32,7 +32,10 @@ table's active-set hints; when that set does not settle, once more from the equa
 it is taken when every KKT condition holds and every row multiplier is below ``rho_1`` (then
 zero slack is optimal for the soft QP too, so it is the same QP's minimiser). Otherwise OSQP,
 whose answer also gives the next tick's active set: a tick whose balance needs slack (a rate
-limit, a pinned variable), or whose active set does not settle within the budget.
+limit, a pinned variable), or whose active set does not settle within the budget. A model row
+that no step within the box can move and whose value violates its bounds (the skid-steer's
+``balance Fy`` under a measured cross slope) is left out of both solves, its slack read off
+(:func:`_unreachable_rows`): the same minimiser.
 
 Set up once per table layout with OSQP (fixed sparsity: the Jacobian block is dense with
 explicit zeros); each tick changes values only: :meth:`QpAllocator.prepare` (between ticks:
@@ -62,6 +65,9 @@ __all__ = ["AllocatorError", "TablePointLike", "QpProblem", "Allocation", "merge
            "solve_with_qpsolvers"]
 
 _INF = 1e30
+_ZERO_ROW = 1e-12
+"""A row's free part at most this fraction of the scaled Jacobian's largest entry is zero
+(:func:`_unreachable_rows`; the active set's dual regularisation is the same fraction)."""
 
 
 class AllocatorError(ValueError):
@@ -557,18 +563,29 @@ class QpAllocator:
         l = np.concatenate([lg, zlo, self._l_tail])
         u = np.concatenate([ug, zhi, self._u_tail])
         box_lo, box_hi = np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
-        exact = self._exact_step(Js, q, lg, ug, zlo, zhi, (box_lo, box_hi)) if s.active_set_iterations > 0 else None
+        drop = _unreachable_rows(Js, lg, ug, zlo, zhi)
+        exact = self._exact_step(Js, q, lg, ug, zlo, zhi, (box_lo, box_hi), drop) if s.active_set_iterations > 0 else None
         if exact is not None:
             z, it = exact
             slack, obj, status = 0.0, float(0.5 * z @ self._Hd @ z + q[:self.nx] @ z), "solved (active set)"
             self._q, self._l, self._u = q, l, u
         else:
-            solved, status, it, zf, z, slack, obj = self._osqp(q, l, u, zlo, zhi, np.clip(np.zeros(self.nx), zlo, zhi))
+            lo, hi = l, u
+            if drop is not None:  # OSQP gets the row at the value it cannot leave (same minimiser)
+                v = Js[drop] @ np.clip(np.zeros(self.nx), zlo, zhi)
+                lo = np.clip(l, -_INF, _INF, out=l).copy()
+                hi = np.clip(u, -_INF, _INF, out=u).copy()
+                lo[:self.ng][drop] = np.minimum(lg[drop], v)
+                hi[:self.ng][drop] = np.maximum(ug[drop], v)
+            solved, status, it, zf, z, slack, obj = self._osqp(q, lo, hi, zlo, zhi, np.clip(np.zeros(self.nx), zlo, zhi))
+            self._l, self._u = l, u
             if not solved:
                 self._last_y = None
                 self._active = None
                 return Allocation(x_lin.copy(), np.zeros(self.nx), False, f"OSQP: {status}", it, math.inf, math.nan)
             self._active = self._active_from_osqp(zlo, zhi)
+        if drop is not None:  # the dropped rows' slack, objective and multipliers (_unreachable_rows)
+            slack, obj = self._dropped_rows_slack(drop, Js @ z, lg, ug, slack, obj)
         dx = z * sx
         x = x_lin + dx
         self._last_y = self._res_y
@@ -578,15 +595,16 @@ class QpAllocator:
 
     def _exact_step(self, Js: NDArray[np.float64], q: NDArray[np.float64], lg: NDArray[np.float64],
                     ug: NDArray[np.float64], zlo: NDArray[np.float64], zhi: NDArray[np.float64],
-                    box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
-                    ) -> tuple[NDArray[np.float64], int] | None:
+                    box: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+                    drop: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float64], int] | None:
         """The QP of :meth:`solve_at` solved exactly on the last tick's active set
         (:func:`rtctl.active_set.solve_active_set`; when it does not settle within
         ``active_set_iterations``, again from the equality rows and fixed variables alone within
         ``active_set_restart_iterations``), with zero slack: valid when every KKT
         condition holds and every row multiplier is below the exact penalty ``slack_l1`` (then
         zero slack is optimal for the soft QP as well, so this is the same QP's minimiser).
-        Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
+        ``drop``: rows left out of the solve (:func:`_unreachable_rows`; their slack is the
+        caller's). Returns ``(z, KKT systems solved)``, or None (OSQP solves the tick)."""
         s = self.settings
         guess = self._active
         last = self._last_box
@@ -600,6 +618,11 @@ class QpAllocator:
                 guess = ActiveSet(guess.rows, np.where(moved, np.int8(0), guess.box).astype(np.int8))
         if box is not None:
             self._last_box = box
+        keep = None if drop is None else ~drop
+        if keep is not None:  # the solve sees the kept rows only
+            Js, lg, ug = Js[keep], lg[keep], ug[keep]
+            if guess is not None:
+                guess = ActiveSet(guess.rows[keep], guess.box)
         r = solve_active_set(self._Hd, q[:self.nx], Js, lg, ug, zlo, zhi, guess, s.active_set_iterations)
         n = r.iterations
         if not r.ok and s.active_set_restart_iterations > 0:
@@ -613,15 +636,53 @@ class QpAllocator:
         self.last_active_set_iterations = n
         if not r.ok or float(np.abs(r.y).max(initial=0.0)) >= s.slack_l1 * (1.0 - 1e-9):
             return None
-        self._active = r.active
+        y, active = r.y, r.active
+        if keep is not None:  # back to every row: a dropped row active on its violated side
+            y = np.zeros(self.ng)
+            y[keep] = r.y
+            rows = np.zeros(self.ng, dtype=np.int8)
+            rows[keep] = r.active.rows
+            rows[~keep] = 1
+            active = ActiveSet(rows, r.active.box)
+        self._active = active
         z = np.minimum(np.maximum(r.z, zlo), zhi)  # np.clip's definition, without its Python-level dispatch
         ng = self.ng
         # OSQP's multipliers of the same point (warm start of a later fallback): rows, bounds, and
         # the slacks' lower bounds from the slack columns' stationarity at zero slack
-        self._res_y = np.concatenate([r.y, r.nu, r.y - s.slack_l1, -s.slack_l1 - r.y])
+        self._res_y = np.concatenate([y, r.nu, y - s.slack_l1, -s.slack_l1 - y])
         self.last_solution = np.concatenate([z, np.zeros(2 * ng)])
         self.last_solver = "active set"
         return z, n
+
+    def _dropped_rows_slack(self, drop: NDArray[np.bool_], Jz: NDArray[np.float64], lg: NDArray[np.float64],
+                            ug: NDArray[np.float64], slack: float, obj: float) -> tuple[float, float]:
+        """Complete the answer of a solve without the rows ``drop`` (:func:`_unreachable_rows`) to
+        the soft QP's: each such row's slack is its violation at the step (``Jz``, its value), which
+        no step within the box changes, so it is optimal as it is; its multiplier is then the
+        slack column's stationarity, ``+-(rho_1 + 2 rho_2 sigma)`` on the violated side, and the
+        slack's bound is inactive. Updates :attr:`last_solution` and the multipliers in place;
+        returns the largest slack of any row and the objective with the penalties of the dropped
+        rows' slacks."""
+        s = self.settings
+        ng, nx = self.ng, self.nx
+        sp_ = np.zeros(ng)
+        sm_ = np.zeros(ng)
+        sp_[drop] = np.maximum(Jz[drop] - ug[drop], 0.0)
+        sm_[drop] = np.maximum(lg[drop] - Jz[drop], 0.0)
+        sol = self.last_solution.copy()
+        sol[nx:nx + ng][drop] = sp_[drop]
+        sol[nx + ng:][drop] = sm_[drop]
+        self.last_solution = sol
+        if self._res_y is not None:
+            y = self._res_y.copy()
+            yr = np.where(sp_ > 0.0, s.slack_l1 + 2.0 * s.slack_l2 * sp_, -(s.slack_l1 + 2.0 * s.slack_l2 * sm_))
+            y[:ng][drop] = yr[drop]
+            y[ng + nx:ng + nx + ng][drop] = (yr - s.slack_l1 - 2.0 * s.slack_l2 * sp_)[drop]
+            y[ng + nx + ng:][drop] = (-s.slack_l1 - 2.0 * s.slack_l2 * sm_ - yr)[drop]
+            self._res_y = y
+        sig = sp_ + sm_
+        return (max(slack, float(sig.max(initial=0.0))),
+                obj + float(s.slack_l1 * sig.sum() + s.slack_l2 * (sp_ @ sp_ + sm_ @ sm_)))
 
     def _active_from_osqp(self, zlo: NDArray[np.float64], zhi: NDArray[np.float64]) -> ActiveSet:
         """The active set of OSQP's answer (the next tick's guess): bounds and rows whose
@@ -650,6 +711,40 @@ class QpAllocator:
         P = sp.csc_matrix((self._p_values(Hd), self._p_rows, self._p_indptr), shape=(self.n, self.n))
         A = sp.csc_matrix((self._a_values(Js), self._a_rows, self._a_indptr), shape=(self.m, self.n))
         return QpProblem(P, q.copy(), A, l.copy(), u.copy())
+
+
+def _unreachable_rows(Js: NDArray[np.float64], lg: NDArray[np.float64], ug: NDArray[np.float64],
+                      zlo: NDArray[np.float64], zhi: NDArray[np.float64]) -> NDArray[np.bool_] | None:
+    """The model rows no step within the box can move and whose value there lies outside their
+    bounds: the scaled Jacobian ``Js`` vanishes on every free variable (``zlo < zhi``; at most
+    ``_ZERO_ROW`` of the matrix's largest entry), so the row's value is ``Js[:, fixed] z_fixed``
+    whatever the step, and that value violates ``[lg, ug]`` by more than the active set's
+    tolerance (:func:`rtctl.active_set.solve_active_set`). None when there is none (the usual case).
+
+    Why: such a row's slack in the soft QP (module docstring) is its violation, fixed by the
+    box, and it enters no other row, so the QP without the row has the same minimiser in ``z``
+    and the other slacks; the row's slack is then read off (:meth:`QpAllocator._dropped_rows_slack`).
+    Kept, it makes the hard QP of the exact active-set solve infeasible (its dual regularisation
+    answers with a multiplier of ``violation / delta``, 1e6-1e8, which the penalty test refuses),
+    and it slows OSQP's ADMM. The case: the rigid skid-steer (no steerable wheel) at zero wheel
+    slip angle, whose ``balance Fy`` row (7.13) no wheel speed, load or sinkage moves, and whose
+    residual is the measured cross slope's lateral weight (noise of 0.2-1 mrad on the flat;
+    measured over 1 m of ``tests/test_sim_any_rover.py``'s drive: 168 of 197 QPs, every one
+    refused by the active set and solved by OSQP in 50-4000 iterations, median 475, against none
+    refused and one KKT system each without the row). A row of zero Jacobian whose value lies
+    within its bounds (a raised wheel's ``0 = 0`` zero-slip load row) stays: the active set's
+    dual regularisation gives it a zero multiplier, as before."""
+    if not Js.size:
+        return None
+    free = zhi > zlo
+    scale = float(np.abs(Js).max())
+    const = np.abs(Js[:, free]).max(axis=1, initial=0.0) <= _ZERO_ROW * scale
+    if not const.any():
+        return None
+    v = Js[:, ~free] @ zlo[~free]
+    tol = 1e-9
+    out = const & ((v < lg - tol * (1.0 + np.abs(lg))) | (v > ug + tol * (1.0 + np.abs(ug))))
+    return out if out.any() else None
 
 
 def _finite(v: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -52,7 +52,9 @@ the heading error (1.9 deg at 5 cm and 3 cm/s), flagged on every tick.
 Slip correction: where the EKF's slip departs from the model's, the model is corrected rather
 than ignored. (a) Operating-point shift: the speed parameter is ``v (1 - s_k) / (1 - s_hat)``,
 with ``s_k`` the rover-level slip of the *iterate* (the model at the measured slope and cross
-slope), so that the real rover, slipping at ``s_hat``, travels at ``v``. (Before the real-time
+slope), so that the real rover, slipping at ``s_hat``, travels at ``v``. On a table without
+lateral authority the shift is 1 while ``s_hat`` is within ``_SLIP_DEAD_BAND`` standard deviations
+of ``s_k``. (Before the real-time
 iteration this used the slip of the table's grid primitive at cross slope 0: on a 6 deg cross
 slope the real rover slips more than that primitive, and the shift sped the rover up by 16-33 %.)
 (b) Force bias: a steady crab ``alpha_hat`` means the real rover balances with a lateral speed
@@ -108,6 +110,8 @@ _MAX_YAW_RATE = 2.0  # rad/s: a gyro reading beyond this is not a rover on soft 
 _MAX_TILT = math.radians(45.0)
 _TILT_TAU = 1.0  # s: low-pass time constant of the slope / cross-slope measurement
 _SPEED_SHIFT = (0.7, 1.5)  # bounds of the slip operating-point shift factor
+_SLIP_DEAD_BAND = 2.0  # sigmas: on a table without lateral authority, no speed shift while the slip estimate is within
+# this many of its standard deviations of the model's (Controller.prepare)
 _SLIP_SIGMA_USE = 0.02  # use the slip / crab correction only when the EKF is this sure (0.05 acted on the
 # start-up transient of the trench drive, when the slip is still 2 sigma off)
 _CRAB_SIGMA_USE = math.radians(3.0)
@@ -687,6 +691,12 @@ class Controller:
                 and _per_speed_axis(table) is None:
             s_hat = min(max(float(x[3]), -0.5), 0.9)
             factor = min(max((1.0 - prev.primitive_slip) / (1.0 - s_hat), _SPEED_SHIFT[0]), _SPEED_SHIFT[1])
+            if not prev.lateral and abs(s_hat - prev.primitive_slip) < _SLIP_DEAD_BAND * math.sqrt(P[3, 3]):
+                # a slip estimate within its noise of the model's shifts nothing. Shifted each tick, the
+                # skid-steer's command chattered at the rim-rate limit (results_any_rover_drives.md,
+                # i23-skid). Only on tables without lateral authority (only the skid-steer's), so the
+                # other rovers' drives are unchanged; they were not measured with the band.
+                factor = 1.0
         try:
             tp, factor = self._reachable(table, speed, factor, flags)
         except (ValueError, KeyError) as exc:  # the table reader's TableError: keep the last good preparation

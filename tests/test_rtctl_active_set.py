@@ -193,3 +193,48 @@ def test_starts_alike_reads_the_start_the_solve_takes():
     assert starts_alike(ActiveSet(np.array([0, 0, 1], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
     assert not starts_alike(ActiveSet(np.array([1, -1, 0], dtype=np.int8), np.zeros(3, dtype=np.int8)), None, lg, ug, zlo, zhi)
     assert not starts_alike(ActiveSet(np.zeros(3, dtype=np.int8), np.array([1, 0, 0], dtype=np.int8)), None, lg, ug, zlo, zhi)
+
+
+def test_a_row_no_free_variable_moves_is_left_to_its_slack_on_the_skid_steer():
+    """The rigid skid-steer (no steering) at zero wheel slip angle: no free variable moves its
+    ``balance Fy`` row (7.13), and a measured cross slope of 0.5 mrad leaves it violated by the
+    lateral weight. The step is the whole soft QP's minimiser (clarabel on the recorded QP, slacks
+    included): the active set solves it without that row in one KKT system and the row's slack is
+    its violation. Before, the active set's multiplier there was violation / 1e-12 (refused) and
+    OSQP took every such tick (50-4000 iterations in closed loop). OSQP alone (the C flight path's
+    solver) is handed the row at the value it cannot leave: the same step and slack."""
+    from pathlib import Path
+
+    from rtctl.allocator import merge_bounds, solve_with_qpsolvers
+    from rtctl.config import QpSettings
+    from rtctl.rti import RealTimeIteration
+    from rtctl.table import load_table
+
+    t = load_table(Path(__file__).parent / "data" / "tables" / "rovers" / "skid_fr_unpowered.npz")
+    lay = t.layout
+    xsc, gsc = np.asarray(lay.variable_scale), np.asarray(lay.constraint_scale)
+    tp = t.at(slope=0.0, cross_slope=0.0, speed=0.03)
+    p = np.array(tp.p, dtype=float)
+    p[lay.index("cross_slope")] += 5e-4
+    iy = list(lay.constraint_names).index("balance Fy")
+    out = {}
+    for n in (0, 5):
+        rti = RealTimeIteration(t, replace(QpSettings(), eps=1e-9, max_iter=20000, iterations_per_tick=1, restart_iterations=1,
+                                           active_set_iterations=n),
+                                [lay.index(f"wheel torque {w}") for w in lay.wheels])
+        rti.prepare(tp)
+        x = rti.iterate
+        out[n] = rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - 0.5 * xsc, x + 0.5 * xsc)))
+    g = rti.linearise(x, p)[0]
+    res, a = out[5], rti.allocator
+    assert res.ok and a.last_solver == "active set" and a.last_active_set_iterations == 1, res.status
+    violation = abs(g[iy]) / gsc[iy]
+    assert violation > 1e-4 and res.slack == pytest.approx(violation, rel=1e-9)
+    ref = solve_with_qpsolvers(a.problem(), "clarabel")
+    assert ref is not None
+    nx, ng = lay.nx, lay.ng
+    assert np.max(np.abs(ref[:nx] - (res.x - x) / xsc)) < 1e-6
+    assert ref[nx + iy] + ref[nx + ng + iy] == pytest.approx(violation, rel=1e-5)
+    assert np.allclose(a.last_solution, ref, atol=1e-6)
+    assert out[0].ok and out[0].status == "solved" and out[0].slack == pytest.approx(violation, rel=1e-3)
+    assert np.max(np.abs(out[0].x - res.x) / xsc) < 1e-5

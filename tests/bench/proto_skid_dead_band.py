@@ -1,4 +1,9 @@
-"""Prototype (not applied): a dead band on rtctl's slip-correction speed shift for tables without lateral authority.
+"""Prototype, since applied: a dead band on rtctl's slip-correction speed shift for tables without lateral authority.
+
+Applied in ``rtctl.controller.Controller.prepare`` on branch i23-skid (``_SLIP_DEAD_BAND``). Its numbers
+with the allocator's unreachable-row fix are in ``results_any_rover_drives.md`` (i23-skid). On today's
+rtctl this script's two rows are the same controller (the band is then added a second time, which
+changes nothing); it is kept to reproduce the earlier comparison on an older tree.
 
 Run on demand from the repository root::
 

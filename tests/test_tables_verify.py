@@ -198,7 +198,6 @@ def test_online_check_passes_a_good_table_and_fails_bad_ones(tmp_path):
     good = check_online(src, spec, ref)
     assert good["failed"] == 0 and good["per_centre"][0]["passed"], good
     om = [lay.var("omega", w) for w in lay.wheels]
-    be = [lay.var("beta", w) for w in lay.wheels]
 
     def shift(key, cols, by):
         def change(a):
@@ -213,12 +212,10 @@ def test_online_check_passes_a_good_table_and_fails_bad_ones(tmp_path):
         row = res["per_centre"][0]
         assert res["failed"] == 1 and not row["passed"], (name, row)
         assert any(row["last"][k] > v for k, v in ONLINE_TARGETS.items()), (name, row)
-    # steering 0.5 rad off at every grid point: since issue 22's restart by continuation (the
-    # corners' primitives followed to the centre by SQP iterations on the exact residual) the
-    # online step recovers the optimum (measured 0.003 scales after 5 ticks; 1.1-1.9 before); such
-    # a table fails verify on check 1, its stored Jacobians being another point's
-    res = check_online(_bad_copy(src, tmp_path, "steering", shift("x", be, 0.5)), spec, ref)
-    assert res["failed"] == 0, res["per_centre"][0]
+    # (steering 0.5 rad off at every grid point: since issue 22's restart by continuation the online
+    # step recovers the optimum, measured 0.003 scales after 5 ticks, 1.1-1.9 before; such a table
+    # fails verify on check 1, its stored Jacobians being another point's. That case was run here
+    # until 2026-11-28, dropped for the suite's time to pay for check 4's other-optimum test.)
 
 
 def test_verify_prints_passed_only_when_every_gated_check_passed(monkeypatch):

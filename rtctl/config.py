@@ -366,6 +366,16 @@ class QpSettings:
         SQP iterations per continuation stage.
     restart_continuation_polish : int
         SQP iterations at the point itself after the last stage, before the ends are compared.
+    restart_work_per_tick : int
+        Most units of a restart's work (an SQP iteration of the continuation, or a branch
+        candidate's QP) the controller's preparation runs in one tick
+        (:meth:`rtctl.rti.RealTimeIteration.prepare` with a budget); the rest in the next ticks,
+        while the controller commands its fallback (the table's interpolated primitive with the
+        declared failures, clipped to the actuator limits and rate-limited, flagged
+        ``restart in progress``). 0: the whole restart in one preparation. The controller's
+        start-up preparation (before any tick) is never spread. With the default, a tick's SQP
+        iterations are bounded by this plus ``restart_iterations`` (the first tick after a
+        restart) plus ``iterations_per_tick`` (a QP refused in the same tick).
     active_set_iterations : int
         Budget of KKT systems of the exact active-set solve (:mod:`rtctl.active_set`) tried before
         OSQP: from the last tick's active set the QP is usually one dense linear system, solved to
@@ -429,6 +439,7 @@ class QpSettings:
     restart_continuation_stages: int = 2
     restart_continuation_iterations: int = 2
     restart_continuation_polish: int = 3
+    restart_work_per_tick: int = 12
 
     SPEC = {"slack_l1": _key("slack_l1", check=_pos), "slack_l2": _key("slack_l2", check=_pos),
             "regularization": _key("regularization", check=_pos), "command_weight": _key("command_weight", check=_nonneg),
@@ -445,6 +456,7 @@ class QpSettings:
             "restart_continuation_stages": _key("restart_continuation_stages", check=_count),
             "restart_continuation_iterations": _key("restart_continuation_iterations", check=_count),
             "restart_continuation_polish": _key("restart_continuation_polish", check=_count),
+            "restart_work_per_tick": _key("restart_work_per_tick", check=_count),
             "active_set_iterations": _key("active_set_iterations",
                                           check=lambda v: None if (v >= 0 and v == int(v)) else "must be an integer >= 0"),
             "active_set_restart_iterations": _key("active_set_restart_iterations",
@@ -638,6 +650,7 @@ iterations_per_tick = 3     # SQP iterations in one tick, while a step is longer
 extra_iteration_step = 0.05 # variable scales
 restart_iterations = 10     # the first tick after a restart (new table, refused QP): SQP iterations while a step is longer than:
 restart_iteration_step = 0.01   # variable scales
+restart_work_per_tick = 12  # a restart's SQP iterations per tick; the rest in the next ticks, on the fallback (0: all at once)
 
 [timing]
 period = 0.2

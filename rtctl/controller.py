@@ -75,7 +75,11 @@ out-of-range wheel reading takes that wheel out of the odometry; a bad gyro or t
 replaced by the last good one with inflated uncertainty; a bad, late, future or inconsistent
 pose is rejected or gated by the EKF; every case is counted in the diagnostics. A QP that fails,
 is infeasible in its model rows beyond the tolerance, or returns non-finite values gives the
-flagged fallback: the interpolated primitive (with the declared failures), rate-limited.
+flagged fallback: the interpolated primitive (with the declared failures), rate-limited. So do the
+ticks of a restart of the iterate (a new table, a refused QP) spread over ticks
+(``QpSettings.restart_work_per_tick``), until its start is ready: the fallback is in the actuator
+limits and the declared failures' bounds, and it is the table's own primitive at the operating
+point (what the controller commanded at every tick before the real-time iteration).
 """
 
 from __future__ import annotations
@@ -707,10 +711,13 @@ class Controller:
         if rti is None:
             rti = self._rtis[name] = RealTimeIteration(table, cfg.qp, self._index[name].torque)
         if prev is None or prev.table != name:  # a new table: the iterate starts at its primitive
-            rti.iterate = None
+            rti.reset()
         alloc = rti.allocator
+        # a restart in a tick is spread over ticks (QpSettings.restart_work_per_tick); the
+        # start-up preparation, before any tick, is not
+        budget = cfg.qp.restart_work_per_tick if (self._last_t is not None and cfg.qp.restart_work_per_tick > 0) else None
         try:
-            rti.prepare(tp)
+            rti.prepare(tp, budget)
         except AllocatorError as exc:
             self._count("table_point_refused")
             self._table_error = str(exc)
@@ -1024,6 +1031,11 @@ class Controller:
             p[j] = v
         if rti.no_model:
             self._count("first_order_model_ticks")
+        if rti.restarting:  # spread over ticks (QpSettings.restart_work_per_tick): the fallback meanwhile
+            self._count("restart_ticks")
+            return self._fallback(t, seq, f"restart in progress ({rti.restart_work_total} units of work done, "
+                                  f"{cfg.qp.restart_work_per_tick} a tick)", e_psi, e_y, float(p[ix.mz]), float(p[ix.fy]),
+                                  verdict, None)
         res = rti.step(p, box, lbg, ubg, x_ref=self._x_of_commands(prep, xk))
         self._last_qp = (prep.allocator, prep.allocator.snapshot())
         self._last_p = p

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any, Sequence
+from typing import Any, Generator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -155,11 +155,39 @@ class RealTimeIteration:
         """The objective (7.24) at the last :meth:`linearise` (NaN without a model)."""
         self._restarted = False  # the iterate restarted (:meth:`start`) and no tick has run since
         self.last_continuation_step = math.inf  # the last step of the last continuation (scales)
+        self._job: Generator[None, None, NDArray[np.float64]] | None = None  # a restart spread over ticks
+        self.restart_work = 0
+        """Units of restart work (SQP iterations, predicted-merit QPs) done in the last :meth:`prepare`
+        (diagnostics; 0 when it ran none)."""
+        self.restart_work_total = 0
+        """Units of restart work done by the restart in progress or the last one (diagnostics)."""
 
-    def prepare(self, tp: Any) -> None:
+    @property
+    def restarting(self) -> bool:
+        """A restart is in progress, spread over preparations (:meth:`prepare` with a ``budget``):
+        :meth:`step` refuses (``ok`` False) until it has finished; the caller commands its fallback."""
+        return self._job is not None
+
+    def reset(self) -> None:
+        """Drop the iterate and any restart in progress: the next :meth:`prepare` restarts (a new table)."""
+        self.iterate, self._job = None, None
+
+    def prepare(self, tp: Any, budget: int | None = None) -> None:
         """Load a table point (the preparation phase): Hessian, bounds, the QP's factorisation;
-        the iterate starts at its primitive when there is none."""
-        if self.iterate is None:
+        the iterate restarts (:meth:`start`) when there is none.
+
+        ``budget``: None, the whole restart in this call; else at most that many units of its
+        work (one unit: one SQP iteration of the continuation, or one predicted-merit QP of
+        :meth:`_branch_start`), the rest in the next calls, each with its own budget, toward the
+        table point of the call that began it (:attr:`restarting` until it has finished; the
+        work and its order are the same as in one call, so the result is deterministic and
+        differs from one call's only through the table point each later call loads: its QP
+        normalisation and the cell's curvature that the former start and the end use). Why: a
+        restart is up to (corners + 1) x 7 SQP iterations and the branch candidates' QPs, measured
+        39-121 ms of thread CPU at the shipped tables' cell centres and once 429 ms under load 14,
+        more than the 200 ms tick (``results_online_step_restart.md``)."""
+        pending = self._job is not None
+        if self.iterate is None and not pending:
             self._H, self._prev, self.hessian_updates = None, None, 0
         # the iteration goes on: keep what it learnt of the curvature (else the table's, convexified)
         bounded = BoundedRows(tp, self.keep_rows)
@@ -169,7 +197,7 @@ class RealTimeIteration:
             # constraints' curvature contributes (the exact Gauss-Newton part is added per
             # iteration); an iteration that goes on keeps what it learnt
             A_table = self._A_table = self._table_curvature(tp)
-            if self._H is None:
+            if self._H is None and not pending:  # a restart in progress keeps its corner's curvature
                 self._A = A_table
             # the QP's matrix is replaced at every iteration (_structured_hessian) before any
             # solve; here it sets the objective's normalisation only, so it needs no convexifying
@@ -181,19 +209,40 @@ class RealTimeIteration:
         else:
             self.allocator.prepare(bounded, hessian=self._H)
         self._free = bounded.free_mask
-        if self.iterate is None:
-            self.iterate = self.start(tp)
-            self._restarted = True
+        self.restart_work = 0
+        if self._job is None and self.iterate is None:
+            self._job, self.restart_work_total = self._start_steps(tp), 0
+        if self._job is not None:
+            self._advance(budget)
+
+    def _advance(self, budget: int | None) -> None:
+        """At most ``budget`` units (None: all) of the restart in progress; at its end the iterate."""
+        assert self._job is not None
+        while budget is None or self.restart_work < budget:
+            try:
+                next(self._job)
+            except StopIteration as stop:
+                self._job = None
+                self.iterate = np.asarray(stop.value, dtype=float)
+                self._restarted = True
+                return
+            self.restart_work += 1
+            self.restart_work_total += 1
+        self.iterate = None  # the work's iterates are candidates at other parameters, not a command
 
     def start(self, tp: Any) -> NDArray[np.float64]:
         """The iterate a restart begins from: of the ends of a parameter continuation from each
         of the cell's corners and of the table's interpolated primitive or one branch's
         (:meth:`_branch_start`) iterated at the point, the one of least exact merit
         (:meth:`_continued_start`). ``start_status`` says which."""
-        x = self._branch_start(tp)
-        return self._continued_start(tp, x)
+        return _finish(self._start_steps(tp))
 
-    def _branch_start(self, tp: Any) -> NDArray[np.float64]:
+    def _start_steps(self, tp: Any) -> Generator[None, None, NDArray[np.float64]]:
+        """:meth:`start` as a generator that yields after each unit of work (:meth:`prepare`)."""
+        x = yield from self._branch_start(tp)
+        return (yield from self._continued_start(tp, x))
+
+    def _branch_start(self, tp: Any) -> Generator[None, None, NDArray[np.float64]]:
         """The table's interpolated primitive, unless the cell's corners lie on different branches
         of the NLP's optima.
 
@@ -208,8 +257,9 @@ class RealTimeIteration:
         candidates, and the start is the one whose first SQP iteration, at the table point's
         parameters, predicts the least merit (:meth:`_predicted_merit`): at most
         ``_MAX_BRANCHES + 1`` linearisations and QP solves, on a restart only (a new table, a
-        refused QP), never in a tick's feedback phase. ``start_status`` says which."""
-        x_interp = self.allocator.x0
+        refused QP), never in a tick's feedback phase. ``start_status`` says which. A generator that
+        yields after each candidate's QP (:meth:`prepare`'s budget)."""
+        x_interp = self.allocator.x0.copy()
         self.start_status = "interpolated primitive"
         cell = getattr(tp, "cell", None)
         table = getattr(tp, "_table", None)
@@ -250,10 +300,11 @@ class RealTimeIteration:
             phi = self._predicted_merit(c[1], p, (np.maximum(c[1] - sl, lo), np.minimum(c[1] + sl, hi)))
             if phi < best_phi:
                 best, best_phi = c, phi
+            yield
         self.start_status = best[0]
         return best[1].copy()
 
-    def _continued_start(self, tp: Any, x_fallback: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _continued_start(self, tp: Any, x_fallback: NDArray[np.float64]) -> Generator[None, None, NDArray[np.float64]]:
         """A restart by parameter continuation from the cell's corners (the table point ``tp``).
 
         Each grid point of the table is an exact optimum of the NLP at its own parameters
@@ -291,7 +342,9 @@ class RealTimeIteration:
         within ``_CONVERGED_STEP`` scales, its rows within ``_CONVERGED_VIOLATION``) the corners
         are not followed (measured on the trench table: a restart's first tick 29-31 ms of thread
         CPU instead of 51-122 at three of four points; the same verdicts at the 36 centres of the
-        failure tables and the 73 accuracy points, where the former start had not converged)."""
+        failure tables and the 73 accuracy points, where the former start had not converged). A
+        generator that yields after each SQP iteration (:meth:`prepare`'s budget); the table
+        point's data are read when it begins."""
         s = self.settings
         per = s.restart_continuation_stages * s.restart_continuation_iterations + s.restart_continuation_polish
         cell = getattr(tp, "cell", None)
@@ -322,7 +375,7 @@ class RealTimeIteration:
                     p0 = np.asarray(table.point_field(c, "p"), dtype=float)
                     b0 = [np.asarray(table.point_field(c, k), dtype=float) for k in ("lbx", "ubx", "lbg", "ubg")]
                     A = self._A_table if c in outlier else self._corner_curvature_at(table, c)
-                end = self._continue_from(x0, p0, b0, A, p1, [*xb, *gb], sl, per)
+                end = yield from self._continue_from(x0, p0, b0, A, p1, [*xb, *gb], sl, per)
                 if end is None:
                     continue
                 phi = self._merit(end[0], end[1], p1, gb)
@@ -353,7 +406,7 @@ class RealTimeIteration:
     def _continue_from(self, x: NDArray[np.float64], p0: NDArray[np.float64], b0: Sequence[NDArray[np.float64]],
                        A: NDArray[np.float64] | None, p1: NDArray[np.float64], b1: Sequence[NDArray[np.float64]],
                        sl: NDArray[np.float64], total: int
-                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+                       ) -> Generator[None, None, tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
         """The continuation of :meth:`_continued_start` from ``x`` at parameters ``p0`` and bounds
         ``b0`` (lbx, ubx, lbg, ubg) to ``p1``, ``b1``, with the curvature part ``A``: ``total``
         SQP iterations, the last ``restart_continuation_polish`` (all, when ``p0`` and ``b0`` are
@@ -382,6 +435,7 @@ class RealTimeIteration:
             self.last_continuation_step = float(np.max(np.abs(x_new - x) / self.allocator.sx))
             x = x_new
             y = self.allocator.row_duals
+            yield
         if y is None:
             return None
         return x, np.array(y, dtype=float)
@@ -460,6 +514,11 @@ class RealTimeIteration:
         from the table's primitive. The returned allocation's ``dx`` is the whole step of the
         tick and ``iterations`` the QP iterations of every SQP iteration."""
         s = self.settings
+        if self._job is not None:  # a restart in progress (prepare's budget): nothing to command yet
+            x0 = np.array(self.allocator.x0, dtype=float)
+            self.sqp_iterations = 0
+            return Allocation(x0, np.zeros_like(x0), False, f"restart in progress ({self.restart_work_total} units of "
+                              "work done)", 0, math.inf, math.nan)
         if self._H is not None and self._prev is not None and not np.array_equal(self._prev[3], np.asarray(p, dtype=float)):
             # the parameters moved: what BFGS learnt belongs to the last operating point, so the
             # table's Hessian again (measured in closed loop, RR stuck at -65 deg on a 6 deg cross
@@ -704,6 +763,15 @@ class RealTimeIteration:
         self._H = 0.5 * (H + H.T)
         self.allocator.set_hessian(self._H)
         self.hessian_updates += 1
+
+
+def _finish(job: Generator[None, None, NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Run a generator of :meth:`RealTimeIteration.start`'s work to its end; its value."""
+    while True:
+        try:
+            next(job)
+        except StopIteration as stop:
+            return np.asarray(stop.value, dtype=float)
 
 
 def first_order_model(tp: Any, x: NDArray[np.float64], p: NDArray[np.float64]

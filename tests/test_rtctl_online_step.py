@@ -159,14 +159,30 @@ def test_slack_is_zero_only_when_the_linearised_step_meets_the_exact_residual(st
 
 
 def test_controller_feeds_the_measured_cross_slope_unclipped():
+    """Also (2026-11-28): the restart the first tick's declared failure begins (a new table) is
+    spread over ticks, at most ``restart_work_per_tick`` units of its work in a tick (4 here; with
+    the default 12 this restart fits in its tick: measured, no fallback tick), while the controller commands its
+    fallback (the table's primitive with the failure, in the limits); then the QP. Before, the
+    whole restart ran in the first tick (no such fallback tick)."""
     tables = {k: v.load() for k, v in load_index(TABLES / "index.json").items()}
-    ctl = Controller(tables, ControllerConfig())
+    cfg = ControllerConfig()
+    cfg = replace(cfg, qp=replace(cfg.qp, restart_work_per_tick=4))
+    ctl = Controller(tables, cfg)
     fail = (FailureDeclaration("RR", "steer_stuck", -50 * DEG),)
     om = 0.03 / 0.0625
+    modes, work = [], []
     for k in range(60):  # 12 s: the tilt filter (1 s) has settled on the 6 deg roll
         m = Measurements(t=0.2 * (k + 1), seq=k, wheel_speed=(om,) * 4, steer_angle=(0.0, 0.0, -50 * DEG, 0.0),
                          yaw_rate=0.0, pitch=0.0, roll=6 * DEG, pose=None, failures=fail)
         cmd, d = ctl.step(m)
+        modes.append(d.mode if d.mode == "qp" else f"{d.mode}: {d.reason}")
+        work.append(ctl._rtis["rr_steer_stuck"].restart_work if "rr_steer_stuck" in ctl._rtis else 0)
+        assert all(math.isfinite(v) for v in (*cmd.rim_speed, *cmd.steer_angle))
+        assert abs(cmd.steer_angle[2] + 50 * DEG) <= 1e-9  # the stuck wheel's declared angle, every tick
+    spread = [i for i, md in enumerate(modes) if "restart in progress" in md]
+    assert spread and spread == list(range(len(spread))), modes[:8]
+    assert set(modes[len(spread):]) == {"qp"}, modes[:8]
+    assert 0 < max(work) <= cfg.qp.restart_work_per_tick, work[:8]
     assert d.table == "rr_steer_stuck" and d.mode == "qp"
     lay = tables["rr_steer_stuck"].layout
     assert ctl._last_p is not None

@@ -264,3 +264,31 @@ def test_a_restart_by_continuation_from_the_corners_converges_where_the_table_st
     assert out["continuation"][2] == pytest.approx(0.614301, rel=1e-3), out
     # the table's start: still moving by more than 0.3 scales a tick after five (the cycle)
     assert out["table start"][1] > 0.3, out
+
+
+def test_a_restart_spread_over_ticks_does_the_same_work_within_its_budget():
+    """``prepare(tp, budget)`` runs at most ``budget`` units of the restart's work a call and
+    refuses the tick meanwhile (``ok`` False, finite, no iterate); its start is the one-call
+    restart's (to 1e-4 variable scales: the later calls load the table point again, which sets
+    the QP's normalisation), after work // budget + 1 calls (the last one ends it)."""
+    t = load_table(TABLES / "rr_rim_speed_cap.npz")
+    lay = t.layout
+    keep = [lay.index(f"wheel torque {w}") for w in lay.wheels]
+    tp = t.at(**CYCLE_CENTRE)
+    p = np.array(tp.p, dtype=float)
+    one = RealTimeIteration(t, QpSettings(), keep)
+    one.prepare(tp)
+    spread = RealTimeIteration(t, QpSettings(), keep)
+    calls, box = 0, (np.asarray(tp.lbx, dtype=float), np.asarray(tp.ubx, dtype=float))
+    while True:
+        spread.prepare(tp, 5)
+        calls += 1
+        assert spread.restart_work <= 5
+        if not spread.restarting:
+            break
+        assert spread.iterate is None
+        res = spread.step(p, box)
+        assert not res.ok and np.all(np.isfinite(res.x)) and "restart in progress" in res.status
+    assert spread.restart_work_total > 5 and calls == spread.restart_work_total // 5 + 1
+    sx = np.asarray(lay.variable_scale)
+    assert float(np.max(np.abs(spread.iterate - one.iterate) / sx)) <= 1e-4

@@ -112,9 +112,26 @@ what the controller commands between grid points instead (why: under check 3).
    first tick's command balanced by the optimizer's independent check
    (:data:`ONLINE_TICK1_TARGETS`, set for the mini rover; another rover's scaled by its weight and
    length, :func:`tick1_targets`), and after :data:`ONLINE_TICKS` ticks wheel speeds, steering and
-   objective at the reference (:data:`ONLINE_TARGETS`); a refused QP fails. A command at another
-   local optimum than the reference fails too, however close its objective (the builder's rule is
-   the best optimum). This is what a table is for since issue 20: its start must lie where the
+   objective at the reference (:data:`ONLINE_TARGETS`); a refused QP fails. Since 2026-11-28 a
+   command at another local optimum than the reference also passes when it is a converged,
+   balanced KKT point of (7.25) at the centre whose objective (7.24) is at most
+   :data:`ONLINE_OTHER_OPTIMUM` ``objective_rel`` (0.5 %, issue 20's objective target) above the
+   reference's: its last tick's step within ``step_per_scale`` (1e-3 variable scales; with the exact
+   Jacobian a zero SQP step is a KKT point of the NLP), its balance by the independent check
+   within the first-tick targets. Why, from what the controller promises: a command that holds
+   the rover in balance (7.12)-(7.23) within the failure's constraints at a local minimum of the
+   torque objective, steady at a constant operating point and continuous as it moves. The
+   builder's "best optimum" is a rule for choosing the grid's values, not a promise between them:
+   where two branches cross inside a cell the best optimum jumps, and a controller that followed
+   it would jump its steering. Measured on ``rr_unpowered`` at (12.5, -5 deg, 3 cm/s), the centre
+   that failed (``tests/bench/results_tables_online_i22.md``, 2026-11-28 h2): the best optimum
+   there is a branch that exists only for slopes of about 11.0-13.95 deg (at -5 deg cross slope)
+   and cross slopes below about -1.7 deg (at 12.5 deg), holds none of the cell's corners, and is
+   better than the corners' branch only inside a patch of about 12.15-12.65 deg by -5.55 to -4.75
+   deg (by at most 0.22 %, at the centre; elsewhere up to 21 % worse); the online step stays on
+   the corners' branch (steering 7.4 deg from the patch's optimum), as every corner's IPOPT
+   continuation does. A notably worse optimum (above the tolerance), an unbalanced command or one
+   still moving fails; ``tests/test_tables_verify.py`` checks all three. This is what a table is for since issue 20: its start must lie where the
    iteration converges in a few ticks, and its Hessian, bounds and active sets must lead there;
    corrupted wheel speeds or wrong bounds fail it (``tests/test_tables_verify.py``; a wrong
    steering branch at every grid point no longer does since the continuation, which recovers the
@@ -140,7 +157,7 @@ from .table_builder import (_LIN_PARAMS, BuildOptions, GridSpec, TableSpec, _der
 
 __all__ = ["VerifyReport", "spec_from_table", "check_jacobians", "check_trust_radius", "check_interpolation",
            "check_online", "verify_table", "JACOBIAN_RTOL", "STEEP_RTOL", "INTERP_TOL", "FD_STEP", "ONLINE_TICKS",
-           "ONLINE_TICK1_TARGETS", "ONLINE_TARGETS", "TARGET_ROVER", "tick1_targets"]
+           "ONLINE_TICK1_TARGETS", "ONLINE_TARGETS", "ONLINE_OTHER_OPTIMUM", "TARGET_ROVER", "tick1_targets"]
 
 JACOBIAN_RTOL = 1e-5
 """Largest accepted Jacobian error against central differences at the standard step, relative to
@@ -189,6 +206,9 @@ class VerifyReport:
         primitive (gated).
     online : dict
         Check 4 (:func:`check_online`): rtctl's online step at the same centres.
+    references : list
+        Check 3's reference at each centre with a primitive, ``(midpoint, x physical)``: check 4's
+        input, kept so that check 4 can be re-run at a centre (another ``settings`` or tolerance).
     verdicts : dict
         Per check (``jacobians``, ``linearisation``, ``interpolation`` -- a primitive at every
         sampled centre --, ``online step``), whether it passed.
@@ -205,6 +225,7 @@ class VerifyReport:
     trust: list[dict[str, Any]] = field(default_factory=list)
     interpolation: dict[str, Any] = field(default_factory=dict)
     online: dict[str, Any] = field(default_factory=dict)
+    references: list[tuple[dict[str, float], NDArray[np.float64]]] = field(default_factory=list)
     verdicts: dict[str, bool] = field(default_factory=dict)
     passed: bool = True
     notes: list[str] = field(default_factory=list)
@@ -263,7 +284,8 @@ class VerifyReport:
             on = self.online
             lines.append(f"4. Online step (gated): rtctl's real-time iteration from its restart (continuation from the corners), "
                          f"{on['ticks']} ticks at each centre of check 3, against that optimum; targets (issue 20) "
-                         f"tick 1 balance {on['tick1_targets']}, tick {on['ticks']} {on['targets']}:")
+                         f"tick 1 balance {on['tick1_targets']}, tick {on['ticks']} {on['targets']}"
+                         + (f" (or another local optimum: {on['other_optimum']})" if "other_optimum" in on else "") + ":")
             for r in on["per_centre"]:
                 errs = ", ".join(f"{e:.2g}" for e in r.get("x_error_per_scale_by_tick", []))
                 head = f"    at {r['midpoint']}: x error per tick (variable scales) [{errs}]"
@@ -272,6 +294,11 @@ class VerifyReport:
                 if "last" in r:
                     head += f"; tick {on['ticks']} " + ", ".join(f"{k} {v:.2g}" for k, v in r["last"].items()
                                                               if k in on["targets"])
+                if r.get("accepted") == "other optimum":
+                    o = r["other"]
+                    head += (f"; another local optimum: converged (last step {o['last_step_per_scale']:.2g}), "
+                             f"balanced ({', '.join(f'{k} {v:.2g}' for k, v in o['balance'].items())}), objective "
+                             f"{100 * o['objective_above_reference']:+.3f} % against the reference's")
                 if r.get("why"):
                     head += f"; {r['why']}"
                 lines.append(f"{head}  {ok(bool(r['passed']))}")
@@ -788,6 +815,14 @@ ONLINE_TARGETS = {"wheel_speed_rel": 0.02, "steer_deg": 0.3, "objective_rel": 0.
 point: wheel speeds within 2 % (a speed below 5 % of its scale compared absolutely to that floor),
 steering within 0.3 deg, objective (7.24) within 0.5 %."""
 
+ONLINE_OTHER_OPTIMUM = {"objective_rel": 0.005, "step_per_scale": 1e-3}
+"""Check 4's acceptance of another local optimum than the reference after :data:`ONLINE_TICKS`
+ticks (module docstring, check 4): its objective (7.24) at most ``objective_rel`` above the
+reference's (relative; issue 20's objective target), the last tick's step at most
+``step_per_scale`` (largest change of the command per variable scale: the iteration has
+converged, so with the exact Jacobian the command is a KKT point of (7.25)), and its balance by
+the independent check within the first-tick targets (:func:`tick1_targets`)."""
+
 
 def _online_metrics(lay: Any, x: NDArray[np.float64], xstar: NDArray[np.float64], f: float,
                     fstar: float) -> dict[str, float]:
@@ -814,7 +849,8 @@ def _balance(spec: TableSpec, sc: Any, x: NDArray[np.float64], xsc: NDArray[np.f
 
 
 def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str, float], NDArray[np.float64]]],
-                 ticks: int = ONLINE_TICKS, settings: Any = None) -> dict[str, Any]:
+                 ticks: int = ONLINE_TICKS, settings: Any = None,
+                 other_optimum: dict[str, float] | None = None) -> dict[str, Any]:
     """Check 4: what rtctl commands at a cell centre, against the verified NLP optimum there.
 
     Since issue 20 the table is not the command between grid points: each 5 Hz tick is one SQP
@@ -831,20 +867,24 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
     iterate; no outer-loop offsets or actuator rate limits: those are the drive's, not the
     table's). Gated by issue 20's targets: the first tick's command balanced by the independent
     check (:data:`ONLINE_TICK1_TARGETS`, scaled to the table's rover by :func:`tick1_targets`) and the command after ``ticks`` ticks at the optimum
-    (:data:`ONLINE_TARGETS`). A tick whose QP is refused fails. What makes a table fail here: a
-    start outside the iteration's reach in one tick (an unbalanced first command), a start in another
-    optimum's basin (a branch the centre's best optimum does not share: the iteration converges to
-    the other one), wrong bounds or curvature.
+    (:data:`ONLINE_TARGETS`), or, at another local optimum, a converged and balanced KKT point whose
+    objective is within ``other_optimum`` of the reference's (default :data:`ONLINE_OTHER_OPTIMUM`;
+    module docstring, check 4: why). A tick whose QP is refused fails. What makes a table fail here: a
+    start outside the iteration's reach in one tick (an unbalanced first command), a start in the
+    basin of a notably worse optimum, wrong bounds or curvature.
 
     Returns per centre the first tick's balance, the errors after each tick (``x_error_per_scale``
-    and the target measures after the last), the table's interpolated start's error, and whether
-    it passed; the largest of each; the number of centres that failed.
+    and the target measures after the last), the table's interpolated start's error, whether it
+    passed and how (``accepted``: ``"reference optimum"`` or ``"other optimum"``, whose last step,
+    balance and objective above the reference are in ``other``); the largest of each; the number
+    of centres that failed.
     """
     from rtctl.allocator import merge_bounds
     from rtctl.config import QpSettings
     from rtctl.rti import RealTimeIteration
 
     s = settings if settings is not None else QpSettings()
+    oo = dict(ONLINE_OTHER_OPTIMUM if other_optimum is None else other_optimum)
     lay = t.layout
     xsc = np.asarray(lay.variable_scale, dtype=float)
     keep = [lay.index(f"wheel torque {w}") for w in lay.wheels]
@@ -869,6 +909,7 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
         row["start"] = _online_metrics(lay, np.asarray(tp.x, dtype=float), xstar, rti.residual.residual(tp.x, p)[1], fstar)
         errs: list[float] = []
         x = np.asarray(tp.x, dtype=float)
+        step = math.inf
         for tick in range(ticks):
             xk = rti.iterate if rti.iterate is not None else rti.allocator.x0
             box = merge_bounds(tp.lbx, tp.ubx, (xk - s.step_limit * xsc, xk + s.step_limit * xsc))
@@ -876,17 +917,33 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
             if not res.ok:
                 row["why"] = f"tick {tick + 1}: QP refused ({res.status})"
                 break
-            x = np.asarray(res.x, dtype=float)
+            x_new = np.asarray(res.x, dtype=float)
+            step = float(np.max(np.abs(x_new - x) / xsc))
+            x = x_new
             if tick == 0:
                 row["tick1_balance"] = _balance(spec, sc, x, xsc)
             errs.append(float(np.max(np.abs(x - xstar) / xsc)))
         row["x_error_per_scale_by_tick"] = errs
+        row["passed"] = False
         if len(errs) == ticks:
-            row["last"] = _online_metrics(lay, x, xstar, rti.residual.residual(x, p)[1], fstar)
-            row["passed"] = (all(row["tick1_balance"][k] <= v for k, v in lim1.items())
-                             and all(row["last"][k] <= v for k, v in ONLINE_TARGETS.items()))
-        else:
-            row["passed"] = False
+            f_last = rti.residual.residual(x, p)[1]
+            row["last"] = _online_metrics(lay, x, xstar, f_last, fstar)
+            tick1 = all(row["tick1_balance"][k] <= v for k, v in lim1.items())
+            if tick1 and all(row["last"][k] <= v for k, v in ONLINE_TARGETS.items()):
+                row.update(passed=True, accepted="reference optimum")
+            elif tick1:
+                # another local optimum? converged, balanced, and not notably worse (module docstring)
+                bal = _balance(spec, sc, x, xsc)
+                above = float((f_last - fstar) / max(abs(fstar), 1e-12))
+                row["other"] = {"last_step_per_scale": step, "balance": bal, "objective_above_reference": above}
+                if (step <= oo["step_per_scale"] and above <= oo["objective_rel"]
+                        and all(bal[k] <= v for k, v in lim1.items())):
+                    row.update(passed=True, accepted="other optimum")
+                else:
+                    row["why"] = (f"off the reference and not an accepted other optimum: last step {step:.2g} "
+                                  f"(<= {oo['step_per_scale']:g}), objective {100 * above:+.3f} % (<= "
+                                  f"{100 * oo['objective_rel']:g} %), balance "
+                                  + ", ".join(f"{k} {v:.2g}" for k, v in bal.items()))
         rows.append(row)
     worst: dict[str, float] = {}
     for r in rows:
@@ -895,6 +952,7 @@ def check_online(t: Table, spec: TableSpec, references: Sequence[tuple[dict[str,
                 worst[f"{part} {k}"] = max(worst.get(f"{part} {k}", 0.0), float(v))
     return {"ticks": ticks, "centres": len(rows), "failed": sum(not r["passed"] for r in rows), "worst": worst,
             "tick1_targets": {k: float(f"{v:.3g}") for k, v in lim1.items()}, "targets": dict(ONLINE_TARGETS),
+            "other_optimum": oo, "other_optimum_accepted": sum(r.get("accepted") == "other optimum" for r in rows),
             "per_centre": rows}
 
 
@@ -968,6 +1026,7 @@ def verify_table(path: str | Path, points: int = 3, seed: int = 0, steps: tuple[
                                            and res["wrench_jac_rel_error"] <= tol)
         rep.interpolation = res
         rep.verdicts["interpolation"] = res["no_direct_solution"] == 0
+        rep.references = refs
         rep.online = check_online(t, spec, refs)
         rep.verdicts["online step"] = rep.online["failed"] == 0 and rep.online["centres"] == len(refs) > 0
     else:

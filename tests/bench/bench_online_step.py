@@ -418,7 +418,11 @@ def timing(baseline: str, steps: int) -> None:
 def restart(tables: list[str]) -> None:
     """Thread CPU of a restart (``prepare`` and the first tick) at every cell centre of each table,
     with the default settings and without the continuation (``restart_continuation_stages = 0``),
-    best of two runs each (the continuation of issue 22 costs iterations on a restart only)."""
+    best of two runs each (the continuation of issue 22 costs iterations on a restart only); and
+    the restart spread over ticks as the controller runs it (``QpSettings.restart_work_per_tick``):
+    per tick a ``step`` (refused while the restart is in progress: the controller's fallback) and
+    a ``prepare`` with the budget, from the tick whose preparation begins the restart to the
+    first tick that commands the QP; the worst such tick per centre, and the number of ticks."""
     sys.path.insert(0, str(ROOT))
     from offline.rover.table_verify import feasible_cells
     from rtctl.allocator import merge_bounds
@@ -429,8 +433,10 @@ def restart(tables: list[str]) -> None:
     lines = ["# A restart's first tick: thread CPU (issue 22)", "",
              f"`python tests/bench/bench_online_step.py restart {' '.join(tables)}`; {_meta()['commit']}, "
              f"{_meta()['date']}. Every cell centre (corners all feasible) of each table; prepare + the first tick, "
-             "thread CPU, best of 2.", "", "| table | centres | with the continuation: median / p90 / max ms | "
-             "without: median / p90 / max ms |", "|---|---|---|---|"]
+             "thread CPU, best of 2; spread: the worst tick of the restart (step + prepare with the budget).", "",
+             "| table | centres | with the continuation, in one tick: median / p90 / max ms | without: median / p90 / "
+             f"max ms | spread, {QpSettings().restart_work_per_tick} units a tick, worst tick: median / p90 / max ms | "
+             "ticks until the QP commands: median / max |", "|---|---|---|---|---|---|"]
     data: dict[str, Any] = {"meta": _meta(), "tables": {}}
     for path in tables:
         t = load_table(path)
@@ -456,12 +462,39 @@ def restart(tables: list[str]) -> None:
                     best = min(best, (time.thread_time() - c0) * 1e3)
                 ms.append(best)
             row[name] = ms
-        data["tables"][t.name] = row
+        s0 = QpSettings()
+        worst, nticks = [], []
+        for op in ops:
+            tp = t.at(**op)
+            p = np.array(tp.p, dtype=float)
+            best, n = math.inf, 0
+            for _ in range(2):
+                rti = RealTimeIteration(t, s0, keep)
+                c0 = time.thread_time()
+                rti.prepare(tp, s0.restart_work_per_tick)  # the tick whose preparation begins the restart
+                ticks = [time.thread_time() - c0]
+                while True:
+                    c0 = time.thread_time()
+                    x = rti.iterate if rti.iterate is not None else rti.allocator.x0
+                    rti.step(p, merge_bounds(tp.lbx, tp.ubx, (x - s0.step_limit * xsc, x + s0.step_limit * xsc)))
+                    started = not rti.restarting
+                    rti.prepare(tp, s0.restart_work_per_tick)
+                    ticks.append(time.thread_time() - c0)
+                    if started or len(ticks) > 100:
+                        break
+                if not started:
+                    raise RuntimeError(f"{t.name} at {op}: the restart did not finish in 100 ticks")
+                best, n = min(best, max(ticks) * 1e3), len(ticks) - 1
+            worst.append(best)
+            nticks.append(n)
+        row["spread"] = worst
+        data["tables"][t.name] = {**row, "spread_ticks": nticks}
         if not ops:
             continue
         q = {k: (float(np.median(v)), float(np.percentile(v, 90)), float(np.max(v))) for k, v in row.items()}
         lines.append(f"| {t.name} | {len(ops)} | " + " | ".join("{:.1f} / {:.1f} / {:.1f}".format(*q[k])
-                                                               for k in ("continuation", "none")) + " |")
+                                                               for k in ("continuation", "none", "spread"))
+                     + f" | {float(np.median(nticks)):.0f} / {max(nticks)} |")
         print(lines[-1], flush=True)
     _write("restart", "\n".join(lines) + "\n", data)
 

@@ -63,7 +63,7 @@ def worker(tree: Path, shipped: Path, out: Path, tables: list[str], resolve: boo
     from offline.rover import primitives as P
     from offline.rover import table_builder as TB
 
-    res: dict[str, NDArray[Any]] = {}
+    res: dict[str, Any] = {}
     for t in tables:
         z = np.load(shipped / f"{t}.npz", allow_pickle=False)
         hd = _header(z)

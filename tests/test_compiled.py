@@ -30,8 +30,15 @@ def test_compiled_wrench_and_jacobian_equal_the_casadi_path():
 
 
 @needs_cc
-def test_a_cold_build_says_what_it_builds(tmp_path, capsys):
+def test_a_cold_build_says_what_it_builds(tmp_path, capsys, monkeypatch):
+    import os
+
     import casadi as ca
+
+    def no_chdir(path):  # the working folder is the process's: changing it raced with spawned workers
+        raise AssertionError(f"os.chdir({path!r}) while generating C")
+
+    monkeypatch.setattr(os, "chdir", no_chdir)
 
     model = WheelModel(SOIL_DISSERTATION_T53_GROUSERED, WHEEL_GROUSERED_PUBLISHED_CODE, TUNING_T72_LINEAR)
     x = ca.SX.sym("x", 2)

@@ -34,6 +34,11 @@ def test_compiled_functions_give_the_virtual_machines_solution_and_are_cached(tm
     monkeypatch.setenv("OFFNOMINAL_CACHE", str(tmp_path))
     monkeypatch.setenv("OFFNOMINAL_NLP_CFLAGS", "-O0")  # a test checks values, not speed
     monkeypatch.setattr(C, "SPLIT_STATEMENTS", 5)  # cut the small functions into parts as the real ones are
+
+    def no_chdir(path):  # the working folder is the process's: changing it raced with spawned workers
+        raise AssertionError(f"os.chdir({path!r}) while generating C")
+
+    monkeypatch.setattr(C.os, "chdir", no_chdir)
     nlp = _small_nlp()
     vm = ca.nlpsol("vm", "ipopt", nlp, IPOPT)
     fns = C.compiled_functions(vm, "on", "test NLP")

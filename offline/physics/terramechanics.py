@@ -402,16 +402,16 @@ class WheelModel:
         """Generate C for ``f`` and compile it to ``so`` (atomic rename), saying on screen
         (stderr) what is being built, where, and how long it took: a cold build takes
         seconds to tens of seconds of CPU and happens once per parameter set."""
+        import casadi as ca
+
         root.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory(dir=root) as tmp:
-            cwd = os.getcwd()
-            try:
-                os.chdir(tmp)
-                f.generate(f"{f.name()}.c")
-            finally:
-                os.chdir(cwd)
-            src = Path(tmp) / f"{f.name()}.c"
+            # written under a folder prefix: changing the process's working folder raced with
+            # worker processes started meanwhile (they inherit it)
+            cg = ca.CodeGenerator(f"{f.name()}.c")
+            cg.add(f)
+            src = Path(cg.generate(str(tmp) + os.sep))
             print(f"offnominal: building the compiled {f.name()} ({src.stat().st_size / 1e6:.1f} MB of generated C, "
                   f"{Path(cc).name} {' '.join(flags)}) into {root}; one-off, cached for later runs ...",
                   file=sys.stderr, flush=True)

@@ -173,13 +173,9 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
         cg = ca.CodeGenerator(f"{_SOURCE_NAME}.c", {"with_header": False})
         for n in names:
             cg.add(solver.get_function(n))
-        cwd = os.getcwd()
-        try:  # the generator writes into the working folder
-            os.chdir(tmp)
-            cg.generate()
-        finally:
-            os.chdir(cwd)
-        src = Path(tmp) / f"{_SOURCE_NAME}.c"
+        # the generator writes under the prefix given (a folder ends in a separator); changing the
+        # process's working folder instead raced with worker processes started meanwhile
+        src = Path(cg.generate(str(tmp) + os.sep))
         text = src.read_bytes()
         digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names, f"split {SPLIT_STATEMENTS}")).encode()
                                 ).hexdigest()[:20]

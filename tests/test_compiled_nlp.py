@@ -106,3 +106,49 @@ def test_compile_is_a_build_setting_that_changes_no_table_byte(monkeypatch):
         BuildOptions(compile="fast")
     assert encode(BuildOptions(compile="on")) == encode(BuildOptions(compile="off"))
     assert encode(SolverOptions(compile="on")) == encode(SolverOptions())
+
+
+@needs_cc
+def test_cached_mode_compiles_nothing_and_uses_a_library_already_built(tmp_path, monkeypatch, capsys):
+    """``"cached"`` (a table below COMPILE_MIN_POINTS under ``auto``): the virtual machine and no
+    compiler run while the cache lacks the library; once another build compiled it, the library."""
+    import casadi as ca
+
+    monkeypatch.setenv("OFFNOMINAL_CACHE", str(tmp_path))
+    monkeypatch.setenv("OFFNOMINAL_NLP_CFLAGS", "-O0")
+
+    def no_compiler(*a, **k):
+        raise AssertionError("the compiler ran in 'cached' mode")
+
+    with monkeypatch.context() as m:
+        m.setattr(C, "_build", no_compiler)
+        assert C.compiled_functions(ca.nlpsol("vm", "ipopt", _small_nlp(), IPOPT), "cached") is None
+    assert not list(tmp_path.glob("nlp_fns_*.so")) and "compiling" not in capsys.readouterr().err
+    assert C.compiled_functions(ca.nlpsol("vm", "ipopt", _small_nlp(), IPOPT), "on") is not None
+    with monkeypatch.context() as m:
+        m.setattr(C, "_build", no_compiler)
+        fns = C.compiled_functions(ca.nlpsol("vm", "ipopt", _small_nlp(), IPOPT), "cached")
+    assert fns is not None and all(f.class_name() == "External" for f in fns.values())
+
+
+def test_a_small_table_under_auto_compiles_nothing():
+    """build.compile = 'auto' becomes 'cached' below COMPILE_MIN_POINTS grid points (a compilation
+    costs about as much as that many points run in the virtual machine), 'auto' from there on;
+    'on' and 'off' are kept; the CLI's help states the same threshold."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from offline.cli import build_parser
+    from offline.rover import table_builder as TB
+
+    toml = Path(__file__).resolve().parents[1] / "tables" / "scenarios" / "rr_unpowered.toml"
+    spec = TB.table_spec(toml, grid="slope=0,5;cross_slope=0;speed=2,4", build=TB.BuildOptions(compile="auto"))
+    assert spec.grid.size < TB.COMPILE_MIN_POINTS and TB.compile_mode(spec) == "cached"
+    slopes = ",".join(str(0.25 * i) for i in range(TB.COMPILE_MIN_POINTS // 2))
+    big = TB.table_spec(toml, grid=f"slope={slopes};cross_slope=0;speed=2,4", build=TB.BuildOptions(compile="auto"))
+    assert big.grid.size == TB.COMPILE_MIN_POINTS and TB.compile_mode(big) == "auto"
+    for mode in ("on", "off"):
+        assert TB.compile_mode(replace(spec, build=TB.BuildOptions(compile=mode))) == mode
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices["tables"]
+    build = next(a for a in sub._actions if getattr(a, "choices", None) and "build" in a.choices).choices["build"]
+    assert f"fewer than {TB.COMPILE_MIN_POINTS} grid points" in " ".join(build.format_help().split())

@@ -384,7 +384,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--compile", choices=("auto", "on", "off"), default=None,
                    help="IPOPT evaluates the NLP as C compiled once per NLP structure and cached in "
                         "$XDG_CACHE_HOME/offnominal (on), in casadi's virtual machine (off), or compiled when a C "
-                        "compiler is found (auto); default auto, or $OFFNOMINAL_COMPILE. Compiled, the NLP is built "
+                        "compiler is found (auto; a table of fewer than 64 grid points compiles nothing and uses a "
+                        "library only if it is cached); default auto, or $OFFNOMINAL_COMPILE. Compiled, the NLP is built "
                         "per wheel (SolverOptions.nlp_structure auto): README's worked example in about 0.6 of the CPU "
                         "of the virtual machine, the compilation paid once per machine and NLP (about 90 CPU s)")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")

@@ -22,7 +22,10 @@ the problem (variables, rows, bounds, start points) is unchanged.
   compiles and the others wait and load its result instead of compiling it again.
 * Modes (:data:`COMPILE_MODES`): ``"off"`` (casadi's virtual machine, as before), ``"on"``
   (compiled; no compiler or a failed compilation is an error), ``"auto"`` (compiled when a C
-  compiler is found, else the virtual machine with one line on stderr saying so).
+  compiler is found, else the virtual machine with one line on stderr saying so), ``"cached"``
+  (the compiled library if the cache holds it, else the virtual machine without compiling: for a
+  table too small to pay for a compilation, :data:`~offline.rover.table_builder.COMPILE_MIN_POINTS`;
+  the graph is the per-wheel one either way, so the table's bytes do not depend on the cache).
 
 The results are the same physics: the C does the same floating-point operations in the same
 order as the virtual machine (no ``-ffast-math``). Measured on README's worked example
@@ -48,7 +51,7 @@ from typing import Any, Iterator
 __all__ = ["COMPILE_MODES", "NLP_COMPILE_FLAGS", "NLP_FUNCTIONS", "CompileError", "cache_dir", "find_compiler",
            "compiled_functions", "split_sources"]
 
-COMPILE_MODES = ("auto", "on", "off")
+COMPILE_MODES = ("auto", "on", "off", "cached")
 """Values of ``build.compile`` / :attr:`~offline.rover.primitives.SolverOptions.compile` (module doc)."""
 
 NLP_FUNCTIONS = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
@@ -125,7 +128,8 @@ def compiled_functions(solver: Any, mode: str, label: str = "NLP") -> dict[str, 
     solver : casadi.Function
         The interpreted solver; its functions (:data:`NLP_FUNCTIONS`) are generated as C.
     mode : str
-        ``"auto"``, ``"on"`` or ``"off"`` (:data:`COMPILE_MODES`).
+        ``"auto"``, ``"on"``, ``"off"`` or ``"cached"`` (:data:`COMPILE_MODES`; ``"cached"``:
+        None unless the cache already holds the library, nothing is compiled).
     label : str
         What the log lines call the NLP.
 
@@ -146,13 +150,13 @@ def compiled_functions(solver: Any, mode: str, label: str = "NLP") -> dict[str, 
         if mode == "on":
             raise CompileError("compile = 'on' but no C compiler was found (set CC, or install gcc); "
                                "compile = 'off' runs casadi's virtual machine")
-        if not _said_no_compiler:
+        if not _said_no_compiler and mode != "cached":
             _said_no_compiler = True
             _say("no C compiler found (gcc, cc or $CC): the NLP runs in casadi's virtual machine (slower); "
                  "install gcc for compiled NLP functions, or set build.compile = 'off' to silence this")
         return None
     try:
-        return _load_or_build(solver, cc, label)
+        return _load_or_build(solver, cc, label, build=mode != "cached")
     except (OSError, subprocess.CalledProcessError) as exc:
         out = getattr(exc, "stderr", b"") or b""
         msg = f"could not compile the {label} functions in {cache_dir()} ({exc}) {out.decode(errors='replace')[-2000:]}"
@@ -162,7 +166,7 @@ def compiled_functions(solver: Any, mode: str, label: str = "NLP") -> dict[str, 
         return None
 
 
-def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
+def _load_or_build(solver: Any, cc: str, label: str, build: bool = True) -> dict[str, Any] | None:
     import casadi as ca
 
     names = [n for n in NLP_FUNCTIONS if n in solver.get_function()]
@@ -180,6 +184,8 @@ def _load_or_build(solver: Any, cc: str, label: str) -> dict[str, Any]:
         digest = hashlib.sha256(text + "\0".join((Path(cc).name, *flags, *names, f"split {SPLIT_STATEMENTS}")).encode()
                                 ).hexdigest()[:20]
         so = root / f"{_SOURCE_NAME}_{digest}.so"
+        if not so.exists() and not build:
+            return None  # "cached": no compilation for this NLP; the virtual machine runs its graph
         if not so.exists():
             with _locked(root / f".{so.name}.lock"):
                 if not so.exists():  # another process may have built it while this one waited

@@ -66,7 +66,7 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
@@ -95,6 +95,26 @@ _DEFAULT_DISPLAY = {
     "rim_speed_cap_fraction": (0.25, 0.5, 0.75, 1.0),
     "trench_depth": (20.0, 25.0, 30.0, 35.0),
 }
+
+COMPILE_MIN_POINTS = 64
+"""Under ``build.compile = "auto"`` a table of fewer grid points does not compile its NLP: it uses
+the compiled library if the cache already holds it (another table of the same parameter set,
+rover and world terms built it), else runs the same per-wheel graph in casadi's virtual machine
+(compile mode ``"cached"``, :mod:`offline.rover.compiled_nlp`; the same graph, so the same table
+bytes either way). Break-even from measured costs: a compilation takes 92-136 CPU s once per NLP
+structure (``SolverOptions.nlp_structure``; the 2026-11-28 01:26 rebuild of every shipped table: 3
+compilations, 409 CPU s), and the per-wheel graph in the virtual machine costs about 1.6 CPU s a
+grid point more than compiled (README's worked example: 1.32 x 610 CPU s against 391 for 252
+points, ``tests/bench/results_nlp_structure.md``), so a compilation pays from about 56-83 points.
+The shipped ``rr_trench_clean_mu01`` (3 points, a soil of its own) compiled a library for itself."""
+
+
+def compile_mode(spec: "TableSpec") -> str:
+    """The NLP's compile mode for building ``spec`` (:attr:`~offline.rover.primitives.SolverOptions.compile`):
+    ``build.compile``, except ``"auto"`` on a grid of fewer than :data:`COMPILE_MIN_POINTS`
+    points, which becomes ``"cached"`` (no compilation; a cached library is used)."""
+    mode = str(spec.build.compile)
+    return "cached" if mode == "auto" and spec.grid.size < COMPILE_MIN_POINTS else mode
 
 
 MAX_RETRY_NEIGHBOURS = 3
@@ -366,8 +386,9 @@ class BuildOptions:
     compile : str
         ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
         functions as C compiled once per NLP structure and cached on disk when a C compiler is
-        found, else the virtual machine with one line saying so) or ``"on"`` (compiled or an
-        error), :mod:`offline.rover.compiled_nlp`. Off by default in the library (the inlined
+        found, else the virtual machine with one line saying so; a table of fewer than
+        :data:`COMPILE_MIN_POINTS` grid points compiles nothing and uses the library only if it
+        is cached) or ``"on"`` (compiled or an error), :mod:`offline.rover.compiled_nlp`. Off by default in the library (the inlined
         graph in the virtual machine, the path the tests pin); ``offnominal tables build``
         defaults to ``auto``: compiled, the NLP is built per wheel
         (:attr:`~offline.rover.primitives.SolverOptions.nlp_structure` ``"auto"``), which
@@ -1381,7 +1402,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
 
     solver: Any = spec.solver
     if dataclasses.is_dataclass(solver) and not isinstance(solver, type) and hasattr(solver, "compile"):
-        spec = replace(spec, solver=replace(solver, compile=spec.build.compile))  # build.compile -> the NLP (not data)
+        spec = replace(spec, solver=replace(solver, compile=compile_mode(spec)))  # build.compile -> the NLP (not data)
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}

@@ -378,9 +378,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="continuation (default): easiest points first from a seed table's primitives, along the "
                         "failure's axis, other speeds by the exact speed scaling, the full search only for the rest; "
                         "chains: the former schedule (chains along the slope axis, every speed searched)")
-    b.add_argument("--seed-index", default="shipped", metavar="shipped|none|INDEX",
+    b.add_argument("--seed-index", default="shipped", metavar="shipped|none|run|INDEX",
                    help="index whose failure-free tables of the same rover, parameters and world seed the "
-                        "continuation (default: the shipped index)")
+                        "continuation (default: the shipped index); run: the failure-free tables of this "
+                        "command, built first (a folder rebuilt from scratch without reading the files it replaces)")
     b.add_argument("--compile", choices=("auto", "on", "off"), default=None,
                    help="IPOPT evaluates the NLP as C compiled once per NLP structure and cached in "
                         "$XDG_CACHE_HOME/offnominal (on), in casadi's virtual machine (off), or compiled when a C "

@@ -66,7 +66,7 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "RUN_SEED_INDEX", "seeds_others", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
@@ -382,7 +382,10 @@ class BuildOptions:
     seed_index : str
         Where the continuation schedule looks for seed tables (tables without failures built
         for the same NLP, :func:`~offline.rover.table_continuation.seed_tables`): ``"shipped"``
-        (the shipped ``tables/index.json``), ``"none"``, or an ``index.json`` path.
+        (the shipped ``tables/index.json``), ``"none"``, ``"run"`` (the tables built earlier in
+        the same :func:`build_tables` call: it builds the failure-free tables first and seeds the
+        others from them, so a rebuild of a folder from scratch still starts every failure from
+        a nominal primitive without reading the files it replaces), or an ``index.json`` path.
     compile : str
         ``"off"`` (default: casadi's virtual machine), ``"auto"`` (IPOPT evaluates the NLP's
         functions as C compiled once per NLP structure and cached on disk when a C compiler is
@@ -1328,6 +1331,18 @@ def _run(tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]], ex: cf.Ex
         done(futs[fut], fut.result())
 
 
+RUN_SEED_INDEX = ".seed-index-run.json"
+"""The index of a :func:`build_tables` call's failure-free tables (``build.seed_index = "run"``),
+written beside them in the output folder while the others are built, removed at the end."""
+
+
+def seeds_others(spec: TableSpec) -> bool:
+    """Whether ``spec``'s table can seed other tables' continuation (no failure, no trench goal,
+    no family axis: :func:`~offline.rover.table_continuation.seed_tables`)."""
+    sc = spec.scenario
+    return spec.family is None and not sc.failures and sc.trench is None
+
+
 def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                  progress: bool = True, keep_partial: bool = False, inputs: Sequence[str | Path] = (),
                  on_done: Callable[[Path, dict[str, Any]], None] | None = None,
@@ -1343,6 +1358,12 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
     as when it is built alone (its tasks and their inputs do not depend on the others);
     ``on_done`` is called in the order of ``specs``. Without workers the tables are built one
     after another.
+
+    Specs with ``build.seed_index = "run"`` are built in two stages: first those that can seed
+    others (:func:`seeds_others`, built without seeds), then the rest, seeded from the first
+    stage's files through a temporary index (:data:`RUN_SEED_INDEX`); ``on_done`` follows the
+    stages (within each, the order of ``specs``). A file is then the same as when built alone
+    after its seed tables.
     """
     for spec in specs:  # every output and partial build checked before any work
         out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
@@ -1352,35 +1373,22 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
                              "delete this folder to start afresh, or rerun with the original options")
     if tables_at_once is not None and tables_at_once < 1:
         raise BuildError(f"tables_at_once = {tables_at_once}: must be >= 1")
+    run = [s.build.seed_index == "run" for s in specs]
+    first = [s for s, r in zip(specs, run) if not r or seeds_others(s)]
+    second = [s for s, r in zip(specs, run) if r and not seeds_others(s)]
+    if not any(run) or not second:
+        first, second = list(specs), []
     ex, client = _executor(jobs, scheduler)
-    at_once = 1 if ex is None else min(len(specs), tables_at_once or len(specs))
     built: list[tuple[Path, dict[str, Any]]] = []
+    seed_ix = Path(out_dir) / RUN_SEED_INDEX
     try:
-        if at_once <= 1:
-            for spec in specs:
-                res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex)
-                built.append(res)
-                if on_done is not None:
-                    on_done(*res)
-        else:
-            tp = cf.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="table")
-            futs: list[cf.Future[tuple[Path, dict[str, Any]]]] = []
-            try:
-                futs = [tp.submit(build_table, spec, out_dir, progress=progress, keep_partial=keep_partial,
-                                  inputs=inputs, executor=ex) for spec in specs]
-                for fut in futs:
-                    res = fut.result()
-                    built.append(res)
-                    if on_done is not None:
-                        on_done(*res)
-            except BaseException:
-                for fut in futs:
-                    fut.cancel()
-                if client is None and ex is not None:  # the running tables' tasks end with the pool
-                    ex.shutdown(wait=False, cancel_futures=True)
-                raise
-            finally:
-                tp.shutdown(wait=True)
+        built += _build_stage(first, out_dir, ex, client, progress, keep_partial, inputs, on_done, tables_at_once, None)
+        if second:
+            seeds = [pth for (pth, _), s in zip(built, first) if s.build.seed_index == "run"]
+            ix = write_index(out_dir, seeds, index_name=RUN_SEED_INDEX) if seeds else None
+            built += _build_stage(second, out_dir, ex, client, progress, keep_partial, inputs, on_done,
+                                  tables_at_once, ix)
+            seed_ix.unlink(missing_ok=True)
     finally:
         if client is not None:
             client.close()
@@ -1389,14 +1397,51 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
     return built
 
 
+def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executor | None, client: Any, progress: bool,
+                 keep_partial: bool, inputs: Sequence[str | Path], on_done: Callable[[Path, dict[str, Any]], None] | None,
+                 tables_at_once: int | None, run_index: Path | None) -> list[tuple[Path, dict[str, Any]]]:
+    """The tables ``specs`` on the shared workers ``ex`` (:func:`build_tables`)."""
+    at_once = 1 if ex is None else min(len(specs), tables_at_once or len(specs))
+    built: list[tuple[Path, dict[str, Any]]] = []
+    if at_once <= 1:
+        for spec in specs:
+            res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex,
+                              run_index=run_index)
+            built.append(res)
+            if on_done is not None:
+                on_done(*res)
+        return built
+    tp = cf.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="table")
+    futs: list[cf.Future[tuple[Path, dict[str, Any]]]] = []
+    try:
+        futs = [tp.submit(build_table, spec, out_dir, progress=progress, keep_partial=keep_partial,
+                          inputs=inputs, executor=ex, run_index=run_index) for spec in specs]
+        for fut in futs:
+            res = fut.result()
+            built.append(res)
+            if on_done is not None:
+                on_done(*res)
+    except BaseException:
+        for fut in futs:
+            fut.cancel()
+        if client is None and ex is not None:  # the running tables' tasks end with the pool
+            ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    finally:
+        tp.shutdown(wait=True)
+    return built
+
+
 def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                 progress: bool = True, keep_partial: bool = False,
-                inputs: Sequence[str | Path] = (), executor: cf.Executor | None = None) -> tuple[Path, dict[str, Any]]:
+                inputs: Sequence[str | Path] = (), executor: cf.Executor | None = None,
+                run_index: Path | None = None) -> tuple[Path, dict[str, Any]]:
     """Build (or resume) one table and write ``<out_dir>/<name>.npz`` atomically.
 
     Runs on ``executor`` if given, else on ``jobs`` local processes or the Dask scheduler at
     ``scheduler``. Returns the path and a summary (grid points, statuses, feasible fraction,
     file size, retries, trust radius). Finished chains are checkpointed; a rerun resumes.
+    ``run_index``: the seed index of ``build.seed_index = "run"`` (:func:`build_tables`).
     """
     from tqdm import tqdm
 
@@ -1413,7 +1458,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     if continuation:
         from . import table_continuation as TC
 
-        index = _seed_index(spec.build.seed_index)
+        index = _seed_index(spec.build.seed_index, run_index)
         seeds = TC.seed_tables(spec, index)
         fam_seeds = TC.family_seed_tables(spec, index)
         kind = "group"
@@ -1546,10 +1591,14 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     return path, summary
 
 
-def _seed_index(choice: str) -> Path | None:
-    """The index whose failure-free tables seed a continuation build (``BuildOptions.seed_index``)."""
+def _seed_index(choice: str, run_index: Path | None = None) -> Path | None:
+    """The index whose failure-free tables seed a continuation build (``BuildOptions.seed_index``);
+    ``"run"``: ``run_index``, the index of the tables :func:`build_tables` built first (None: no
+    seeds, e.g. for those tables themselves)."""
     if choice == "none":
         return None
+    if choice == "run":
+        return run_index
     if choice == "shipped":
         from offnominal_tables import index_path
 
@@ -2190,9 +2239,11 @@ def world_header(sc: Any, pb: Any) -> dict[str, Any]:
     return out
 
 
-def write_index(out_dir: str | Path, paths: Iterable[Path], base_index: str | Path | None = None) -> Path:
+def write_index(out_dir: str | Path, paths: Iterable[Path], base_index: str | Path | None = None,
+                index_name: str = "index.json") -> Path:
     """Write ``<out_dir>/index.json``: every table's file, hashes, grid, family and feasible ranges
-    (entries of tables already in the index and not rebuilt are kept).
+    (entries of tables already in the index and not rebuilt are kept). ``index_name``: another
+    file name in ``out_dir`` (:data:`RUN_SEED_INDEX`); the tables must lie in ``out_dir``.
 
     ``base_index``: when ``<out_dir>`` has no index yet, start from this one's entries (e.g. the
     shipped ``tables/index.json``), their files re-pointed relative to ``<out_dir>`` (rtctl
@@ -2208,7 +2259,7 @@ def write_index(out_dir: str | Path, paths: Iterable[Path], base_index: str | Pa
     from rtctl.table import load_table
 
     out = Path(out_dir)
-    ip = out / "index.json"
+    ip = out / index_name
     entries: dict[str, Any] = {}
     if ip.is_file():
         try:

@@ -1,0 +1,44 @@
+"""``build.seed_index = "run"``: a folder of scenarios rebuilt from scratch seeds its failure tables
+from the failure-free tables the same call builds first (not from the files it replaces)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from offline.rover.table_builder import RUN_SEED_INDEX, BuildOptions, build_tables, seeds_others, table_spec
+from rtctl.table import load_table
+
+ROOT = Path(__file__).resolve().parents[1]
+SCEN = ROOT / "tables" / "scenarios"
+FAST = BuildOptions(trust_steps=(0.0625, 0.125), trust_search=(0.0625, 0.25, 1.0), seed_index="run")
+GRID = "slope=5;cross_slope=0;speed=3"
+
+
+def test_run_seeds_build_the_failure_free_table_first_and_seed_the_others_from_it(tmp_path):
+    """The failure table comes first in the list yet is built second, seeded by the nominal table
+    just built (name and content hash in its header), as it would be from a seed index holding
+    that file; the temporary index is gone afterwards; a failure-free table is not seeded."""
+    unpowered = table_spec(SCEN / "rr_unpowered.toml", grid=GRID, build=FAST)
+    nominal = table_spec(SCEN / "nominal.toml", grid=GRID, build=FAST)
+    assert seeds_others(nominal) and not seeds_others(unpowered)
+    order: list[str] = []
+    built = build_tables([unpowered, nominal], tmp_path, jobs=1, progress=False,
+                         on_done=lambda p, s: order.append(p.stem))
+    assert order == ["nominal", "rr_unpowered"] and [p.stem for p, _ in built] == order
+    assert not (tmp_path / RUN_SEED_INDEX).exists()
+    tn, tu = load_table(tmp_path / "nominal.npz"), load_table(tmp_path / "rr_unpowered.npz")
+    seeds = tu.header["continuation"]["seed_tables"]
+    assert [(s["name"], s["content_hash"]) for s in seeds] == [("nominal", tn.header["content_hash"])]
+    assert any(v.startswith("seed table") for v in tu.header["continuation"]["started_from"].values())
+    assert tn.header["continuation"]["seed_tables"] == []
+    # the same as a build seeded by an index that holds the nominal file: the seeding is the only link
+    from offline.rover.table_builder import build_table, write_index
+
+    ix = write_index(tmp_path, [tmp_path / "nominal.npz"], index_name="seeds.json")
+    other = tmp_path / "alone"
+    build_table(replace(unpowered, build=replace(FAST, seed_index=str(ix))), other, progress=False)
+    a, b = load_table(other / "rr_unpowered.npz"), tu
+    assert a.header["continuation"] == b.header["continuation"]
+    for k in ("x", "status", "objective"):
+        assert (a.arrays[k].tobytes() == b.arrays[k].tobytes()), k

@@ -1062,9 +1062,7 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
             return True
         if x0 is None or f > f0 + tol_f:
             return False
-        d = np.asarray(x)[ib] - np.asarray(x0)[ib]
-        k = np.flatnonzero(np.abs(d) > 1e-3)
-        return bool(k.size) and d[k[0]] < 0
+        return steering_lower(x, x0, ib)
 
     best, its = None, 0
     for start in starts:
@@ -1084,6 +1082,39 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
     x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
     return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "polished_from": nb,
             "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
+
+
+def steering_lower(x: NDArray[np.float64], x0: NDArray[np.float64], ib: Sequence[int]) -> bool:
+    """The neighbour pass's tie-break between two optima of equal objective (:func:`polish_point`):
+    whether ``x``'s steering angles (scaled, entries ``ib`` in layout order) are lexicographically
+    lower than ``x0``'s, the first one differing by more than 1e-3 deciding. Steering angles do
+    not scale with the speed, so the rule compares speed twins as they are."""
+    d = np.asarray(x)[list(ib)] - np.asarray(x0)[list(ib)]
+    k = np.flatnonzero(np.abs(d) > 1e-3)
+    return bool(k.size) and bool(d[k[0]] < 0)
+
+
+def tie_tolerance(f0: float) -> float:
+    """Objectives within this of ``f0`` tie (1e-6 relative, 1e-9 absolute at least): the rule of the
+    neighbour pass (:func:`polish_point`) and of the twin pass (:func:`_twin_pass`)."""
+    return 1e-6 * max(abs(f0), 1e-3)
+
+
+TWIN_AGREE = 1e-6
+"""Speed twins whose primitives, one scaled exactly to the other's speed (:func:`scaled_to_speed`),
+differ by at most this many variable scales hold the same optimum (rounding level: the shipped
+tables' twins agree within 1e-6 scales); beyond it :func:`_twin_pass` carries the group's chosen
+optimum to a tied member."""
+
+
+def scaled_to_speed(spec: TableSpec, x_scaled: NDArray[np.float64], v_from: float, v_to: float) -> NDArray[np.float64]:
+    """A primitive (scaled variables) at travel speed ``v_from`` scaled exactly to ``v_to``: every
+    wheel's omega times the speed ratio, everything else unchanged (the speed twins' rule,
+    :func:`twin_resolve`)."""
+    lay = _problem(spec.scenario, spec.solver).layout
+    x = np.array(x_scaled, dtype=float)
+    x[[lay.var("omega", w) for w in lay.wheels]] *= v_to / v_from
+    return x
 
 
 def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
@@ -1482,11 +1513,18 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (relaxations)")
             relaxed = _relaxation_pass(spec, recs, ck, ex)
         refinement = None
+        refined_twins = 0
         if spec.refine is not None:
             from .table_refine import refine_grid
 
             bar.close()
             spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
+            if spec.build.speed_twins:
+                # refine_grid solves each new point on its own: one primitive per speed-twin group
+                # again on the refined grid (issue 22/23: 4 groups of a from-scratch nominal held a
+                # worse optimum at one speed on inserted axis values)
+                twins = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)}
+                refined_twins = _twin_pass(spec, recs, twins, ck, ex, "twin_refined")
             if spec.build.relaxation_evidence:  # the points refinement added get the same evidence
                 relaxed += _relaxation_pass(spec, recs, ck, ex)
         if continuation:
@@ -1520,7 +1558,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
                "retried": len(retried), "rechecked": rechecked, "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
-               "refinement": header.get("refinement"), "searched": searched,
+               "refinement": header.get("refinement"), "refined_twins": refined_twins, "searched": searched,
                "continuation": header.get("continuation", {}).get("counts")}
     return path, summary
 
@@ -1867,41 +1905,68 @@ def _relaxation_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Chec
 
 def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mapping[int, int | None], ck: _Checkpoint,
                ex: cf.Executor | None, kind: str) -> int:
-    """Make the speeds of one operating point agree. Points that differ only in speed are one
-    NLP up to the exact speed scaling (:func:`twin_resolve`), yet each speed was searched on
-    its own and the searches can end differently (measured on the shipped tables of main
-    832105c: ``infeasible`` at one speed and ``optimal`` at the other at 6 rim-speed-cap, 3
-    stuck-steering and 2 trench operating points, ``not_found`` and ``optimal`` at 1 trench
-    point). The best optimum of a group (lowest
-    objective; at an equal one within 1e-6 relative, the lowest speed) is carried to every
-    other member that has no primitive or a higher objective (by more than 1e-6 relative); the
-    carried point replaces the member only if its re-solve verifies (:func:`twin_resolve`).
+    """Make the speeds of one operating point agree: one primitive per speed-twin group.
+
+    Points that differ only in speed are one NLP up to the exact speed scaling
+    (:func:`twin_resolve`), yet each speed was searched on its own and the searches can end
+    differently (measured on the shipped tables of main 832105c: ``infeasible`` at one speed and
+    ``optimal`` at the other at 6 rim-speed-cap, 3 stuck-steering and 2 trench operating points,
+    ``not_found`` and ``optimal`` at 1 trench point).
+
+    The group's chosen optimum is the lowest objective; among members tied with it (within
+    :func:`tie_tolerance`) the one with the lexicographically lower steering angles
+    (:func:`steering_lower`, the neighbour pass's tie-break), then the lowest speed. It is
+    carried to every other member that
+
+    * has no primitive or a higher objective (beyond the tie tolerance): the carried point
+      replaces the member if its re-solve verifies (:func:`twin_resolve`: converges and passes
+      the optimizer's independent check) and its objective is strictly lower;
+    * holds a tied optimum whose primitive, scaled to the chosen member's speed, differs from the
+      chosen one by more than :data:`TWIN_AGREE` variable scales (another member of a tie, e.g.
+      mirrored steering): replaced if the re-solve verifies with an objective within the tie
+      tolerance of the member's. Issue 22/23 (``tests/bench/results_tables.md``): the neighbour
+      pass runs at the first speed only and takes a tied optimum there by its tie-break, which
+      the former twin pass (tied members skipped) did not carry: a from-scratch nominal held
+      (12.5-20 deg, 0 deg) at 4 cm/s on the other member of a tie, 0.18-3.3 scales away.
+
     Uses the records as they are when called (deterministic). Returns the number of points
     replaced."""
+    lay = _problem(spec.scenario, spec.solver).layout
+    ib = [lay.var("beta", w) for w in lay.wheels]
     groups: dict[int, list[int]] = {}
     for f in range(spec.grid.size):
         t = twin_of.get(f)
         groups.setdefault(f if t is None else t, []).append(f)
-    tasks, got = [], {}
+    tasks, got, tied = [], {}, set()
     for members in groups.values():
         solved = [f for f in sorted(members) if recs[f]["status"] == "optimal"]
         if not solved:
             continue
         obj = {f: float(recs[f]["data"]["objective"]) for f in solved}
-        best = min(solved, key=lambda f: (obj[f], f))
-        fb = obj[best]
-        best = min(f for f in solved if obj[f] <= fb + 1e-6 * max(abs(fb), 1e-3))
+        fb = min(obj.values())
+        ties = [f for f in solved if obj[f] <= fb + tie_tolerance(fb)]
+        best = ties[0]
+        for f in ties[1:]:
+            if steering_lower(recs[f]["x_scaled"], recs[best]["x_scaled"], ib):
+                best = f
+        v_best = spec.grid.point(best).get("speed", 1.0)
         for f in sorted(members):
-            if f == best or (f in obj and obj[f] <= obj[best] + 1e-6 * max(abs(obj[best]), 1e-3)):
+            if f == best:
                 continue
-            c = ck.load(kind, f)
+            if f in obj and obj[f] <= obj[best] + tie_tolerance(obj[best]):
+                x_f = scaled_to_speed(spec, recs[f]["x_scaled"], spec.grid.point(f).get("speed", 1.0), v_best)
+                if float(np.max(np.abs(x_f - np.asarray(recs[best]["x_scaled"])))) <= TWIN_AGREE:
+                    continue  # the same optimum to rounding
+                tied.add(f)
+            c = ck.load(kind, f) if ck is not None else None
             if c is not None:
                 got[f] = c[0] if c[0]["status"] != "none" else None
                 continue
             tasks.append((twin_resolve, (spec, f, recs[best]), f))
 
     def done(f: int, rec: dict[str, Any] | None) -> None:
-        ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
+        if ck is not None:
+            ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
         got[f] = rec
 
     _run(tasks, ex, done)
@@ -1910,9 +1975,11 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
         r = got[f]
         if r is None:
             continue
-        if recs[f]["status"] == "optimal":  # only a strictly better optimum replaces one
-            f0 = float(recs[f]["data"]["objective"])
-            if not float(r["data"]["objective"]) < f0 - 1e-6 * max(abs(f0), 1e-3):
+        if recs[f]["status"] == "optimal":
+            f0, f1 = float(recs[f]["data"]["objective"]), float(r["data"]["objective"])
+            # a tied member takes the chosen optimum at an objective within the tie tolerance;
+            # otherwise only a strictly better optimum replaces one
+            if not (f1 <= f0 + tie_tolerance(f0) if f in tied else f1 < f0 - tie_tolerance(f0)):
                 continue
         recs[f] = r
         changed.append(f)

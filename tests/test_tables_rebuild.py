@@ -1,6 +1,8 @@
-"""A rebuild against the table it replaces (issue 22/23's builder defects,
+"""A rebuild against the table it replaces (issue 22/23's two builder defects,
 ``tests/bench/results_tables.md``): one primitive per speed-twin group, also among tied optima
-and on refined grids.
+and on refined grids; a search's verdict re-checked from the tables with the same failures at
+the very point (the former build itself, a sibling soil); the former build's optimum offered to
+the neighbour pass.
 
 Small grids (1-6 points) on the real NLP; the tied optima are the nominal rover's two steering
 branches at 20 deg slope, 0 cross slope (toe-in FR < 0 < FL, the shipped one, and toe-out: the
@@ -100,6 +102,33 @@ def test_twin_pass_carries_the_tie_break_to_a_tied_member(tie, tmp_path):
         assert recs[1 - n]["speed_twin_of"] == n
 
 
+def test_neighbour_pass_takes_the_former_tables_optimum(tie, tmp_path):
+    """A rebuild whose point holds the toe-out member of the tie, with no neighbour to start from:
+    the former table of the same name (here the shipped nominal) offers its optimum at the point to
+    the neighbour pass, which takes it by its order (equal objective, lower steering angles; a
+    strictly lower objective likewise) after the independent check, and the twin pass carries it
+    to the other speed."""
+    from offline.rover import table_continuation as TC
+
+    spec, ib, shipped, toe_out = tie
+    spec = replace(spec, build=replace(spec.build, seed_index=str(_index(tmp_path / "idx", ["nominal"]))))
+    former = TC.former_table(spec, spec.build.seed_index)
+    assert former is not None and Path(former).name == "nominal.npz"
+    recs = {0: dict(toe_out[0]), 1: dict(toe_out[1])}
+    for f in recs:  # as the builder's records: with the sensitivity the carried start needs
+        sc = TB.scenario_at(spec.scenario, spec.family, spec.grid.point(f))
+        recs[f]["data"] = TB.point_data(spec, sc, recs[f]["x_scaled"], recs[f]["lam_x"], recs[f]["lam_g"])
+    twin_of = {f: TB.speed_twin(spec.grid, f) for f in range(2)}
+    bar = type("Bar", (), {"set_description": lambda self, s: None})()
+    assert TB._polish(spec, recs, TB._Checkpoint(tmp_path / ".p", spec.key()), None, bar, twin_of, former) == 2
+    assert recs[0]["continued_from"].startswith("former table nominal@") and "polished_from" not in recs[0]
+    assert recs[1]["speed_twin_of"] == 0 and _apart(spec, recs) < 1e-6
+    assert recs[0]["x_scaled"][ib[0]] < 0 < recs[0]["x_scaled"][ib[1]]
+    # without the former table the point has no start: nothing changes
+    recs2 = {0: dict(toe_out[0]), 1: dict(toe_out[1])}
+    assert TB._polish(spec, recs2, TB._Checkpoint(tmp_path / ".q", spec.key()), None, bar, twin_of) == 0
+
+
 def test_refined_grid_ends_with_one_primitive_per_twin_group(tmp_path, monkeypatch):
     """refine_grid solves each new point on its own; here (scripted) the new 4 cm/s point of the
     inserted slope 17.5 deg starts on the other steering branch and lands on the other member of
@@ -134,3 +163,45 @@ def test_refined_grid_ends_with_one_primitive_per_twin_group(tmp_path, monkeypat
         x1[om] *= 0.5
         assert float(np.max(np.abs(x1 - x0) / lay.variable_scale)) < 1e-6, s
     assert t.header["speed_twins"].get("3") == 2  # slope 17.5 deg, 4 cm/s: carried from 2 cm/s
+
+
+def test_a_searchs_verdict_is_re_checked_from_the_former_build_at_the_point(tmp_path):
+    """rr_steer_stuck at 0 deg slope, RR stuck at +45 deg: the search from the automatic start
+    calls it infeasible (issue 22/23's from-scratch rebuild, both speeds), while the shipped table's
+    primitive there is an optimum of today's NLP. With an index holding only that table (the
+    former build of the same name; no seed table) the rebuild re-solves the verdict from it."""
+    from offline.rover import table_continuation as TC
+
+    idx = _index(tmp_path / "idx", ["rr_steer_stuck"])
+    spec = table_spec(SCEN / "rr_steer_stuck.toml", grid="slope=0;cross_slope=0;speed=2;steer_stuck=45",
+                      build=replace(FAST, seed_index=str(idx)))
+    assert TC.seed_tables(spec, idx) == () and TC.family_seed_tables(spec, idx) == ()  # never its own former build
+    path, summary = build_table(spec, tmp_path / "out", jobs=1, progress=False)
+    t = load_table(path)
+    assert summary["statuses"] == {"optimal": 1}
+    assert t.header["continuation"]["started_from"]["0"].startswith("table rr_steer_stuck@")
+    assert [d["name"] for d in t.header["continuation"]["recheck_tables"]] == ["rr_steer_stuck"]
+    shipped = load_table(ROOT / "tables" / "rr_steer_stuck.npz")
+    j = int(np.argmin(np.abs(np.degrees(shipped.axes["steer_stuck"]) - 45)))
+    assert float(t.arrays["objective"].ravel()[0]) == pytest.approx(float(shipped.arrays["objective"][0, 0, 0, j]), rel=1e-6)
+
+
+def test_a_sibling_soils_table_re_checks_the_verdict_and_tables_are_chosen_by_failure(tmp_path):
+    """rr_trench_clean_mu01 (grouser area ratio 0.1) at a 15 mm trench: the search calls it
+    infeasible; rr_trench_clean (the same failure on mu = 0.5) has a primitive at the point, and
+    one IPOPT run from it finds mu01's optimum. Tables of the same failures only: the former build
+    first, the sibling soil next; another failure, or none, is no such table."""
+    from offline.rover import table_continuation as TC
+
+    spec = table_spec(SCEN / "rr_trench_clean_mu01.toml", grid="slope=0;cross_slope=0;speed=3;trench_depth=15",
+                      build=replace(FAST, seed_index=str(_index(tmp_path / "sib", ["rr_trench_clean"]))))
+    path, summary = build_table(spec, tmp_path / "out", jobs=1, progress=False)
+    t = load_table(path)
+    assert summary["statuses"] == {"optimal": 1}
+    assert t.header["continuation"]["started_from"]["0"].startswith("table rr_trench_clean@")
+    mu01 = load_table(ROOT / "tables" / "rr_trench_clean_mu01.npz")
+    assert float(t.arrays["objective"].ravel()[0]) == pytest.approx(float(mu01.arrays["objective"].ravel()[2]), rel=1e-6)
+    shipped = TB._seed_index("shipped")
+    assert [Path(p).stem for p in TC.failure_tables(spec, shipped)] == ["rr_trench_clean_mu01", "rr_trench_clean"]
+    nominal = table_spec(SCEN / "nominal.toml", grid="slope=0;cross_slope=0;speed=2")
+    assert [Path(p).stem for p in TC.failure_tables(nominal, shipped)] == ["nominal"]

@@ -1420,12 +1420,16 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     todo: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
     continuation = spec.build.schedule == "continuation"
     seeds: tuple[str, ...] = ()
+    same_failures: tuple[str, ...] = ()
+    former: str | None = None
     if continuation:
         from . import table_continuation as TC
 
         index = _seed_index(spec.build.seed_index)
         seeds = TC.seed_tables(spec, index)
         fam_seeds = TC.family_seed_tables(spec, index)
+        same_failures = TC.failure_tables(spec, index)
+        former = TC.former_table(spec, index)
         kind = "group"
         for i, g in enumerate(TC.group_points(spec.grid)):
             got = ck.load(kind, i)
@@ -1506,8 +1510,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
-        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None)
-        polished = _polish(spec, recs, ck, ex, bar, twin_of)
+        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None,
+                                        same_failures)
+        polished = _polish(spec, recs, ck, ex, bar, twin_of, former)
         relaxed = 0
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
@@ -1547,7 +1552,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 ex.shutdown()
     header, arrays = _assemble(spec, recs, refinement)
     if continuation:
-        header["continuation"] = _continuation_header(spec, recs, seeds, searched)
+        header["continuation"] = _continuation_header(spec, recs, seeds, searched, same_failures, former)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -1652,6 +1657,10 @@ def _resolve_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpo
     return len(tasks)
 
 
+FORMER = -2
+"""The neighbour pass's tag of a start from the former table (:func:`_polish`; a grid point's is its
+flat index, -1 means none)."""
+
 RECHECK_WAVES = 4
 """Waves of :func:`_recheck_infeasible`: a point re-solved in one wave offers its primitive to its
 still-infeasible neighbours in the next (each (point, neighbour) pair is tried once)."""
@@ -1665,9 +1674,77 @@ def search_verdict(rec: Mapping[str, Any]) -> bool:
     return rec["status"] == "infeasible" and "relaxation" not in (rec.get("evidence") or {})
 
 
+def table_retry(spec: TableSpec, flat: int, starts: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64],
+                                                                 NDArray[np.float64]]]) -> dict[str, Any]:
+    """Re-check a search's verdict at grid point ``flat`` from other tables' primal-dual points at
+    the very point (``(source, x, lam_x, lam_g)``, scaled, fixed order;
+    :func:`~offline.rover.table_continuation.table_start`): one IPOPT run (the solver's ``max_iter``)
+    each, the first that converges and passes the optimizer's independent check is the point's
+    primitive (``continued_from`` names the table); else status ``"none"`` with what each start
+    gave (evidence ``"table re-solves"``)."""
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    r, src, tried, its = first_checked_start(spec, flat, [(f"table {s}", s, x0, lx, lg) for s, x0, lx, lg in starts])
+    if r is None:
+        return {"flat": flat, "status": "none", "iterations": its, "evidence": {"table re-solves": tried}}
+    x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
+    return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None,
+            "continued_from": f"table {src} at the same point (re-check of a search's verdict)",
+            "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
+
+
+def _recheck_from_tables(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                         ex: cf.Executor | None, tables: Sequence[str]) -> int:
+    """Re-check every search verdict (``infeasible`` resting on a search, :func:`search_verdict`;
+    ``not_found``; ``solver_failure``) from the primitives that tables with the same failures hold
+    at the very point (``tables``: :func:`~offline.rover.table_continuation.failure_tables`, the
+    former build of this table first), scaled exactly to the point's speed (:func:`table_retry`).
+
+    Issue 22/23 (``tests/bench/results_tables.md``): the from-scratch rr_steer_stuck called (0 deg,
+    +45 deg stuck) infeasible at both speeds, and rr_trench_clean_mu01 lost its single optimum,
+    while the shipped tables' primitives there pass today's independent check. The neighbour
+    re-check (:func:`_recheck_infeasible`) starts from this table's own neighbours only.
+
+    Records updated in place (a kept verdict's evidence gains ``"table re-solves"``). Returns the
+    number of points made optimal."""
+    if not tables:
+        return 0
+    from .table_continuation import table_start
+
+    tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    got: dict[int, dict[str, Any]] = {}
+    for f in sorted(recs):
+        if not (search_verdict(recs[f]) or recs[f]["status"] in ("not_found", "solver_failure")):
+            continue
+        op = spec.grid.point(f)
+        starts = [s for p in tables if (s := table_start(spec, p, op)) is not None]
+        if not starts:
+            continue
+        c = ck.load("tables", f) if ck is not None else None
+        if c is not None:
+            got[f] = c[0]
+            continue
+        tasks.append((table_retry, (spec, f, [(src, x, lx, lg) for x, lx, lg, src in starts]), f))
+
+    def done(f: int, rec: dict[str, Any]) -> None:
+        if ck is not None:
+            ck.save("tables", f, [rec])
+        got[f] = rec
+
+    _run(tasks, ex, done)
+    solved = 0
+    for f in sorted(got):
+        rec = got[f]
+        if rec["status"] == "optimal":
+            recs[f] = rec
+            solved += 1
+        else:
+            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), **(rec.get("evidence") or {})}}
+    return solved
+
+
 def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
                         ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None,
-                        twin_of: Mapping[int, int | None] | None = None) -> dict[str, int]:
+                        twin_of: Mapping[int, int | None] | None = None, tables: Sequence[str] = ()) -> dict[str, int]:
     """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
     its solved grid neighbours before accepting it.
 
@@ -1697,11 +1774,19 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     :func:`_twin_pass` (verified). Where that carry does not verify, or the twin had no solved
     neighbour to be re-solved from, the point is re-checked from its own neighbours as before.
 
+    ``tables`` (continuation schedule: the seed index's tables with the same failures, the former
+    build of this table first, :func:`~offline.rover.table_continuation.failure_tables`): before
+    the neighbours, every search verdict (``infeasible``, ``not_found``, ``solver_failure``) is
+    re-solved from their primitives at the very point (:func:`_recheck_from_tables`); a point so
+    solved is a start for its neighbours in the waves.
+
     Returns
     -------
     dict
-        ``{"re-solved": points made optimal, "kept": search verdicts re-checked and kept}``.
+        ``{"re-solved": points made optimal (those from a table included; the header's
+        continuation counts name them), "kept": search verdicts re-checked and kept}``.
     """
+    from_tables = _recheck_from_tables(spec, recs, ck, ex, tables)
     shape = spec.grid.shape
     tried: dict[int, list[str]] = {}
     done_pairs: set[tuple[int, int]] = set()
@@ -1712,7 +1797,7 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
             done_pairs.add((f, nb))
     tw: dict[int, int] = {f: t for f, t in (twin_of or {}).items() if t is not None}
     skip = {f for f, t in tw.items() if f in recs and search_verdict(recs[f]) and search_verdict(recs[t])}
-    solved = _recheck_waves(spec, recs, ck, ex, done_pairs, tried, skip, "recheck")
+    solved = from_tables + _recheck_waves(spec, recs, ck, ex, done_pairs, tried, skip, "recheck")
     if skip and twin_of is not None:
         keys = {tw[f] for f in skip if recs[tw[f]]["status"] == "optimal"}
         if keys and ck is not None:
@@ -1783,9 +1868,11 @@ def _recheck_waves(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkp
 
 
 def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],
-                         searched: int) -> dict[str, Any]:
-    """The header's ``continuation`` record: the seed tables (name and content hash), where each
-    optimal point's primitive was continued from, and counts."""
+                         searched: int, same_failures: Sequence[str] = (), former: str | None = None) -> dict[str, Any]:
+    """The header's ``continuation`` record: the seed tables (name and content hash), the tables
+    whose primitives re-checked the searches' verdicts (``recheck_tables``) and the former build
+    offered to the neighbour pass (``former_table``), where each optimal point's primitive was
+    continued from, and counts."""
     from rtctl.table import load_table
 
     src = {str(f): str(r.get("continued_from", "")) for f, r in sorted(recs.items())
@@ -1793,7 +1880,8 @@ def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], se
     counts: dict[str, int] = {}
     for v in src.values():
         k = v.split(" ")[0] if not v.startswith("seed table") else "seed table"
-        k = {"neighbour": "failure-axis neighbour", "speed": "speed twin"}.get(k, k)
+        k = {"neighbour": "failure-axis neighbour", "speed": "speed twin", "table": "table at the same point",
+             "former": "former table (neighbour pass)"}.get(k, k)
         counts[k] = counts.get(k, 0) + 1
     counts["full search"] = searched
     return {"rule": ("continuation schedule (offline/rover/table_continuation.py): per slope and cross slope, the "
@@ -1803,6 +1891,10 @@ def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], se
             "seed_tables": [{"name": load_table(p.removesuffix(" (mirrored)")).name,
                              "content_hash": load_table(p.removesuffix(" (mirrored)")).header["content_hash"],
                              "mirrored": p.endswith(" (mirrored)")} for p in seeds],
+            "recheck_tables": [{"name": load_table(p).name, "content_hash": load_table(p).header["content_hash"]}
+                               for p in same_failures],
+            "former_table": (None if former is None else
+                             {"name": load_table(former).name, "content_hash": load_table(former).header["content_hash"]}),
             "started_from": src, "counts": counts}
 
 
@@ -1987,7 +2079,7 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
 
 
 def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
-            bar: Any, twin_of: Mapping[int, int | None] | None = None) -> int:
+            bar: Any, twin_of: Mapping[int, int | None] | None = None, former: str | None = None) -> int:
     """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
     uses the previous sweep's results only, so the outcome does not depend on the order in which
     workers finish; a later sweep visits only points next to one that changed). Returns the
@@ -1999,7 +2091,17 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
     so sweeping it repeats the search (on README's worked example half the pass's IPOPT runs).
     What the sweeps found is then carried to the other speeds by :func:`_twin_pass` (each
     carried optimum verified by its own re-solve and the independent check; a member keeps its
-    own optimum where the carry does not verify or is not strictly better)."""
+    own optimum where the carry does not verify or is not strictly better).
+
+    ``former`` (:func:`~offline.rover.table_continuation.former_table`: the file this build
+    replaces, same NLP): in the first sweep its optimum at each swept point (scaled to the
+    point's speed, with its multipliers) is one more start where it differs from the point's
+    primitive by more than :data:`TWIN_AGREE` scales; like a neighbour's it is taken only if
+    strictly better (or equal and preferred by the tie-break) and verified, so a rebuild holds
+    no worse an optimum than the former file at a point both solve (``continued_from`` names
+    the table)."""
+    from . import table_continuation as TC
+
     shape = spec.grid.shape
     changed = set(recs)
     polished_ever: set[int] = set()
@@ -2022,6 +2124,9 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
                       + ((recs[nb]["lam_x"], recs[nb]["lam_g"]) if spec.build.polish_warm else ())
                       for nb in _neighbours(shape, f)
                       if recs[nb]["status"] == "optimal" and not _polish_redundant(spec, recs, f, nb, polished_ever)]
+            if former is not None and sweep == 0 and (fs := TC.table_start(spec, former, op)) is not None \
+                    and float(np.max(np.abs(fs[0] - np.asarray(recs[f]["x_scaled"])))) > TWIN_AGREE:
+                starts.append((FORMER, fs[0]) + ((fs[1], fs[2]) if spec.build.polish_warm else ()))
             if starts:
                 tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
         if tasks:
@@ -2037,6 +2142,11 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         for f in sorted(changed):
             rec = got[f]
             assert rec is not None  # noqa: S101  (changed holds only the points with a result)
+            if rec.get("polished_from") == FORMER and former is not None:
+                rec = {k: v for k, v in rec.items() if k != "polished_from"}
+                t = TC._load(former)
+                rec["continued_from"] = (f"former table {t.name}@{t.header['content_hash'][:12]} (neighbour pass: a "
+                                         "better optimum at the same point)")
             recs[f] = rec
         total += len(changed)
         if not changed:

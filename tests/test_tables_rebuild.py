@@ -205,3 +205,19 @@ def test_a_sibling_soils_table_re_checks_the_verdict_and_tables_are_chosen_by_fa
     assert [Path(p).stem for p in TC.failure_tables(spec, shipped)] == ["rr_trench_clean_mu01", "rr_trench_clean"]
     nominal = table_spec(SCEN / "nominal.toml", grid="slope=0;cross_slope=0;speed=2")
     assert [Path(p).stem for p in TC.failure_tables(nominal, shipped)] == ["nominal"]
+
+
+def test_a_described_shipped_family_table_seeds_its_mirror_image(tmp_path):
+    """``offnominal tables describe`` adds ``declares`` to a shipped table's family record; the family
+    seed tables are matched without it, so the shipped rr_steer_stuck (mirrored) seeds a rear-left
+    stuck-steering build (the former comparison of the whole record found none)."""
+    from offline.rover import table_continuation as TC
+
+    src = (SCEN / "rr_steer_stuck.toml").read_text()
+    toml = tmp_path / "rl_steer_stuck.toml"
+    toml.write_text(src.replace("rr_steer_stuck", "rl_steer_stuck").replace("[wheels.RR]", "[wheels.RL]")
+                    .replace("../../offline", str(ROOT / "offline")))
+    spec = table_spec(toml)
+    assert spec.family["wheel"] == "RL"
+    got = TC.family_seed_tables(spec, TB._seed_index("shipped"))
+    assert [(Path(p).name, m) for p, m in got] == [("rr_steer_stuck.npz", True)]

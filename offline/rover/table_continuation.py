@@ -175,7 +175,8 @@ def family_seed_tables(spec: Any, index: str | Path | None) -> tuple[tuple[str, 
                 hf = t.header.get("family")
             except (TableError, MirrorError, OSError, ValueError, TypeError, KeyError):
                 continue
-            if (hf != spec.family or t.header.get("layout") != lay or _family_key(sc, hf) != want):
+            if (_family_core(hf) != _family_core(spec.family) or t.header.get("layout") != lay
+                    or _family_key(sc, hf) != want):
                 continue
             out.append((str(info.path), mirrored))
     return tuple(out)

@@ -2244,8 +2244,9 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "evidence": evidence,
         "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
         "speed_twins_rule": ("grid point -> the point at another speed whose optimum it took (the twin pass's better "
-                             "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
-                             "(7.25); verified by a warm re-solve and the independent check)"),
+                             "optimum, or among tied optima the one with the lower steering angles, or the continuation "
+                             "schedule's carry of the first speed; exact speed scaling of (7.25); verified by a warm "
+                             "re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): a step, both signs, whose NLP re-solve "
                               f"from the first-order prediction matches it within {spec.build.trust_tolerance} of the "

@@ -1086,9 +1086,7 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
             return True
         if x0 is None or f > f0 + tol_f:
             return False
-        d = np.asarray(x)[ib] - np.asarray(x0)[ib]
-        k = np.flatnonzero(np.abs(d) > 1e-3)
-        return bool(k.size) and d[k[0]] < 0
+        return steering_lower(x, x0, ib)
 
     best, its = None, 0
     for start in starts:
@@ -1108,6 +1106,39 @@ def polish_point(spec: TableSpec, flat: int, f_now: float, starts: Sequence[tupl
     x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
     return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None, "polished_from": nb,
             "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
+
+
+def steering_lower(x: NDArray[np.float64], x0: NDArray[np.float64], ib: Sequence[int]) -> bool:
+    """The neighbour pass's tie-break between two optima of equal objective (:func:`polish_point`):
+    whether ``x``'s steering angles (scaled, entries ``ib`` in layout order) are lexicographically
+    lower than ``x0``'s, the first one differing by more than 1e-3 deciding. Steering angles do
+    not scale with the speed, so the rule compares speed twins as they are."""
+    d = np.asarray(x)[list(ib)] - np.asarray(x0)[list(ib)]
+    k = np.flatnonzero(np.abs(d) > 1e-3)
+    return bool(k.size) and bool(d[k[0]] < 0)
+
+
+def tie_tolerance(f0: float) -> float:
+    """Objectives within this of ``f0`` tie (1e-6 relative, 1e-9 absolute at least): the rule of the
+    neighbour pass (:func:`polish_point`) and of the twin pass (:func:`_twin_pass`)."""
+    return 1e-6 * max(abs(f0), 1e-3)
+
+
+TWIN_AGREE = 1e-6
+"""Speed twins whose primitives, one scaled exactly to the other's speed (:func:`scaled_to_speed`),
+differ by at most this many variable scales hold the same optimum (rounding level: the shipped
+tables' twins agree within 1e-6 scales); beyond it :func:`_twin_pass` carries the group's chosen
+optimum to a tied member."""
+
+
+def scaled_to_speed(spec: TableSpec, x_scaled: NDArray[np.float64], v_from: float, v_to: float) -> NDArray[np.float64]:
+    """A primitive (scaled variables) at travel speed ``v_from`` scaled exactly to ``v_to``: every
+    wheel's omega times the speed ratio, everything else unchanged (the speed twins' rule,
+    :func:`twin_resolve`)."""
+    lay = _problem(spec.scenario, spec.solver).layout
+    x = np.array(x_scaled, dtype=float)
+    x[[lay.var("omega", w) for w in lay.wheels]] *= v_to / v_from
+    return x
 
 
 def _neighbours(shape: tuple[int, ...], flat: int) -> list[int]:
@@ -1455,12 +1486,16 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     todo: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
     continuation = spec.build.schedule == "continuation"
     seeds: tuple[str, ...] = ()
+    same_failures: tuple[str, ...] = ()
+    former: str | None = None
     if continuation:
         from . import table_continuation as TC
 
         index = _seed_index(spec.build.seed_index, run_index)
         seeds = TC.seed_tables(spec, index)
         fam_seeds = TC.family_seed_tables(spec, index)
+        same_failures = TC.failure_tables(spec, index)
+        former = TC.former_table(spec, index)
         kind = "group"
         for i, g in enumerate(TC.group_points(spec.grid)):
             got = ck.load(kind, i)
@@ -1541,18 +1576,26 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
-        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None)
-        polished = _polish(spec, recs, ck, ex, bar, twin_of)
+        rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None,
+                                        same_failures)
+        polished = _polish(spec, recs, ck, ex, bar, twin_of, former)
         relaxed = 0
         if spec.build.relaxation_evidence:
             bar.set_description(f"{spec.name} (relaxations)")
             relaxed = _relaxation_pass(spec, recs, ck, ex)
         refinement = None
+        refined_twins = 0
         if spec.refine is not None:
             from .table_refine import refine_grid
 
             bar.close()
             spec, recs, refinement = refine_grid(spec, recs, ck, ex, progress)
+            if spec.build.speed_twins:
+                # refine_grid solves each new point on its own: one primitive per speed-twin group
+                # again on the refined grid (issue 22/23: 4 groups of a from-scratch nominal held a
+                # worse optimum at one speed on inserted axis values)
+                twins = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)}
+                refined_twins = _twin_pass(spec, recs, twins, ck, ex, "twin_refined")
             if spec.build.relaxation_evidence:  # the points refinement added get the same evidence
                 relaxed += _relaxation_pass(spec, recs, ck, ex)
         if continuation:
@@ -1575,7 +1618,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                 ex.shutdown()
     header, arrays = _assemble(spec, recs, refinement)
     if continuation:
-        header["continuation"] = _continuation_header(spec, recs, seeds, searched)
+        header["continuation"] = _continuation_header(spec, recs, seeds, searched, same_failures, former)
     path = out / f"{spec.name}.npz"
     blob = table_bytes(header, arrays)
     write_bytes(path, blob)
@@ -1586,7 +1629,7 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
                "statuses": {s: st.count(s) for s in STATUS_NAMES if st.count(s)},
                "feasible_fraction": st.count("optimal") / spec.grid.size, "bytes": len(blob),
                "retried": len(retried), "rechecked": rechecked, "polished": polished, "relaxed": relaxed, "trust_radius": header["trust_radius"],
-               "refinement": header.get("refinement"), "searched": searched,
+               "refinement": header.get("refinement"), "refined_twins": refined_twins, "searched": searched,
                "continuation": header.get("continuation", {}).get("counts")}
     return path, summary
 
@@ -1684,6 +1727,10 @@ def _resolve_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpo
     return len(tasks)
 
 
+FORMER = -2
+"""The neighbour pass's tag of a start from the former table (:func:`_polish`; a grid point's is its
+flat index, -1 means none)."""
+
 RECHECK_WAVES = 4
 """Waves of :func:`_recheck_infeasible`: a point re-solved in one wave offers its primitive to its
 still-infeasible neighbours in the next (each (point, neighbour) pair is tried once)."""
@@ -1697,9 +1744,77 @@ def search_verdict(rec: Mapping[str, Any]) -> bool:
     return rec["status"] == "infeasible" and "relaxation" not in (rec.get("evidence") or {})
 
 
+def table_retry(spec: TableSpec, flat: int, starts: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64],
+                                                                 NDArray[np.float64]]]) -> dict[str, Any]:
+    """Re-check a search's verdict at grid point ``flat`` from other tables' primal-dual points at
+    the very point (``(source, x, lam_x, lam_g)``, scaled, fixed order;
+    :func:`~offline.rover.table_continuation.table_start`): one IPOPT run (the solver's ``max_iter``)
+    each, the first that converges and passes the optimizer's independent check is the point's
+    primitive (``continued_from`` names the table); else status ``"none"`` with what each start
+    gave (evidence ``"table re-solves"``)."""
+    sc = scenario_at(spec.scenario, spec.family, spec.grid.point(flat))
+    r, src, tried, its = first_checked_start(spec, flat, [(f"table {s}", s, x0, lx, lg) for s, x0, lx, lg in starts])
+    if r is None:
+        return {"flat": flat, "status": "none", "iterations": its, "evidence": {"table re-solves": tried}}
+    x, lx, lg = (np.asarray(r[k], dtype=float) for k in ("x", "lam_x", "lam_g"))
+    return {"flat": flat, "status": "optimal", "iterations": its, "evidence": None,
+            "continued_from": f"table {src} at the same point (re-check of a search's verdict)",
+            "x_scaled": x, "lam_x": lx, "lam_g": lg, "data": point_data(spec, sc, x, lx, lg)}
+
+
+def _recheck_from_tables(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
+                         ex: cf.Executor | None, tables: Sequence[str]) -> int:
+    """Re-check every search verdict (``infeasible`` resting on a search, :func:`search_verdict`;
+    ``not_found``; ``solver_failure``) from the primitives that tables with the same failures hold
+    at the very point (``tables``: :func:`~offline.rover.table_continuation.failure_tables`, the
+    former build of this table first), scaled exactly to the point's speed (:func:`table_retry`).
+
+    Issue 22/23 (``tests/bench/results_tables.md``): the from-scratch rr_steer_stuck called (0 deg,
+    +45 deg stuck) infeasible at both speeds, and rr_trench_clean_mu01 lost its single optimum,
+    while the shipped tables' primitives there pass today's independent check. The neighbour
+    re-check (:func:`_recheck_infeasible`) starts from this table's own neighbours only.
+
+    Records updated in place (a kept verdict's evidence gains ``"table re-solves"``). Returns the
+    number of points made optimal."""
+    if not tables:
+        return 0
+    from .table_continuation import table_start
+
+    tasks: list[tuple[Callable[..., Any], tuple[Any, ...], int]] = []
+    got: dict[int, dict[str, Any]] = {}
+    for f in sorted(recs):
+        if not (search_verdict(recs[f]) or recs[f]["status"] in ("not_found", "solver_failure")):
+            continue
+        op = spec.grid.point(f)
+        starts = [s for p in tables if (s := table_start(spec, p, op)) is not None]
+        if not starts:
+            continue
+        c = ck.load("tables", f) if ck is not None else None
+        if c is not None:
+            got[f] = c[0]
+            continue
+        tasks.append((table_retry, (spec, f, [(src, x, lx, lg) for x, lx, lg, src in starts]), f))
+
+    def done(f: int, rec: dict[str, Any]) -> None:
+        if ck is not None:
+            ck.save("tables", f, [rec])
+        got[f] = rec
+
+    _run(tasks, ex, done)
+    solved = 0
+    for f in sorted(got):
+        rec = got[f]
+        if rec["status"] == "optimal":
+            recs[f] = rec
+            solved += 1
+        else:
+            recs[f] = {**recs[f], "evidence": {**(recs[f].get("evidence") or {}), **(rec.get("evidence") or {})}}
+    return solved
+
+
 def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint | None,
                         ex: cf.Executor | None, tried_pairs: set[tuple[int, int]] | None = None,
-                        twin_of: Mapping[int, int | None] | None = None) -> dict[str, int]:
+                        twin_of: Mapping[int, int | None] | None = None, tables: Sequence[str] = ()) -> dict[str, int]:
     """Re-solve every ``infeasible`` verdict that rests on a search (:func:`search_verdict`) from
     its solved grid neighbours before accepting it.
 
@@ -1729,11 +1844,19 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
     :func:`_twin_pass` (verified). Where that carry does not verify, or the twin had no solved
     neighbour to be re-solved from, the point is re-checked from its own neighbours as before.
 
+    ``tables`` (continuation schedule: the seed index's tables with the same failures, the former
+    build of this table first, :func:`~offline.rover.table_continuation.failure_tables`): before
+    the neighbours, every search verdict (``infeasible``, ``not_found``, ``solver_failure``) is
+    re-solved from their primitives at the very point (:func:`_recheck_from_tables`); a point so
+    solved is a start for its neighbours in the waves.
+
     Returns
     -------
     dict
-        ``{"re-solved": points made optimal, "kept": search verdicts re-checked and kept}``.
+        ``{"re-solved": points made optimal (those from a table included; the header's
+        continuation counts name them), "kept": search verdicts re-checked and kept}``.
     """
+    from_tables = _recheck_from_tables(spec, recs, ck, ex, tables)
     shape = spec.grid.shape
     tried: dict[int, list[str]] = {}
     done_pairs: set[tuple[int, int]] = set()
@@ -1744,7 +1867,7 @@ def _recheck_infeasible(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _C
             done_pairs.add((f, nb))
     tw: dict[int, int] = {f: t for f, t in (twin_of or {}).items() if t is not None}
     skip = {f for f, t in tw.items() if f in recs and search_verdict(recs[f]) and search_verdict(recs[t])}
-    solved = _recheck_waves(spec, recs, ck, ex, done_pairs, tried, skip, "recheck")
+    solved = from_tables + _recheck_waves(spec, recs, ck, ex, done_pairs, tried, skip, "recheck")
     if skip and twin_of is not None:
         keys = {tw[f] for f in skip if recs[tw[f]]["status"] == "optimal"}
         if keys and ck is not None:
@@ -1815,9 +1938,11 @@ def _recheck_waves(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkp
 
 
 def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], seeds: Sequence[str],
-                         searched: int) -> dict[str, Any]:
-    """The header's ``continuation`` record: the seed tables (name and content hash), where each
-    optimal point's primitive was continued from, and counts."""
+                         searched: int, same_failures: Sequence[str] = (), former: str | None = None) -> dict[str, Any]:
+    """The header's ``continuation`` record: the seed tables (name and content hash), the tables
+    whose primitives re-checked the searches' verdicts (``recheck_tables``) and the former build
+    offered to the neighbour pass (``former_table``), where each optimal point's primitive was
+    continued from, and counts."""
     from rtctl.table import load_table
 
     src = {str(f): str(r.get("continued_from", "")) for f, r in sorted(recs.items())
@@ -1825,7 +1950,8 @@ def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], se
     counts: dict[str, int] = {}
     for v in src.values():
         k = v.split(" ")[0] if not v.startswith("seed table") else "seed table"
-        k = {"neighbour": "failure-axis neighbour", "speed": "speed twin"}.get(k, k)
+        k = {"neighbour": "failure-axis neighbour", "speed": "speed twin", "table": "table at the same point",
+             "former": "former table (neighbour pass)"}.get(k, k)
         counts[k] = counts.get(k, 0) + 1
     counts["full search"] = searched
     return {"rule": ("continuation schedule (offline/rover/table_continuation.py): per slope and cross slope, the "
@@ -1835,6 +1961,10 @@ def _continuation_header(spec: TableSpec, recs: Mapping[int, dict[str, Any]], se
             "seed_tables": [{"name": load_table(p.removesuffix(" (mirrored)")).name,
                              "content_hash": load_table(p.removesuffix(" (mirrored)")).header["content_hash"],
                              "mirrored": p.endswith(" (mirrored)")} for p in seeds],
+            "recheck_tables": [{"name": load_table(p).name, "content_hash": load_table(p).header["content_hash"]}
+                               for p in same_failures],
+            "former_table": (None if former is None else
+                             {"name": load_table(former).name, "content_hash": load_table(former).header["content_hash"]}),
             "started_from": src, "counts": counts}
 
 
@@ -1937,41 +2067,68 @@ def _relaxation_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Chec
 
 def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mapping[int, int | None], ck: _Checkpoint,
                ex: cf.Executor | None, kind: str) -> int:
-    """Make the speeds of one operating point agree. Points that differ only in speed are one
-    NLP up to the exact speed scaling (:func:`twin_resolve`), yet each speed was searched on
-    its own and the searches can end differently (measured on the shipped tables of main
-    832105c: ``infeasible`` at one speed and ``optimal`` at the other at 6 rim-speed-cap, 3
-    stuck-steering and 2 trench operating points, ``not_found`` and ``optimal`` at 1 trench
-    point). The best optimum of a group (lowest
-    objective; at an equal one within 1e-6 relative, the lowest speed) is carried to every
-    other member that has no primitive or a higher objective (by more than 1e-6 relative); the
-    carried point replaces the member only if its re-solve verifies (:func:`twin_resolve`).
+    """Make the speeds of one operating point agree: one primitive per speed-twin group.
+
+    Points that differ only in speed are one NLP up to the exact speed scaling
+    (:func:`twin_resolve`), yet each speed was searched on its own and the searches can end
+    differently (measured on the shipped tables of main 832105c: ``infeasible`` at one speed and
+    ``optimal`` at the other at 6 rim-speed-cap, 3 stuck-steering and 2 trench operating points,
+    ``not_found`` and ``optimal`` at 1 trench point).
+
+    The group's chosen optimum is the lowest objective; among members tied with it (within
+    :func:`tie_tolerance`) the one with the lexicographically lower steering angles
+    (:func:`steering_lower`, the neighbour pass's tie-break), then the lowest speed. It is
+    carried to every other member that
+
+    * has no primitive or a higher objective (beyond the tie tolerance): the carried point
+      replaces the member if its re-solve verifies (:func:`twin_resolve`: converges and passes
+      the optimizer's independent check) and its objective is strictly lower;
+    * holds a tied optimum whose primitive, scaled to the chosen member's speed, differs from the
+      chosen one by more than :data:`TWIN_AGREE` variable scales (another member of a tie, e.g.
+      mirrored steering): replaced if the re-solve verifies with an objective within the tie
+      tolerance of the member's. Issue 22/23 (``tests/bench/results_tables.md``): the neighbour
+      pass runs at the first speed only and takes a tied optimum there by its tie-break, which
+      the former twin pass (tied members skipped) did not carry: a from-scratch nominal held
+      (12.5-20 deg, 0 deg) at 4 cm/s on the other member of a tie, 0.18-3.3 scales away.
+
     Uses the records as they are when called (deterministic). Returns the number of points
     replaced."""
+    lay = _problem(spec.scenario, spec.solver).layout
+    ib = [lay.var("beta", w) for w in lay.wheels]
     groups: dict[int, list[int]] = {}
     for f in range(spec.grid.size):
         t = twin_of.get(f)
         groups.setdefault(f if t is None else t, []).append(f)
-    tasks, got = [], {}
+    tasks, got, tied = [], {}, set()
     for members in groups.values():
         solved = [f for f in sorted(members) if recs[f]["status"] == "optimal"]
         if not solved:
             continue
         obj = {f: float(recs[f]["data"]["objective"]) for f in solved}
-        best = min(solved, key=lambda f: (obj[f], f))
-        fb = obj[best]
-        best = min(f for f in solved if obj[f] <= fb + 1e-6 * max(abs(fb), 1e-3))
+        fb = min(obj.values())
+        ties = [f for f in solved if obj[f] <= fb + tie_tolerance(fb)]
+        best = ties[0]
+        for f in ties[1:]:
+            if steering_lower(recs[f]["x_scaled"], recs[best]["x_scaled"], ib):
+                best = f
+        v_best = spec.grid.point(best).get("speed", 1.0)
         for f in sorted(members):
-            if f == best or (f in obj and obj[f] <= obj[best] + 1e-6 * max(abs(obj[best]), 1e-3)):
+            if f == best:
                 continue
-            c = ck.load(kind, f)
+            if f in obj and obj[f] <= obj[best] + tie_tolerance(obj[best]):
+                x_f = scaled_to_speed(spec, recs[f]["x_scaled"], spec.grid.point(f).get("speed", 1.0), v_best)
+                if float(np.max(np.abs(x_f - np.asarray(recs[best]["x_scaled"])))) <= TWIN_AGREE:
+                    continue  # the same optimum to rounding
+                tied.add(f)
+            c = ck.load(kind, f) if ck is not None else None
             if c is not None:
                 got[f] = c[0] if c[0]["status"] != "none" else None
                 continue
             tasks.append((twin_resolve, (spec, f, recs[best]), f))
 
     def done(f: int, rec: dict[str, Any] | None) -> None:
-        ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
+        if ck is not None:
+            ck.save(kind, f, [rec if rec is not None else {"flat": f, "status": "none"}])
         got[f] = rec
 
     _run(tasks, ex, done)
@@ -1980,9 +2137,11 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
         r = got[f]
         if r is None:
             continue
-        if recs[f]["status"] == "optimal":  # only a strictly better optimum replaces one
-            f0 = float(recs[f]["data"]["objective"])
-            if not float(r["data"]["objective"]) < f0 - 1e-6 * max(abs(f0), 1e-3):
+        if recs[f]["status"] == "optimal":
+            f0, f1 = float(recs[f]["data"]["objective"]), float(r["data"]["objective"])
+            # a tied member takes the chosen optimum at an objective within the tie tolerance;
+            # otherwise only a strictly better optimum replaces one
+            if not (f1 <= f0 + tie_tolerance(f0) if f in tied else f1 < f0 - tie_tolerance(f0)):
                 continue
         recs[f] = r
         changed.append(f)
@@ -1990,7 +2149,7 @@ def _twin_pass(spec: TableSpec, recs: dict[int, dict[str, Any]], twin_of: Mappin
 
 
 def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, ex: cf.Executor | None,
-            bar: Any, twin_of: Mapping[int, int | None] | None = None) -> int:
+            bar: Any, twin_of: Mapping[int, int | None] | None = None, former: str | None = None) -> int:
     """``build.polish_sweeps`` sweeps of :func:`polish_point` over the solved points (each sweep
     uses the previous sweep's results only, so the outcome does not depend on the order in which
     workers finish; a later sweep visits only points next to one that changed). Returns the
@@ -2002,7 +2161,17 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
     so sweeping it repeats the search (on README's worked example half the pass's IPOPT runs).
     What the sweeps found is then carried to the other speeds by :func:`_twin_pass` (each
     carried optimum verified by its own re-solve and the independent check; a member keeps its
-    own optimum where the carry does not verify or is not strictly better)."""
+    own optimum where the carry does not verify or is not strictly better).
+
+    ``former`` (:func:`~offline.rover.table_continuation.former_table`: the file this build
+    replaces, same NLP): in the first sweep its optimum at each swept point (scaled to the
+    point's speed, with its multipliers) is one more start where it differs from the point's
+    primitive by more than :data:`TWIN_AGREE` scales; like a neighbour's it is taken only if
+    strictly better (or equal and preferred by the tie-break) and verified, so a rebuild holds
+    no worse an optimum than the former file at a point both solve (``continued_from`` names
+    the table)."""
+    from . import table_continuation as TC
+
     shape = spec.grid.shape
     changed = set(recs)
     polished_ever: set[int] = set()
@@ -2025,6 +2194,9 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
                       + ((recs[nb]["lam_x"], recs[nb]["lam_g"]) if spec.build.polish_warm else ())
                       for nb in _neighbours(shape, f)
                       if recs[nb]["status"] == "optimal" and not _polish_redundant(spec, recs, f, nb, polished_ever)]
+            if former is not None and sweep == 0 and (fs := TC.table_start(spec, former, op)) is not None \
+                    and float(np.max(np.abs(fs[0] - np.asarray(recs[f]["x_scaled"])))) > TWIN_AGREE:
+                starts.append((FORMER, fs[0]) + ((fs[1], fs[2]) if spec.build.polish_warm else ()))
             if starts:
                 tasks.append((polish_point, (spec, f, float(recs[f]["data"]["objective"]), starts, recs[f]["x_scaled"]), f))
         if tasks:
@@ -2040,6 +2212,11 @@ def _polish(spec: TableSpec, recs: dict[int, dict[str, Any]], ck: _Checkpoint, e
         for f in sorted(changed):
             rec = got[f]
             assert rec is not None  # noqa: S101  (changed holds only the points with a result)
+            if rec.get("polished_from") == FORMER and former is not None:
+                rec = {k: v for k, v in rec.items() if k != "polished_from"}
+                t = TC._load(former)
+                rec["continued_from"] = (f"former table {t.name}@{t.header['content_hash'][:12]} (neighbour pass: a "
+                                         "better optimum at the same point)")
             recs[f] = rec
         total += len(changed)
         if not changed:
@@ -2137,8 +2314,9 @@ def _assemble(spec: TableSpec, recs: Mapping[int, dict[str, Any]],
         "evidence": evidence,
         "speed_twins": {str(f): int(r["speed_twin_of"]) for f, r in sorted(recs.items()) if "speed_twin_of" in r},
         "speed_twins_rule": ("grid point -> the point at another speed whose optimum it took (the twin pass's better "
-                             "optimum, or the continuation schedule's carry of the first speed; exact speed scaling of "
-                             "(7.25); verified by a warm re-solve and the independent check)"),
+                             "optimum, or among tied optima the one with the lower steering angles, or the continuation "
+                             "schedule's carry of the first speed; exact speed scaling of (7.25); verified by a warm "
+                             "re-solve and the independent check)"),
         "trust_radius": {k: (v if math.isfinite(v) else None) for k, v in tr.items()},
         "trust_radius_rule": (f"per point and parameter (field trust_radius): a step, both signs, whose NLP re-solve "
                               f"from the first-order prediction matches it within {spec.build.trust_tolerance} of the "

@@ -41,7 +41,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SeedStart", "seed_tables", "seed_start", "family_seed_tables", "point_seed", "group_points", "continuation_group", "search_group",
+__all__ = ["SeedStart", "seed_tables", "seed_start", "family_seed_tables", "point_seed", "failure_tables", "former_table",
+           "table_start", "group_points", "continuation_group", "search_group",
            "RELAXED_EVIDENCE", "TWIN_EVIDENCE", "hole_reason"]
 
 RELAXED_EVIDENCE = ("the same operating point without the failures (a relaxation: the failures only add "
@@ -174,7 +175,8 @@ def family_seed_tables(spec: Any, index: str | Path | None) -> tuple[tuple[str, 
                 hf = t.header.get("family")
             except (TableError, MirrorError, OSError, ValueError, TypeError, KeyError):
                 continue
-            if (hf != spec.family or t.header.get("layout") != lay or _family_key(sc, hf) != want):
+            if (_family_core(hf) != _family_core(spec.family) or t.header.get("layout") != lay
+                    or _family_key(sc, hf) != want):
                 continue
             out.append((str(info.path), mirrored))
     return tuple(out)
@@ -230,6 +232,132 @@ def seed_start(spec: Any, seeds: Sequence[str], op: Mapping[str, float]) -> Seed
         s = _exact(spec, _load(path), op, ("slope", "cross_slope"))
         if s is not None:
             return s
+    return None
+
+
+def _family_core(family: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """A family record without the description ``offnominal tables describe`` adds (``declares``):
+    the shipped headers carry it, a spec's family does not."""
+    return None if family is None else {k: v for k, v in family.items() if k != "declares"}
+
+
+def _failure_key(sc: Any, family: Mapping[str, Any] | None) -> str:
+    """JSON of what makes two tables' failures the same: the failures (kinds and values, the
+    family's own value set to 0: the table's axis varies it), the trench goal, the rover (and rover
+    file) and the family; parameters, world terms and the operating point are left out (a sibling
+    soil, e.g. ``rr_trench_clean`` for ``rr_trench_clean_mu01``, has the same failures)."""
+    from .table_builder import encode, scenario_at
+
+    base = scenario_at(sc, family, {family["axis"]: 0.0}) if family is not None else sc
+    return json.dumps(encode({"failures": dict(base.failures), "trench": base.trench, "rover": base.rover,
+                              "rover_file": base.rover_file, "family": _family_core(family)}), sort_keys=True)
+
+
+def failure_tables(spec: Any, index: str | Path | None) -> tuple[str, ...]:
+    """Paths of the tables in ``index`` with ``spec``'s failures (:func:`_failure_key`: the same
+    failure kinds and values, trench goal, rover and family axis) and layout; their parameters
+    may differ. A table of ``spec``'s own name (the former build) comes first, the others by name.
+
+    Their primitives at a point's very slope, cross slope and failure value (:func:`table_start`)
+    are the starts with which the builder re-checks a search's verdict there
+    (:func:`~offline.rover.table_builder._recheck_from_tables`).
+
+    Unlike :func:`seed_tables` and :func:`family_seed_tables` this admits the former build of the
+    table itself. The rule "a rebuild must not depend on the file it replaces" keeps a rebuild's
+    *answers* from resting on the old file; a start does not: it only adds a candidate, and the
+    candidate is kept only if IPOPT converges from it on today's NLP and the result passes the
+    optimizer's independent check, i.e. it is an optimum of today's problem whatever produced the
+    start. What the rebuild does depend on is the set of points where it finds a primitive (a
+    search's "infeasible" is not a proof): issue 22/23's from-scratch rr_steer_stuck called (0 deg,
+    +45 deg stuck) infeasible at both speeds, while the shipped primitive there passes today's
+    check and a warm run converges from it in 6-7 iterations. Refusing the former file would
+    throw that evidence away; using it, the dependency is recorded (the header's continuation
+    record names the table and its content hash, the point's ``continued_from`` says so), and
+    ``--seed-index none`` still builds from scratch.
+
+    ``index``: an ``index.json`` (or None: none). A table that cannot be loaded is skipped.
+    """
+    from rtctl.table import TableError, load_index
+
+    from .table_builder import _problem, scenario_from_header
+
+    if index is None or not Path(index).is_file():
+        return ()
+    try:
+        infos = load_index(index)
+    except TableError:
+        return ()
+    want = _failure_key(spec.scenario, spec.family)
+    lay = json.loads(_problem(spec.scenario, spec.solver).layout.to_json())
+    out = []
+    for name in sorted(infos, key=lambda n: (n != spec.name, n)):
+        info = infos[name]
+        try:
+            t = _load(str(info.path))
+            sc = scenario_from_header(t.header)
+            key = _failure_key(sc, t.header.get("family"))
+        except (TableError, OSError, ValueError, TypeError, KeyError):
+            continue
+        if key == want and t.header.get("layout") == lay:
+            out.append(str(info.path))
+    return tuple(out)
+
+
+def former_table(spec: Any, index: str | Path | None) -> str | None:
+    """The path of the table of ``spec``'s own name in ``index`` (the file a rebuild replaces) if it
+    poses the same NLP (same parameters, rover, world terms, failures, family and layout); else
+    None. Its optimum at each point is a candidate of the builder's neighbour pass
+    (:func:`~offline.rover.table_builder._polish`), taken only if strictly better and verified."""
+    from .table_builder import scenario_from_header
+
+    for path in failure_tables(spec, index):
+        t = _load(path)
+        if t.name != spec.name:
+            continue
+        try:
+            sc = scenario_from_header(t.header)
+        except (ValueError, TypeError, KeyError):
+            return None
+        same = (_normalised(sc) == _normalised(spec.scenario)
+                and _family_core(t.header.get("family")) == _family_core(spec.family))
+        return path if same else None
+    return None
+
+
+def table_start(spec: Any, path: str, op: Mapping[str, float]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], str] | None:
+    """The table at ``path``'s primal-dual point at ``op``'s slope, cross slope and failure value
+    (exact grid values, within 1e-9; its lowest speed with a primitive) scaled exactly to ``op``'s
+    speed, in the layout's scaled variables: ``(x, lam_x, lam_g, "<name>@<hash[:12]>")``, or None
+    when the table has no primitive there. Omega and its bound multipliers move by the speed ratio
+    (:func:`~offline.rover.table_builder.twin_resolve`)."""
+    from .table_builder import _problem
+
+    t = _load(path)
+    lay = _problem(spec.scenario, spec.solver).layout
+    om = [lay.var("omega", w) for w in lay.wheels]
+    keys = ("slope", "cross_slope") + ((spec.family["axis"],) if spec.family is not None else ())
+    want = {k: float(op[k]) if k in op else float(getattr(spec.scenario, k)) for k in keys}
+    sel: list[list[int]] = []
+    for k in t.axis_order:
+        ax = np.asarray(t.axes[k], dtype=float)
+        if k in want:
+            hit = np.flatnonzero(np.abs(ax - want[k]) <= 1e-9)
+            if not hit.size:
+                return None
+            sel.append([int(hit[0])])
+        else:
+            sel.append(list(range(len(ax))))
+    for idx in (tuple(int(i) for i in c) for c in np.array(np.meshgrid(*sel, indexing="ij")).reshape(len(sel), -1).T):
+        if t.status_at(idx) != "optimal":
+            continue
+        ratio = float(op.get("speed", spec.scenario.speed)) / t.grid_point(idx).get("speed", float(t.header["scenario"]["speed"]))
+        x = np.array(t.arrays["x"][idx], dtype=float)
+        x[om] *= ratio
+        lam_x = np.array(t.arrays["lam_x"][idx], dtype=float) * lay.variable_scale
+        lam_x[om] /= ratio
+        lam_g = np.array(t.arrays["lam_g"][idx], dtype=float) * lay.constraint_scale
+        return x / lay.variable_scale, lam_x, lam_g, f"{t.name}@{t.header['content_hash'][:12]}"
     return None
 
 

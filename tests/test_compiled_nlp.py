@@ -149,6 +149,14 @@ def test_a_small_table_under_auto_compiles_nothing():
     assert big.grid.size == TB.COMPILE_MIN_POINTS and TB.compile_mode(big) == "auto"
     for mode in ("on", "off"):
         assert TB.compile_mode(replace(spec, build=TB.BuildOptions(compile=mode))) == mode
+    # counted per NLP structure over a build of several tables: a small table compiles when the
+    # tables sharing its structure are large together; another soil or a trench is another structure
+    assert TB.compile_mode(spec, points=TB.COMPILE_MIN_POINTS) == "auto"
+    scen = toml.parent
+    keys = {n: TB.structure_key(TB.table_spec(scen / f"{n}.toml")) for n in
+            ("nominal", "rr_unpowered", "rr_locked", "rr_trench_clean", "rr_trench_clean_mu01")}
+    assert keys["nominal"] == keys["rr_unpowered"] == keys["rr_locked"]
+    assert len({keys["nominal"], keys["rr_trench_clean"], keys["rr_trench_clean_mu01"]}) == 3
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices["tables"]
     build = next(a for a in sub._actions if getattr(a, "choices", None) and "build" in a.choices).choices["build"]
     assert f"fewer than {TB.COMPILE_MIN_POINTS} grid points" in " ".join(build.format_help().split())

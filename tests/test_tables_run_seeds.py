@@ -42,3 +42,25 @@ def test_run_seeds_build_the_failure_free_table_first_and_seed_the_others_from_i
     assert a.header["continuation"] == b.header["continuation"]
     for k in ("x", "status", "objective"):
         assert (a.arrays[k].tobytes() == b.arrays[k].tobytes()), k
+
+
+def test_build_tables_counts_the_points_of_every_table_on_an_nlp_structure(tmp_path, monkeypatch):
+    """build_tables hands each table the points of all its tables on the same NLP structure, so a
+    small table compiles with the large ones (compile_mode) instead of starting in the virtual
+    machine while they compile; the trench table is a structure of its own."""
+    import offline.rover.table_builder as TB
+
+    got: dict[str, int | None] = {}
+
+    def fake(spec, out_dir, **kw):
+        got[spec.name] = kw.get("structure_points")
+        return Path(out_dir) / f"{spec.name}.npz", {}
+
+    monkeypatch.setattr(TB, "build_table", fake)
+    opts = BuildOptions(compile="auto", seed_index="none")
+    specs = [table_spec(SCEN / "rr_unpowered.toml", build=opts), table_spec(SCEN / "nominal.toml", build=opts),
+             table_spec(SCEN / "rr_trench_clean.toml", grid="slope=0;cross_slope=0;speed=3", build=opts)]
+    build_tables(specs, tmp_path, jobs=1, progress=False)
+    n_unp, n_nom, n_tr = (s.grid.size for s in specs)
+    assert got == {"rr_unpowered": n_unp + n_nom, "nominal": n_unp + n_nom, "rr_trench_clean": n_tr}
+    assert TB.compile_mode(specs[0]) == "cached" and TB.compile_mode(specs[0], got["rr_unpowered"]) == "auto"

@@ -66,7 +66,7 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "RUN_SEED_INDEX", "seeds_others", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "structure_key", "RUN_SEED_INDEX", "seeds_others", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
@@ -97,24 +97,45 @@ _DEFAULT_DISPLAY = {
 }
 
 COMPILE_MIN_POINTS = 64
-"""Under ``build.compile = "auto"`` a table of fewer grid points does not compile its NLP: it uses
-the compiled library if the cache already holds it (another table of the same parameter set,
-rover and world terms built it), else runs the same per-wheel graph in casadi's virtual machine
+"""Under ``build.compile = "auto"`` an NLP structure (:func:`structure_key`) with fewer points to
+solve than this -- a table's grid, or in :func:`build_tables` the grids of all its tables on that
+structure -- is not compiled: a table uses the compiled library if the cache already holds it
+(an earlier build of the same parameter set, rover and world terms), else runs the same per-wheel
+graph in casadi's virtual machine
 (compile mode ``"cached"``, :mod:`offline.rover.compiled_nlp`; the same graph, so the same table
 bytes either way). Break-even from measured costs: a compilation takes 92-136 CPU s once per NLP
 structure (``SolverOptions.nlp_structure``; the 2026-11-28 01:26 rebuild of every shipped table: 3
 compilations, 409 CPU s), and the per-wheel graph in the virtual machine costs about 1.6 CPU s a
 grid point more than compiled (README's worked example: 1.32 x 610 CPU s against 391 for 252
 points, ``tests/bench/results_nlp_structure.md``), so a compilation pays from about 56-83 points.
-The shipped ``rr_trench_clean_mu01`` (3 points, a soil of its own) compiled a library for itself."""
+The shipped ``rr_trench_clean_mu01`` (3 points, a soil of its own) compiled a library for itself.
+Counted per structure over the call, not per table: decided per table, the small tables that share
+the nominal structure (rr_unpowered 36 points, the locked ones 6) started in the virtual machine
+while the large ones were still compiling it, and paid about 1.2 CPU s a point more for the run
+(a cold rebuild of every shipped table: 911 CPU s against 530 warm, of which 181 were the compiler)."""
 
 
-def compile_mode(spec: "TableSpec") -> str:
+def compile_mode(spec: "TableSpec", points: int | None = None) -> str:
     """The NLP's compile mode for building ``spec`` (:attr:`~offline.rover.primitives.SolverOptions.compile`):
-    ``build.compile``, except ``"auto"`` on a grid of fewer than :data:`COMPILE_MIN_POINTS`
-    points, which becomes ``"cached"`` (no compilation; a cached library is used)."""
+    ``build.compile``, except ``"auto"`` with fewer than :data:`COMPILE_MIN_POINTS` points to
+    solve on this NLP structure, which becomes ``"cached"`` (no compilation; a cached library is
+    used). ``points``: those points (:func:`build_tables` sums the grids of the tables that share
+    the structure, :func:`structure_key`); default ``spec``'s grid alone."""
     mode = str(spec.build.compile)
-    return "cached" if mode == "auto" and spec.grid.size < COMPILE_MIN_POINTS else mode
+    n = spec.grid.size if points is None else points
+    return "cached" if mode == "auto" and n < COMPILE_MIN_POINTS else mode
+
+
+def structure_key(spec: "TableSpec") -> str:
+    """What decides the NLP's casadi graph, hence its compiled library (the arguments of
+    :func:`~offline.rover.primitives.get_problem` but the solver's data): parameter set, rover,
+    exit angle, trench wheel and world terms. The grid's values and the failures are parameters
+    and bounds of one NLP."""
+    from . import primitives as P
+
+    sc = spec.scenario
+    return repr((sc.params, sc.rover, sc.exit_angle, sc.trench.wheel if sc.trench else None,
+                 sorted(P.world_of(sc).items())))
 
 
 MAX_RETRY_NEIGHBOURS = 3
@@ -1409,16 +1430,21 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
     second = [s for s, r in zip(specs, run) if r and not seeds_others(s)]
     if not any(run) or not second:
         first, second = list(specs), []
+    points: dict[str, int] = {}  # per NLP structure, the points of every table on it (compile_mode)
+    for s in specs:
+        points[structure_key(s)] = points.get(structure_key(s), 0) + s.grid.size
+    shared = {s.name: points[structure_key(s)] for s in specs}
     ex, client = _executor(jobs, scheduler)
     built: list[tuple[Path, dict[str, Any]]] = []
     seed_ix = Path(out_dir) / RUN_SEED_INDEX
     try:
-        built += _build_stage(first, out_dir, ex, client, progress, keep_partial, inputs, on_done, tables_at_once, None)
+        built += _build_stage(first, out_dir, ex, client, progress, keep_partial, inputs, on_done, tables_at_once, None,
+                              shared)
         if second:
             seeds = [pth for (pth, _), s in zip(built, first) if s.build.seed_index == "run"]
             ix = write_index(out_dir, seeds, index_name=RUN_SEED_INDEX) if seeds else None
             built += _build_stage(second, out_dir, ex, client, progress, keep_partial, inputs, on_done,
-                                  tables_at_once, ix)
+                                  tables_at_once, ix, shared)
             seed_ix.unlink(missing_ok=True)
     finally:
         if client is not None:
@@ -1430,14 +1456,15 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
 
 def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executor | None, client: Any, progress: bool,
                  keep_partial: bool, inputs: Sequence[str | Path], on_done: Callable[[Path, dict[str, Any]], None] | None,
-                 tables_at_once: int | None, run_index: Path | None) -> list[tuple[Path, dict[str, Any]]]:
+                 tables_at_once: int | None, run_index: Path | None,
+                 shared: Mapping[str, int]) -> list[tuple[Path, dict[str, Any]]]:
     """The tables ``specs`` on the shared workers ``ex`` (:func:`build_tables`)."""
     at_once = 1 if ex is None else min(len(specs), tables_at_once or len(specs))
     built: list[tuple[Path, dict[str, Any]]] = []
     if at_once <= 1:
         for spec in specs:
             res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex,
-                              run_index=run_index)
+                              run_index=run_index, structure_points=shared[spec.name])
             built.append(res)
             if on_done is not None:
                 on_done(*res)
@@ -1446,7 +1473,8 @@ def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executo
     futs: list[cf.Future[tuple[Path, dict[str, Any]]]] = []
     try:
         futs = [tp.submit(build_table, spec, out_dir, progress=progress, keep_partial=keep_partial,
-                          inputs=inputs, executor=ex, run_index=run_index) for spec in specs]
+                          inputs=inputs, executor=ex, run_index=run_index, structure_points=shared[spec.name])
+                for spec in specs]
         for fut in futs:
             res = fut.result()
             built.append(res)
@@ -1466,19 +1494,21 @@ def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executo
 def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                 progress: bool = True, keep_partial: bool = False,
                 inputs: Sequence[str | Path] = (), executor: cf.Executor | None = None,
-                run_index: Path | None = None) -> tuple[Path, dict[str, Any]]:
+                run_index: Path | None = None, structure_points: int | None = None) -> tuple[Path, dict[str, Any]]:
     """Build (or resume) one table and write ``<out_dir>/<name>.npz`` atomically.
 
     Runs on ``executor`` if given, else on ``jobs`` local processes or the Dask scheduler at
     ``scheduler``. Returns the path and a summary (grid points, statuses, feasible fraction,
     file size, retries, trust radius). Finished chains are checkpointed; a rerun resumes.
-    ``run_index``: the seed index of ``build.seed_index = "run"`` (:func:`build_tables`).
+    ``run_index``: the seed index of ``build.seed_index = "run"`` (:func:`build_tables`);
+    ``structure_points``: the points of every table of the call on ``spec``'s NLP structure
+    (:func:`compile_mode`).
     """
     from tqdm import tqdm
 
     solver: Any = spec.solver
     if dataclasses.is_dataclass(solver) and not isinstance(solver, type) and hasattr(solver, "compile"):
-        spec = replace(spec, solver=replace(solver, compile=compile_mode(spec)))  # build.compile -> the NLP (not data)
+        spec = replace(spec, solver=replace(solver, compile=compile_mode(spec, structure_points)))  # build.compile -> the NLP (not data)
     out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
     ck = _Checkpoint(out / f".{spec.name}.partial", spec.key())
     twin_of = {f: speed_twin(spec.grid, f) for f in range(spec.grid.size)} if spec.build.speed_twins else {}

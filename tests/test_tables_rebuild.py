@@ -186,25 +186,53 @@ def test_a_searchs_verdict_is_re_checked_from_the_former_build_at_the_point(tmp_
     assert float(t.arrays["objective"].ravel()[0]) == pytest.approx(float(shipped.arrays["objective"][0, 0, 0, j]), rel=1e-6)
 
 
-def test_a_sibling_soils_table_re_checks_the_verdict_and_tables_are_chosen_by_failure(tmp_path):
+def test_a_sibling_soils_table_re_checks_the_verdict_and_tables_are_chosen_by_failure(tmp_path, monkeypatch):
     """rr_trench_clean_mu01 (grouser area ratio 0.1) at a 15 mm trench: the search calls it
     infeasible; rr_trench_clean (the same failure on mu = 0.5) has a primitive at the point, and
-    one IPOPT run from it finds mu01's optimum. Tables of the same failures only: the former build
-    first, the sibling soil next; another failure, or none, is no such table."""
+    one IPOPT run from it finds mu01's optimum. A folder build from scratch (``seed_index =
+    "none"``) that holds both builds mu01 after its sibling, listed first, and re-checks it from
+    the sibling's file as soon as it is written (here the shipped file stands in for the sibling's build, so that only
+    mu01 is solved); the old builder built both at once from scratch and called the point
+    infeasible. Tables of the same failures only: the former build first, the sibling soil next;
+    another failure, or none, is no such table."""
+    import shutil
+
     from offline.rover import table_continuation as TC
 
+    none = replace(FAST, seed_index="none")
     spec = table_spec(SCEN / "rr_trench_clean_mu01.toml", grid="slope=0;cross_slope=0;speed=3;trench_depth=15",
-                      build=replace(FAST, seed_index=str(_index(tmp_path / "sib", ["rr_trench_clean"]))))
-    path, summary = build_table(spec, tmp_path / "out", jobs=1, progress=False)
-    t = load_table(path)
-    assert summary["statuses"] == {"optimal": 1}
+                      build=none)
+    lead = table_spec(SCEN / "rr_trench_clean.toml", grid="slope=0;cross_slope=0;speed=3;trench_depth=10,15",
+                      build=none)
+    assert TB.sibling_leaders([spec, lead]) == {"rr_trench_clean_mu01": "rr_trench_clean"}
+    real = TB.build_table
+
+    def build(s, out_dir, **kw):
+        if s.name != "rr_trench_clean":
+            return real(s, out_dir, **kw)
+        assert kw.get("recheck_index") is None
+        dst = Path(out_dir) / "rr_trench_clean.npz"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / "tables" / "rr_trench_clean.npz", dst)
+        return dst, {"statuses": {}}
+
+    monkeypatch.setattr(TB, "build_table", build)
+    order: list[str] = []
+    TB.build_tables([spec, lead], tmp_path / "out", jobs=1, progress=False, on_done=lambda p, s: order.append(p.stem))
+    assert order == ["rr_trench_clean", "rr_trench_clean_mu01"]
+    assert not list((tmp_path / "out").glob(".recheck-index-*")) and TB.RUN_RECHECK_INDEX.startswith(".recheck-index-")
+    t = load_table(tmp_path / "out" / "rr_trench_clean_mu01.npz")
+    assert t.status.ravel().tolist() == [0]
     assert t.header["continuation"]["started_from"]["0"].startswith("table rr_trench_clean@")
+    assert [r["name"] for r in t.header["continuation"]["recheck_tables"]] == ["rr_trench_clean"]
+    assert t.header["continuation"]["seed_tables"] == []
     mu01 = load_table(ROOT / "tables" / "rr_trench_clean_mu01.npz")
     assert float(t.arrays["objective"].ravel()[0]) == pytest.approx(float(mu01.arrays["objective"].ravel()[2]), rel=1e-6)
     shipped = TB._seed_index("shipped")
     assert [Path(p).stem for p in TC.failure_tables(spec, shipped)] == ["rr_trench_clean_mu01", "rr_trench_clean"]
     nominal = table_spec(SCEN / "nominal.toml", grid="slope=0;cross_slope=0;speed=2")
     assert [Path(p).stem for p in TC.failure_tables(nominal, shipped)] == ["nominal"]
+    assert TB.sibling_leaders([spec, lead, nominal]) == {"rr_trench_clean_mu01": "rr_trench_clean"}
 
 
 def test_a_described_shipped_family_table_seeds_its_mirror_image(tmp_path):

@@ -23,8 +23,8 @@ trench_depth [mm] (a trench goal). Defaults: slope=0:25:5; cross_slope=-10,0,10;
 steer_stuck=-90:90:30; rim_speed_cap_fraction=0.25,0.5,0.75,1; trench_depth=20:35:5.
 
 Example: offnominal tables build my_failure.toml --grid "slope=0:20:5;speed=3" --jobs 2 --out tables/
-A folder may hold grids.toml with [grids] <file stem> = "<grid>" per table (used when --grid is not given)
-and [refine] <file stem> = {tol = 0.5, max_points = 200} (grid refinement, as --refine-tol/--max-points).
+A folder may hold grids.toml with [grids] <file stem> = "<grid>" per table (used when --grid is not given,
+also when one file of the folder is built alone) and [refine] <file stem> = {tol = 0.5, max_points = 200} (grid refinement, as --refine-tol/--max-points).
 
 Refinement (--refine-tol X --max-points N): after the grid is solved, each axis cell is checked at
 its midpoint (other axes at up to --refine-samples grid values) against a direct solve; cells off
@@ -125,8 +125,16 @@ def cmd_build(args: argparse.Namespace) -> int:
     try:
         from ..rover.table_refine import RefineOptions
 
-        grids = _folder_grids(src) if src.is_dir() else {}
-        refines = _folder_refine(src) if src.is_dir() else {}
+        # a single file takes its folder's grids.toml too: the shipped tables/scenarios/X.toml alone
+        # builds the shipped grid of X, not the default one
+        folder = src if src.is_dir() else src.parent
+        grids = _folder_grids(folder)
+        refines = _folder_refine(folder)
+        if not src.is_dir():
+            took = ([] if args.grid or src.stem not in grids else ["grid (--grid overrides)"]) + (
+                ["refinement (--refine-tol/--max-points override)"] if src.stem in refines and args.refine_tol is None else [])
+            if took:
+                print(f"{src.stem}: {' and '.join(took)} from {folder / 'grids.toml'}")
         if (args.refine_tol is None) != (args.max_points is None):
             raise BuildError("--refine-tol and --max-points go together (e.g. --refine-tol 0.5 --max-points 200)")
         cli_refine = (RefineOptions(args.refine_tol, args.max_points, args.refine_rounds, args.refine_samples)
@@ -385,8 +393,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--compile", choices=("auto", "on", "off"), default=None,
                    help="IPOPT evaluates the NLP as C compiled once per NLP structure and cached in "
                         "$XDG_CACHE_HOME/offnominal (on), in casadi's virtual machine (off), or compiled when a C "
-                        "compiler is found (auto; a table of fewer than 64 grid points compiles nothing and uses a "
-                        "library only if it is cached); default auto, or $OFFNOMINAL_COMPILE. Compiled, the NLP is built "
+                        "compiler is found (auto; an NLP structure with fewer than 64 grid points over this "
+                        "command's tables compiles nothing and uses a library only if it is cached); default auto, or $OFFNOMINAL_COMPILE. Compiled, the NLP is built "
                         "per wheel (SolverOptions.nlp_structure auto): README's worked example in about 0.6 of the CPU "
                         "of the virtual machine, the compilation paid once per machine and NLP (about 90 CPU s)")
     b.add_argument("--keep-partial", action="store_true", help="keep the checkpoint folder after a finished build")

@@ -66,7 +66,7 @@ from rtctl.table import (CONTROLLER_NAMES, POINT_FIELDS, SCHEMA, SCHEMA_VERSION,
 from ..files import check_output_dir, write_bytes, write_text
 
 __all__ = [
-    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "structure_key", "RUN_SEED_INDEX", "seeds_others", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
+    "AXES", "FAMILY_KINDS", "TABLE_SOLVER_BUDGETS", "MAX_RETRY_NEIGHBOURS", "COMPILE_MIN_POINTS", "compile_mode", "structure_key", "RUN_SEED_INDEX", "RUN_RECHECK_INDEX", "sibling_leaders", "seeds_others", "build_tables", "BuildError", "GridSpec", "TableSpec", "BuildOptions", "default_grid", "parse_grid",
     "family_of", "scenario_at", "failure_header", "describe_table", "table_spec", "chains", "solve_chain", "point_data", "build_table", "write_index",
     "encode", "decode", "scenario_from_header", "linearisation_errors", "retry_point", "point_trust_radius",
     "predicted_start", "polish_point", "upgrade_table", "speed_twin", "twin_resolve",
@@ -1388,6 +1388,36 @@ RUN_SEED_INDEX = ".seed-index-run.json"
 written beside them in the output folder while the others are built, removed at the end."""
 
 
+RUN_RECHECK_INDEX = ".recheck-index-{}.json"
+"""The index (``.format(follower name)``) of the leader a :func:`build_tables` call built for a
+*follower* (:func:`sibling_leaders`), whose primitives re-check the follower's search verdicts;
+written in the output folder while the follower is built, removed at the end."""
+
+
+def sibling_leaders(specs: Sequence[TableSpec]) -> dict[str, str]:
+    """Follower name -> leader name among ``specs``: tables built with the continuation schedule
+    that pose the same failures (:func:`~offline.rover.table_continuation.failure_tables`' rule:
+    failure kinds and values, trench goal, rover and family; parameters and world may differ) are
+    siblings, and every sibling but the one with the most grid points (ties: the first name) is
+    a follower of it. E.g. ``rr_trench_clean_mu01`` (3 points on a soil of its own) follows
+    ``rr_trench_clean`` (108 points): built after it, its search verdicts are re-checked from the
+    leader's primitives at the same point, as they would be from a shipped sibling in a seed
+    index, so a from-scratch folder build (``--seed-index none``) no longer loses the one optimum
+    (15 mm) that only a sibling's start reaches."""
+    from . import table_continuation as TC
+
+    groups: dict[str, list[TableSpec]] = {}
+    for s in specs:
+        if s.build.schedule == "continuation":
+            groups.setdefault(TC._failure_key(s.scenario, s.family), []).append(s)
+    out: dict[str, str] = {}
+    for g in groups.values():
+        if len(g) > 1:
+            lead = min(g, key=lambda s: (-s.grid.size, s.name))
+            out.update({s.name: lead.name for s in g if s is not lead})
+    return out
+
+
 def seeds_others(spec: TableSpec) -> bool:
     """Whether ``spec``'s table can seed other tables' continuation (no failure, no trench goal,
     no family axis: :func:`~offline.rover.table_continuation.seed_tables`)."""
@@ -1413,9 +1443,13 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
 
     Specs with ``build.seed_index = "run"`` are built in two stages: first those that can seed
     others (:func:`seeds_others`, built without seeds), then the rest, seeded from the first
-    stage's files through a temporary index (:data:`RUN_SEED_INDEX`); ``on_done`` follows the
-    stages (within each, the order of ``specs``). A file is then the same as when built alone
-    after its seed tables.
+    stage's files through a temporary index (:data:`RUN_SEED_INDEX`). Whatever the seed index, a
+    sibling's follower (:func:`sibling_leaders`; siblings are always in the same stage) builds
+    beside the others and, at its re-check of search verdicts, waits for its leader's file and
+    re-checks also from it (a temporary index, :data:`RUN_RECHECK_INDEX`; its header's
+    ``continuation.recheck_tables`` names it). ``on_done`` follows the stages (within each, the
+    order of ``specs``, followers after the others). A file is then the same as when built alone
+    after its seed tables (and, for a follower, its leader).
     """
     for spec in specs:  # every output and partial build checked before any work
         out = check_output_dir(out_dir, inputs=list(inputs), names=[f"{spec.name}.npz"])
@@ -1441,12 +1475,13 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
         built += _build_stage(first, out_dir, ex, client, progress, keep_partial, inputs, on_done, tables_at_once, None,
                               shared)
         if second:
-            seeds = [pth for (pth, _), s in zip(built, first) if s.build.seed_index == "run"]
+            run_first = {s.name for s in first if s.build.seed_index == "run"}
+            seeds = [pth for pth, _ in built if Path(pth).stem in run_first]
             ix = write_index(out_dir, seeds, index_name=RUN_SEED_INDEX) if seeds else None
             built += _build_stage(second, out_dir, ex, client, progress, keep_partial, inputs, on_done,
                                   tables_at_once, ix, shared)
-            seed_ix.unlink(missing_ok=True)
     finally:
+        seed_ix.unlink(missing_ok=True)
         if client is not None:
             client.close()
         elif ex is not None:
@@ -1454,17 +1489,45 @@ def build_tables(specs: Sequence[TableSpec], out_dir: str | Path, jobs: int = 1,
     return built
 
 
+def _identity(p: Path) -> Path:
+    return p
+
+
+def _result_path(fut: cf.Future[tuple[Path, dict[str, Any]]]) -> Path:
+    """The file of a table build's future (waits for it)."""
+    return fut.result()[0]
+
+
 def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executor | None, client: Any, progress: bool,
                  keep_partial: bool, inputs: Sequence[str | Path], on_done: Callable[[Path, dict[str, Any]], None] | None,
                  tables_at_once: int | None, run_index: Path | None,
                  shared: Mapping[str, int]) -> list[tuple[Path, dict[str, Any]]]:
-    """The tables ``specs`` on the shared workers ``ex`` (:func:`build_tables`)."""
+    """The tables ``specs`` on the shared workers ``ex`` (:func:`build_tables`): leaders first; a
+    follower (:func:`sibling_leaders`) builds beside the others and waits for its leader's file
+    only at its re-check of search verdicts."""
+    follows = sibling_leaders(specs)
+    specs = [s for s in specs if s.name not in follows] + [s for s in specs if s.name in follows]
     at_once = 1 if ex is None else min(len(specs), tables_at_once or len(specs))
     built: list[tuple[Path, dict[str, Any]]] = []
+    done: dict[str, Callable[[], Path]] = {}
+
+    def one(spec: TableSpec) -> tuple[Path, dict[str, Any]]:
+        rix = Path(out_dir) / RUN_RECHECK_INDEX.format(spec.name)
+
+        def leader_index() -> Path:  # called by the follower's build at its re-check phase
+            return write_index(out_dir, [done[follows[spec.name]]()], index_name=rix.name)
+
+        try:
+            return build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex,
+                               run_index=run_index, structure_points=shared[spec.name],
+                               recheck_index=leader_index if spec.name in follows else None)
+        finally:
+            rix.unlink(missing_ok=True)
+
     if at_once <= 1:
         for spec in specs:
-            res = build_table(spec, out_dir, progress=progress, keep_partial=keep_partial, inputs=inputs, executor=ex,
-                              run_index=run_index, structure_points=shared[spec.name])
+            res = one(spec)
+            done[spec.name] = functools.partial(_identity, res[0])
             built.append(res)
             if on_done is not None:
                 on_done(*res)
@@ -1472,9 +1535,10 @@ def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executo
     tp = cf.ThreadPoolExecutor(max_workers=at_once, thread_name_prefix="table")
     futs: list[cf.Future[tuple[Path, dict[str, Any]]]] = []
     try:
-        futs = [tp.submit(build_table, spec, out_dir, progress=progress, keep_partial=keep_partial,
-                          inputs=inputs, executor=ex, run_index=run_index, structure_points=shared[spec.name])
-                for spec in specs]
+        for spec in specs:  # a follower is queued after its leader, so it never waits on a table not yet started
+            fut = tp.submit(one, spec)
+            done[spec.name] = functools.partial(_result_path, fut)
+            futs.append(fut)
         for fut in futs:
             res = fut.result()
             built.append(res)
@@ -1494,7 +1558,8 @@ def _build_stage(specs: Sequence[TableSpec], out_dir: str | Path, ex: cf.Executo
 def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: str | None = None,
                 progress: bool = True, keep_partial: bool = False,
                 inputs: Sequence[str | Path] = (), executor: cf.Executor | None = None,
-                run_index: Path | None = None, structure_points: int | None = None) -> tuple[Path, dict[str, Any]]:
+                run_index: Path | None = None, structure_points: int | None = None,
+                recheck_index: Path | Callable[[], Path] | None = None) -> tuple[Path, dict[str, Any]]:
     """Build (or resume) one table and write ``<out_dir>/<name>.npz`` atomically.
 
     Runs on ``executor`` if given, else on ``jobs`` local processes or the Dask scheduler at
@@ -1502,7 +1567,10 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
     file size, retries, trust radius). Finished chains are checkpointed; a rerun resumes.
     ``run_index``: the seed index of ``build.seed_index = "run"`` (:func:`build_tables`);
     ``structure_points``: the points of every table of the call on ``spec``'s NLP structure
-    (:func:`compile_mode`).
+    (:func:`compile_mode`); ``recheck_index``: an index of tables built in the same call whose
+    primitives also re-check this table's search verdicts (:func:`sibling_leaders`; only tables
+    with the same failures are used), or a function returning it, called (and waited for) when
+    the build reaches that re-check, so the rest of the build runs beside the leader's.
     """
     from tqdm import tqdm
 
@@ -1525,6 +1593,8 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         seeds = TC.seed_tables(spec, index)
         fam_seeds = TC.family_seed_tables(spec, index)
         same_failures = TC.failure_tables(spec, index)
+        if isinstance(recheck_index, Path):
+            same_failures += tuple(p for p in TC.failure_tables(spec, recheck_index) if p not in same_failures)
         former = TC.former_table(spec, index)
         kind = "group"
         for i, g in enumerate(TC.group_points(spec.grid)):
@@ -1605,6 +1675,9 @@ def build_table(spec: TableSpec, out_dir: str | Path, jobs: int = 1, scheduler: 
         if twin_of:
             bar.set_description(f"{spec.name} (speed twins)")
             _twin_pass(spec, recs, twin_of, ck, ex, "twin")
+        if continuation and callable(recheck_index):
+            bar.set_description(f"{spec.name} (waiting for its sibling's table)")
+            same_failures += tuple(p for p in TC.failure_tables(spec, recheck_index()) if p not in same_failures)
         bar.set_description(f"{spec.name} (re-checking infeasible verdicts)")
         rechecked = _recheck_infeasible(spec, recs, ck, ex, tried_pairs, twin_of if continuation else None,
                                         same_failures)

@@ -6,7 +6,8 @@ corner whose capped wheel sits on the wheel model's zero-slip kink (fraction 1, 
 along the wheel's steering (4 deg off the NLP's optimum after five ticks, creeping ~0.05 deg a
 tick). At an off-grid unpowered point the proximal terms (regularisation and command weight
 1e-5 of the normalised objective, above the exact reduced curvature 1e-7-1e-6) held each tick's
-step to a constant and the speeds were 6 % off after five ticks. The structured Hessian
+step to a constant and the speeds were 6 % off after five ticks (10 % at today's point, on the
+rebuilt table). The structured Hessian
 (:meth:`rtctl.rti.RealTimeIteration._structured_hessian`) and the 1e-8 floors fix both; each
 test fails with the previous settings (``PREVIOUS``), which the last test checks.
 """
@@ -31,7 +32,10 @@ DEG = math.pi / 180
 
 # strictly between grid values (tests/bench/bench_online_step.py accuracy --seed 0 drew them)
 RIM_CAP = {"cross_slope": -0.062711, "rim_speed_cap_fraction": 0.939809, "slope": 0.039165, "speed": 0.032534}
-UNPOWERED = {"cross_slope": -0.052187, "slope": 0.195404, "speed": 0.028582}
+UNPOWERED = {"cross_slope": -0.0009, "slope": 0.230956, "speed": 0.035716}
+# (the shipped rr_unpowered rebuilt on 2026-11-28 starts closer to the optimum at the former point
+# (-0.052187, 0.195404, 0.028582), where the previous settings now end 1.7 % off and pass; this one,
+# drawn by a seeded search over the table (numpy default_rng(0), the 28th draw), is where they do not)
 
 NO_CONTINUATION = replace(QpSettings(), restart_continuation_stages=0)
 """The restart without the parameter continuation from the cell's corners (issue 22): the tests of
@@ -124,7 +128,7 @@ def test_five_ticks_at_a_constant_point_reach_the_nlp_optimum(case, request):
     _, p, rti, xs, _ = _ticks(t, op, 5, NO_CONTINUATION)
     ds, db, df = _agreement(t, rti, p, xs[-1], xstar)
     # issue-20 targets: speeds 2 %, steering 0.3 deg, objective 0.5 % (measured: rim cap 0.02 %,
-    # 0.003 deg; unpowered 0.1 %, 0.04 deg)
+    # 0.003 deg; unpowered 0.01 %, 0.06 deg)
     assert ds <= 0.02 and db <= 0.3 and df <= 0.005, (ds, db, df)
 
 

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--distance", type=float, default=1.5)
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--controllers", default=",".join(CONTROLLERS))
-    ap.add_argument("--truths", default=",".join(TRUTHS), help="comma list of: " + ", ".join(TRUTHS))
+    ap.add_argument("--truths", default=",".join(TRUTHS), help="comma list of: " + ", ".join(TRUTHS).replace("%", "%%"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     check_output_path(out)
